@@ -1,0 +1,83 @@
+//! Options and helpers shared by the subcommands: `--quiet`, `--json`, `--force`, and the
+//! terminal progress bar.
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use photostereo::progress::Progress;
+use std::io::IsTerminal;
+use std::sync::Mutex;
+
+/// Options common to every subcommand that writes output.
+#[derive(Args, Debug, Clone)]
+pub struct OutputOpts {
+    /// Print nothing but errors.
+    #[arg(short, long)]
+    pub quiet: bool,
+    /// Print a JSON summary on stdout (for scripts) instead of text.
+    #[arg(long)]
+    pub json: bool,
+    /// Replace the output if it exists.
+    #[arg(long)]
+    pub force: bool,
+}
+
+impl OutputOpts {
+    /// Whether human-readable text should be printed.
+    pub fn text(&self) -> bool {
+        !self.quiet && !self.json
+    }
+
+    /// A progress bar on stderr when it is a terminal and output is not quiet.
+    pub fn progress(&self) -> Bar {
+        Bar {
+            enabled: !self.quiet && std::io::stderr().is_terminal(),
+            bar: Mutex::new(None),
+        }
+    }
+}
+
+/// A terminal progress bar implementing the library's [`Progress`].
+pub struct Bar {
+    enabled: bool,
+    bar: Mutex<Option<ProgressBar>>,
+}
+
+impl Progress for Bar {
+    fn begin(&self, stage: &str, total: u64) {
+        if !self.enabled {
+            return;
+        }
+        let bar = ProgressBar::new(total);
+        if let Ok(style) =
+            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed}")
+        {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar.set_message(stage.to_string());
+        if let Ok(mut b) = self.bar.lock() {
+            *b = Some(bar);
+        }
+    }
+    fn advance(&self, units: u64) {
+        if let Ok(b) = self.bar.lock() {
+            if let Some(bar) = b.as_ref() {
+                bar.inc(units);
+            }
+        }
+    }
+    fn end(&self) {
+        if let Ok(mut b) = self.bar.lock() {
+            if let Some(bar) = b.take() {
+                bar.finish_and_clear();
+            }
+        }
+    }
+}
+
+/// Prints a JSON value on stdout.
+pub fn print_json(value: &serde_json::Value) {
+    println!(
+        "{}",
+        serde_json::to_string_pretty(value).unwrap_or_default()
+    );
+}

@@ -1,0 +1,559 @@
+//! Capture loading: the DiLiGenT layout, the list-file layout and explicit image lists
+//! (CONVENTIONS.md, "Capture layouts"), decoded in parallel into one sample store.
+//!
+//! Samples are stored pixel-major for the pixels inside the mask only:
+//! `samples[(p * N + k) * C + c]` is channel `c` of light `k` at the `p`-th mask pixel, already
+//! divided by light `k`'s intensity. Memory is `4 · P · N · C` bytes (P mask pixels, N lights,
+//! C channels), with a transient second copy of the same size while loading.
+
+use crate::error::{Error, Result};
+use crate::imageio::{read_image, read_mask, Image};
+use crate::lights::Lights;
+use crate::progress::Progress;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// Images, lights and mask of one capture, intensity-normalised, restricted to the mask.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Channels per image (1 or 3).
+    pub channels: usize,
+    /// Bits per sample of the source images (8, 16 or 32); 32 for in-memory float data.
+    pub bit_depth: u8,
+    /// The lights, one per image, in image order.
+    pub lights: Lights,
+    /// `height * width` flags, row-major: true inside the object.
+    pub mask: Vec<bool>,
+    /// Row-major flat index (`row * width + col`) of each mask pixel, ascending.
+    pub pixels: Vec<u32>,
+    /// Intensity-normalised samples, `[pixel][light][channel]`.
+    pub samples: Vec<f32>,
+    /// The image files, when loaded from files.
+    pub sources: Vec<PathBuf>,
+    /// Remarks made while loading (path resolution, renormalised lights…).
+    pub notes: Vec<String>,
+}
+
+/// Where a capture's files are: the images, their lights and an optional mask.
+#[derive(Clone, Debug)]
+pub struct CaptureFiles {
+    /// Image files in light order.
+    pub images: Vec<PathBuf>,
+    /// Light directions (and intensities), one per image.
+    pub lights: Lights,
+    /// Optional mask image (non-zero = object).
+    pub mask: Option<PathBuf>,
+    /// Remarks made while resolving the layout.
+    pub notes: Vec<String>,
+}
+
+impl CaptureFiles {
+    /// The DiLiGenT layout: a folder with the images, `filenames.txt` (optional),
+    /// `light_directions.txt`, `light_intensities.txt` (optional) and `mask.png` (optional).
+    pub fn diligent(dir: &Path) -> Result<Self> {
+        Self::diligent_with_lights(dir, None)
+    }
+
+    /// The DiLiGenT layout with the light directions read from `lights` instead of the folder's
+    /// `light_directions.txt` (the folder's intensities are still used when present).
+    pub fn diligent_with_lights(dir: &Path, lights: Option<&Path>) -> Result<Self> {
+        if !dir.is_dir() {
+            return Err(Error::file(
+                dir,
+                "not a folder (expected the DiLiGenT layout)",
+            ));
+        }
+        let lights_path = lights
+            .map(Path::to_path_buf)
+            .unwrap_or_else(|| dir.join("light_directions.txt"));
+        if !lights_path.exists() {
+            return Err(Error::file(
+                &lights_path,
+                "missing: the DiLiGenT layout needs light_directions.txt (or pass --lights)",
+            ));
+        }
+        let mut lights = Lights::read_directions(&lights_path)?;
+        let intens = dir.join("light_intensities.txt");
+        if intens.exists() {
+            lights = lights.read_intensities(&intens)?;
+        }
+        let names = dir.join("filenames.txt");
+        let images: Vec<PathBuf> = if names.exists() {
+            let text = std::fs::read_to_string(&names).map_err(|e| Error::io(&names, e))?;
+            text.lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty())
+                .map(|l| dir.join(l))
+                .collect()
+        } else {
+            let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+                .map_err(|e| Error::io(dir, e))?
+                .filter_map(|e| e.ok().map(|e| e.path()))
+                .filter(|p| {
+                    let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+                    let ext = p
+                        .extension()
+                        .and_then(|e| e.to_str())
+                        .unwrap_or("")
+                        .to_ascii_lowercase();
+                    matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr")
+                        && !name.starts_with("mask")
+                        && !name.starts_with("Normal_gt")
+                })
+                .collect();
+            v.sort();
+            v
+        };
+        let mask = dir.join("mask.png");
+        let mut files = CaptureFiles {
+            images,
+            lights,
+            mask: mask.exists().then_some(mask),
+            notes: Vec::new(),
+        };
+        files.note_renormalised();
+        Ok(files)
+    }
+
+    /// The list-file layout: a text file with the image count, the image paths and the mask path;
+    /// lights from a separate file. Paths are taken relative to the list file's folder and,
+    /// failing that, to its parent.
+    pub fn list_file(list: &Path, lights_path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
+        let lines: Vec<(usize, &str)> = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty())
+            .collect();
+        let (first_line, first) = *lines
+            .first()
+            .ok_or_else(|| Error::file(list, "empty list file"))?;
+        let count: usize = first.parse().map_err(|_| {
+            Error::parse(
+                list,
+                first_line,
+                format!("'{first}': expected the image count"),
+            )
+        })?;
+        if lines.len() < count + 1 {
+            return Err(Error::file(
+                list,
+                format!("announces {count} images but lists {}", lines.len() - 1),
+            ));
+        }
+        let base = list.parent().unwrap_or(Path::new("."));
+        let candidates = [
+            base.to_path_buf(),
+            base.parent().unwrap_or(Path::new(".")).to_path_buf(),
+        ];
+        let resolve = |rel: &str| -> Option<(usize, PathBuf)> {
+            candidates
+                .iter()
+                .enumerate()
+                .map(|(i, b)| (i, b.join(rel)))
+                .find(|(_, p)| p.exists())
+        };
+        let mut images = Vec::with_capacity(count);
+        let mut used_parent = false;
+        for (line, rel) in &lines[1..=count] {
+            let (which, p) = resolve(rel).ok_or_else(|| {
+                Error::parse(
+                    list,
+                    *line,
+                    format!(
+                        "image '{rel}' not found relative to the list file's folder or its parent"
+                    ),
+                )
+            })?;
+            used_parent |= which == 1;
+            images.push(p);
+        }
+        let mask = match lines.get(count + 1) {
+            Some((line, rel)) => Some(
+                resolve(rel)
+                    .ok_or_else(|| Error::parse(list, *line, format!("mask '{rel}' not found")))?
+                    .1,
+            ),
+            None => None,
+        };
+        let lights = Lights::read_directions(lights_path)?;
+        let mut files = CaptureFiles {
+            images,
+            lights,
+            mask,
+            notes: Vec::new(),
+        };
+        if used_parent {
+            files.notes.push(format!(
+                "image paths in {} resolved relative to {}",
+                list.display(),
+                candidates[1].display()
+            ));
+        }
+        files.note_renormalised();
+        Ok(files)
+    }
+
+    /// Explicit image paths with a light file and optional intensities and mask.
+    pub fn explicit(
+        images: Vec<PathBuf>,
+        lights_path: &Path,
+        intensities: Option<&Path>,
+        mask: Option<PathBuf>,
+    ) -> Result<Self> {
+        let mut lights = Lights::read_directions(lights_path)?;
+        if let Some(p) = intensities {
+            lights = lights.read_intensities(p)?;
+        }
+        let mut files = CaptureFiles {
+            images,
+            lights,
+            mask,
+            notes: Vec::new(),
+        };
+        files.note_renormalised();
+        Ok(files)
+    }
+
+    fn note_renormalised(&mut self) {
+        if self.lights.renormalised > 0 {
+            self.notes.push(format!(
+                "{} light direction(s) were not unit length and were normalised",
+                self.lights.renormalised
+            ));
+        }
+    }
+
+    /// Decodes the images in parallel and builds the capture.
+    pub fn load(&self, progress: &dyn Progress) -> Result<Capture> {
+        let n = self.images.len();
+        if n != self.lights.len() {
+            return Err(Error::invalid(format!(
+                "{} images but {} light directions: expected one light per image",
+                n,
+                self.lights.len()
+            )));
+        }
+        if n < 3 {
+            return Err(Error::invalid(format!(
+                "{n} image(s): photometric stereo needs at least three"
+            )));
+        }
+        self.lights.check_rank()?;
+        progress.begin("loading", n as u64);
+        let first = read_image(&self.images[0])?;
+        progress.advance(1);
+        let mask = match &self.mask {
+            Some(path) => {
+                let (h, w, m) = read_mask(path)?;
+                if (h, w) != (first.height, first.width) {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "mask is {}×{} (width×height) but the images are {}×{}",
+                            w, h, first.width, first.height
+                        ),
+                    ));
+                }
+                if !m.iter().any(|&v| v) {
+                    return Err(Error::file(path, "the mask is empty (no non-zero pixel)"));
+                }
+                m
+            }
+            None => vec![true; first.width * first.height],
+        };
+        let pixels: Vec<u32> = mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i as u32)
+            .collect();
+        let (w, h, c) = (first.width, first.height, first.channels);
+        let gather = |k: usize, img: &Image| -> Vec<f32> {
+            let scale = light_scale(&self.lights.intensities[k], c);
+            let mut out = Vec::with_capacity(pixels.len() * c);
+            for &i in &pixels {
+                let base = i as usize * c;
+                for ch in 0..c {
+                    out.push(img.data[base + ch] * scale[ch]);
+                }
+            }
+            out
+        };
+        let first_planes = gather(0, &first);
+        let bit_depth = first.bit_depth;
+        drop(first);
+        let rest: Vec<Result<Vec<f32>>> = (1..n)
+            .into_par_iter()
+            .map(|k| {
+                let path = &self.images[k];
+                let img = read_image(path)?;
+                if (img.width, img.height) != (w, h) {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "image is {}×{} but {} is {}×{}: all images of a capture must share size",
+                            img.width,
+                            img.height,
+                            self.images[0].display(),
+                            w,
+                            h
+                        ),
+                    ));
+                }
+                if img.channels != c {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "image has {} channel(s) but {} has {}: all images must share the channel count",
+                            img.channels,
+                            self.images[0].display(),
+                            c
+                        ),
+                    ));
+                }
+                let planes = gather(k, &img);
+                progress.advance(1);
+                Ok(planes)
+            })
+            .collect();
+        let mut planes = Vec::with_capacity(n);
+        planes.push(first_planes);
+        for r in rest {
+            planes.push(r?);
+        }
+        progress.end();
+        let samples = interleave(&planes, pixels.len(), c);
+        Ok(Capture {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth,
+            lights: self.lights.clone(),
+            mask,
+            pixels,
+            samples,
+            sources: self.images.clone(),
+            notes: self.notes.clone(),
+        })
+    }
+}
+
+/// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities).
+fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {
+    if channels == 1 {
+        let m = (intensity[0] + intensity[1] + intensity[2]) / 3.0;
+        [(1.0 / m) as f32; 3]
+    } else {
+        [
+            (1.0 / intensity[0]) as f32,
+            (1.0 / intensity[1]) as f32,
+            (1.0 / intensity[2]) as f32,
+        ]
+    }
+}
+
+/// Turns light-major planes (`planes[k][p * C + c]`) into the pixel-major sample store.
+fn interleave(planes: &[Vec<f32>], n_pixels: usize, channels: usize) -> Vec<f32> {
+    let n = planes.len();
+    let stride = n * channels;
+    let mut samples = vec![0f32; n_pixels * stride];
+    const CHUNK: usize = 1024;
+    samples
+        .par_chunks_mut(CHUNK * stride)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            let p0 = chunk * CHUNK;
+            for (k, plane) in planes.iter().enumerate() {
+                for (dp, px) in out.chunks_exact_mut(stride).enumerate() {
+                    let src = (p0 + dp) * channels;
+                    px[k * channels..(k + 1) * channels]
+                        .copy_from_slice(&plane[src..src + channels]);
+                }
+            }
+        });
+    samples
+}
+
+impl Capture {
+    /// Builds a capture from decoded images (all of one size and channel count), their lights
+    /// and an optional mask (`height * width`, row-major). Images are divided by the lights'
+    /// intensities as when loading files.
+    pub fn from_images(images: &[Image], lights: Lights, mask: Option<Vec<bool>>) -> Result<Self> {
+        if images.len() != lights.len() {
+            return Err(Error::invalid(format!(
+                "{} images but {} lights",
+                images.len(),
+                lights.len()
+            )));
+        }
+        if images.len() < 3 {
+            return Err(Error::invalid(
+                "photometric stereo needs at least three images",
+            ));
+        }
+        lights.check_rank()?;
+        let (w, h, c) = (images[0].width, images[0].height, images[0].channels);
+        for (k, img) in images.iter().enumerate() {
+            if (img.width, img.height, img.channels) != (w, h, c) {
+                return Err(Error::invalid(format!(
+                    "image {} is {}×{}×{}, expected {}×{}×{}",
+                    k + 1,
+                    img.width,
+                    img.height,
+                    img.channels,
+                    w,
+                    h,
+                    c
+                )));
+            }
+        }
+        let mask = mask.unwrap_or_else(|| vec![true; w * h]);
+        if mask.len() != w * h {
+            return Err(Error::invalid(format!(
+                "mask has {} pixels, images have {}",
+                mask.len(),
+                w * h
+            )));
+        }
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        if pixels.is_empty() {
+            return Err(Error::invalid("the mask is empty"));
+        }
+        let planes: Vec<Vec<f32>> = images
+            .par_iter()
+            .enumerate()
+            .map(|(k, img)| {
+                let s = light_scale(&lights.intensities[k], c);
+                let mut out = Vec::with_capacity(pixels.len() * c);
+                for &i in &pixels {
+                    for ch in 0..c {
+                        out.push(img.data[i as usize * c + ch] * s[ch]);
+                    }
+                }
+                out
+            })
+            .collect();
+        let samples = interleave(&planes, pixels.len(), c);
+        Ok(Capture {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth: images[0].bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+            sources: Vec::new(),
+            notes: Vec::new(),
+        })
+    }
+
+    /// Number of lights (= images).
+    pub fn n_lights(&self) -> usize {
+        self.lights.len()
+    }
+
+    /// Number of pixels inside the mask.
+    pub fn n_pixels(&self) -> usize {
+        self.pixels.len()
+    }
+
+    /// The samples of mask pixel `p`: `N * C` values, light-major.
+    #[inline]
+    pub fn pixel_samples(&self, p: usize) -> &[f32] {
+        let stride = self.n_lights() * self.channels;
+        &self.samples[p * stride..(p + 1) * stride]
+    }
+
+    /// (row, col) of mask pixel `p`.
+    #[inline]
+    pub fn pixel_position(&self, p: usize) -> (usize, usize) {
+        let i = self.pixels[p] as usize;
+        (i / self.width, i % self.width)
+    }
+
+    /// A capture with only the lights `keep` (in that order), for light-subset experiments.
+    pub fn select_lights(&self, keep: &[usize]) -> Result<Capture> {
+        let n = self.n_lights();
+        if let Some(&bad) = keep.iter().find(|&&k| k >= n) {
+            return Err(Error::invalid(format!(
+                "light index {} out of range 1..={n}",
+                bad + 1
+            )));
+        }
+        let lights = self.lights.permuted(keep);
+        lights.check_rank()?;
+        let c = self.channels;
+        let stride_in = n * c;
+        let stride_out = keep.len() * c;
+        let mut samples = vec![0f32; self.n_pixels() * stride_out];
+        samples
+            .par_chunks_mut(stride_out)
+            .zip(self.samples.par_chunks(stride_in))
+            .for_each(|(out, src)| {
+                for (j, &k) in keep.iter().enumerate() {
+                    out[j * c..(j + 1) * c].copy_from_slice(&src[k * c..(k + 1) * c]);
+                }
+            });
+        Ok(Capture {
+            lights,
+            samples,
+            sources: keep
+                .iter()
+                .filter_map(|&k| self.sources.get(k).cloned())
+                .collect(),
+            ..self.clone_without_samples()
+        })
+    }
+
+    fn clone_without_samples(&self) -> Capture {
+        Capture {
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            bit_depth: self.bit_depth,
+            lights: self.lights.clone(),
+            mask: self.mask.clone(),
+            pixels: self.pixels.clone(),
+            samples: Vec::new(),
+            sources: Vec::new(),
+            notes: self.notes.clone(),
+        }
+    }
+
+    /// Scatters per-mask-pixel values (`width` values each) into a full `height × width × width`
+    /// row-major buffer filled with `fill` outside the mask.
+    pub fn scatter<T: Copy + Send + Sync>(
+        &self,
+        values: &[T],
+        per_pixel: usize,
+        fill: T,
+    ) -> Vec<T> {
+        let mut out = vec![fill; self.width * self.height * per_pixel];
+        for (p, &i) in self.pixels.iter().enumerate() {
+            let i = i as usize;
+            out[i * per_pixel..(i + 1) * per_pixel]
+                .copy_from_slice(&values[p * per_pixel..(p + 1) * per_pixel]);
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interleave_transposes() {
+        let planes = vec![vec![1.0, 2.0, 3.0, 4.0], vec![5.0, 6.0, 7.0, 8.0]];
+        // 2 pixels, 2 channels, 2 lights
+        let s = interleave(&planes, 2, 2);
+        assert_eq!(s, vec![1.0, 2.0, 5.0, 6.0, 3.0, 4.0, 7.0, 8.0]);
+    }
+}

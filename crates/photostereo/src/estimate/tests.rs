@@ -1,0 +1,143 @@
+//! Estimator tests on analytic Lambertian surfaces.
+
+use crate::capture::Capture;
+use crate::imageio::Image;
+use crate::lights::Lights;
+use crate::metrics::angular_error_deg;
+use crate::progress::Silent;
+
+/// A Lambertian sphere of radius `r` px centred in a `size`² frame, RGB albedo (0.8, 0.6, 0.4),
+/// rendered without shadows: the mask keeps only pixels lit by every light.
+pub(crate) fn lambert_sphere(size: usize, r: f64, dirs: &[[f64; 3]]) -> (Capture, Vec<[f64; 3]>) {
+    let lights = Lights::new(dirs).unwrap();
+    let c = (size as f64 - 1.0) / 2.0;
+    let mut mask = vec![false; size * size];
+    let mut truth = vec![[0.0; 3]; size * size];
+    for row in 0..size {
+        for col in 0..size {
+            let x = (col as f64 - c) / r;
+            let y = (c - row as f64) / r;
+            let rr = x * x + y * y;
+            if rr < 0.9 {
+                let n = [x, y, (1.0 - rr).sqrt()];
+                if lights
+                    .directions
+                    .iter()
+                    .all(|l| l[0] * n[0] + l[1] * n[1] + l[2] * n[2] > 0.0)
+                {
+                    mask[row * size + col] = true;
+                    truth[row * size + col] = n;
+                }
+            }
+        }
+    }
+    let albedo = [0.8, 0.6, 0.4];
+    let images: Vec<Image> = lights
+        .directions
+        .iter()
+        .map(|l| {
+            let mut data = vec![0f32; size * size * 3];
+            for i in 0..size * size {
+                let n = truth[i];
+                let s = (l[0] * n[0] + l[1] * n[1] + l[2] * n[2]).max(0.0);
+                for ch in 0..3 {
+                    data[i * 3 + ch] = (albedo[ch] * s) as f32;
+                }
+            }
+            Image {
+                width: size,
+                height: size,
+                channels: 3,
+                bit_depth: 32,
+                data,
+            }
+        })
+        .collect();
+    let capture = Capture::from_images(&images, lights, Some(mask)).unwrap();
+    let truth_masked = capture.pixels.iter().map(|&i| truth[i as usize]).collect();
+    (capture, truth_masked)
+}
+
+pub(crate) fn ring(n: usize, slant_deg: f64) -> Vec<[f64; 3]> {
+    let s = slant_deg.to_radians();
+    (0..n)
+        .map(|k| {
+            let t = 2.0 * std::f64::consts::PI * k as f64 / n as f64 + 0.3;
+            [s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]
+        })
+        .collect()
+}
+
+#[test]
+fn least_squares_recovers_an_analytic_sphere() {
+    let (capture, truth) = lambert_sphere(96, 40.0, &ring(8, 30.0));
+    use crate::estimate::Estimator;
+    let est = crate::estimate::LeastSquares
+        .estimate(&capture, &Silent)
+        .unwrap();
+    let mut sum = 0.0;
+    for (n, t) in est.normals.iter().zip(&truth) {
+        sum += angular_error_deg(*n, [t[0] as f32, t[1] as f32, t[2] as f32]);
+    }
+    let mean = sum / truth.len() as f64;
+    assert!(capture.n_pixels() > 3000);
+    assert!(mean < 0.01, "mean error {mean}°");
+    for (p, a) in est.albedo.chunks(3).enumerate() {
+        assert!(
+            (a[0] - 0.8).abs() < 1e-4 && (a[1] - 0.6).abs() < 1e-4 && (a[2] - 0.4).abs() < 1e-4,
+            "pixel {p}: {a:?}"
+        );
+    }
+}
+
+#[test]
+fn permuting_lights_gives_the_same_normals() {
+    let dirs = ring(7, 40.0);
+    let (capture, _) = lambert_sphere(64, 28.0, &dirs);
+    let order = [3, 0, 6, 2, 5, 1, 4];
+    let permuted = capture.select_lights(&order).unwrap();
+    use crate::estimate::Estimator;
+    let a = crate::estimate::LeastSquares
+        .estimate(&capture, &Silent)
+        .unwrap();
+    let b = crate::estimate::LeastSquares
+        .estimate(&permuted, &Silent)
+        .unwrap();
+    for (x, y) in a.normals.iter().zip(&b.normals) {
+        assert!(angular_error_deg(*x, *y) < 1e-3);
+    }
+}
+
+#[test]
+fn subsets_drop_lights_exactly() {
+    // Corrupt light 2 everywhere; excluding it through the usable flags restores the truth.
+    let dirs = ring(6, 35.0);
+    let (mut capture, truth) = lambert_sphere(64, 28.0, &dirs);
+    let n = capture.n_lights();
+    let c = capture.channels;
+    for p in 0..capture.n_pixels() {
+        for ch in 0..c {
+            capture.samples[(p * n + 2) * c + ch] += 0.3;
+        }
+    }
+    let mut usable = vec![true; capture.n_pixels() * n];
+    for p in 0..capture.n_pixels() {
+        usable[p * n + 2] = false;
+    }
+    let est = crate::estimate::solve_subsets(&capture, Some(&usable), &Silent);
+    let worst = est
+        .normals
+        .iter()
+        .zip(&truth)
+        .map(|(a, t)| angular_error_deg(*a, [t[0] as f32, t[1] as f32, t[2] as f32]))
+        .fold(0.0, f64::max);
+    assert!(worst < 0.01, "worst {worst}");
+    // With only two usable lights the normal is undetermined.
+    let mut two = vec![false; capture.n_pixels() * n];
+    for p in 0..capture.n_pixels() {
+        two[p * n] = true;
+        two[p * n + 1] = true;
+    }
+    let est = crate::estimate::solve_subsets(&capture, Some(&two), &Silent);
+    assert!(est.normals.iter().all(|v| *v == [0.0; 3]));
+}

@@ -1,0 +1,380 @@
+//! Image decoding and encoding: PNG (8/16-bit, grey or RGB), TIFF (8/16-bit, 32-bit float) and
+//! OpenEXR in; PNG and OpenEXR out. Integer images are scaled to [0, 1] by their bit depth and
+//! 16-bit data is never reduced to 8 bits. Alpha channels are dropped.
+
+use crate::error::{Error, Result};
+use std::io::Cursor;
+use std::path::Path;
+
+/// A decoded image: interleaved row-major `f32` samples, row 0 at the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// 1 (grey) or 3 (RGB).
+    pub channels: usize,
+    /// Bits per sample of the source file (8, 16 or 32).
+    pub bit_depth: u8,
+    /// `height * width * channels` samples; integer formats scaled to [0, 1].
+    pub data: Vec<f32>,
+}
+
+impl Image {
+    /// Sample `(row, col, channel)`.
+    #[inline]
+    pub fn at(&self, row: usize, col: usize, channel: usize) -> f32 {
+        self.data[(row * self.width + col) * self.channels + channel]
+    }
+
+    /// Mean over channels at `(row, col)`.
+    #[inline]
+    pub fn grey(&self, row: usize, col: usize) -> f32 {
+        let base = (row * self.width + col) * self.channels;
+        let s: f32 = self.data[base..base + self.channels].iter().sum();
+        s / self.channels as f32
+    }
+}
+
+/// The container formats the library reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    Png,
+    Tiff,
+    Exr,
+}
+
+/// Identifies the format from the file's first bytes.
+pub fn sniff(bytes: &[u8]) -> Option<Format> {
+    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+        Some(Format::Png)
+    } else if bytes.starts_with(b"II*\0")
+        || bytes.starts_with(b"MM\0*")
+        || bytes.starts_with(b"II+\0")
+        || bytes.starts_with(b"MM\0+")
+    {
+        Some(Format::Tiff)
+    } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
+        Some(Format::Exr)
+    } else {
+        None
+    }
+}
+
+/// Reads and decodes an image file. Errors name the file.
+pub fn read_image(path: &Path) -> Result<Image> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    decode_image(&bytes).map_err(|m| Error::file(path, m))
+}
+
+/// Decodes an in-memory image (PNG, TIFF or OpenEXR).
+pub fn decode_image(bytes: &[u8]) -> Result<Image, String> {
+    match sniff(bytes) {
+        Some(Format::Png) => decode_png(bytes),
+        Some(Format::Tiff) => decode_tiff(bytes),
+        Some(Format::Exr) => decode_exr(bytes),
+        None => Err("unsupported image format (expected PNG, TIFF or OpenEXR)".into()),
+    }
+}
+
+fn decode_png(bytes: &[u8]) -> Result<Image, String> {
+    let mut decoder = png::Decoder::new(Cursor::new(bytes));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder
+        .read_info()
+        .map_err(|e| format!("corrupt PNG: {e}"))?;
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| "PNG too large".to_string())?;
+    let mut buf = vec![0u8; size];
+    let info = reader
+        .next_frame(&mut buf)
+        .map_err(|e| format!("corrupt or truncated PNG: {e}"))?;
+    let (width, height) = (info.width as usize, info.height as usize);
+    let src_channels = info.color_type.samples();
+    let channels = if src_channels >= 3 { 3 } else { 1 };
+    let n = width * height;
+    let mut data = vec![0f32; n * channels];
+    match info.bit_depth {
+        png::BitDepth::Sixteen => {
+            let scale = 1.0 / 65535.0;
+            for (i, px) in data.chunks_exact_mut(channels).enumerate() {
+                let base = i * src_channels * 2;
+                for (c, v) in px.iter_mut().enumerate() {
+                    let b = base + 2 * c;
+                    *v = u16::from_be_bytes([buf[b], buf[b + 1]]) as f32 * scale;
+                }
+            }
+        }
+        png::BitDepth::Eight => {
+            let scale = 1.0 / 255.0;
+            for (i, px) in data.chunks_exact_mut(channels).enumerate() {
+                let base = i * src_channels;
+                for (c, v) in px.iter_mut().enumerate() {
+                    *v = buf[base + c] as f32 * scale;
+                }
+            }
+        }
+        other => return Err(format!("unsupported PNG bit depth {other:?}")),
+    }
+    let bit_depth = if info.bit_depth == png::BitDepth::Sixteen {
+        16
+    } else {
+        8
+    };
+    Ok(Image {
+        width,
+        height,
+        channels,
+        bit_depth,
+        data,
+    })
+}
+
+fn decode_tiff(bytes: &[u8]) -> Result<Image, String> {
+    use tiff::decoder::{Decoder, DecodingResult};
+    use tiff::ColorType;
+    let mut dec = Decoder::new(Cursor::new(bytes)).map_err(|e| format!("corrupt TIFF: {e}"))?;
+    let (w, h) = dec.dimensions().map_err(|e| format!("corrupt TIFF: {e}"))?;
+    let color = dec.colortype().map_err(|e| format!("corrupt TIFF: {e}"))?;
+    let src_channels = match color {
+        ColorType::Gray(_) => 1,
+        ColorType::GrayA(_) => 2,
+        ColorType::RGB(_) => 3,
+        ColorType::RGBA(_) => 4,
+        other => {
+            return Err(format!(
+                "unsupported TIFF colour type {other:?} (expected grey or RGB)"
+            ))
+        }
+    };
+    let channels = if src_channels >= 3 { 3 } else { 1 };
+    let (width, height) = (w as usize, h as usize);
+    let img = dec
+        .read_image()
+        .map_err(|e| format!("corrupt or truncated TIFF: {e}"))?;
+    let n = width * height;
+    let convert = |get: &dyn Fn(usize) -> f32, len: usize| -> Result<Vec<f32>, String> {
+        if len < n * src_channels {
+            return Err("truncated TIFF data".into());
+        }
+        let mut data = vec![0f32; n * channels];
+        for (i, px) in data.chunks_exact_mut(channels).enumerate() {
+            for (c, v) in px.iter_mut().enumerate() {
+                *v = get(i * src_channels + c);
+            }
+        }
+        Ok(data)
+    };
+    let (data, bit_depth) = match &img {
+        DecodingResult::U8(v) => (convert(&|i| v[i] as f32 / 255.0, v.len())?, 8),
+        DecodingResult::U16(v) => (convert(&|i| v[i] as f32 / 65535.0, v.len())?, 16),
+        DecodingResult::F32(v) => (convert(&|i| v[i], v.len())?, 32),
+        DecodingResult::F64(v) => (convert(&|i| v[i] as f32, v.len())?, 32),
+        _ => {
+            return Err("unsupported TIFF sample type (expected 8/16-bit integer or float)".into())
+        }
+    };
+    Ok(Image {
+        width,
+        height,
+        channels,
+        bit_depth,
+        data,
+    })
+}
+
+fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
+    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::OpenExr)
+        .map_err(|e| format!("corrupt or unsupported OpenEXR: {e}"))?;
+    let rgb = img.to_rgb32f();
+    let (width, height) = (rgb.width() as usize, rgb.height() as usize);
+    Ok(Image {
+        width,
+        height,
+        channels: 3,
+        bit_depth: 32,
+        data: rgb.into_raw(),
+    })
+}
+
+/// Writes a 16-bit PNG with 1 (grey) or 3 (RGB) interleaved channels.
+pub fn write_png16(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: &[u16],
+) -> Result<()> {
+    let mut bytes = Vec::with_capacity(data.len() * 2);
+    for v in data {
+        bytes.extend_from_slice(&v.to_be_bytes());
+    }
+    write_png(
+        path,
+        width,
+        height,
+        channels,
+        png::BitDepth::Sixteen,
+        &bytes,
+    )
+}
+
+/// Writes an 8-bit PNG with 1 (grey) or 3 (RGB) interleaved channels.
+pub fn write_png8(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: usize,
+    data: &[u8],
+) -> Result<()> {
+    write_png(path, width, height, channels, png::BitDepth::Eight, data)
+}
+
+fn write_png(
+    path: &Path,
+    width: usize,
+    height: usize,
+    channels: usize,
+    depth: png::BitDepth,
+    bytes: &[u8],
+) -> Result<()> {
+    let color = match channels {
+        1 => png::ColorType::Grayscale,
+        3 => png::ColorType::Rgb,
+        4 => png::ColorType::Rgba,
+        _ => {
+            return Err(Error::invalid(format!(
+                "cannot write a PNG with {channels} channels"
+            )))
+        }
+    };
+    let mut out = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut out, width as u32, height as u32);
+        enc.set_color(color);
+        enc.set_depth(depth);
+        enc.set_compression(png::Compression::Fast);
+        let mut writer = enc
+            .write_header()
+            .map_err(|e| Error::file(path, format!("PNG encoding failed: {e}")))?;
+        writer
+            .write_image_data(bytes)
+            .map_err(|e| Error::file(path, format!("PNG encoding failed: {e}")))?;
+    }
+    std::fs::write(path, out).map_err(|e| Error::io(path, e))
+}
+
+/// Writes a float RGB OpenEXR file from interleaved samples (`height * width * 3`).
+pub fn write_exr_rgb(path: &Path, width: usize, height: usize, data: &[f32]) -> Result<()> {
+    exr::prelude::write_rgb_file(path, width, height, |x, y| {
+        let i = (y * width + x) * 3;
+        (data[i], data[i + 1], data[i + 2])
+    })
+    .map_err(|e| Error::file(path, format!("OpenEXR encoding failed: {e}")))
+}
+
+/// Writes a float single-channel OpenEXR file (channel `Y`).
+pub fn write_exr_grey(path: &Path, width: usize, height: usize, data: &[f32]) -> Result<()> {
+    use exr::prelude::*;
+    let channel = AnyChannel::new("Y", FlatSamples::F32(data.to_vec()));
+    let image = exr::prelude::Image::from_channels(
+        (width, height),
+        AnyChannels::sort(SmallVec::from_vec(vec![channel])),
+    );
+    image
+        .write()
+        .to_file(path)
+        .map_err(|e| crate::error::Error::file(path, format!("OpenEXR encoding failed: {e}")))
+}
+
+/// Reads a mask image: a pixel is inside when any channel is non-zero.
+pub fn read_mask(path: &Path) -> Result<(usize, usize, Vec<bool>)> {
+    let img = read_image(path)?;
+    let mask: Vec<bool> = img
+        .data
+        .chunks_exact(img.channels)
+        .map(|px| px.iter().any(|v| *v > 0.0))
+        .collect();
+    Ok((img.height, img.width, mask))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn png16_round_trip_keeps_full_depth() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.png");
+        let data: Vec<u16> = (0..(4 * 3 * 3)).map(|i| (i * 1817 + 3) as u16).collect();
+        write_png16(&p, 4, 3, 3, &data).unwrap();
+        let img = read_image(&p).unwrap();
+        assert_eq!(
+            (img.width, img.height, img.channels, img.bit_depth),
+            (4, 3, 3, 16)
+        );
+        for (a, b) in img.data.iter().zip(&data) {
+            assert!((a * 65535.0 - *b as f32).abs() < 1e-2);
+        }
+    }
+
+    #[test]
+    fn tiff_float_and_16bit_grey_decode() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.tif");
+        let vals: Vec<f32> = (0..12).map(|i| i as f32 * 0.25).collect();
+        {
+            let f = std::fs::File::create(&p).unwrap();
+            let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+            enc.write_image::<tiff::encoder::colortype::Gray32Float>(4, 3, &vals)
+                .unwrap();
+        }
+        let img = read_image(&p).unwrap();
+        assert_eq!(
+            (img.width, img.height, img.channels, img.bit_depth),
+            (4, 3, 1, 32)
+        );
+        assert_eq!(img.data, vals);
+        let p16 = dir.path().join("b.tif");
+        let v16: Vec<u16> = (0..12).map(|i| i * 5000).collect();
+        {
+            let f = std::fs::File::create(&p16).unwrap();
+            let mut enc = tiff::encoder::TiffEncoder::new(f).unwrap();
+            enc.write_image::<tiff::encoder::colortype::Gray16>(4, 3, &v16)
+                .unwrap();
+        }
+        let img = read_image(&p16).unwrap();
+        assert_eq!(img.bit_depth, 16);
+        assert!((img.data[3] - 15000.0 / 65535.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn exr_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.exr");
+        let data: Vec<f32> = (0..(5 * 2 * 3)).map(|i| i as f32 * 0.1 - 1.0).collect();
+        write_exr_rgb(&p, 5, 2, &data).unwrap();
+        let img = read_image(&p).unwrap();
+        assert_eq!((img.width, img.height, img.channels), (5, 2, 3));
+        for (a, b) in img.data.iter().zip(&data) {
+            assert!((a - b).abs() < 1e-6);
+        }
+    }
+
+    #[test]
+    fn corrupt_and_unknown_files_are_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.png");
+        write_png8(&p, 8, 8, 1, &[7u8; 64]).unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let e = read_image(&p).unwrap_err().to_string();
+        assert!(e.contains("a.png") && e.contains("PNG"), "{e}");
+        let q = dir.path().join("b.jpg");
+        std::fs::write(&q, b"\xff\xd8\xff\xe0 not really").unwrap();
+        let e = read_image(&q).unwrap_err().to_string();
+        assert!(e.contains("unsupported image format"), "{e}");
+    }
+}

@@ -1,0 +1,340 @@
+//! Light directions and intensities: parsing the text layouts of CONVENTIONS.md and checking
+//! that a rig can determine a normal at all.
+//!
+//! Directions are unit vectors in the camera frame (x right, y up, z toward the camera), from the
+//! surface toward the distant light. Intensities are per light and per channel (R, G, B); every
+//! image channel is divided by its light's intensity before estimation.
+
+use crate::error::{Error, Result};
+use std::path::Path;
+
+/// A rig's directions above this condition number are refused as (near) coplanar: normals
+/// estimated with them would amplify the image noise by about that factor.
+pub const MAX_CONDITION_NUMBER: f64 = 1.0e3;
+
+/// A set of distant lights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lights {
+    /// Unit directions toward each light, camera frame.
+    pub directions: Vec<[f64; 3]>,
+    /// Relative intensity of each light per channel (R, G, B); grey captures use the mean.
+    pub intensities: Vec<[f64; 3]>,
+    /// How many input directions were not unit length and were normalised.
+    pub renormalised: usize,
+}
+
+impl Lights {
+    /// Lights with unit intensity. Directions are normalised; zero or non-finite ones are an error.
+    pub fn new(directions: &[[f64; 3]]) -> Result<Self> {
+        let mut out = Vec::with_capacity(directions.len());
+        let mut renormalised = 0;
+        for (k, d) in directions.iter().enumerate() {
+            out.push(
+                normalise_direction(*d, &mut renormalised).map_err(|m| {
+                    Error::invalid(format!("light {} direction {:?}: {m}", k + 1, d))
+                })?,
+            );
+        }
+        Ok(Lights {
+            intensities: vec![[1.0; 3]; out.len()],
+            directions: out,
+            renormalised,
+        })
+    }
+
+    /// Number of lights.
+    pub fn len(&self) -> usize {
+        self.directions.len()
+    }
+
+    /// True when there is no light.
+    pub fn is_empty(&self) -> bool {
+        self.directions.is_empty()
+    }
+
+    /// Replaces the intensities (one RGB triple per light); each must be finite and positive.
+    pub fn with_intensities(mut self, intensities: Vec<[f64; 3]>) -> Result<Self> {
+        if intensities.len() != self.len() {
+            return Err(Error::invalid(format!(
+                "{} light intensities for {} light directions",
+                intensities.len(),
+                self.len()
+            )));
+        }
+        for (k, v) in intensities.iter().enumerate() {
+            if v.iter().any(|x| !x.is_finite() || *x <= 0.0) {
+                return Err(Error::invalid(format!(
+                    "light {} intensity {:?}: expected finite positive values",
+                    k + 1,
+                    v
+                )));
+            }
+        }
+        self.intensities = intensities;
+        Ok(self)
+    }
+
+    /// Reads directions from a text file: either the DiLiGenT layout (N rows `x y z`) or the
+    /// list layout (a first line with the count N, then N rows). Blank lines and lines starting
+    /// with `#` are skipped. Directions are normalised; a zero direction is an error.
+    pub fn read_directions(path: &Path) -> Result<Self> {
+        let rows = read_rows(path, &[3])?;
+        let mut dirs = Vec::with_capacity(rows.len());
+        let mut renormalised = 0;
+        for (line, row) in &rows {
+            let d = [row[0], row[1], row[2]];
+            dirs.push(
+                normalise_direction(d, &mut renormalised)
+                    .map_err(|m| Error::parse(path, *line, m))?,
+            );
+        }
+        Ok(Lights {
+            intensities: vec![[1.0; 3]; dirs.len()],
+            directions: dirs,
+            renormalised,
+        })
+    }
+
+    /// Reads per-light intensities (rows of 3 values R G B, or 1 value for all channels) and
+    /// attaches them. The row count must equal the light count.
+    pub fn read_intensities(self, path: &Path) -> Result<Self> {
+        let rows = read_rows(path, &[1, 3])?;
+        if rows.len() != self.len() {
+            return Err(Error::file(
+                path,
+                format!(
+                    "{} intensity rows for {} light directions",
+                    rows.len(),
+                    self.len()
+                ),
+            ));
+        }
+        let mut values = Vec::with_capacity(rows.len());
+        for (line, row) in &rows {
+            let v = if row.len() == 1 {
+                [row[0]; 3]
+            } else {
+                [row[0], row[1], row[2]]
+            };
+            if v.iter().any(|x| *x <= 0.0) {
+                return Err(Error::parse(
+                    path,
+                    *line,
+                    format!("intensity {:?}: expected positive values", row),
+                ));
+            }
+            values.push(v);
+        }
+        self.with_intensities(values)
+    }
+
+    /// Checks that the rig determines normals: at least three lights and a light matrix of rank
+    /// three with condition number at most [`MAX_CONDITION_NUMBER`]. Returns the condition number.
+    pub fn check_rank(&self) -> Result<f64> {
+        if self.len() < 3 {
+            return Err(Error::invalid(format!(
+                "{} light(s): photometric stereo needs at least three",
+                self.len()
+            )));
+        }
+        let cond = self.condition_number();
+        if !(cond <= MAX_CONDITION_NUMBER) {
+            return Err(Error::invalid(format!(
+                "the light directions have rank < 3 (coplanar or nearly so): condition number {:.3e} exceeds {:.0e}",
+                cond, MAX_CONDITION_NUMBER
+            )));
+        }
+        Ok(cond)
+    }
+
+    /// Condition number of the N×3 light matrix (ratio of its largest to smallest singular value).
+    pub fn condition_number(&self) -> f64 {
+        let ltl = self.gram();
+        let eig = nalgebra::SymmetricEigen::new(ltl).eigenvalues;
+        let max = eig.max().max(0.0);
+        let min = eig.min().max(0.0);
+        if min <= 0.0 {
+            f64::INFINITY
+        } else {
+            (max / min).sqrt()
+        }
+    }
+
+    /// LᵀL, the 3×3 normal matrix of all lights.
+    pub fn gram(&self) -> nalgebra::Matrix3<f64> {
+        let mut m = nalgebra::Matrix3::zeros();
+        for d in &self.directions {
+            let v = nalgebra::Vector3::from(*d);
+            m += v * v.transpose();
+        }
+        m
+    }
+
+    /// Returns the lights reordered by `order` (a permutation of 0..N).
+    pub fn permuted(&self, order: &[usize]) -> Lights {
+        Lights {
+            directions: order.iter().map(|&k| self.directions[k]).collect(),
+            intensities: order.iter().map(|&k| self.intensities[k]).collect(),
+            renormalised: self.renormalised,
+        }
+    }
+
+    /// Writes the directions in the DiLiGenT layout (N rows `x y z`).
+    pub fn write_directions(&self, path: &Path) -> Result<()> {
+        let mut s = String::new();
+        for d in &self.directions {
+            s.push_str(&format!("{:.6} {:.6} {:.6}\n", d[0], d[1], d[2]));
+        }
+        std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    }
+
+    /// Writes the intensities in the DiLiGenT layout (N rows `R G B`).
+    pub fn write_intensities(&self, path: &Path) -> Result<()> {
+        let mut s = String::new();
+        for v in &self.intensities {
+            s.push_str(&format!("{:.6} {:.6} {:.6}\n", v[0], v[1], v[2]));
+        }
+        std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    }
+}
+
+fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3], String> {
+    if d.iter().any(|x| !x.is_finite()) {
+        return Err(format!("direction {:?} is not finite", d));
+    }
+    let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if norm < 1e-9 {
+        return Err("zero light direction: expected a non-zero vector x y z".into());
+    }
+    if (norm - 1.0).abs() > 1e-3 {
+        *renormalised += 1;
+    }
+    Ok([d[0] / norm, d[1] / norm, d[2] / norm])
+}
+
+/// Reads a whitespace-separated numeric table. Each data row must have one of `widths` numbers,
+/// all finite. A first line holding a single integer equal to the number of remaining rows is a
+/// count line (the list layout) and is skipped. Returns (1-based line, values) pairs.
+pub(crate) fn read_rows(path: &Path, widths: &[usize]) -> Result<Vec<(usize, Vec<f64>)>> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let mut rows: Vec<(usize, Vec<f64>)> = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim();
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut vals = Vec::new();
+        for tok in line.split(|c: char| c.is_whitespace() || c == ',') {
+            if tok.is_empty() {
+                continue;
+            }
+            let v: f64 = tok
+                .parse()
+                .map_err(|_| Error::parse(path, i + 1, format!("'{tok}' is not a number")))?;
+            if !v.is_finite() {
+                return Err(Error::parse(path, i + 1, format!("'{tok}' is not finite")));
+            }
+            vals.push(v);
+        }
+        rows.push((i + 1, vals));
+    }
+    // A count line: one integer equal to the number of following rows.
+    if let Some((_, first)) = rows.first() {
+        if first.len() == 1
+            && first[0].fract() == 0.0
+            && first[0] as usize == rows.len() - 1
+            && !widths.contains(&1)
+        {
+            rows.remove(0);
+        } else if first.len() == 1
+            && widths.contains(&1)
+            && first[0].fract() == 0.0
+            && first[0] as usize == rows.len() - 1
+            && rows.len() > 1
+            && rows[1].1.len() != 1
+        {
+            rows.remove(0);
+        }
+    }
+    if rows.is_empty() {
+        return Err(Error::file(path, "no data rows"));
+    }
+    for (line, vals) in &rows {
+        if !widths.contains(&vals.len()) {
+            let want = widths
+                .iter()
+                .map(|w| w.to_string())
+                .collect::<Vec<_>>()
+                .join(" or ");
+            return Err(Error::parse(
+                path,
+                *line,
+                format!(
+                    "expected exactly {want} finite numbers, found {}",
+                    vals.len()
+                ),
+            ));
+        }
+    }
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(text: &str) -> tempfile::NamedTempFile {
+        let f = tempfile::NamedTempFile::new().unwrap();
+        std::fs::write(f.path(), text).unwrap();
+        f
+    }
+
+    #[test]
+    fn reads_both_layouts_and_normalises() {
+        let a = write("0 0 2\n1 0 1\n0 1 1\n");
+        let l = Lights::read_directions(a.path()).unwrap();
+        assert_eq!(l.len(), 3);
+        assert_eq!(l.renormalised, 3);
+        assert!((l.directions[1][0] - 0.5f64.sqrt()).abs() < 1e-12);
+        let b = write("3\n0 0 1\n1 0 1\n0 1 1\n");
+        assert_eq!(Lights::read_directions(b.path()).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn bad_rows_name_the_line() {
+        let f = write("0 0 1\n1 0\n0 1 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("exactly 3"), "{e}");
+        let f = write("0 0 1\n0 0 0\n0 1 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("zero"), "{e}");
+        let f = write("0 0 1\nnan 0 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2"), "{e}");
+    }
+
+    #[test]
+    fn coplanar_lights_are_refused_with_condition_number() {
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let e = l.check_rank().unwrap_err().to_string();
+        assert!(e.contains("condition number"), "{e}");
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let c = l.check_rank().unwrap();
+        assert!(c > 1.0 && c < 10.0);
+    }
+
+    #[test]
+    fn intensities_must_be_positive() {
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let f = write("1 1 1\n0 1 1\n1 1 1\n");
+        let e = l
+            .clone()
+            .read_intensities(f.path())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("positive"), "{e}");
+        let f = write("2\n1\n1\n");
+        let l2 = l.read_intensities(f.path()).unwrap();
+        assert_eq!(l2.intensities[0], [2.0; 3]);
+    }
+}

@@ -1,0 +1,76 @@
+//! `report.json`: what was run, on what, how long each stage took, and the error figures.
+
+use crate::metrics::ErrorStats;
+use serde::Serialize;
+use serde_json::{Map, Value};
+use std::time::Instant;
+
+/// The machine-readable summary of a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub tool: String,
+    pub version: String,
+    /// The estimation method's name.
+    pub method: String,
+    /// Every parameter that influenced the result, by name.
+    pub parameters: Map<String, Value>,
+    /// Size and kind of the input.
+    pub input: InputSummary,
+    /// Wall-clock seconds per stage, in order.
+    pub timings_s: Map<String, Value>,
+    /// Error figures against ground truth, when given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<ErrorStats>,
+    /// Remarks (normalised lights, resolved paths, fallbacks…).
+    pub notes: Vec<String>,
+    /// Stage-specific results (iterations, counts…).
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// Size and kind of the input of a run.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct InputSummary {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub bit_depth: u8,
+    pub lights: usize,
+    pub mask_pixels: usize,
+    pub lights_renormalised: usize,
+    pub light_condition_number: f64,
+}
+
+impl Report {
+    /// An empty report for `method`.
+    pub fn new(method: &str) -> Self {
+        Report {
+            tool: "photostereo".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            method: method.into(),
+            parameters: Map::new(),
+            input: InputSummary::default(),
+            timings_s: Map::new(),
+            error: None,
+            notes: Vec::new(),
+            extra: Map::new(),
+        }
+    }
+
+    /// Records a stage's duration since `start` (seconds) and returns a new start instant.
+    pub fn time(&mut self, stage: &str, start: Instant) -> Instant {
+        let s = start.elapsed().as_secs_f64();
+        let prev = self
+            .timings_s
+            .get(stage)
+            .and_then(Value::as_f64)
+            .unwrap_or(0.0);
+        self.timings_s.insert(stage.into(), Value::from(prev + s));
+        Instant::now()
+    }
+
+    /// Sets a parameter.
+    pub fn param(&mut self, name: &str, value: impl Into<Value>) {
+        self.parameters.insert(name.into(), value.into());
+    }
+}
