@@ -1,1 +1,62 @@
-fn main() {}
+//! The least-squares solve for 96 lights on a full 612×512 RGB frame (DiLiGenT's size), and the
+//! same on a DiLiGenT-like mask of about 45k pixels.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use photostereo::estimate::{Estimator, LeastSquares};
+use photostereo::imageio::Image;
+use photostereo::progress::Silent;
+use photostereo::scene::ring_lights;
+use photostereo::Capture;
+
+fn capture(width: usize, height: usize, mask_radius: Option<f64>) -> Capture {
+    // 96 lights on three rings; a smooth random-looking albedo pattern keeps the solve honest.
+    let mut dirs = Vec::new();
+    for (n, slant) in [(32, 20.0), (32, 40.0), (32, 60.0)] {
+        dirs.extend(ring_lights(n, slant).directions);
+    }
+    let lights = photostereo::Lights::new(&dirs).unwrap();
+    let images: Vec<Image> = (0..dirs.len())
+        .map(|k| {
+            let data = (0..width * height * 3)
+                .map(|i| ((i * 2654435761usize + k * 97) % 65521) as f32 / 65521.0)
+                .collect();
+            Image {
+                width,
+                height,
+                channels: 3,
+                bit_depth: 16,
+                data,
+            }
+        })
+        .collect();
+    let mask = mask_radius.map(|r| {
+        (0..width * height)
+            .map(|i| {
+                let (y, x) = (
+                    (i / width) as f64 - height as f64 / 2.0,
+                    (i % width) as f64 - width as f64 / 2.0,
+                );
+                x * x + y * y < r * r
+            })
+            .collect()
+    });
+    Capture::from_images(&images, lights, mask).unwrap()
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("least_squares_96_lights");
+    g.sample_size(10);
+    let full = capture(612, 512, None);
+    g.bench_function("612x512_full_frame", |b| {
+        b.iter(|| LeastSquares.estimate(&full, &Silent).unwrap())
+    });
+    drop(full);
+    let masked = capture(612, 512, Some(120.0));
+    g.bench_function("612x512_mask_45k", |b| {
+        b.iter(|| LeastSquares.estimate(&masked, &Silent).unwrap())
+    });
+    g.finish();
+}
+
+criterion_group!(benches, bench);
+criterion_main!(benches);

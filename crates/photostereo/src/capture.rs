@@ -279,9 +279,12 @@ impl CaptureFiles {
             let mut out = Vec::with_capacity(pixels.len() * c);
             for &i in &pixels {
                 let base = i as usize * c;
-                for ch in 0..c {
-                    out.push(img.data[base + ch] * scale[ch]);
-                }
+                out.extend(
+                    img.data[base..base + c]
+                        .iter()
+                        .zip(&scale)
+                        .map(|(v, s)| v * s),
+                );
             }
             out
         };
@@ -432,9 +435,8 @@ impl Capture {
                 let s = light_scale(&lights.intensities[k], c);
                 let mut out = Vec::with_capacity(pixels.len() * c);
                 for &i in &pixels {
-                    for ch in 0..c {
-                        out.push(img.data[i as usize * c + ch] * s[ch]);
-                    }
+                    let base = i as usize * c;
+                    out.extend(img.data[base..base + c].iter().zip(&s).map(|(v, f)| v * f));
                 }
                 out
             })

@@ -138,7 +138,7 @@ impl Lights {
             )));
         }
         let cond = self.condition_number();
-        if !(cond <= MAX_CONDITION_NUMBER) {
+        if cond.is_nan() || cond > MAX_CONDITION_NUMBER {
             return Err(Error::invalid(format!(
                 "the light directions have rank < 3 (coplanar or nearly so): condition number {:.3e} exceeds {:.0e}",
                 cond, MAX_CONDITION_NUMBER
@@ -238,21 +238,13 @@ pub(crate) fn read_rows(path: &Path, widths: &[usize]) -> Result<Vec<(usize, Vec
         }
         rows.push((i + 1, vals));
     }
-    // A count line: one integer equal to the number of following rows.
+    // A count line: one integer equal to the number of following rows. When one-number rows are
+    // valid data too, it is a count line only if the rows after it are wider.
     if let Some((_, first)) = rows.first() {
-        if first.len() == 1
-            && first[0].fract() == 0.0
-            && first[0] as usize == rows.len() - 1
-            && !widths.contains(&1)
-        {
-            rows.remove(0);
-        } else if first.len() == 1
-            && widths.contains(&1)
-            && first[0].fract() == 0.0
-            && first[0] as usize == rows.len() - 1
-            && rows.len() > 1
-            && rows[1].1.len() != 1
-        {
+        let is_count =
+            first.len() == 1 && first[0].fract() == 0.0 && first[0] as usize == rows.len() - 1;
+        let ambiguous = widths.contains(&1) && rows.get(1).is_none_or(|(_, r)| r.len() == 1);
+        if is_count && !ambiguous {
             rows.remove(0);
         }
     }

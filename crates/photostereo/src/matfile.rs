@@ -127,7 +127,7 @@ impl Reader {
             .checked_add(len)
             .filter(|&e| e <= b.len())
             .ok_or("truncated matrix element")?;
-        let padded = (end + 7) / 8 * 8;
+        let padded = end.div_ceil(8) * 8;
         Ok((word, &b[8..end], padded.min(b.len())))
     }
 

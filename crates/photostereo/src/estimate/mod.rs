@@ -140,7 +140,7 @@ pub(crate) fn write_normal_albedo(
     out_a: &mut [f32],
 ) {
     let rho = m.norm();
-    if !(rho > 1e-12) || !rho.is_finite() {
+    if rho.is_nan() || rho <= 1e-12 || !rho.is_finite() {
         *out_n = [0.0; 3];
         out_a.fill(0.0);
         return;
