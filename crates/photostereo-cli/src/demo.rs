@@ -46,7 +46,12 @@ pub fn main(a: DemoArgs) -> Result<()> {
     ];
     for &method in Method::ALL {
         let mut report = Report::new(method.name());
-        let mut rec = reconstruct(&capture, method, &Silent, &mut report)?;
+        let options = RunOptions {
+            method,
+            error_map: true,
+            ..RunOptions::default()
+        };
+        let mut rec = reconstruct(&capture, &options, &Silent, &mut report)?;
         let (map, stats) = evaluate(&rec.normals, &scene.normals, Some(&scene.mask))?;
         rec.error_map = Some(map.clone());
         rec.report.error = Some(stats.clone());

@@ -4,7 +4,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::capture::CaptureFiles;
-use photostereo::pipeline::{run, Method, RunOptions};
+use photostereo::pipeline::{run, LightSubset, Method, RunOptions};
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
@@ -33,11 +33,28 @@ pub struct RunArgs {
     /// Upper end of the error map's scale, degrees.
     #[arg(long, default_value_t = 45.0)]
     pub error_map_max: f32,
+    /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
+    #[arg(long)]
+    pub sigma: Option<f64>,
+    /// Confidence of the χ² test for non-Lambertian pixels.
+    #[arg(long, default_value_t = 0.95)]
+    pub confidence: f64,
+    /// Use only some lights: `square` (the four closest to the paper's rig: slant 35°, tilts 90°
+    /// apart), `square:SLANT`, or 1-based indices such as `1,5,9,13`.
+    #[arg(long, value_parser = parse_subset)]
+    pub light_subset: Option<LightSubset>,
+    /// Skip the non-Lambertian detector and its maps (residual.npy, unreliable*.png, light_status.npy).
+    #[arg(long)]
+    pub no_detect: bool,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
     #[command(flatten)]
     pub out: OutputOpts,
+}
+
+fn parse_subset(s: &str) -> Result<LightSubset, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
 fn parse_method(s: &str) -> Result<Method, String> {
@@ -103,6 +120,13 @@ pub fn main(a: RunArgs) -> Result<()> {
         ground_truth: a.gt.clone(),
         error_map: a.error_map,
         error_map_max_deg: a.error_map_max,
+        detect: !a.no_detect,
+        detection: photostereo::detect::DetectionParams {
+            sigma: a.sigma,
+            confidence: a.confidence,
+            ..Default::default()
+        },
+        light_subset: a.light_subset.clone(),
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;

@@ -20,6 +20,7 @@
 //! [`progress::Progress`].
 
 pub mod capture;
+pub mod detect;
 pub mod error;
 pub mod estimate;
 pub mod export;
@@ -33,6 +34,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod report;
 pub mod scene;
+pub mod stats;
 
 pub use capture::{Capture, CaptureFiles};
 pub use error::{Error, Result};

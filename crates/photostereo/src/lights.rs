@@ -198,6 +198,47 @@ impl Lights {
     }
 }
 
+/// The four lights of a rig closest to a square rig — slant `slant_deg`, tilts 90° apart at any
+/// common rotation — as indices in tilt order. For every light taken as the first corner, each
+/// of the four target directions gets its nearest light; the rotation with the smallest sum of
+/// angular distances wins. `None` with fewer than four lights or when two corners would share
+/// a light.
+pub fn closest_square_rig(lights: &Lights, slant_deg: f64) -> Option<[usize; 4]> {
+    let n = lights.len();
+    if n < 4 {
+        return None;
+    }
+    let slant = slant_deg.to_radians();
+    let angle = |a: &[f64; 3], b: &[f64; 3]| {
+        (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+            .clamp(-1.0, 1.0)
+            .acos()
+    };
+    let mut best: Option<(f64, [usize; 4])> = None;
+    for d in &lights.directions {
+        let t0 = d[1].atan2(d[0]);
+        let mut pick = [0usize; 4];
+        let mut cost = 0.0;
+        for (j, slot) in pick.iter_mut().enumerate() {
+            let t = t0 + j as f64 * std::f64::consts::FRAC_PI_2;
+            let target = [slant.sin() * t.cos(), slant.sin() * t.sin(), slant.cos()];
+            let (k, a) = lights
+                .directions
+                .iter()
+                .enumerate()
+                .map(|(k, l)| (k, angle(l, &target)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            *slot = k;
+            cost += a;
+        }
+        let distinct = (0..4).all(|i| (i + 1..4).all(|j| pick[i] != pick[j]));
+        if distinct && best.is_none_or(|(c, _)| cost < c) {
+            best = Some((cost, pick));
+        }
+    }
+    best.map(|(_, p)| p)
+}
+
 fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3], String> {
     if d.iter().any(|x| !x.is_finite()) {
         return Err(format!("direction {:?} is not finite", d));
@@ -313,6 +354,29 @@ mod tests {
         let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
         let c = l.check_rank().unwrap();
         assert!(c > 1.0 && c < 10.0);
+    }
+
+    #[test]
+    fn square_rig_is_found_in_a_dense_rig() {
+        // A dense dome in 10° steps with the four exact corners at slant 35° hidden inside.
+        let mut dirs = Vec::new();
+        for s in [10.0f64, 25.0, 45.0, 60.0] {
+            for t in (0..36).map(|i| i as f64 * 10.0 + 3.0) {
+                let (s, t) = (s.to_radians(), t.to_radians());
+                dirs.push([s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]);
+            }
+        }
+        let corners: Vec<usize> = (0..4)
+            .map(|j| {
+                let (s, t) = (35f64.to_radians(), (20.0 + 90.0 * j as f64).to_radians());
+                dirs.push([s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]);
+                dirs.len() - 1
+            })
+            .collect();
+        let l = Lights::new(&dirs).unwrap();
+        let mut got = closest_square_rig(&l, 35.0).unwrap().to_vec();
+        got.sort();
+        assert_eq!(got, corners);
     }
 
     #[test]

@@ -3,11 +3,15 @@
 //! read and written, and where stages are timed for `report.json`.
 
 use crate::capture::{Capture, CaptureFiles};
+use crate::detect::{detect, Detection, DetectionParams};
 use crate::error::{Error, Result};
-use crate::estimate::{Estimate, Estimator, LeastSquares};
-use crate::export::{write_albedo, write_json, write_normals, OutputFolder};
+use crate::estimate::{status, BarskyPetrou, ColemanJain, Estimate, Estimator, LeastSquares};
+use crate::export::{
+    write_albedo, write_json, write_normals, write_npy_f32, write_npy_u8, OutputFolder,
+};
 use crate::figure::write_error_map;
 use crate::groundtruth::{read_normal_map, NormalMap};
+use crate::imageio::write_png8;
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::Progress;
 use crate::report::{InputSummary, Report};
@@ -20,23 +24,36 @@ use std::time::Instant;
 pub enum Method {
     /// Least squares over all lights (Woodham).
     L2,
+    /// Coleman & Jain: highlights by albedo disagreement between light subsets.
+    ColemanJain,
+    /// Barsky & Petrou: the eq. 5 test and one faulty light dropped (iterated for N > 4).
+    BarskyPetrou,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: &'static [Method] = &[Method::L2];
+    pub const ALL: &'static [Method] = &[Method::L2, Method::ColemanJain, Method::BarskyPetrou];
 
     /// The name accepted by `--method`.
     pub fn name(self) -> &'static str {
         match self {
             Method::L2 => "l2",
+            Method::ColemanJain => "coleman-jain",
+            Method::BarskyPetrou => "barsky-petrou",
         }
     }
 
-    /// The estimator implementing the method.
-    pub fn estimator(self) -> Box<dyn Estimator> {
+    /// The estimator implementing the method, with the detector's parameters where it uses them.
+    pub fn estimator(self, detection: &DetectionParams) -> Box<dyn Estimator> {
         match self {
             Method::L2 => Box::new(LeastSquares),
+            Method::ColemanJain => Box::new(ColemanJain {
+                params: detection.clone(),
+                ..ColemanJain::default()
+            }),
+            Method::BarskyPetrou => Box::new(BarskyPetrou {
+                params: detection.clone(),
+            }),
         }
     }
 }
@@ -58,6 +75,60 @@ impl FromStr for Method {
     }
 }
 
+/// A subset of a capture's lights to use instead of all of them.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LightSubset {
+    /// These lights (0-based indices), in this order.
+    Indices(Vec<usize>),
+    /// The four lights closest to a square rig at this slant (degrees), tilts 90° apart.
+    Square { slant_deg: f64 },
+}
+
+impl FromStr for LightSubset {
+    type Err = Error;
+    /// `square` (slant 35°, the paper's rig), `square:SLANT`, or 1-based indices `1,5,9,13`.
+    fn from_str(s: &str) -> Result<Self> {
+        if s == "square" {
+            return Ok(LightSubset::Square { slant_deg: 35.0 });
+        }
+        if let Some(v) = s.strip_prefix("square:") {
+            let slant: f64 = v.parse().map_err(|_| {
+                Error::invalid(format!("light subset '{s}': slant '{v}' is not a number"))
+            })?;
+            if !(0.0..90.0).contains(&slant) {
+                return Err(Error::invalid(format!(
+                    "light subset '{s}': slant must be in [0, 90) degrees"
+                )));
+            }
+            return Ok(LightSubset::Square { slant_deg: slant });
+        }
+        let idx: std::result::Result<Vec<usize>, _> =
+            s.split(',').map(|t| t.trim().parse::<usize>()).collect();
+        match idx {
+            Ok(v) if !v.is_empty() && v.iter().all(|&i| i >= 1) => Ok(LightSubset::Indices(v.into_iter().map(|i| i - 1).collect())),
+            _ => Err(Error::invalid(format!(
+                "light subset '{s}': expected 'square', 'square:SLANT' or 1-based indices like 1,5,9,13"
+            ))),
+        }
+    }
+}
+
+impl LightSubset {
+    /// The 0-based indices this subset picks from `lights`.
+    pub fn resolve(&self, lights: &crate::lights::Lights) -> Result<Vec<usize>> {
+        match self {
+            LightSubset::Indices(v) => Ok(v.clone()),
+            LightSubset::Square { slant_deg } => {
+                crate::lights::closest_square_rig(lights, *slant_deg)
+                    .map(|a| a.to_vec())
+                    .ok_or_else(|| {
+                        Error::invalid("no four distinct lights form a square rig in this capture")
+                    })
+            }
+        }
+    }
+}
+
 /// What a run does besides estimating.
 #[derive(Clone, Debug)]
 pub struct RunOptions {
@@ -68,6 +139,12 @@ pub struct RunOptions {
     pub error_map: bool,
     /// Upper end of the error map's colour scale, degrees.
     pub error_map_max_deg: f32,
+    /// Run the non-Lambertian detector and write its maps (needs four lights or more).
+    pub detect: bool,
+    /// The detector's parameters (also used by the methods built on it).
+    pub detection: DetectionParams,
+    /// Use only these lights.
+    pub light_subset: Option<LightSubset>,
 }
 
 impl Default for RunOptions {
@@ -77,6 +154,9 @@ impl Default for RunOptions {
             ground_truth: None,
             error_map: false,
             error_map_max_deg: 45.0,
+            detect: true,
+            detection: DetectionParams::default(),
+            light_subset: None,
         }
     }
 }
@@ -95,16 +175,56 @@ pub struct Reconstruction {
     pub mask: Vec<bool>,
     /// Per-pixel angular errors in degrees (NaN where not evaluated), with ground truth.
     pub error_map: Option<Vec<f32>>,
+    /// Detector maps, full frame: ‖r‖/σ (0 outside), unreliable flags, per-light status
+    /// (`n_lights * height * width`, 255 outside).
+    pub detection: Option<DetectionMaps>,
     pub report: Report,
 }
 
-/// Estimates normals and albedo of a loaded capture; fills the report's input and timings.
+/// The detector's maps scattered to the full frame.
+#[derive(Clone, Debug)]
+pub struct DetectionMaps {
+    pub residual: Vec<f32>,
+    pub unreliable: Vec<bool>,
+    pub light_status: Vec<u8>,
+    pub n_lights: usize,
+}
+
+impl DetectionMaps {
+    fn new(capture: &Capture, light_status: &[u8], detection: Option<&Detection>) -> Self {
+        let n = capture.n_lights();
+        let hw = capture.width * capture.height;
+        let mut status_full = vec![status::OUTSIDE; n * hw];
+        for (p, &i) in capture.pixels.iter().enumerate() {
+            for k in 0..n {
+                status_full[k * hw + i as usize] = light_status[p * n + k];
+            }
+        }
+        let (residual, unreliable) = match detection {
+            Some(d) => (
+                capture.scatter(&d.residual, 1, 0.0),
+                capture.scatter(&d.unreliable, 1, false),
+            ),
+            None => (vec![0.0; hw], vec![false; hw]),
+        };
+        DetectionMaps {
+            residual,
+            unreliable,
+            light_status: status_full,
+            n_lights: n,
+        }
+    }
+}
+
+/// Estimates normals and albedo of a loaded capture (and the detector's maps when asked);
+/// fills the report's input, parameters and timings.
 pub fn reconstruct(
     capture: &Capture,
-    method: Method,
+    options: &RunOptions,
     progress: &dyn Progress,
     report: &mut Report,
 ) -> Result<Reconstruction> {
+    let method = options.method;
     report.method = method.name().into();
     report.input = InputSummary {
         width: capture.width,
@@ -118,8 +238,37 @@ pub fn reconstruct(
     };
     report.notes.extend(capture.notes.iter().cloned());
     let t = Instant::now();
-    let est: Estimate = method.estimator().estimate(capture, progress)?;
+    let mut est: Estimate = method
+        .estimator(&options.detection)
+        .estimate(capture, progress)?;
     report.time("estimate", t);
+    let can_detect = capture.n_lights() >= 4;
+    if options.detect && can_detect && est.detection.is_none() {
+        let t = Instant::now();
+        est.detection = Some(detect(capture, &options.detection, progress)?);
+        report.time("detect", t);
+    }
+    if options.detect && !can_detect {
+        report
+            .notes
+            .push("detection skipped: it needs at least four lights".into());
+    }
+    if let Some(d) = &est.detection {
+        report.extra.insert(
+            "detection".into(),
+            serde_json::json!({
+                "noise": d.noise,
+                "threshold_chi2": d.threshold,
+                "confidence": d.params.confidence,
+                "unreliable_share": d.unreliable_share(),
+            }),
+        );
+    }
+    let detection = match (&est.light_status, &est.detection) {
+        (Some(st), d) => Some(DetectionMaps::new(capture, st, d.as_ref())),
+        (None, Some(d)) => Some(DetectionMaps::new(capture, &d.light_status, Some(d))),
+        (None, None) => None,
+    };
     Ok(Reconstruction {
         width: capture.width,
         height: capture.height,
@@ -128,6 +277,7 @@ pub fn reconstruct(
         albedo: capture.scatter(&est.albedo, capture.channels, 0.0),
         mask: capture.mask.clone(),
         error_map: None,
+        detection,
         report: report.clone(),
     })
 }
@@ -164,6 +314,35 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         &rec.albedo,
         &rec.mask,
     )?;
+    if let Some(d) = &rec.detection {
+        let (w, h) = (rec.width, rec.height);
+        write_npy_f32(&dir.join("residual.npy"), &[h, w], &d.residual)?;
+        write_npy_u8(
+            &dir.join("light_status.npy"),
+            &[d.n_lights, h, w],
+            &d.light_status,
+        )?;
+        // Fig. 6a: the statistic as grey (square root of ‖r‖/σ over its maximum); Fig. 6b: binary.
+        let top = d
+            .residual
+            .iter()
+            .zip(&rec.mask)
+            .filter(|(_, &m)| m)
+            .map(|(r, _)| *r)
+            .fold(1e-6f32, f32::max);
+        let grey: Vec<u8> = d
+            .residual
+            .iter()
+            .map(|r| ((r / top).sqrt().clamp(0.0, 1.0) * 255.0) as u8)
+            .collect();
+        write_png8(&dir.join("unreliable.png"), w, h, 1, &grey)?;
+        let binary: Vec<u8> = d
+            .unreliable
+            .iter()
+            .map(|&u| if u { 255 } else { 0 })
+            .collect();
+        write_png8(&dir.join("unreliable_mask.png"), w, h, 1, &binary)?;
+    }
     if options.error_map {
         if let Some(map) = &rec.error_map {
             write_error_map(
@@ -200,9 +379,22 @@ pub fn run(
         None => None,
     };
     let t = Instant::now();
-    let capture = files.load(progress)?;
+    let mut capture = files.load(progress)?;
+    if let Some(subset) = &options.light_subset {
+        let keep = subset.resolve(&capture.lights)?;
+        capture = capture.select_lights(&keep)?;
+        report.param(
+            "light_subset",
+            keep.iter().map(|k| k + 1).collect::<Vec<_>>(),
+        );
+    }
     report.time("load", t);
-    let mut rec = reconstruct(&capture, options.method, progress, &mut report)?;
+    report.param("detect", options.detect);
+    report.param(
+        "detection",
+        serde_json::to_value(&options.detection).unwrap_or_default(),
+    );
+    let mut rec = reconstruct(&capture, options, progress, &mut report)?;
     drop(capture);
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();

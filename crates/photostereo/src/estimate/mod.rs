@@ -5,8 +5,12 @@
 //! Normals are unit vectors in the camera frame (x right, y up, z toward the camera); albedo is
 //! per channel, in the units of the intensity-normalised images.
 
+mod barsky_petrou;
+mod coleman_jain;
 mod least_squares;
 
+pub use barsky_petrou::BarskyPetrou;
+pub use coleman_jain::ColemanJain;
 pub use least_squares::LeastSquares;
 
 use crate::capture::Capture;
@@ -26,6 +30,8 @@ pub struct Estimate {
     /// Per-light status of every mask pixel (`n_pixels * n_lights`, values of [`status`]), when
     /// the estimator decides which lights it used.
     pub light_status: Option<Vec<u8>>,
+    /// The detector's maps, when the estimator ran it.
+    pub detection: Option<crate::detect::Detection>,
 }
 
 /// Values of `light_status` (CONVENTIONS.md): which lights a pixel's estimate used.
@@ -110,6 +116,7 @@ pub fn solve_subsets(
         normals,
         albedo,
         light_status: None,
+        detection: None,
     }
 }
 

@@ -1,0 +1,620 @@
+//! Detecting non-Lambertian pixels through the linear dependence of the light directions
+//! (paper eqs. 4–6, generalised to N lights; ALGORITHMS.md §2), and attributing each failure to
+//! the lights at fault.
+//!
+//! For N > 3 lights the intensities of a Lambertian pixel lit by every light lie in the column
+//! space of the N×3 light matrix L. The residual r = Aᵀ I, with A an orthonormal basis of the
+//! null space of Lᵀ, is zero up to noise; its squared norm equals the residual sum of squares of
+//! the least-squares fit, which is how it is computed here (O(N) per pixel, A never formed).
+//! With noise σ_p, s = ‖r‖² / σ_p² follows χ² with N − 3 degrees of freedom; the pixel is
+//! unreliable when s exceeds the χ² quantile at the chosen confidence (95%: for four lights
+//! |r| > 1.96 σ, the paper's "T = 2σ").
+//!
+//! Noise model: σ_p² = σ₀² + (κ · Ī_p)², a floor plus a share of the pixel's own intensity level
+//! Ī_p (the mean of its intensities), because on real captures the "noise" is mostly model error
+//! that grows with brightness. σ₀ and κ are given or estimated robustly (see [`NoiseModel`]).
+//!
+//! Attribution: while the test fails and more than `min_kept` lights remain, remove the light
+//! whose removal lowers the residual sum of squares most (e_k² / P_kk, the deleted residual, with
+//! P = A Aᵀ the projector onto the residual space); its sign says darker (shadow) or brighter
+//! (highlight) than the others predict. When the scores tie — always the case with four lights,
+//! where P = a aᵀ — the intensities decide: the darkest too-dark candidate is a shadow if it is
+//! near the shadow level, otherwise the brightest too-bright candidate is a highlight.
+//! Intensities are the channel means of the intensity-normalised images.
+
+use crate::capture::Capture;
+use crate::error::{Error, Result};
+use crate::estimate::{channel_mean, status, CHUNK};
+use crate::progress::Progress;
+use crate::stats::{chi2_quantile, normal_upper_quantile};
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Parameters of the detector. Every default comes from a principle stated on its field.
+#[derive(Clone, Debug, Serialize)]
+pub struct DetectionParams {
+    /// Image noise σ per channel, in units of the normalised intensities (full scale = 1).
+    /// `None`: estimate the noise model from the capture. The test works on channel means, so
+    /// σ is divided by √C (independent channels).
+    pub sigma: Option<f64>,
+    /// Relative noise κ (share of the pixel's intensity level) when `sigma` is given; default 0.
+    pub relative_noise: Option<f64>,
+    /// Confidence of the χ² test (default 0.95, the paper's 2σ for four lights).
+    pub confidence: f64,
+    /// Attribution keeps at least this share of the lights (and never fewer than three).
+    /// Default 0.25: on a convex surface about half the lights of a dense dome can be in attached
+    /// shadow at grazing normals; a floor well below that keeps the fit determined.
+    pub min_kept_share: f64,
+    /// Family-wise error rate for removing, in one step, several lights that read at the shadow
+    /// level while the fit predicts clearly more (Bonferroni over the lights, two-sided).
+    /// Default 0.05.
+    pub batch_alpha: f64,
+    /// A too-dark candidate is a shadow when its intensity is below
+    /// `shadow_sigmas · σ_p + shadow_ratio · Ī_p` (default 3σ and 10% of the pixel's mean level).
+    pub shadow_sigmas: f64,
+    /// See `shadow_sigmas`.
+    pub shadow_ratio: f64,
+    /// Rounds of noise re-estimation from the pixels' retained lights (default 1).
+    pub noise_refinements: usize,
+}
+
+impl Default for DetectionParams {
+    fn default() -> Self {
+        DetectionParams {
+            sigma: None,
+            relative_noise: None,
+            confidence: 0.95,
+            min_kept_share: 0.25,
+            batch_alpha: 0.05,
+            shadow_sigmas: 3.0,
+            shadow_ratio: 0.1,
+            noise_refinements: 1,
+        }
+    }
+}
+
+impl DetectionParams {
+    /// Checks the parameters' domains; errors name the parameter.
+    pub fn validate(&self) -> Result<()> {
+        if let Some(s) = self.sigma {
+            if !(s.is_finite() && s > 0.0) {
+                return Err(Error::invalid(format!(
+                    "--sigma {s}: expected a finite positive noise level"
+                )));
+            }
+        }
+        if let Some(k) = self.relative_noise {
+            if !(k.is_finite() && k >= 0.0) {
+                return Err(Error::invalid(format!(
+                    "--relative-noise {k}: expected a finite value ≥ 0"
+                )));
+            }
+        }
+        if !(self.confidence > 0.5 && self.confidence < 1.0) {
+            return Err(Error::invalid(format!(
+                "--confidence {}: expected a value in (0.5, 1)",
+                self.confidence
+            )));
+        }
+        if !(0.0..=1.0).contains(&self.min_kept_share) {
+            return Err(Error::invalid("min_kept_share: expected a value in [0, 1]"));
+        }
+        Ok(())
+    }
+}
+
+/// Noise of the grey (channel-mean) intensities: σ_p² = σ₀² + (κ · level)².
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct NoiseModel {
+    /// Floor σ₀.
+    pub sigma0: f64,
+    /// Share κ of the intensity level.
+    pub kappa: f64,
+    /// Whether it was estimated (true) or given.
+    pub estimated: bool,
+}
+
+impl NoiseModel {
+    /// σ_p² at a pixel of mean intensity `level`.
+    #[inline]
+    pub fn variance(&self, level: f64) -> f64 {
+        (self.sigma0 * self.sigma0 + self.kappa * self.kappa * level * level).max(1e-20)
+    }
+}
+
+/// The detector's results, per mask pixel (see [`Capture::pixels`]).
+#[derive(Clone, Debug)]
+pub struct Detection {
+    /// ‖r‖ / σ_p with all lights: the grey map of the paper's Fig. 6a.
+    pub residual: Vec<f32>,
+    /// The χ² test failed with all lights: the binary map of Fig. 6b.
+    pub unreliable: Vec<bool>,
+    /// Per pixel and light (`n_pixels * n_lights`): USED, SHADOW or HIGHLIGHT.
+    pub light_status: Vec<u8>,
+    /// The noise model used.
+    pub noise: NoiseModel,
+    /// The χ² threshold with all lights.
+    pub threshold: f64,
+    /// The parameters used.
+    pub params: DetectionParams,
+}
+
+impl Detection {
+    /// Share of mask pixels flagged unreliable.
+    pub fn unreliable_share(&self) -> f64 {
+        self.unreliable.iter().filter(|&&u| u).count() as f64 / self.unreliable.len().max(1) as f64
+    }
+
+    /// Usable-light flags (`n_pixels * n_lights`, true = USED).
+    pub fn usable(&self) -> Vec<bool> {
+        self.light_status
+            .iter()
+            .map(|&s| s == status::USED)
+            .collect()
+    }
+}
+
+/// Per-capture constants of the test.
+struct Test {
+    directions: Vec<Vector3<f64>>,
+    /// Structure-of-arrays copies for vectorised loops: components and the products that
+    /// give the leverage lᵀ G⁻¹ l from the six distinct entries of the symmetric G⁻¹.
+    lx: Vec<f64>,
+    ly: Vec<f64>,
+    lz: Vec<f64>,
+    quad: [Vec<f64>; 6],
+    gram: Matrix3<f64>,
+    gram_inv: Matrix3<f64>,
+    /// thresholds[d] = χ²_d quantile at the confidence (d = 1..N−3).
+    thresholds: Vec<f64>,
+    /// z² of the batch-removal test.
+    batch_z2: f64,
+    min_kept: usize,
+}
+
+impl Test {
+    fn new(capture: &Capture, params: &DetectionParams) -> Result<Self> {
+        let n = capture.n_lights();
+        if n < 4 {
+            return Err(Error::invalid(format!(
+                "detection needs at least four lights (the test has N − 3 degrees of freedom); the capture has {n}"
+            )));
+        }
+        let directions: Vec<Vector3<f64>> = capture
+            .lights
+            .directions
+            .iter()
+            .map(|d| Vector3::from(*d))
+            .collect();
+        let gram = capture.lights.gram();
+        let gram_inv = gram
+            .try_inverse()
+            .ok_or_else(|| Error::invalid("singular light matrix"))?;
+        let mut thresholds = vec![f64::INFINITY; n - 2];
+        for (d, t) in thresholds.iter_mut().enumerate().skip(1) {
+            *t = chi2_quantile(params.confidence, d);
+        }
+        let z = normal_upper_quantile(params.batch_alpha / (2.0 * n as f64));
+        let min_kept = ((params.min_kept_share * n as f64).ceil() as usize).max(3);
+        let lx: Vec<f64> = directions.iter().map(|l| l.x).collect();
+        let ly: Vec<f64> = directions.iter().map(|l| l.y).collect();
+        let lz: Vec<f64> = directions.iter().map(|l| l.z).collect();
+        let quad = [
+            directions.iter().map(|l| l.x * l.x).collect(),
+            directions.iter().map(|l| l.y * l.y).collect(),
+            directions.iter().map(|l| l.z * l.z).collect(),
+            directions.iter().map(|l| 2.0 * l.x * l.y).collect(),
+            directions.iter().map(|l| 2.0 * l.x * l.z).collect(),
+            directions.iter().map(|l| 2.0 * l.y * l.z).collect(),
+        ];
+        Ok(Test {
+            directions,
+            lx,
+            ly,
+            lz,
+            quad,
+            gram,
+            gram_inv,
+            thresholds,
+            batch_z2: z * z,
+            min_kept,
+        })
+    }
+}
+
+/// Per-thread scratch space: no allocation per pixel.
+struct Scratch {
+    grey: Vec<f64>,
+    /// 1.0 for kept lights, 0.0 for removed ones (branch-free loops).
+    weight: Vec<f64>,
+    resid: Vec<f64>,
+    score: Vec<f64>,
+}
+
+impl Scratch {
+    fn new(n: usize) -> Self {
+        Scratch {
+            grey: vec![0.0; n],
+            weight: vec![1.0; n],
+            resid: vec![0.0; n],
+            score: vec![0.0; n],
+        }
+    }
+}
+
+/// Least squares over the kept lights: (m, RSS, kept count, G⁻¹), or None if singular.
+#[inline]
+fn fit(
+    test: &Test,
+    grey: &[f64],
+    kept: &[bool],
+    gram_inv: &Matrix3<f64>,
+) -> (Vector3<f64>, f64, usize) {
+    let mut b = Vector3::zeros();
+    let mut count = 0;
+    for ((l, &i), &k) in test.directions.iter().zip(grey).zip(kept) {
+        if k {
+            b += l * i;
+            count += 1;
+        }
+    }
+    let m = gram_inv * b;
+    let mut rss = 0.0;
+    for ((l, &i), &k) in test.directions.iter().zip(grey).zip(kept) {
+        if k {
+            let e = i - l.dot(&m);
+            rss += e * e;
+        }
+    }
+    (m, rss, count)
+}
+
+/// One pass over the lights: residuals eₖ = Iₖ − lₖ·m, deleted-residual scores
+/// wₖ eₖ² / (1 − hₖ) with hₖ = lₖᵀ G⁻¹ lₖ, and the residual sum of squares over kept lights.
+#[inline]
+fn score_pass(test: &Test, s: &mut Scratch, m: &Vector3<f64>, gi: &Matrix3<f64>) -> f64 {
+    let (g00, g11, g22, g01, g02, g12) = (
+        gi[(0, 0)],
+        gi[(1, 1)],
+        gi[(2, 2)],
+        gi[(0, 1)],
+        gi[(0, 2)],
+        gi[(1, 2)],
+    );
+    let [qxx, qyy, qzz, qxy, qxz, qyz] = &test.quad;
+    let mut rss = 0.0;
+    for k in 0..s.grey.len() {
+        let e = s.grey[k] - (test.lx[k] * m.x + test.ly[k] * m.y + test.lz[k] * m.z);
+        let h =
+            g00 * qxx[k] + g11 * qyy[k] + g22 * qzz[k] + g01 * qxy[k] + g02 * qxz[k] + g12 * qyz[k];
+        let w = s.weight[k];
+        s.resid[k] = e;
+        s.score[k] = w * e * e / (1.0 - h).max(1e-9);
+        rss += w * e * e;
+    }
+    rss
+}
+
+/// Attribution at one pixel. Fills `status_out` (N) and returns (s with all lights, RSS and
+/// kept count at the end).
+fn attribute(
+    test: &Test,
+    params: &DetectionParams,
+    noise: &NoiseModel,
+    scratch: &mut Scratch,
+    status_out: &mut [u8],
+) -> (f64, f64, usize) {
+    let n = test.directions.len();
+    let level = scratch.grey.iter().sum::<f64>() / n as f64;
+    let var = noise.variance(level);
+    let sigma = var.sqrt();
+    scratch.weight.fill(1.0);
+    status_out.fill(status::USED);
+    let mut gram = test.gram;
+    let mut gram_inv = test.gram_inv;
+    let mut b = Vector3::zeros();
+    for k in 0..n {
+        b += test.directions[k] * scratch.grey[k];
+    }
+    let mut m = gram_inv * b;
+    let mut count = n;
+    let mut rss = score_pass(test, scratch, &m, &gram_inv);
+    let s_all = rss / var;
+    let shadow_level = params.shadow_sigmas * sigma + params.shadow_ratio * level;
+    while count > 3 && count > test.min_kept && rss / var > test.thresholds[count - 3] {
+        // The largest deleted residual, and whether it is tied (always so with four lights).
+        let (mut best, mut best_score, mut second) = (usize::MAX, -1.0, -1.0);
+        for (k, &sc) in scratch.score.iter().enumerate() {
+            if scratch.weight[k] > 0.0 && sc > best_score {
+                second = best_score;
+                best_score = sc;
+                best = k;
+            } else if scratch.weight[k] > 0.0 && sc > second {
+                second = sc;
+            }
+        }
+        if best == usize::MAX {
+            break;
+        }
+        let tie = best_score * (1.0 - 1e-6);
+        let tied = second >= tie;
+        if tied {
+            // Decide by intensities: the darkest too-dark candidate if it reads at the shadow
+            // level, else the brightest too-bright candidate.
+            let candidates =
+                || (0..n).filter(|&k| scratch.weight[k] > 0.0 && scratch.score[k] >= tie);
+            let dark = candidates()
+                .filter(|&k| scratch.resid[k] < 0.0)
+                .min_by(|&a, &b| scratch.grey[a].total_cmp(&scratch.grey[b]));
+            let bright = candidates()
+                .filter(|&k| scratch.resid[k] > 0.0)
+                .max_by(|&a, &b| scratch.grey[a].total_cmp(&scratch.grey[b]));
+            best = match (dark, bright) {
+                (Some(d), _) if scratch.grey[d] <= shadow_level => d,
+                (_, Some(b)) => b,
+                (Some(d), None) => d,
+                (None, None) => best,
+            };
+        }
+        // Remove the chosen light and, in the same step, every light that reads at the shadow
+        // level while the fit predicts clearly more (Bonferroni outlier): a reading near zero
+        // is a shadow however much other faulty lights have pulled the fit, whereas judging
+        // brighter readings against that fit would swamp.
+        let mut remove =
+            |k: usize, s: &mut Scratch, gram: &mut Matrix3<f64>, b: &mut Vector3<f64>| {
+                s.weight[k] = 0.0;
+                let l = test.directions[k];
+                *gram -= l * l.transpose();
+                *b -= l * s.grey[k];
+                status_out[k] = if s.resid[k] < 0.0 {
+                    status::SHADOW
+                } else {
+                    status::HIGHLIGHT
+                };
+            };
+        remove(best, scratch, &mut gram, &mut b);
+        count -= 1;
+        if !tied {
+            let floor = test.min_kept.max(3);
+            for k in 0..n {
+                if count <= floor {
+                    break;
+                }
+                if scratch.weight[k] > 0.0
+                    && scratch.resid[k] < 0.0
+                    && scratch.grey[k] <= shadow_level
+                    && scratch.score[k] / var > test.batch_z2
+                {
+                    remove(k, scratch, &mut gram, &mut b);
+                    count -= 1;
+                }
+            }
+        }
+        match gram.try_inverse() {
+            Some(inv) => gram_inv = inv,
+            None => break,
+        }
+        m = gram_inv * b;
+        rss = score_pass(test, scratch, &m, &gram_inv);
+    }
+    (s_all, rss, count)
+}
+
+/// Runs the test and the attribution over every mask pixel with a fixed noise model.
+fn sweep(
+    capture: &Capture,
+    test: &Test,
+    params: &DetectionParams,
+    noise: &NoiseModel,
+    progress: &dyn Progress,
+) -> (Vec<f32>, Vec<u8>) {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let np = capture.n_pixels();
+    let mut residual = vec![0f32; np];
+    let mut light_status = vec![status::USED; np * n];
+    progress.begin("detecting", np as u64);
+    residual
+        .par_chunks_mut(CHUNK)
+        .zip(light_status.par_chunks_mut(CHUNK * n))
+        .enumerate()
+        .for_each_init(
+            || Scratch::new(n),
+            |scratch, (chunk, (res, st))| {
+                let p0 = chunk * CHUNK;
+                for dp in 0..res.len() {
+                    channel_mean(capture.pixel_samples(p0 + dp), c, &mut scratch.grey);
+                    let (s_all, _, _) =
+                        attribute(test, params, noise, scratch, &mut st[dp * n..(dp + 1) * n]);
+                    res[dp] = s_all.sqrt() as f32;
+                }
+                progress.advance(res.len() as u64);
+            },
+        );
+    progress.end();
+    (residual, light_status)
+}
+
+/// Fits σ² = σ₀² + κ² · level² to per-bin variance estimates (level, variance), with σ₀², κ² ≥ 0.
+fn fit_noise(bins: &[(f64, f64)]) -> (f64, f64) {
+    let n = bins.len() as f64;
+    if bins.is_empty() {
+        return (1e-3, 0.0);
+    }
+    let (sx, sy, sxx, sxy) = bins.iter().fold((0.0, 0.0, 0.0, 0.0), |a, &(l, v)| {
+        let x = l * l;
+        (a.0 + x, a.1 + v, a.2 + x * x, a.3 + x * v)
+    });
+    let det = n * sxx - sx * sx;
+    let (mut a, mut b) = if det.abs() > 1e-30 {
+        ((sy * sxx - sx * sxy) / det, (n * sxy - sx * sy) / det)
+    } else {
+        (sy / n, 0.0)
+    };
+    if b < 0.0 {
+        b = 0.0;
+        a = sy / n;
+    }
+    if a < 0.0 {
+        a = 0.0;
+        b = if sxx > 0.0 { sxy / sxx } else { 0.0 };
+    }
+    (a.max(1e-16).sqrt(), b.max(0.0).sqrt())
+}
+
+/// Per-level-bin variance estimates from (level, statistic, dof) triples: in each of `n_bins`
+/// equal-count bins of level, the q-quantile of RSS / χ²_d(q) (a low quantile is robust to the
+/// non-Lambertian pixels, which only inflate the residual).
+fn binned_variance(samples: &mut [(f64, f64, usize)], q: f64, n_bins: usize) -> Vec<(f64, f64)> {
+    samples.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let per = samples.len().div_ceil(n_bins).max(1);
+    let mut out = Vec::new();
+    let mut quant_cache = std::collections::HashMap::new();
+    for bin in samples.chunks_mut(per) {
+        if bin.len() < 20 {
+            continue;
+        }
+        let level = bin.iter().map(|s| s.0).sum::<f64>() / bin.len() as f64;
+        let mut norm: Vec<f64> = bin
+            .iter()
+            .map(|&(_, rss, d)| {
+                let qd = *quant_cache.entry(d).or_insert_with(|| chi2_quantile(q, d));
+                rss / qd
+            })
+            .collect();
+        let k = ((norm.len() as f64 * q) as usize).min(norm.len() - 1);
+        let (_, v, _) = norm.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
+        out.push((level, *v));
+    }
+    out
+}
+
+/// The noise model of a capture: the given σ (per channel, divided by √C for the channel
+/// means) and κ, or an estimate. The estimate starts from a low quantile (25%) of the all-light
+/// residuals in eight equal-count brightness bins, fits σ₀ and κ, then re-estimates
+/// `noise_refinements` times from the median residual of the lights each pixel kept after
+/// attribution (pixels that then pass the test hold noise only).
+pub fn noise_model(
+    capture: &Capture,
+    params: &DetectionParams,
+    _progress: &dyn Progress,
+) -> Result<NoiseModel> {
+    params.validate()?;
+    let c = capture.channels;
+    if let Some(s) = params.sigma {
+        return Ok(NoiseModel {
+            sigma0: s / (c as f64).sqrt(),
+            kappa: params.relative_noise.unwrap_or(0.0),
+            estimated: false,
+        });
+    }
+    let test = Test::new(capture, params)?;
+    let n = capture.n_lights();
+    let mut samples: Vec<(f64, f64, usize)> = (0..capture.n_pixels())
+        .into_par_iter()
+        .map_init(
+            || (vec![0f64; n], vec![true; n]),
+            |(grey, all), p| {
+                channel_mean(capture.pixel_samples(p), c, grey);
+                let level = grey.iter().sum::<f64>() / n as f64;
+                let (_, rss, _) = fit(&test, grey, all, &test.gram_inv);
+                (level, rss, n - 3)
+            },
+        )
+        .collect();
+    let (s0, k) = fit_noise(&binned_variance(&mut samples, 0.25, 8));
+    let mut noise = NoiseModel {
+        sigma0: s0,
+        kappa: k,
+        estimated: true,
+    };
+    // Refinements look at a regular sample of at most REFINE_SAMPLES pixels: the estimate needs
+    // a few thousand residuals, not all of them.
+    const REFINE_SAMPLES: usize = 8192;
+    let stride = capture.n_pixels().div_ceil(REFINE_SAMPLES).max(1);
+    for _ in 0..params.noise_refinements {
+        let mut samples: Vec<(f64, f64, usize)> = (0..capture.n_pixels())
+            .into_par_iter()
+            .step_by(stride)
+            .map_init(
+                || {
+                    let scratch = Scratch::new(n);
+                    (scratch, vec![0u8; n])
+                },
+                |(scratch, st), p| {
+                    channel_mean(capture.pixel_samples(p), c, &mut scratch.grey);
+                    let level = scratch.grey.iter().sum::<f64>() / n as f64;
+                    let (_, rss, kept) = attribute(&test, params, &noise, scratch, st);
+                    (level, rss, kept)
+                },
+            )
+            .filter(|f| f.2 > 3)
+            .map(|(l, rss, k)| (l, rss, k - 3))
+            .collect();
+        if samples.len() < 100 {
+            break;
+        }
+        let (s0, k) = fit_noise(&binned_variance(&mut samples, 0.5, 8));
+        noise = NoiseModel {
+            sigma0: s0,
+            kappa: k,
+            estimated: true,
+        };
+    }
+    Ok(noise)
+}
+
+/// Detects the non-Lambertian pixels of a capture and attributes them to lights, with the noise
+/// model from [`noise_model`].
+pub fn detect(
+    capture: &Capture,
+    params: &DetectionParams,
+    progress: &dyn Progress,
+) -> Result<Detection> {
+    let noise = noise_model(capture, params, progress)?;
+    detect_with_noise(capture, params, noise, progress)
+}
+
+/// Detection with a known noise model.
+pub fn detect_with_noise(
+    capture: &Capture,
+    params: &DetectionParams,
+    noise: NoiseModel,
+    progress: &dyn Progress,
+) -> Result<Detection> {
+    params.validate()?;
+    let test = Test::new(capture, params)?;
+    let n = capture.n_lights();
+    let (residual, light_status) = sweep(capture, &test, params, &noise, progress);
+    let threshold = test.thresholds[n - 3];
+    let unreliable = residual
+        .iter()
+        .map(|&r| (r as f64) * (r as f64) > threshold)
+        .collect();
+    Ok(Detection {
+        residual,
+        unreliable,
+        light_status,
+        noise,
+        threshold,
+        params: params.clone(),
+    })
+}
+
+/// An orthonormal basis A (N × (N−3)) of the null space of Lᵀ: the eigenvectors of L Lᵀ with
+/// eigenvalue zero (for four lights, the paper's vector a). The detector never needs it (it uses
+/// the equal least-squares residual); it is exposed for analysis and tests.
+pub fn null_space(lights: &crate::lights::Lights) -> nalgebra::DMatrix<f64> {
+    let n = lights.len();
+    let l = nalgebra::DMatrix::from_fn(n, 3, |r, c| lights.directions[r][c]);
+    let eig = nalgebra::SymmetricEigen::new(&l * l.transpose());
+    let mut order: Vec<usize> = (0..n).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[a].total_cmp(&eig.eigenvalues[b]));
+    let k = n.saturating_sub(3);
+    nalgebra::DMatrix::from_fn(n, k, |r, c| eig.eigenvectors[(r, order[c])])
+}
+
+#[cfg(test)]
+#[path = "detect/tests.rs"]
+mod tests;

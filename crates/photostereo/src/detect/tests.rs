@@ -1,0 +1,159 @@
+use super::*;
+use crate::estimate::tests::{lambert_sphere, ring};
+use crate::lights::Lights;
+use crate::progress::Silent;
+
+fn square4() -> Vec<[f64; 3]> {
+    let s = 35f64.to_radians();
+    [45.0f64, 135.0, 225.0, 315.0]
+        .iter()
+        .map(|t| {
+            let t = t.to_radians();
+            [s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]
+        })
+        .collect()
+}
+
+#[test]
+fn paper_rig_null_vector() {
+    let lights = Lights::new(&square4()).unwrap();
+    let a = null_space(&lights);
+    assert_eq!(a.shape(), (4, 1));
+    let sign = if a[(0, 0)] < 0.0 { 1.0 } else { -1.0 };
+    for (k, want) in [-0.5, 0.5, -0.5, 0.5].iter().enumerate() {
+        assert!((sign * a[(k, 0)] - want).abs() < 1e-12, "{:?}", a);
+    }
+}
+
+#[test]
+fn residual_norm_equals_least_squares_rss() {
+    let dirs = ring(9, 40.0);
+    let lights = Lights::new(&dirs).unwrap();
+    let a = null_space(&lights);
+    let intens: Vec<f64> = (0..9).map(|k| 0.3 + 0.07 * ((k * 7) % 5) as f64).collect();
+    let r = a.transpose() * nalgebra::DVector::from_vec(intens.clone());
+    let (_, rss, count) = {
+        let cap = lambert_sphere(16, 6.0, &dirs).0;
+        let test = Test::new(&cap, &DetectionParams::default()).unwrap();
+        fit(&test, &intens, &[true; 9], &test.gram_inv)
+    };
+    assert_eq!(count, 9);
+    assert!(
+        (r.norm_squared() - rss).abs() < 1e-12,
+        "{} vs {rss}",
+        r.norm_squared()
+    );
+}
+
+/// Corrupts one light at every other pixel and detects. Also returns, per pixel, whether every
+/// light's clean intensity is at least 20% of the pixel's mean: with four lights a zeroed light
+/// and a highlight are indistinguishable by intensities at pixels where a light is nearly
+/// grazing, so the attribution check is made away from the terminator.
+fn corrupted(
+    dirs: &[[f64; 3]],
+    light: usize,
+    delta: Option<f32>,
+) -> (Capture, Detection, Vec<bool>) {
+    let (mut capture, _) = lambert_sphere(48, 20.0, dirs);
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let clear: Vec<bool> = (0..capture.n_pixels())
+        .map(|p| {
+            let s = capture.pixel_samples(p);
+            let grey: Vec<f32> = s.chunks(c).map(|v| v.iter().sum::<f32>()).collect();
+            let mean = grey.iter().sum::<f32>() / n as f32;
+            grey.iter().all(|&g| g >= 0.2 * mean)
+        })
+        .collect();
+    // Corrupt one light at every other pixel: zero it (shadow) or brighten it above every other
+    // light by `delta` (a highlight is the brightest reading; with four lights that is what
+    // tells it from the opposite light, which the linear test implicates equally).
+    for p in (0..capture.n_pixels()).step_by(2) {
+        let top = capture.pixel_samples(p).iter().cloned().fold(0.0, f32::max);
+        for ch in 0..c {
+            let v = &mut capture.samples[(p * n + light) * c + ch];
+            *v = match delta {
+                None => 0.0,
+                Some(d) => top + d,
+            };
+        }
+    }
+    let params = DetectionParams {
+        sigma: Some(0.002),
+        ..Default::default()
+    };
+    let det = detect(&capture, &params, &Silent).unwrap();
+    (capture, det, clear)
+}
+
+#[test]
+fn one_zeroed_or_brightened_light_is_attributed() {
+    for dirs in [square4(), ring(8, 35.0)] {
+        let n = dirs.len();
+        for light in 0..n {
+            for (delta, kind) in [(None, status::SHADOW), (Some(0.3), status::HIGHLIGHT)] {
+                let (capture, det, clear) = corrupted(&dirs, light, delta);
+                let mut right = 0;
+                let mut total = 0;
+                for p in (0..capture.n_pixels()).step_by(2).filter(|&p| clear[p]) {
+                    total += 1;
+                    let st = &det.light_status[p * n..(p + 1) * n];
+                    if det.unreliable[p]
+                        && st[light] == kind
+                        && st.iter().filter(|&&s| s != status::USED).count() == 1
+                    {
+                        right += 1;
+                    }
+                }
+                assert!(
+                    total > 300 && right == total,
+                    "N={n} light {light} {kind}: {right}/{total}"
+                );
+                // Clean pixels stay clean (no noise here, so none is flagged).
+                let false_alarms = (1..capture.n_pixels())
+                    .step_by(2)
+                    .filter(|&p| det.unreliable[p])
+                    .count();
+                assert_eq!(false_alarms, 0);
+            }
+        }
+    }
+}
+
+#[test]
+fn noise_level_is_estimated_from_a_noisy_capture() {
+    // Gaussian noise of known σ on a Lambertian sphere with 30% of pixels corrupted.
+    let dirs = ring(8, 35.0);
+    let (mut capture, _) = lambert_sphere(64, 28.0, &dirs);
+    let n = capture.n_lights();
+    let sigma = 0.005;
+    let mut rng = crate::stats::Rng::new(3);
+    for v in capture.samples.iter_mut() {
+        *v += (sigma * rng.normal()) as f32;
+    }
+    for p in 0..capture.n_pixels() {
+        if p % 10 < 3 {
+            for ch in 0..3 {
+                capture.samples[(p * n + p % n) * 3 + ch] += 0.3;
+            }
+        }
+    }
+    let det = detect(&capture, &DetectionParams::default(), &Silent).unwrap();
+    let grey_sigma = sigma / 3f64.sqrt();
+    assert!(det.noise.estimated);
+    let est = det.noise.variance(0.3).sqrt();
+    assert!(
+        est > 0.7 * grey_sigma && est < 1.4 * grey_sigma,
+        "estimated {est}, true {grey_sigma}"
+    );
+    // False-alarm rate near 5% on clean pixels, detection near 100% on corrupted ones.
+    let clean: Vec<usize> = (0..capture.n_pixels()).filter(|p| p % 10 >= 3).collect();
+    let fa = clean.iter().filter(|&&p| det.unreliable[p]).count() as f64 / clean.len() as f64;
+    assert!(fa < 0.10, "false alarms {fa}");
+    let hit = (0..capture.n_pixels())
+        .filter(|p| p % 10 < 3)
+        .filter(|&p| det.unreliable[p])
+        .count() as f64
+        / (0..capture.n_pixels()).filter(|p| p % 10 < 3).count() as f64;
+    assert!(hit > 0.99, "hits {hit}");
+}

@@ -1,0 +1,32 @@
+//! Barsky & Petrou's four-source method (ALGORITHMS.md §3), generalised to N lights: the eq. 5
+//! test flags a pixel; the light at fault is dropped — the darkest if it reads near the shadow
+//! level (shadow), else the brightest too-bright candidate (highlight) — and the normal is solved
+//! from the others. With more than four lights the drop is iterated while the test fails (see
+//! [`crate::detect`]); with four, one light at most is dropped, as published.
+
+use super::{solve_subsets, Estimate, Estimator};
+use crate::capture::Capture;
+use crate::detect::{detect, DetectionParams};
+use crate::error::Result;
+use crate::progress::Progress;
+
+/// Barsky & Petrou with the detector's parameters.
+#[derive(Clone, Debug, Default)]
+pub struct BarskyPetrou {
+    pub params: DetectionParams,
+}
+
+impl Estimator for BarskyPetrou {
+    fn name(&self) -> &'static str {
+        "barsky-petrou"
+    }
+
+    fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
+        let detection = detect(capture, &self.params, progress)?;
+        let usable = detection.usable();
+        let mut est = solve_subsets(capture, Some(&usable), progress);
+        est.light_status = Some(detection.light_status.clone());
+        est.detection = Some(detection);
+        Ok(est)
+    }
+}
