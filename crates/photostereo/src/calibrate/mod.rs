@@ -93,8 +93,15 @@ impl SphereFiles {
                 format!("announces {count} images but lists {}", lines.len() - 1),
             ));
         }
-        let base = list.parent().unwrap_or(Path::new("."));
-        let bases = [base.to_path_buf(), base.join("..")];
+        let base = match list.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let parent = match base.parent() {
+            Some(p) if !p.as_os_str().is_empty() && base != Path::new(".") => p.to_path_buf(),
+            _ => base.join(".."),
+        };
+        let bases = [base, parent];
         let mut used_parent = false;
         let mut resolve = |line: usize, rel: &str, what: &str| -> Result<PathBuf> {
             for (i, b) in bases.iter().enumerate() {
@@ -347,9 +354,10 @@ impl Default for CalibrationOptions {
 pub struct ConfidenceParts {
     /// (peak − background) / peak.
     pub contrast: f64,
-    /// Blob area over the disc about its centroid that holds it.
+    /// √(blob area over the disc about its centroid that holds it): 1 for a round blob,
+    /// about 0.7 for a 2:1 ellipse, lower for streaks.
     pub compactness: f64,
-    /// 1 − ½ · (saturated share of the blob).
+    /// 1 − ¼ · (saturated share of the blob): a flat saturated core locates less precisely.
     pub saturation: f64,
     /// n_z at the highlight: 1 at the sphere's centre, 0 at the rim, where a pixel of error in
     /// the highlight turns the direction most (dθ = 2 dρ / n_z).
@@ -367,7 +375,9 @@ pub struct LightEstimate {
     pub normal: Option<[f64; 3]>,
     /// Unit light direction (camera frame, toward the light), when found.
     pub direction: Option<[f64; 3]>,
-    /// Confidence in [0, 1] (0 when missing).
+    /// Confidence in [0, 1] (0 when missing): the product of [`ConfidenceParts`]. A relative
+    /// figure for comparing the lights of one capture (1 = a round, unsaturated, unique
+    /// highlight at the sphere's centre), not a probability.
     pub confidence: f64,
     /// The factors of the confidence, when found.
     pub confidence_parts: Option<ConfidenceParts>,
@@ -519,8 +529,8 @@ pub fn calibrate(
         }
         let parts = ConfidenceParts {
             contrast: (((hl.peak - hl.background) / hl.peak.max(1e-6)) as f64).clamp(0.0, 1.0),
-            compactness: hl.compactness.clamp(0.0, 1.0),
-            saturation: 1.0 - 0.5 * hl.saturated as f64 / hl.pixels.max(1) as f64,
+            compactness: hl.compactness.clamp(0.0, 1.0).sqrt(),
+            saturation: 1.0 - 0.25 * hl.saturated as f64 / hl.pixels.max(1) as f64,
             rim: nz,
             uniqueness: (1.0 - hl.second_blob_share).clamp(0.0, 1.0),
         };
