@@ -22,8 +22,8 @@ pub struct CalibrateArgs {
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// A matte sphere (or grey ball) under the same lights, for relative light intensities: a
-    /// list file, a folder, or image paths (repeat the option for each image).
-    #[arg(long, value_name = "CAPTURE")]
+    /// list file, a folder, or image paths (`--matte a.png b.png …`, after SPHERE_CAPTURE).
+    #[arg(long, value_name = "CAPTURE", num_args = 1..)]
     pub matte: Vec<PathBuf>,
     /// The matte sphere's mask; overrides the matte capture's own.
     #[arg(long)]

@@ -330,9 +330,11 @@ pub fn fit_mask_circle(mask: &[bool], width: usize, height: usize, what: &str) -
     Ok(fit)
 }
 
-/// Detects the sphere when no mask is given: the per-pixel maximum over the images (grey), an
-/// Otsu threshold, the largest region, holes filled, and a circle fit to its outline. Returns
-/// the region (as a mask) and its fit.
+/// Detects the sphere when no mask is given: the per-pixel maximum over the images (grey),
+/// clipped at its 95th percentile so that highlights do not set the scale, an Otsu threshold,
+/// the largest region, holes filled, and a circle fit to its outline. Returns the region (as a
+/// mask) and its fit. Works when the sphere is brighter than its surroundings in some image
+/// (a matte sphere, or a mirror sphere reflecting a lit room); otherwise pass a mask.
 pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
     let first = images
         .first()
@@ -347,15 +349,170 @@ pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
             }
         }
     }
-    let t = otsu_threshold(&max);
-    let mask: Vec<bool> = max.iter().map(|&v| v > t).collect();
+    let mut sorted = max.clone();
+    let at = ((sorted.len() as f64 * 0.95) as usize).min(sorted.len() - 1);
+    let (_, p95, _) = sorted.select_nth_unstable_by(at, |a, b| a.total_cmp(b));
+    let scale = p95.max(1e-6);
+    let scaled: Vec<f32> = max.iter().map(|v| (v / scale).min(1.0)).collect();
+    let t = otsu_threshold(&scaled);
+    let mask: Vec<bool> = scaled.iter().map(|&v| v > t).collect();
     let (region, _) = largest_region(&mask, w, h);
-    let fit = fit_mask_circle(&region, w, h, "the detected sphere").map_err(|e| {
+    let fail = |m: String| {
         Error::invalid(format!(
-            "could not detect the sphere automatically ({e}); pass --mask with the sphere's mask"
+            "could not detect the sphere automatically ({m}); pass --mask with the sphere's mask"
         ))
-    })?;
+    };
+    let (points, touches) = region_outline(&region, w, h);
+    // Robust fit: the bright region may include a stand or clutter touching the sphere.
+    let (mut fit, inliers) = fit_circle_trimmed(&points).map_err(|e| fail(e.to_string()))?;
+    fit.touches_frame = touches;
+    let c = fit.circle;
+    if c.r < MIN_RADIUS_PX {
+        return Err(fail(format!("the brightest region's radius is {:.1} px", c.r)));
+    }
+    if inliers < 0.6 {
+        return Err(fail(format!(
+            "only {:.0}% of the brightest region's outline lies on a circle",
+            100.0 * inliers
+        )));
+    }
+    if fit.coverage < 0.5 {
+        return Err(fail(format!(
+            "only {:.0}% of the sphere's outline is inside the image",
+            100.0 * fit.coverage
+        )));
+    }
+    let (mut inside, mut covered) = (0usize, 0usize);
+    for r in 0..h {
+        for col in 0..w {
+            if (col as f64 - c.cx).powi(2) + (r as f64 - c.cy).powi(2) <= c.r * c.r {
+                inside += 1;
+                covered += region[r * w + col] as usize;
+            }
+        }
+    }
+    if (covered as f64) < 0.9 * inside as f64 {
+        return Err(fail(format!(
+            "the brightest region covers only {:.0}% of its circle",
+            100.0 * covered as f64 / inside.max(1) as f64
+        )));
+    }
+    let fit = refine_on_edges(&max, w, h, &fit).unwrap_or(fit);
     Ok((region, fit))
+}
+
+/// Fits a circle, then refits twice without the points farther than three robust standard
+/// deviations (+1 px) from it. Returns the fit (its figures over the kept points) and the share
+/// of points kept.
+pub fn fit_circle_trimmed(points: &[[f64; 2]]) -> Result<(CircleFit, f64)> {
+    let mut fit = fit_circle(points)?;
+    let mut kept: Vec<[f64; 2]> = points.to_vec();
+    for _ in 0..3 {
+        let c = fit.circle;
+        let res: Vec<f64> = points
+            .iter()
+            .map(|p| ((p[0] - c.cx).hypot(p[1] - c.cy) - c.r).abs())
+            .collect();
+        let mut sorted = res.clone();
+        let mid = sorted.len() / 2;
+        let (_, mad, _) = sorted.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+        let limit = 3.0 * 1.4826 * *mad + 1.0;
+        kept = points
+            .iter()
+            .zip(&res)
+            .filter(|(_, r)| **r <= limit)
+            .map(|(p, _)| *p)
+            .collect();
+        fit = fit_circle(&kept)?;
+    }
+    Ok((fit, kept.len() as f64 / points.len().max(1) as f64))
+}
+
+/// Refines a circle on the image's edge: along 720 radial profiles within ±6 px of the circle,
+/// the steepest descent (inside brighter than outside) located to a quarter pixel with a
+/// parabola; a circle fitted to those points, then refitted without the points farther than
+/// three robust standard deviations (highlights near the rim, clutter). `None` when fewer than
+/// half the profiles give an edge or the refined circle moved by more than 3 px.
+fn refine_on_edges(values: &[f32], w: usize, h: usize, fit: &CircleFit) -> Option<CircleFit> {
+    let c = fit.circle;
+    let sample = |x: f64, y: f64| -> Option<f64> {
+        if x < 0.0 || y < 0.0 || x > (w - 1) as f64 || y > (h - 1) as f64 {
+            return None;
+        }
+        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
+        let v = |xx: usize, yy: usize| values[yy * w + xx] as f64;
+        Some(
+            (1.0 - fy) * ((1.0 - fx) * v(x0, y0) + fx * v(x1, y0))
+                + fy * ((1.0 - fx) * v(x0, y1) + fx * v(x1, y1)),
+        )
+    };
+    const STEPS: usize = 49; // −6..=6 px in quarter pixels
+    let mut points = Vec::new();
+    let mut profile = [0f64; STEPS];
+    'angles: for k in 0..720 {
+        let a = k as f64 * std::f64::consts::TAU / 720.0;
+        let (ca, sa) = (a.cos(), a.sin());
+        for (i, p) in profile.iter_mut().enumerate() {
+            let s = c.r - 6.0 + 0.25 * i as f64;
+            match sample(c.cx + s * ca, c.cy + s * sa) {
+                Some(v) => *p = v,
+                None => continue 'angles,
+            }
+        }
+        // Descent over one pixel (4 quarter steps): d[i] = p[i − 2] − p[i + 2].
+        let mut best = (0usize, 0f64);
+        for i in 2..STEPS - 2 {
+            let d = profile[i - 2] - profile[i + 2];
+            if d > best.1 {
+                best = (i, d);
+            }
+        }
+        let i = best.0;
+        if best.1 <= 0.0 || i < 3 || i > STEPS - 4 {
+            continue;
+        }
+        let (dm, d0, dp) = (
+            profile[i - 3] - profile[i + 1],
+            best.1,
+            profile[i - 1] - profile[i + 3],
+        );
+        let denom = dm - 2.0 * d0 + dp;
+        let off = if denom < 0.0 {
+            (0.5 * (dm - dp) / denom).clamp(-0.5, 0.5)
+        } else {
+            0.0
+        };
+        let s = c.r - 6.0 + 0.25 * (i as f64 + off);
+        points.push([c.cx + s * ca, c.cy + s * sa]);
+    }
+    if points.len() < 360 {
+        return None;
+    }
+    let first = fit_circle(&points).ok()?;
+    let mut res: Vec<f64> = points
+        .iter()
+        .map(|p| ((p[0] - first.circle.cx).hypot(p[1] - first.circle.cy) - first.circle.r).abs())
+        .collect();
+    let mut sorted = res.clone();
+    let mid = sorted.len() / 2;
+    let (_, mad, _) = sorted.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+    let limit = 3.0 * 1.4826 * *mad + 0.25;
+    let kept: Vec<[f64; 2]> = points
+        .iter()
+        .zip(res.iter_mut())
+        .filter(|(_, r)| **r <= limit)
+        .map(|(p, _)| *p)
+        .collect();
+    let mut refined = fit_circle(&kept).ok()?;
+    let moved = (refined.circle.cx - c.cx).hypot(refined.circle.cy - c.cy) + (refined.circle.r - c.r).abs();
+    if moved > 3.0 {
+        return None;
+    }
+    refined.touches_frame = fit.touches_frame;
+    refined.coverage = refined.coverage.min(fit.coverage);
+    Some(refined)
 }
 
 /// Grey value (mean over channels) of flat pixel `i`.

@@ -14,7 +14,9 @@ pub struct HighlightOptions {
     pub min_contrast: f32,
     /// Blobs with fewer pixels are treated as dust or hot pixels and ignored.
     pub min_blob_pixels: usize,
-    /// The blob is the set of connected pixels above `background + level · (peak − background)`.
+    /// The blob is the set of connected pixels above `background + level · (peak − background)`;
+    /// a low level keeps the tails of a glow, which removes most of the pixel-locking bias of a
+    /// thresholded centroid (0.2 by default).
     pub level: f32,
     /// A second blob whose mass (Σ of grey − threshold) is at least this share of the first's
     /// makes the highlight "doubled".
@@ -29,7 +31,7 @@ impl Default for HighlightOptions {
         HighlightOptions {
             min_contrast: 0.1,
             min_blob_pixels: 3,
-            level: 0.5,
+            level: 0.2,
             doubled_mass_share: 0.25,
             max_saturated_share: 0.005,
         }
@@ -81,7 +83,7 @@ pub fn saturation_level(bit_depth: u8) -> f32 {
 /// Finds the specular highlight of `image` inside `circle`.
 ///
 /// The peak is the brightest value reached by two adjacent pixels (a lone hot pixel cannot set
-/// it); the blobs are the 8-connected regions above the half-way level between the sphere's
+/// it); the blobs are the 8-connected regions above `level` (a fifth) of the way from the sphere's
 /// median and that peak; blobs smaller than `min_blob_pixels` are dust; the highlight is the
 /// blob of largest mass Σ(grey − threshold), and its position is the centroid weighted by
 /// grey − threshold.

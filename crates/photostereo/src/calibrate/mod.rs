@@ -318,6 +318,8 @@ pub enum WarningKind {
     NearRim,
     /// The sphere touches the image border.
     SphereCut,
+    /// The automatically detected outline is irregular (a side never lit, clutter).
+    RoughOutline,
 }
 
 /// A problem found during calibration.
@@ -449,6 +451,19 @@ pub fn calibrate(
             message: format!(
                 "the sphere touches the image border: its circle was fitted to {:.0}% of its outline",
                 100.0 * sphere.coverage
+            ),
+        });
+    }
+    if source == SphereSource::Detected
+        && sphere.rms_residual_px > (0.01 * sphere.circle.r).max(1.0)
+    {
+        warnings.push(CalibrationWarning {
+            image: None,
+            kind: WarningKind::RoughOutline,
+            message: format!(
+                "the detected outline is {:.2} px RMS from its circle (a side never lit, or \
+                 clutter): pass a mask for an accurate centre and radius",
+                sphere.rms_residual_px
             ),
         });
     }

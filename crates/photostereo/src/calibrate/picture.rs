@@ -90,6 +90,7 @@ pub fn calibration_figure(images: &[Image], cal: &Calibration) -> Canvas {
                 WarningKind::Clipped => "CLIPPED",
                 WarningKind::NearRim => "RIM",
                 WarningKind::SphereCut => "CUT",
+                WarningKind::RoughOutline => "ROUGH",
             })
             .collect();
         if !flags.is_empty() {
