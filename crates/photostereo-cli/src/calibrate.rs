@@ -44,7 +44,10 @@ pub struct CalibrateArgs {
 
 pub fn main(a: CalibrateArgs) -> Result<()> {
     if !(a.min_contrast > 0.0 && a.min_contrast < 1.0) {
-        anyhow::bail!("--min-contrast {}: expected a value in (0, 1)", a.min_contrast);
+        anyhow::bail!(
+            "--min-contrast {}: expected a value in (0, 1)",
+            a.min_contrast
+        );
     }
     if a.min_blob_pixels == 0 {
         anyhow::bail!("--min-blob-pixels 0: expected at least 1");

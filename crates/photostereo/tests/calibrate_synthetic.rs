@@ -119,10 +119,7 @@ fn render_mirror(c: &Circle, highlights: &[(f64, f64)], opt: Render, seed: u64) 
                 let mut cover = 0.0;
                 for sy in 0..4 {
                     for sx in 0..4 {
-                        let (px, py) = (
-                            x - 0.375 + 0.25 * sx as f64,
-                            y - 0.375 + 0.25 * sy as f64,
-                        );
+                        let (px, py) = (x - 0.375 + 0.25 * sx as f64, y - 0.375 + 0.25 * sy as f64);
                         if (px - hx).powi(2) + (py - hy).powi(2) <= opt.core_r * opt.core_r {
                             cover += 1.0 / 16.0;
                         }
@@ -181,7 +178,11 @@ fn render_rig(c: &Circle, lights: &[[f64; 3]], opt: Render) -> Vec<Image> {
 }
 
 fn mean_error(got: &[[f64; 3]], truth: &[[f64; 3]]) -> (f64, f64) {
-    let e: Vec<f64> = got.iter().zip(truth).map(|(a, b)| angle_deg(*a, *b)).collect();
+    let e: Vec<f64> = got
+        .iter()
+        .zip(truth)
+        .map(|(a, b)| angle_deg(*a, *b))
+        .collect();
     (
         e.iter().sum::<f64>() / e.len() as f64,
         e.iter().cloned().fold(0.0, f64::max),
@@ -196,7 +197,9 @@ fn recovers_known_lights_within_a_third_of_a_degree() {
     let mask = disc_mask(&c);
     let cal = calibrate(&images, Some(&mask), None, &CalibrationOptions::default()).unwrap();
     let fit = cal.sphere.circle;
-    assert!((fit.cx - c.cx).abs() < 0.1 && (fit.cy - c.cy).abs() < 0.1 && (fit.r - c.r).abs() < 0.1);
+    assert!(
+        (fit.cx - c.cx).abs() < 0.1 && (fit.cy - c.cy).abs() < 0.1 && (fit.r - c.r).abs() < 0.1
+    );
     let got = cal.to_lights().unwrap().directions;
     let (mean, max) = mean_error(&got, &lights);
     println!("mask given: mean {mean:.3}°, max {max:.3}°");
@@ -205,7 +208,11 @@ fn recovers_known_lights_within_a_third_of_a_degree() {
     // The defects must not raise warnings: dust is ignored, the core's clipping is small.
     assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
     for l in &cal.lights {
-        assert!(l.confidence > 0.3 && l.confidence <= 1.0, "{}", l.confidence);
+        assert!(
+            l.confidence > 0.3 && l.confidence <= 1.0,
+            "{}",
+            l.confidence
+        );
     }
 }
 
@@ -233,14 +240,23 @@ fn a_missing_highlight_is_a_warning_and_blocks_the_light_file() {
     let mut images = render_rig(&c, &lights, Render::default());
     images[4] = render_mirror(&c, &[], Render::default(), 99);
     add_defects(&mut images[4], &c, 4);
-    let cal = calibrate(&images, Some(&disc_mask(&c)), None, &CalibrationOptions::default()).unwrap();
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
     let w: Vec<_> = cal.warnings.iter().collect();
     assert_eq!(w.len(), 1, "{w:?}");
     assert_eq!((w[0].image, w[0].kind), (Some(4), WarningKind::Missing));
     assert!(cal.lights[4].direction.is_none());
     assert_eq!(cal.lights[4].confidence, 0.0);
     let e = cal.to_lights().unwrap_err().to_string();
-    assert!(e.contains("image(s) 5") && e.contains("no highlight"), "{e}");
+    assert!(
+        e.contains("image(s) 5") && e.contains("no highlight"),
+        "{e}"
+    );
     // The other lights are still right.
     let got: Vec<[f64; 3]> = cal.lights.iter().filter_map(|l| l.direction).collect();
     let truth: Vec<[f64; 3]> = (0..12).filter(|&k| k != 4).map(|k| lights[k]).collect();
@@ -258,11 +274,17 @@ fn a_doubled_highlight_is_a_warning() {
         Render::default(),
         5,
     );
-    let cal = calibrate(&[img], Some(&disc_mask(&c)), None, &CalibrationOptions::default()).unwrap();
+    let cal = calibrate(
+        &[img],
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
     assert!(
-        cal.warnings
-            .iter()
-            .any(|w| w.image == Some(0) && w.kind == WarningKind::Doubled && w.message.contains("two highlights")),
+        cal.warnings.iter().any(|w| w.image == Some(0)
+            && w.kind == WarningKind::Doubled
+            && w.message.contains("two highlights")),
         "{:?}",
         cal.warnings
     );
@@ -278,7 +300,13 @@ fn a_clipped_highlight_is_a_warning_but_still_located() {
         ..Render::default()
     };
     let img = render_mirror(&c, &[highlight_point(&c, l)], opt, 6);
-    let cal = calibrate(&[img], Some(&disc_mask(&c)), None, &CalibrationOptions::default()).unwrap();
+    let cal = calibrate(
+        &[img],
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
     assert!(
         cal.warnings
             .iter()
@@ -301,14 +329,26 @@ fn a_sphere_touching_the_frame_warns_or_fails() {
     };
     let lights_in: Vec<[f64; 3]> = lights.iter().cloned().filter(|l| l[0] < 0.2).collect();
     let images = render_rig(&cut, &lights_in, Render::default());
-    let cal = calibrate(&images, Some(&disc_mask(&cut)), None, &CalibrationOptions::default()).unwrap();
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&cut)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
     assert!(cal.sphere.touches_frame);
     assert!(
-        cal.warnings.iter().any(|w| w.image.is_none() && w.kind == WarningKind::SphereCut),
+        cal.warnings
+            .iter()
+            .any(|w| w.image.is_none() && w.kind == WarningKind::SphereCut),
         "{:?}",
         cal.warnings
     );
-    assert!((cal.sphere.circle.r - cut.r).abs() < 0.3, "{:?}", cal.sphere);
+    assert!(
+        (cal.sphere.circle.r - cut.r).abs() < 0.3,
+        "{:?}",
+        cal.sphere
+    );
     assert!(mean_error(&cal.to_lights().unwrap().directions, &lights_in).0 < 0.3);
     // Mostly outside the frame: an error that says so.
     let out = Circle {
@@ -317,10 +357,18 @@ fn a_sphere_touching_the_frame_warns_or_fails() {
         r: 70.0,
     };
     let images = render_rig(&sphere(), &lights[..3], Render::default());
-    let e = calibrate(&images, Some(&disc_mask(&out)), Some("mask.png"), &CalibrationOptions::default())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("mask.png") && e.contains("touches the frame"), "{e}");
+    let e = calibrate(
+        &images,
+        Some(&disc_mask(&out)),
+        Some("mask.png"),
+        &CalibrationOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("mask.png") && e.contains("touches the frame"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -333,13 +381,20 @@ fn a_mask_that_is_not_circular_is_an_error() {
             ((col - c.cx) / 70.0).powi(2) + ((r - c.cy) / 56.0).powi(2) <= 1.0
         })
         .collect();
-    let e = fit_mask_circle(&ellipse, W, H, "ellipse.png").unwrap_err().to_string();
-    assert!(e.contains("ellipse.png") && e.contains("not circular"), "{e}");
+    let e = fit_mask_circle(&ellipse, W, H, "ellipse.png")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("ellipse.png") && e.contains("not circular"),
+        "{e}"
+    );
     // A square.
     let square: Vec<bool> = (0..W * H)
         .map(|i| ((i / W) as i64 - 100).abs() < 50 && ((i % W) as i64 - 150).abs() < 50)
         .collect();
-    let e = fit_mask_circle(&square, W, H, "square.png").unwrap_err().to_string();
+    let e = fit_mask_circle(&square, W, H, "square.png")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("not circular"), "{e}");
     // A ring (circular outline, hollow): holes are filled, so a thin ring is a disc; a
     // crescent is not.
@@ -353,14 +408,24 @@ fn a_mask_that_is_not_circular_is_an_error() {
         .collect();
     assert!(fit_mask_circle(&crescent, W, H, "crescent.png").is_err());
     // An empty mask.
-    let e = fit_mask_circle(&vec![false; W * H], W, H, "empty.png").unwrap_err().to_string();
+    let e = fit_mask_circle(&vec![false; W * H], W, H, "empty.png")
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("empty"), "{e}");
     // Through calibrate, the same error names the mask.
     let images = render_rig(&c, &rig()[..3], Render::default());
-    let e = calibrate(&images, Some(&ellipse), Some("ellipse.png"), &CalibrationOptions::default())
-        .unwrap_err()
-        .to_string();
-    assert!(e.contains("ellipse.png") && e.contains("not circular"), "{e}");
+    let e = calibrate(
+        &images,
+        Some(&ellipse),
+        Some("ellipse.png"),
+        &CalibrationOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("ellipse.png") && e.contains("not circular"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -405,10 +470,13 @@ fn matte_sphere_gives_relative_intensities() {
     for (k, v) in got.iter().enumerate() {
         for ch in 0..3 {
             let want = gains[k] / mean_gain;
-            assert!((v[ch] - want).abs() < 0.01 * want, "light {k} ch {ch}: {} vs {want}", v[ch]);
+            assert!(
+                (v[ch] - want).abs() < 0.01 * want,
+                "light {k} ch {ch}: {} vs {want}",
+                v[ch]
+            );
         }
     }
     // Wrong count: an error.
     assert!(matte_intensities(&images[..5], &c, &lights).is_err());
 }
-

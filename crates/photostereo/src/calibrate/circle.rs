@@ -271,7 +271,12 @@ pub const MIN_RADIUS_PX: f64 = 8.0;
 /// Fits the sphere's circle to the outline of the largest region of `mask`. `what` names the
 /// mask in errors (a file name or "the detected sphere"). Errors when the region is empty, too
 /// small, not circular, or cut by the image border over more than half its circumference.
-pub fn fit_mask_circle(mask: &[bool], width: usize, height: usize, what: &str) -> Result<CircleFit> {
+pub fn fit_mask_circle(
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    what: &str,
+) -> Result<CircleFit> {
     if mask.len() != width * height {
         return Err(Error::invalid(format!(
             "{what}: {} mask pixels for a {width}×{height} image",
@@ -368,7 +373,10 @@ pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
     fit.touches_frame = touches;
     let c = fit.circle;
     if c.r < MIN_RADIUS_PX {
-        return Err(fail(format!("the brightest region's radius is {:.1} px", c.r)));
+        return Err(fail(format!(
+            "the brightest region's radius is {:.1} px",
+            c.r
+        )));
     }
     if inliers < 0.6 {
         return Err(fail(format!(
@@ -506,7 +514,8 @@ fn refine_on_edges(values: &[f32], w: usize, h: usize, fit: &CircleFit) -> Optio
         .map(|(p, _)| *p)
         .collect();
     let mut refined = fit_circle(&kept).ok()?;
-    let moved = (refined.circle.cx - c.cx).hypot(refined.circle.cy - c.cy) + (refined.circle.r - c.r).abs();
+    let moved =
+        (refined.circle.cx - c.cx).hypot(refined.circle.cy - c.cy) + (refined.circle.r - c.r).abs();
     if moved > 3.0 {
         return None;
     }
@@ -531,7 +540,11 @@ fn otsu_threshold(values: &[f32]) -> f32 {
         hist[b] += 1;
     }
     let total = values.len() as f64;
-    let sum_all: f64 = hist.iter().enumerate().map(|(i, &n)| i as f64 * n as f64).sum();
+    let sum_all: f64 = hist
+        .iter()
+        .enumerate()
+        .map(|(i, &n)| i as f64 * n as f64)
+        .sum();
     let (mut w0, mut sum0) = (0.0, 0.0);
     let (mut best, mut best_t) = (-1.0, 0usize);
     for (t, &n) in hist.iter().enumerate() {

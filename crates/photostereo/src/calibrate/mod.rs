@@ -114,7 +114,9 @@ impl SphereFiles {
             Err(Error::parse(
                 list,
                 line,
-                format!("{what} '{rel}' not found relative to the list file's folder or its parent"),
+                format!(
+                    "{what} '{rel}' not found relative to the list file's folder or its parent"
+                ),
             ))
         };
         let mut images = Vec::with_capacity(count);
@@ -725,7 +727,10 @@ mod tests {
     fn natural_order() {
         let mut v = vec!["c.10.png", "c.2.png", "c.0.png", "c.1.png", "b.png"];
         v.sort_by(|a, b| natural_cmp(a, b));
-        assert_eq!(v, vec!["b.png", "c.0.png", "c.1.png", "c.2.png", "c.10.png"]);
+        assert_eq!(
+            v,
+            vec!["b.png", "c.0.png", "c.1.png", "c.2.png", "c.10.png"]
+        );
     }
 
     #[test]
