@@ -81,7 +81,7 @@ pub fn fit_circle(points: &[[f64; 2]]) -> Result<CircleFit> {
         .ok_or_else(|| Error::invalid("boundary points are collinear: no circle fits them"))?;
     let (mut cx, mut cy) = (-sol.x / 2.0, -sol.y / 2.0);
     let r2 = cx * cx + cy * cy - sol.z;
-    if !(r2 > 0.0) {
+    if r2.is_nan() || r2 <= 0.0 {
         return Err(Error::invalid("boundary points do not describe a circle"));
     }
     let mut r = r2.sqrt();
@@ -107,7 +107,7 @@ pub fn fit_circle(points: &[[f64; 2]]) -> Result<CircleFit> {
             break;
         }
     }
-    if !(r > 0.0) || !cx.is_finite() || !cy.is_finite() {
+    if r.is_nan() || r <= 0.0 || !cx.is_finite() || !cy.is_finite() {
         return Err(Error::invalid("the circle fit did not converge"));
     }
     let circle = Circle {
@@ -478,7 +478,7 @@ fn refine_on_edges(values: &[f32], w: usize, h: usize, fit: &CircleFit) -> Optio
             }
         }
         let i = best.0;
-        if best.1 <= 0.0 || i < 3 || i > STEPS - 4 {
+        if best.1 <= 0.0 || !(3..=STEPS - 4).contains(&i) {
             continue;
         }
         let (dm, d0, dp) = (

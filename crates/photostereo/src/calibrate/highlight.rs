@@ -138,7 +138,8 @@ pub fn find_highlight(image: &Image, circle: &Circle, opts: &HighlightOptions) -
             peak = peak.max(v.min(nb));
         }
     }
-    if !(peak - background >= opts.min_contrast) {
+    let contrast = peak - background;
+    if contrast.is_nan() || contrast < opts.min_contrast {
         return HighlightSearch::Missing(format!(
             "no highlight: the brightest spot ({:.3}) is only {:.3} above the sphere's median ({:.3}); \
              at least {:.3} expected",

@@ -676,7 +676,7 @@ pub fn matte_intensities(
             for ch in 0..3 {
                 g[ch] = num[ch.min(c - 1)] / den;
             }
-            if g.iter().any(|v| !(*v > 0.0)) {
+            if g.iter().any(|v| v.is_nan() || *v <= 0.0) {
                 return Err(Error::invalid(format!(
                     "matte image {}: the fitted intensity is not positive (is the sphere lit?)",
                     k + 1
