@@ -3,6 +3,7 @@
 //!
 //! Exit codes: 0 success, 2 any error (bad input, unreadable file, refused overwrite).
 
+mod calibrate;
 mod common;
 mod demo;
 mod eval;
@@ -25,6 +26,8 @@ enum Command {
     Run(run::RunArgs),
     /// Compare a normal map with ground truth: mean, median and shares under 5°/10°/20°.
     Eval(eval::EvalArgs),
+    /// Calibrate light directions from a mirror sphere (intensities from a matte one).
+    Calibrate(calibrate::CalibrateArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),
 }
@@ -35,6 +38,7 @@ fn main() -> ExitCode {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
         Command::Demo(a) => demo::main(a),
+        Command::Calibrate(a) => calibrate::main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -19,6 +19,7 @@
 //! [`scene`] renders ground-truth scenes. The library never prints: progress goes through
 //! [`progress::Progress`].
 
+pub mod calibrate;
 pub mod capture;
 pub mod detect;
 pub mod error;

@@ -1,0 +1,748 @@
+//! Light calibration from a mirror sphere (and optionally relative intensities from a matte
+//! sphere).
+//!
+//! For each image: the sphere's outline gives its centre (cx, cy) and radius r in pixels; the
+//! specular highlight at image point (x, y) sees the sphere normal
+//! n = ((x − cx)/r, (cy − y)/r, √(1 − …)) in the camera frame (x right, y up, z toward the camera,
+//! orthographic view); the light direction is the viewing direction v = (0, 0, 1) mirrored about
+//! n: l = 2 (n·v) n − v.
+//!
+//! The library returns problems with individual images as [`CalibrationWarning`] values; it never
+//! prints.
+
+pub mod circle;
+pub mod highlight;
+mod picture;
+
+pub use circle::{detect_sphere, fit_circle, fit_mask_circle, Circle, CircleFit};
+pub use highlight::{find_highlight, Highlight, HighlightOptions, HighlightSearch};
+pub use picture::calibration_figure;
+
+use crate::error::{Error, Result};
+use crate::imageio::{read_image, read_mask, Image};
+use crate::lights::Lights;
+use crate::progress::Progress;
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+
+/// Where the images of a sphere capture are, with an optional mask.
+#[derive(Clone, Debug, Default)]
+pub struct SphereFiles {
+    /// The images, in light order.
+    pub images: Vec<PathBuf>,
+    /// The sphere's mask (non-zero = sphere), when the layout names one.
+    pub mask: Option<PathBuf>,
+    /// Remarks made while resolving the layout.
+    pub notes: Vec<String>,
+}
+
+impl SphereFiles {
+    /// Resolves a capture given as one list file (`.txt`: the image count, the image paths
+    /// relative to the list's folder or, failing that, its parent, then an optional mask path),
+    /// one folder (its images in natural name order, `filenames.txt` when present, and
+    /// `mask.png` or a file named `*mask*` as the mask), or image paths.
+    pub fn resolve(inputs: &[PathBuf]) -> Result<Self> {
+        match inputs {
+            [] => Err(Error::invalid("no sphere capture given")),
+            [one] if one.is_dir() => Self::folder(one),
+            [one]
+                if one
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .is_some_and(|e| e.eq_ignore_ascii_case("txt")) =>
+            {
+                Self::list_file(one)
+            }
+            many => {
+                for p in many {
+                    if !p.is_file() {
+                        return Err(Error::file(p, "no such image file"));
+                    }
+                }
+                Ok(SphereFiles {
+                    images: many.to_vec(),
+                    mask: None,
+                    notes: Vec::new(),
+                })
+            }
+        }
+    }
+
+    /// The list-file layout (see [`SphereFiles::resolve`]).
+    pub fn list_file(list: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
+        let lines: Vec<(usize, &str)> = text
+            .lines()
+            .enumerate()
+            .map(|(i, l)| (i + 1, l.trim()))
+            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+            .collect();
+        let (first_line, first) = *lines
+            .first()
+            .ok_or_else(|| Error::file(list, "empty list file"))?;
+        let count: usize = first.parse().map_err(|_| {
+            Error::parse(
+                list,
+                first_line,
+                format!("'{first}': expected the image count"),
+            )
+        })?;
+        if lines.len() < count + 1 {
+            return Err(Error::file(
+                list,
+                format!("announces {count} images but lists {}", lines.len() - 1),
+            ));
+        }
+        let base = match list.parent() {
+            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        let parent = match base.parent() {
+            Some(p) if !p.as_os_str().is_empty() && base != Path::new(".") => p.to_path_buf(),
+            _ => base.join(".."),
+        };
+        let bases = [base, parent];
+        let mut used_parent = false;
+        let mut resolve = |line: usize, rel: &str, what: &str| -> Result<PathBuf> {
+            for (i, b) in bases.iter().enumerate() {
+                let p = b.join(rel);
+                if p.exists() {
+                    used_parent |= i == 1;
+                    return Ok(p);
+                }
+            }
+            Err(Error::parse(
+                list,
+                line,
+                format!(
+                    "{what} '{rel}' not found relative to the list file's folder or its parent"
+                ),
+            ))
+        };
+        let mut images = Vec::with_capacity(count);
+        for (line, rel) in &lines[1..=count] {
+            images.push(resolve(*line, rel, "image")?);
+        }
+        let mask = match lines.get(count + 1) {
+            Some((line, rel)) => Some(resolve(*line, rel, "mask")?),
+            None => None,
+        };
+        let mut notes = Vec::new();
+        if used_parent {
+            notes.push(format!(
+                "paths in {} resolved relative to its parent folder",
+                list.display()
+            ));
+        }
+        Ok(SphereFiles {
+            images,
+            mask,
+            notes,
+        })
+    }
+
+    /// The folder layout (see [`SphereFiles::resolve`]).
+    pub fn folder(dir: &Path) -> Result<Self> {
+        let names = dir.join("filenames.txt");
+        let mut mask = None;
+        let images: Vec<PathBuf> = if names.exists() {
+            let text = std::fs::read_to_string(&names).map_err(|e| Error::io(&names, e))?;
+            text.lines()
+                .map(str::trim)
+                .filter(|l| !l.is_empty())
+                .map(|l| dir.join(l))
+                .collect()
+        } else {
+            let mut v = Vec::new();
+            for e in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+                let p = e.map_err(|e| Error::io(dir, e))?.path();
+                let name = p
+                    .file_name()
+                    .and_then(|n| n.to_str())
+                    .unwrap_or("")
+                    .to_ascii_lowercase();
+                let ext = p
+                    .extension()
+                    .and_then(|e| e.to_str())
+                    .unwrap_or("")
+                    .to_ascii_lowercase();
+                if !matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr") {
+                    continue;
+                }
+                if name.contains("mask") {
+                    mask = Some(p);
+                } else if !name.starts_with("normal_gt") {
+                    v.push(p);
+                }
+            }
+            v.sort_by(|a, b| natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
+            v
+        };
+        let m = dir.join("mask.png");
+        if m.exists() {
+            mask = Some(m);
+        }
+        if images.is_empty() {
+            return Err(Error::file(dir, "no image (PNG, TIFF, EXR) in the folder"));
+        }
+        Ok(SphereFiles {
+            images,
+            mask,
+            notes: Vec::new(),
+        })
+    }
+
+    /// Decodes the images (in parallel) and the mask. All images must share size and channels.
+    pub fn load(&self, progress: &dyn Progress) -> Result<SphereImages> {
+        progress.begin("loading", self.images.len() as u64);
+        let images: Vec<Result<Image>> = self
+            .images
+            .par_iter()
+            .map(|p| {
+                let r = read_image(p);
+                progress.advance(1);
+                r
+            })
+            .collect();
+        progress.end();
+        let images: Vec<Image> = images.into_iter().collect::<Result<_>>()?;
+        let first = &images[0];
+        for (img, p) in images.iter().zip(&self.images) {
+            if (img.width, img.height, img.channels) != (first.width, first.height, first.channels)
+            {
+                return Err(Error::file(
+                    p,
+                    format!(
+                        "image is {}×{}×{} but {} is {}×{}×{}: all images must share size and channels",
+                        img.width,
+                        img.height,
+                        img.channels,
+                        self.images[0].display(),
+                        first.width,
+                        first.height,
+                        first.channels
+                    ),
+                ));
+            }
+        }
+        let mask = match &self.mask {
+            Some(p) => {
+                let (h, w, m) = read_mask(p)?;
+                if (w, h) != (first.width, first.height) {
+                    return Err(Error::file(
+                        p,
+                        format!(
+                            "mask is {w}×{h} but the images are {}×{}",
+                            first.width, first.height
+                        ),
+                    ));
+                }
+                Some(m)
+            }
+            None => None,
+        };
+        Ok(SphereImages {
+            images,
+            mask,
+            mask_name: self.mask.as_ref().map(|p| p.display().to_string()),
+        })
+    }
+}
+
+/// Compares names so that embedded numbers sort by value ("a.2" before "a.10").
+pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
+    let (mut x, mut y) = (a.chars().peekable(), b.chars().peekable());
+    loop {
+        match (x.peek().copied(), y.peek().copied()) {
+            (None, None) => return std::cmp::Ordering::Equal,
+            (None, Some(_)) => return std::cmp::Ordering::Less,
+            (Some(_), None) => return std::cmp::Ordering::Greater,
+            (Some(p), Some(q)) if p.is_ascii_digit() && q.is_ascii_digit() => {
+                let mut na = String::new();
+                while let Some(c) = x.peek().copied().filter(char::is_ascii_digit) {
+                    na.push(c);
+                    x.next();
+                }
+                let mut nb = String::new();
+                while let Some(c) = y.peek().copied().filter(char::is_ascii_digit) {
+                    nb.push(c);
+                    y.next();
+                }
+                let (ta, tb) = (na.trim_start_matches('0'), nb.trim_start_matches('0'));
+                let o = ta.len().cmp(&tb.len()).then_with(|| ta.cmp(tb));
+                if o != std::cmp::Ordering::Equal {
+                    return o;
+                }
+            }
+            (Some(p), Some(q)) => {
+                if p != q {
+                    return p.cmp(&q);
+                }
+                x.next();
+                y.next();
+            }
+        }
+    }
+}
+
+/// Decoded images of a sphere capture with its optional mask.
+#[derive(Clone, Debug)]
+pub struct SphereImages {
+    /// The images in light order.
+    pub images: Vec<Image>,
+    /// `height * width` flags, true on the sphere, when a mask was given.
+    pub mask: Option<Vec<bool>>,
+    /// The mask's file name, for messages.
+    pub mask_name: Option<String>,
+}
+
+/// How the sphere's outline was obtained.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum SphereSource {
+    /// Fitted to a given mask.
+    Mask,
+    /// Detected from the images.
+    Detected,
+}
+
+/// What is wrong with one image's highlight (or with the sphere, for `image: None`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum WarningKind {
+    /// No highlight was found: the image has no light direction.
+    Missing,
+    /// Two separated bright blobs of similar strength.
+    Doubled,
+    /// The saturated area is larger than expected of a small light.
+    Clipped,
+    /// The highlight is close to the sphere's rim, where the direction is least precise.
+    NearRim,
+    /// The sphere touches the image border.
+    SphereCut,
+    /// The automatically detected outline is irregular (a side never lit, clutter).
+    RoughOutline,
+}
+
+/// A problem found during calibration.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct CalibrationWarning {
+    /// 0-based image index, or `None` for the sphere as a whole.
+    pub image: Option<usize>,
+    /// What kind of problem.
+    pub kind: WarningKind,
+    /// A sentence for the user.
+    pub message: String,
+}
+
+/// Parameters of a calibration.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct CalibrationOptions {
+    /// The highlight search.
+    pub highlight: HighlightOptions,
+    /// Highlights farther than this share of the radius from the centre are "near the rim".
+    pub near_rim: f64,
+}
+
+impl Default for CalibrationOptions {
+    fn default() -> Self {
+        CalibrationOptions {
+            highlight: HighlightOptions::default(),
+            near_rim: 0.95,
+        }
+    }
+}
+
+/// The factors of a light's confidence, each in [0, 1]; the confidence is their product.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ConfidenceParts {
+    /// (peak − background) / peak.
+    pub contrast: f64,
+    /// √(blob area over the disc about its centroid that holds it): 1 for a round blob,
+    /// about 0.7 for a 2:1 ellipse, lower for streaks.
+    pub compactness: f64,
+    /// 1 − ¼ · (saturated share of the blob): a flat saturated core locates less precisely.
+    pub saturation: f64,
+    /// n_z at the highlight: 1 at the sphere's centre, 0 at the rim, where a pixel of error in
+    /// the highlight turns the direction most (dθ = 2 dρ / n_z).
+    pub rim: f64,
+    /// 1 − (mass of the second blob / mass of the first).
+    pub uniqueness: f64,
+}
+
+/// One image's calibrated light.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct LightEstimate {
+    /// The highlight, when found.
+    pub highlight: Option<Highlight>,
+    /// Sphere normal at the highlight (camera frame), when found.
+    pub normal: Option<[f64; 3]>,
+    /// Unit light direction (camera frame, toward the light), when found.
+    pub direction: Option<[f64; 3]>,
+    /// Confidence in [0, 1] (0 when missing): the product of [`ConfidenceParts`]. A relative
+    /// figure for comparing the lights of one capture (1 = a round, unsaturated, unique
+    /// highlight at the sphere's centre), not a probability.
+    pub confidence: f64,
+    /// The factors of the confidence, when found.
+    pub confidence_parts: Option<ConfidenceParts>,
+}
+
+/// The result of a mirror-sphere calibration.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct Calibration {
+    /// Image width, pixels.
+    pub width: usize,
+    /// Image height, pixels.
+    pub height: usize,
+    /// The sphere's fitted outline.
+    pub sphere: CircleFit,
+    /// Where the outline came from.
+    pub sphere_source: SphereSource,
+    /// One entry per image, in order.
+    pub lights: Vec<LightEstimate>,
+    /// Problems found, in image order.
+    pub warnings: Vec<CalibrationWarning>,
+}
+
+/// The light direction (camera frame) that a mirror sphere reflects toward the camera from the
+/// point with unit normal `n`: l = 2 (n·v) n − v, v = (0, 0, 1).
+pub fn reflect_view(n: [f64; 3]) -> [f64; 3] {
+    let d = n[2];
+    let l = [2.0 * d * n[0], 2.0 * d * n[1], 2.0 * d * n[2] - 1.0];
+    let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    [l[0] / norm, l[1] / norm, l[2] / norm]
+}
+
+/// Calibrates light directions from images of a mirror sphere. The sphere's outline is fitted
+/// to `mask` when given, else detected from the images. Errors concern the sphere as a whole
+/// (no images, mismatched sizes, no usable outline); problems with single images are warnings.
+pub fn calibrate(
+    images: &[Image],
+    mask: Option<&[bool]>,
+    mask_name: Option<&str>,
+    options: &CalibrationOptions,
+) -> Result<Calibration> {
+    let first = images
+        .first()
+        .ok_or_else(|| Error::invalid("no sphere image given"))?;
+    let (w, h) = (first.width, first.height);
+    for (k, img) in images.iter().enumerate() {
+        if (img.width, img.height) != (w, h) {
+            return Err(Error::invalid(format!(
+                "sphere image {} is {}×{}, expected {}×{} like the first",
+                k + 1,
+                img.width,
+                img.height,
+                w,
+                h
+            )));
+        }
+    }
+    let (sphere, source) = match mask {
+        Some(m) => (
+            fit_mask_circle(m, w, h, mask_name.unwrap_or("the sphere mask"))?,
+            SphereSource::Mask,
+        ),
+        None => (detect_sphere(images)?.1, SphereSource::Detected),
+    };
+    let mut warnings = Vec::new();
+    if sphere.touches_frame {
+        warnings.push(CalibrationWarning {
+            image: None,
+            kind: WarningKind::SphereCut,
+            message: format!(
+                "the sphere touches the image border: its circle was fitted to {:.0}% of its outline",
+                100.0 * sphere.coverage
+            ),
+        });
+    }
+    if source == SphereSource::Detected
+        && sphere.rms_residual_px > (0.01 * sphere.circle.r).max(1.0)
+    {
+        warnings.push(CalibrationWarning {
+            image: None,
+            kind: WarningKind::RoughOutline,
+            message: format!(
+                "the detected outline is {:.2} px RMS from its circle (a side never lit, or \
+                 clutter): pass a mask for an accurate centre and radius",
+                sphere.rms_residual_px
+            ),
+        });
+    }
+    let circle = sphere.circle;
+    let searches: Vec<HighlightSearch> = images
+        .par_iter()
+        .map(|img| find_highlight(img, &circle, &options.highlight))
+        .collect();
+    let disc_area = std::f64::consts::PI * circle.r * circle.r;
+    let mut lights = Vec::with_capacity(images.len());
+    for (k, search) in searches.into_iter().enumerate() {
+        let hl = match search {
+            HighlightSearch::Missing(reason) => {
+                warnings.push(CalibrationWarning {
+                    image: Some(k),
+                    kind: WarningKind::Missing,
+                    message: reason,
+                });
+                lights.push(LightEstimate {
+                    highlight: None,
+                    normal: None,
+                    direction: None,
+                    confidence: 0.0,
+                    confidence_parts: None,
+                });
+                continue;
+            }
+            HighlightSearch::Found(hl) => hl,
+        };
+        // A centroid just outside the disc (rim highlight) is pulled onto the rim.
+        let (mut nx, mut ny) = ((hl.x - circle.cx) / circle.r, (circle.cy - hl.y) / circle.r);
+        let rho = (nx * nx + ny * ny).sqrt();
+        if rho > 1.0 {
+            nx /= rho;
+            ny /= rho;
+        }
+        let nz = (1.0 - nx * nx - ny * ny).max(0.0).sqrt();
+        let normal = [nx, ny, nz];
+        let direction = reflect_view(normal);
+        if hl.second_blob_share >= options.highlight.doubled_mass_share {
+            let s = hl.second_blob.unwrap_or([f64::NAN; 2]);
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::Doubled,
+                message: format!(
+                    "two highlights: a second bright blob at ({:.1}, {:.1}) carries {:.0}% of the \
+                     first's weight (at ({:.1}, {:.1})); the first was used",
+                    s[0],
+                    s[1],
+                    100.0 * hl.second_blob_share,
+                    hl.x,
+                    hl.y
+                ),
+            });
+        }
+        if hl.saturated as f64 > options.highlight.max_saturated_share * disc_area {
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::Clipped,
+                message: format!(
+                    "clipped highlight: {} saturated pixels ({:.2}% of the sphere, at most {:.2}% \
+                     expected); lower the exposure",
+                    hl.saturated,
+                    100.0 * hl.saturated as f64 / disc_area,
+                    100.0 * options.highlight.max_saturated_share
+                ),
+            });
+        }
+        if rho > options.near_rim {
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::NearRim,
+                message: format!(
+                    "the highlight is at {:.0}% of the radius from the centre: the direction is imprecise",
+                    100.0 * rho.min(1.0)
+                ),
+            });
+        }
+        let parts = ConfidenceParts {
+            contrast: (((hl.peak - hl.background) / hl.peak.max(1e-6)) as f64).clamp(0.0, 1.0),
+            compactness: hl.compactness.clamp(0.0, 1.0).sqrt(),
+            saturation: 1.0 - 0.25 * hl.saturated as f64 / hl.pixels.max(1) as f64,
+            rim: nz,
+            uniqueness: (1.0 - hl.second_blob_share).clamp(0.0, 1.0),
+        };
+        let confidence =
+            parts.contrast * parts.compactness * parts.saturation * parts.rim * parts.uniqueness;
+        lights.push(LightEstimate {
+            highlight: Some(hl),
+            normal: Some(normal),
+            direction: Some(direction),
+            confidence,
+            confidence_parts: Some(parts),
+        });
+    }
+    Ok(Calibration {
+        width: w,
+        height: h,
+        sphere,
+        sphere_source: source,
+        lights,
+        warnings,
+    })
+}
+
+impl Calibration {
+    /// The calibrated directions as [`Lights`] (unit intensities). An error names the images
+    /// without a highlight.
+    pub fn to_lights(&self) -> Result<Lights> {
+        let missing: Vec<String> = self
+            .lights
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| l.direction.is_none())
+            .map(|(k, _)| (k + 1).to_string())
+            .collect();
+        if !missing.is_empty() {
+            return Err(Error::invalid(format!(
+                "no highlight found in sphere image(s) {} (1-based): their light directions are unknown",
+                missing.join(", ")
+            )));
+        }
+        let dirs: Vec<[f64; 3]> = self.lights.iter().filter_map(|l| l.direction).collect();
+        Lights::new(&dirs)
+    }
+
+    /// Mean confidence over the images.
+    pub fn mean_confidence(&self) -> f64 {
+        self.lights.iter().map(|l| l.confidence).sum::<f64>() / self.lights.len().max(1) as f64
+    }
+}
+
+/// Relative light intensities from a matte (Lambertian) sphere or grey ball seen in `images`
+/// under the calibrated `directions`, its outline `circle`. For each image k and channel c the
+/// brightness I = a_kc · (n·l_k) is fitted by least squares over the sphere's pixels within 95%
+/// of its radius that are lit (n·l_k ≥ 0.2) and not saturated; each channel's a_kc are then
+/// divided by their mean over the images (the sphere's own albedo cancels). Grey images give
+/// equal R, G, B values.
+pub fn matte_intensities(
+    images: &[Image],
+    circle: &Circle,
+    directions: &[[f64; 3]],
+) -> Result<Vec<[f64; 3]>> {
+    if images.len() != directions.len() {
+        return Err(Error::invalid(format!(
+            "{} matte images for {} calibrated lights: expected one per light",
+            images.len(),
+            directions.len()
+        )));
+    }
+    let first = images
+        .first()
+        .ok_or_else(|| Error::invalid("no matte image given"))?;
+    let (w, h, c) = (first.width, first.height, first.channels);
+    let r_in = 0.95 * circle.r;
+    let mut pixels: Vec<(usize, [f64; 3])> = Vec::new();
+    for row in 0..h {
+        for col in 0..w {
+            let (dx, dy) = (col as f64 - circle.cx, row as f64 - circle.cy);
+            if dx * dx + dy * dy <= r_in * r_in {
+                if let Some(n) = circle.normal_at(col as f64, row as f64) {
+                    pixels.push((row * w + col, n));
+                }
+            }
+        }
+    }
+    let gains: Vec<Result<[f64; 3]>> = images
+        .par_iter()
+        .zip(directions.par_iter())
+        .enumerate()
+        .map(|(k, (img, l))| {
+            if (img.width, img.height, img.channels) != (w, h, c) {
+                return Err(Error::invalid(format!(
+                    "matte image {} is {}×{}×{}, expected {}×{}×{}",
+                    k + 1,
+                    img.width,
+                    img.height,
+                    img.channels,
+                    w,
+                    h,
+                    c
+                )));
+            }
+            let sat = highlight::saturation_level(img.bit_depth);
+            let (mut num, mut den, mut used) = ([0f64; 3], 0f64, 0usize);
+            for &(i, n) in &pixels {
+                let s = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
+                if s < 0.2 {
+                    continue;
+                }
+                let px = &img.data[i * c..(i + 1) * c];
+                if px.iter().any(|&v| v >= sat) {
+                    continue;
+                }
+                for ch in 0..c {
+                    num[ch] += s * px[ch] as f64;
+                }
+                den += s * s;
+                used += 1;
+            }
+            if used < 20 || den <= 0.0 {
+                return Err(Error::invalid(format!(
+                    "matte image {}: only {used} lit, unsaturated sphere pixels; cannot fit its intensity",
+                    k + 1
+                )));
+            }
+            let mut g = [0f64; 3];
+            for ch in 0..3 {
+                g[ch] = num[ch.min(c - 1)] / den;
+            }
+            if g.iter().any(|v| v.is_nan() || *v <= 0.0) {
+                return Err(Error::invalid(format!(
+                    "matte image {}: the fitted intensity is not positive (is the sphere lit?)",
+                    k + 1
+                )));
+            }
+            Ok(g)
+        })
+        .collect();
+    let gains: Vec<[f64; 3]> = gains.into_iter().collect::<Result<_>>()?;
+    let n = gains.len() as f64;
+    let mut mean = [0f64; 3];
+    for g in &gains {
+        for ch in 0..3 {
+            mean[ch] += g[ch] / n;
+        }
+    }
+    Ok(gains
+        .iter()
+        .map(|g| [g[0] / mean[0], g[1] / mean[1], g[2] / mean[2]])
+        .collect())
+}
+
+/// The sphere's circle for a matte capture: fitted to its mask when given, else detected.
+pub fn sphere_circle(images: &SphereImages) -> Result<(CircleFit, SphereSource)> {
+    let first = images
+        .images
+        .first()
+        .ok_or_else(|| Error::invalid("no image given"))?;
+    match &images.mask {
+        Some(m) => Ok((
+            fit_mask_circle(
+                m,
+                first.width,
+                first.height,
+                images.mask_name.as_deref().unwrap_or("the mask"),
+            )?,
+            SphereSource::Mask,
+        )),
+        None => Ok((detect_sphere(&images.images)?.1, SphereSource::Detected)),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn natural_order() {
+        let mut v = vec!["c.10.png", "c.2.png", "c.0.png", "c.1.png", "b.png"];
+        v.sort_by(|a, b| natural_cmp(a, b));
+        assert_eq!(
+            v,
+            vec!["b.png", "c.0.png", "c.1.png", "c.2.png", "c.10.png"]
+        );
+    }
+
+    #[test]
+    fn reflection_of_the_view_about_the_half_vector_is_the_light() {
+        let l = [0.3f64, -0.5, 0.81];
+        let nl = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+        let l = [l[0] / nl, l[1] / nl, l[2] / nl];
+        let hv = [l[0], l[1], l[2] + 1.0];
+        let nh = (hv[0] * hv[0] + hv[1] * hv[1] + hv[2] * hv[2]).sqrt();
+        let got = reflect_view([hv[0] / nh, hv[1] / nh, hv[2] / nh]);
+        for i in 0..3 {
+            assert!((got[i] - l[i]).abs() < 1e-12);
+        }
+    }
+}

@@ -1,0 +1,481 @@
+//! Calibration on rendered mirror and matte spheres under known lights: the recovered
+//! directions are compared with the lights used to render, and bad inputs must give clear
+//! errors or warnings.
+
+use photostereo::calibrate::{
+    calibrate, fit_mask_circle, matte_intensities, CalibrationOptions, Circle, WarningKind,
+};
+use photostereo::imageio::Image;
+
+/// A small deterministic generator (xorshift64*) with Gaussian samples (Box–Muller).
+struct Rng(u64);
+impl Rng {
+    fn uniform(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        ((self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    }
+    fn gauss(&mut self) -> f64 {
+        let (u, v) = (self.uniform(), self.uniform());
+        (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
+    }
+}
+
+fn normalise(v: [f64; 3]) -> [f64; 3] {
+    let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    [v[0] / n, v[1] / n, v[2] / n]
+}
+
+fn angle_deg(a: [f64; 3], b: [f64; 3]) -> f64 {
+    let (a, b) = (normalise(a), normalise(b));
+    (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+        .clamp(-1.0, 1.0)
+        .acos()
+        .to_degrees()
+}
+
+/// A light at `slant` degrees from the view axis and `azimuth` degrees from +x (toward +y).
+fn light(slant: f64, azimuth: f64) -> [f64; 3] {
+    let (s, a) = (slant.to_radians(), azimuth.to_radians());
+    [s.sin() * a.cos(), s.sin() * a.sin(), s.cos()]
+}
+
+/// Where a mirror sphere shows the highlight of a distant light `l`: the sphere point whose
+/// normal is the half vector n_h = normalise(l + v), v = (0, 0, 1); (column, row).
+fn highlight_point(c: &Circle, l: [f64; 3]) -> (f64, f64) {
+    let n = normalise([l[0], l[1], l[2] + 1.0]);
+    (c.cx + c.r * n[0], c.cy - c.r * n[1])
+}
+
+const W: usize = 320;
+const H: usize = 240;
+
+fn sphere() -> Circle {
+    Circle {
+        cx: 190.3,
+        cy: 105.7,
+        r: 70.4,
+    }
+}
+
+fn disc_mask(c: &Circle) -> Vec<bool> {
+    (0..W * H)
+        .map(|i| {
+            let (r, col) = ((i / W) as f64, (i % W) as f64);
+            (col - c.cx).powi(2) + (r - c.cy).powi(2) <= c.r * c.r
+        })
+        .collect()
+}
+
+/// Options of the mirror-sphere renderer.
+#[derive(Clone, Copy)]
+struct Render {
+    /// Radius of the saturated core disc, pixels.
+    core_r: f64,
+    /// Peak of the core before clipping at 1.
+    core_peak: f64,
+    /// Gaussian glow (blooming) around the highlight: amplitude and sigma (pixels).
+    glow: (f64, f64),
+    /// Wide faint bloom: amplitude and sigma (pixels).
+    bloom: (f64, f64),
+    /// Noise sigma (image units, before 8-bit quantisation).
+    noise: f64,
+}
+
+impl Default for Render {
+    fn default() -> Self {
+        Render {
+            core_r: 2.2,
+            core_peak: 3.0,
+            glow: (0.6, 3.0),
+            bloom: (0.08, 9.0),
+            noise: 0.01,
+        }
+    }
+}
+
+/// Renders an 8-bit grey image of a mirror sphere (a dim, slowly varying environment
+/// reflection on a darker background) with highlights at the given image points, noise and a
+/// few defects.
+fn render_mirror(c: &Circle, highlights: &[(f64, f64)], opt: Render, seed: u64) -> Image {
+    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let mut data = vec![0f32; W * H];
+    for row in 0..H {
+        for col in 0..W {
+            let (x, y) = (col as f64, row as f64);
+            let d2 = (x - c.cx).powi(2) + (y - c.cy).powi(2);
+            let mut v = if d2 <= c.r * c.r {
+                0.10 + 0.03 * ((x - c.cx) / c.r)
+            } else {
+                0.03
+            };
+            for &(hx, hy) in highlights {
+                let e2 = (x - hx).powi(2) + (y - hy).powi(2);
+                if e2 > 60.0 * 60.0 {
+                    continue;
+                }
+                // Core: a disc of radius core_r, anti-aliased by 4×4 supersampling.
+                let mut cover = 0.0;
+                for sy in 0..4 {
+                    for sx in 0..4 {
+                        let (px, py) = (x - 0.375 + 0.25 * sx as f64, y - 0.375 + 0.25 * sy as f64);
+                        if (px - hx).powi(2) + (py - hy).powi(2) <= opt.core_r * opt.core_r {
+                            cover += 1.0 / 16.0;
+                        }
+                    }
+                }
+                v += opt.core_peak * cover
+                    + opt.glow.0 * (-e2 / (2.0 * opt.glow.1 * opt.glow.1)).exp()
+                    + opt.bloom.0 * (-e2 / (2.0 * opt.bloom.1 * opt.bloom.1)).exp();
+            }
+            v += opt.noise * rng.gauss();
+            data[row * W + col] = ((v.clamp(0.0, 1.0) * 255.0).round() / 255.0) as f32;
+        }
+    }
+    Image {
+        width: W,
+        height: H,
+        channels: 1,
+        bit_depth: 8,
+        data,
+    }
+}
+
+/// Adds a dust speck (a single saturated pixel) on the sphere, two hot pixels, and a bright
+/// 2×2 speck outside the sphere.
+fn add_defects(img: &mut Image, c: &Circle, k: usize) {
+    let on_sphere = [
+        (c.cx - 30.0 + k as f64, c.cy + 25.0),
+        (c.cx + 35.0, c.cy - 10.0 - k as f64),
+        (c.cx - 5.0, c.cy + 50.0),
+    ];
+    for (x, y) in on_sphere {
+        img.data[y.round() as usize * W + x.round() as usize] = 1.0;
+    }
+    for (dr, dc) in [(0, 0), (0, 1), (1, 0), (1, 1)] {
+        img.data[(10 + dr) * W + 12 + dc] = 1.0;
+    }
+}
+
+/// Twelve lights at slants 10°–50° all round.
+fn rig() -> Vec<[f64; 3]> {
+    (0..12)
+        .map(|k| light(10.0 + 40.0 * (k % 5) as f64 / 4.0, 17.0 + 30.0 * k as f64))
+        .collect()
+}
+
+fn render_rig(c: &Circle, lights: &[[f64; 3]], opt: Render) -> Vec<Image> {
+    lights
+        .iter()
+        .enumerate()
+        .map(|(k, &l)| {
+            let mut img = render_mirror(c, &[highlight_point(c, l)], opt, k as u64 + 1);
+            add_defects(&mut img, c, k);
+            img
+        })
+        .collect()
+}
+
+fn mean_error(got: &[[f64; 3]], truth: &[[f64; 3]]) -> (f64, f64) {
+    let e: Vec<f64> = got
+        .iter()
+        .zip(truth)
+        .map(|(a, b)| angle_deg(*a, *b))
+        .collect();
+    (
+        e.iter().sum::<f64>() / e.len() as f64,
+        e.iter().cloned().fold(0.0, f64::max),
+    )
+}
+
+#[test]
+fn recovers_known_lights_within_a_third_of_a_degree() {
+    let c = sphere();
+    let lights = rig();
+    let images = render_rig(&c, &lights, Render::default());
+    let mask = disc_mask(&c);
+    let cal = calibrate(&images, Some(&mask), None, &CalibrationOptions::default()).unwrap();
+    let fit = cal.sphere.circle;
+    assert!(
+        (fit.cx - c.cx).abs() < 0.1 && (fit.cy - c.cy).abs() < 0.1 && (fit.r - c.r).abs() < 0.1
+    );
+    let got = cal.to_lights().unwrap().directions;
+    let (mean, max) = mean_error(&got, &lights);
+    println!("mask given: mean {mean:.3}°, max {max:.3}°");
+    assert!(mean < 0.3, "mean {mean:.3}°");
+    assert!(max < 0.6, "max {max:.3}°");
+    // The defects must not raise warnings: dust is ignored, the core's clipping is small.
+    assert!(cal.warnings.is_empty(), "{:?}", cal.warnings);
+    for l in &cal.lights {
+        assert!(
+            l.confidence > 0.3 && l.confidence <= 1.0,
+            "{}",
+            l.confidence
+        );
+    }
+}
+
+#[test]
+fn detects_the_sphere_without_a_mask() {
+    let c = sphere();
+    let lights = rig();
+    let images = render_rig(&c, &lights, Render::default());
+    let cal = calibrate(&images, None, None, &CalibrationOptions::default()).unwrap();
+    let fit = cal.sphere.circle;
+    println!("detected {fit:?}");
+    assert!(
+        (fit.cx - c.cx).abs() < 0.15 && (fit.cy - c.cy).abs() < 0.15 && (fit.r - c.r).abs() < 0.15,
+        "{fit:?}"
+    );
+    let (mean, _) = mean_error(&cal.to_lights().unwrap().directions, &lights);
+    println!("detected sphere: mean {mean:.3}°");
+    assert!(mean < 0.3, "mean {mean:.3}°");
+}
+
+#[test]
+fn a_missing_highlight_is_a_warning_and_blocks_the_light_file() {
+    let c = sphere();
+    let lights = rig();
+    let mut images = render_rig(&c, &lights, Render::default());
+    images[4] = render_mirror(&c, &[], Render::default(), 99);
+    add_defects(&mut images[4], &c, 4);
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    let w: Vec<_> = cal.warnings.iter().collect();
+    assert_eq!(w.len(), 1, "{w:?}");
+    assert_eq!((w[0].image, w[0].kind), (Some(4), WarningKind::Missing));
+    assert!(cal.lights[4].direction.is_none());
+    assert_eq!(cal.lights[4].confidence, 0.0);
+    let e = cal.to_lights().unwrap_err().to_string();
+    assert!(
+        e.contains("image(s) 5") && e.contains("no highlight"),
+        "{e}"
+    );
+    // The other lights are still right.
+    let got: Vec<[f64; 3]> = cal.lights.iter().filter_map(|l| l.direction).collect();
+    let truth: Vec<[f64; 3]> = (0..12).filter(|&k| k != 4).map(|k| lights[k]).collect();
+    assert!(mean_error(&got, &truth).0 < 0.3);
+}
+
+#[test]
+fn a_doubled_highlight_is_a_warning() {
+    let c = sphere();
+    let l = light(30.0, 40.0);
+    let second = light(30.0, 160.0);
+    let img = render_mirror(
+        &c,
+        &[highlight_point(&c, l), highlight_point(&c, second)],
+        Render::default(),
+        5,
+    );
+    let cal = calibrate(
+        &[img],
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    assert!(
+        cal.warnings.iter().any(|w| w.image == Some(0)
+            && w.kind == WarningKind::Doubled
+            && w.message.contains("two highlights")),
+        "{:?}",
+        cal.warnings
+    );
+    assert!(cal.lights[0].confidence < 0.5);
+}
+
+#[test]
+fn a_clipped_highlight_is_a_warning_but_still_located() {
+    let c = sphere();
+    let l = light(25.0, -60.0);
+    let opt = Render {
+        core_r: 9.0,
+        ..Render::default()
+    };
+    let img = render_mirror(&c, &[highlight_point(&c, l)], opt, 6);
+    let cal = calibrate(
+        &[img],
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    assert!(
+        cal.warnings
+            .iter()
+            .any(|w| w.kind == WarningKind::Clipped && w.message.contains("saturated pixels")),
+        "{:?}",
+        cal.warnings
+    );
+    let d = cal.lights[0].direction.unwrap();
+    assert!(angle_deg(d, l) < 0.5, "{}", angle_deg(d, l));
+}
+
+#[test]
+fn a_sphere_touching_the_frame_warns_or_fails() {
+    let lights = rig();
+    // A quarter of the sphere's width outside the frame on the right: fitted from the rest, warned.
+    let cut = Circle {
+        cx: W as f64 - 50.0,
+        cy: 110.2,
+        r: 70.0,
+    };
+    let lights_in: Vec<[f64; 3]> = lights.iter().cloned().filter(|l| l[0] < 0.2).collect();
+    let images = render_rig(&cut, &lights_in, Render::default());
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&cut)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    assert!(cal.sphere.touches_frame);
+    assert!(
+        cal.warnings
+            .iter()
+            .any(|w| w.image.is_none() && w.kind == WarningKind::SphereCut),
+        "{:?}",
+        cal.warnings
+    );
+    assert!(
+        (cal.sphere.circle.r - cut.r).abs() < 0.3,
+        "{:?}",
+        cal.sphere
+    );
+    assert!(mean_error(&cal.to_lights().unwrap().directions, &lights_in).0 < 0.3);
+    // Mostly outside the frame: an error that says so.
+    let out = Circle {
+        cx: W as f64 + 30.0,
+        cy: 110.0,
+        r: 70.0,
+    };
+    let images = render_rig(&sphere(), &lights[..3], Render::default());
+    let e = calibrate(
+        &images,
+        Some(&disc_mask(&out)),
+        Some("mask.png"),
+        &CalibrationOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("mask.png") && e.contains("touches the frame"),
+        "{e}"
+    );
+}
+
+#[test]
+fn a_mask_that_is_not_circular_is_an_error() {
+    let c = sphere();
+    // An ellipse with axes 70 and 56 px.
+    let ellipse: Vec<bool> = (0..W * H)
+        .map(|i| {
+            let (r, col) = ((i / W) as f64, (i % W) as f64);
+            ((col - c.cx) / 70.0).powi(2) + ((r - c.cy) / 56.0).powi(2) <= 1.0
+        })
+        .collect();
+    let e = fit_mask_circle(&ellipse, W, H, "ellipse.png")
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("ellipse.png") && e.contains("not circular"),
+        "{e}"
+    );
+    // A square.
+    let square: Vec<bool> = (0..W * H)
+        .map(|i| ((i / W) as i64 - 100).abs() < 50 && ((i % W) as i64 - 150).abs() < 50)
+        .collect();
+    let e = fit_mask_circle(&square, W, H, "square.png")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("not circular"), "{e}");
+    // A ring (circular outline, hollow): holes are filled, so a thin ring is a disc; a
+    // crescent is not.
+    let crescent: Vec<bool> = (0..W * H)
+        .map(|i| {
+            let (r, col) = ((i / W) as f64, (i % W) as f64);
+            let a = (col - c.cx).powi(2) + (r - c.cy).powi(2) <= c.r * c.r;
+            let b = (col - c.cx - 30.0).powi(2) + (r - c.cy).powi(2) <= c.r * c.r;
+            a && !b
+        })
+        .collect();
+    assert!(fit_mask_circle(&crescent, W, H, "crescent.png").is_err());
+    // An empty mask.
+    let e = fit_mask_circle(&vec![false; W * H], W, H, "empty.png")
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("empty"), "{e}");
+    // Through calibrate, the same error names the mask.
+    let images = render_rig(&c, &rig()[..3], Render::default());
+    let e = calibrate(
+        &images,
+        Some(&ellipse),
+        Some("ellipse.png"),
+        &CalibrationOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("ellipse.png") && e.contains("not circular"),
+        "{e}"
+    );
+}
+
+#[test]
+fn matte_sphere_gives_relative_intensities() {
+    let c = Circle {
+        cx: 150.6,
+        cy: 118.2,
+        r: 80.3,
+    };
+    let lights = rig();
+    let gains: Vec<f64> = (0..12).map(|k| 0.6 + 0.07 * k as f64).collect();
+    let albedo = [0.5, 0.4, 0.3];
+    let mut rng = Rng(7);
+    let images: Vec<Image> = lights
+        .iter()
+        .zip(&gains)
+        .map(|(l, g)| {
+            let mut data = vec![0f32; W * H * 3];
+            for row in 0..H {
+                for col in 0..W {
+                    if let Some(n) = c.normal_at(col as f64, row as f64) {
+                        let s = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]).max(0.0);
+                        for ch in 0..3 {
+                            let v = albedo[ch] * g * s + 0.003 * rng.gauss();
+                            data[(row * W + col) * 3 + ch] =
+                                ((v.clamp(0.0, 1.0) * 65535.0).round() / 65535.0) as f32;
+                        }
+                    }
+                }
+            }
+            Image {
+                width: W,
+                height: H,
+                channels: 3,
+                bit_depth: 16,
+                data,
+            }
+        })
+        .collect();
+    let got = matte_intensities(&images, &c, &lights).unwrap();
+    let mean_gain = gains.iter().sum::<f64>() / 12.0;
+    for (k, v) in got.iter().enumerate() {
+        let want = gains[k] / mean_gain;
+        for (ch, got) in v.iter().enumerate() {
+            assert!(
+                (got - want).abs() < 0.01 * want,
+                "light {k} ch {ch}: {got} vs {want}"
+            );
+        }
+    }
+    // Wrong count: an error.
+    assert!(matte_intensities(&images[..5], &c, &lights).is_err());
+}
