@@ -305,20 +305,42 @@ fn attribute(
     scratch: &mut Scratch,
     status_out: &mut [u8],
 ) -> (f64, f64, usize) {
+    scratch.weight.fill(1.0);
+    status_out.fill(status::USED);
+    attribute_from(test, params, noise, scratch, status_out)
+}
+
+/// Attribution starting from the kept set in `scratch.weight` (1 = kept), with the statuses of
+/// already-removed lights in `status_out`.
+fn attribute_from(
+    test: &Test,
+    params: &DetectionParams,
+    noise: &NoiseModel,
+    scratch: &mut Scratch,
+    status_out: &mut [u8],
+) -> (f64, f64, usize) {
     let n = test.directions.len();
     let level = scratch.grey.iter().sum::<f64>() / n as f64;
     let var = noise.variance(level);
     let sigma = var.sqrt();
-    scratch.weight.fill(1.0);
-    status_out.fill(status::USED);
-    let mut gram = test.gram;
-    let mut gram_inv = test.gram_inv;
+    let mut count = scratch.weight.iter().filter(|&&w| w > 0.0).count();
+    let (mut gram, mut gram_inv) = (test.gram, test.gram_inv);
+    if count < n {
+        gram = Matrix3::zeros();
+        for k in (0..n).filter(|&k| scratch.weight[k] > 0.0) {
+            let l = test.directions[k];
+            gram += l * l.transpose();
+        }
+        match gram.try_inverse() {
+            Some(inv) if count >= 3 => gram_inv = inv,
+            _ => return (f64::NAN, 0.0, count),
+        }
+    }
     let mut b = Vector3::zeros();
     for k in 0..n {
-        b += test.directions[k] * scratch.grey[k];
+        b += test.directions[k] * (scratch.grey[k] * scratch.weight[k]);
     }
     let mut m = gram_inv * b;
-    let mut count = n;
     let mut rss = score_pass(test, scratch, &m, &gram_inv);
     let s_all = rss / var;
     let shadow_level = params.shadow_sigmas * sigma + params.shadow_ratio * level;
@@ -601,6 +623,54 @@ pub fn detect_with_noise(
         params: params.clone(),
     })
 }
+
+/// Re-runs the attribution at single pixels from a given starting set of lights: the recursive
+/// method's step after the geometric shadows of the reconstructed surface have been removed.
+pub struct Attributor<'a> {
+    test: Test,
+    params: &'a DetectionParams,
+    noise: NoiseModel,
+}
+
+impl<'a> Attributor<'a> {
+    /// For a capture, with the detector's parameters and noise model.
+    pub fn new(capture: &Capture, params: &'a DetectionParams, noise: NoiseModel) -> Result<Self> {
+        Ok(Attributor { test: Test::new(capture, params)?, params, noise })
+    }
+
+    /// Per-thread scratch space for [`Attributor::run`].
+    pub fn scratch(&self) -> AttributionScratch {
+        AttributionScratch(Scratch::new(self.test.directions.len()))
+    }
+
+    /// Attribution at a pixel with grey intensities `grey` (one per light), starting from the
+    /// lights whose `status` is USED (others keep their status). Updates `status` and returns
+    /// (χ² statistic of the final set, or NaN if fewer than three lights remain; kept count).
+    pub fn run(&self, grey: &[f64], status: &mut [u8], scratch: &mut AttributionScratch) -> (f64, usize) {
+        let s = &mut scratch.0;
+        s.grey.copy_from_slice(grey);
+        for (w, &st) in s.weight.iter_mut().zip(status.iter()) {
+            *w = if st == crate::estimate::status::USED { 1.0 } else { 0.0 };
+        }
+        let (_, rss, count) = attribute_from(&self.test, self.params, &self.noise, s, status);
+        let n = grey.len();
+        let level = grey.iter().sum::<f64>() / n as f64;
+        let stat = if count > 3 { rss / self.noise.variance(level) } else { f64::NAN };
+        (stat, count)
+    }
+
+    /// The χ² threshold for `count` kept lights (infinite below four).
+    pub fn threshold(&self, count: usize) -> f64 {
+        if count > 3 {
+            self.test.thresholds[count - 3]
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// Scratch space of an [`Attributor`].
+pub struct AttributionScratch(Scratch);
 
 /// An orthonormal basis A (N × (N−3)) of the null space of Lᵀ: the eigenvectors of L Lᵀ with
 /// eigenvalue zero (for four lights, the paper's vector a). The detector never needs it (it uses
