@@ -16,7 +16,7 @@
 //! ## Stages (data flows one way)
 //! [`capture`] loads images and lights → [`estimate`] computes normals and albedo →
 //! [`metrics`] scores them → [`export`] writes the output folder. [`pipeline`] drives a run;
-//! [`scene`] renders ground-truth scenes. The library never prints: progress goes through
+//! [`scene`] renders ground-truth scenes; [`shadows`] finds attached and cast shadows of a height field. The library never prints: progress goes through
 //! [`progress::Progress`].
 
 pub mod capture;
@@ -33,6 +33,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod report;
 pub mod scene;
+pub mod shadows;
 
 pub use capture::{Capture, CaptureFiles};
 pub use error::{Error, Result};
