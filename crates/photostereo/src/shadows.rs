@@ -143,11 +143,12 @@ pub fn shadow_maps(
     let n = width * height;
     let mut flags = vec![0u8; n * lights.len()];
     if n > 0 {
+        let heights = valid_heights(depth, mask);
         flags
             .par_chunks_mut(n)
             .zip(units.par_iter())
-            .for_each_init(Vec::new, |horizons, (out, l)| {
-                sweep(depth, mask, width, height, *l, params.cast_tolerance_px, horizons, out);
+            .for_each_init(SweepScratch::default, |scratch, (out, l)| {
+                sweep(&heights, width, height, *l, params.cast_tolerance_px, scratch, out);
                 let tau = params.attached_tolerance;
                 for ((o, nrm), &inside) in out.iter_mut().zip(normals).zip(mask) {
                     // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
@@ -193,13 +194,12 @@ pub fn cast_shadows(
     let l = unit_light(light).map_err(|m| Error::invalid(format!("light {light:?}: {m}")))?;
     let mut out = vec![0u8; width * height];
     sweep(
-        depth,
-        mask,
+        &valid_heights(depth, mask),
         width,
         height,
         l,
         params.cast_tolerance_px,
-        &mut Vec::new(),
+        &mut SweepScratch::default(),
         &mut out,
     );
     Ok(out.into_iter().map(|f| f != 0).collect())
@@ -433,7 +433,36 @@ impl Walk {
     }
 }
 
-/// Writes 1 into `out` where light `l` (unit) is hidden by the height field, 0 elsewhere.
+/// Heights of valid pixels, −∞ elsewhere (outside the mask or not finite).
+fn valid_heights(depth: &[f32], mask: &[bool]) -> Vec<f32> {
+    depth
+        .par_iter()
+        .zip(mask.par_iter())
+        .map(|(&h, &inside)| {
+            if inside && h.is_finite() {
+                h
+            } else {
+                f32::NEG_INFINITY
+            }
+        })
+        .collect()
+}
+
+/// Buffers of one light's sweep, reused across lights on a thread.
+#[derive(Default)]
+struct SweepScratch {
+    /// Horizon of every sweep line at every step.
+    horizons: Vec<f32>,
+    /// Per step i: integer part and fraction of −shift·i.
+    offsets: Vec<isize>,
+    fractions: Vec<f32>,
+}
+
+/// Side of the square tiles in which pass 2 of the sweep visits pixels (cache locality).
+const TILE: usize = 64;
+
+/// Writes 1 into `out` where light `l` (unit) is hidden by the height field `heights` (−∞ at
+/// invalid pixels), 0 elsewhere.
 ///
 /// Lines q = 0, 1, … run parallel to the light at lateral position p = q_min + q − shift·i
 /// (step i); along each, the height at the ray's crossing of the step is interpolated between the
@@ -441,15 +470,13 @@ impl Walk {
 /// exactly (the lines are independent: parallel over lines). A pixel's horizon is then
 /// interpolated between the two lines that bracket it. An invalid sample (hole, border) resets a
 /// line's horizon to −∞.
-#[allow(clippy::too_many_arguments)]
 fn sweep(
-    depth: &[f32],
-    mask: &[bool],
+    heights: &[f32],
     width: usize,
     height: usize,
     l: [f64; 3],
     tolerance: f64,
-    horizons: &mut Vec<f32>,
+    scratch: &mut SweepScratch,
     out: &mut [u8],
 ) {
     out.fill(0);
@@ -457,46 +484,53 @@ fn sweep(
         return;
     };
     let tolerance = tolerance as f32;
-    let height_at = |i: usize| -> f32 {
-        let h = depth[i];
-        if mask[i] && h.is_finite() {
-            h
-        } else {
-            f32::NEG_INFINITY
-        }
-    };
     let (n_steps, n_lat, shift) = (walk.n_steps, walk.n_lat, walk.shift);
     let span = shift * (n_steps - 1) as f64;
-    let q_min = span.min(0.0).floor();
-    let q_max = (n_lat as f64 - 1.0 + span.max(0.0)).ceil();
-    let n_lines = (q_max - q_min) as usize + 1;
-    horizons.clear();
-    horizons.resize(n_lines * n_steps, f32::NEG_INFINITY);
+    let q_min = span.min(0.0).floor() as isize;
+    let q_max = (n_lat as f64 - 1.0 + span.max(0.0)).ceil() as isize;
+    let n_lines = (q_max - q_min + 1) as usize;
+    // Line q = q_min + line sits at lateral q − shift·i at step i: the integer part and the
+    // fraction of −shift·i are the same for every line, so they are tabulated once per step.
+    scratch.offsets.clear();
+    scratch.fractions.clear();
+    for i in 0..n_steps {
+        let p = -shift * i as f64;
+        let p0 = p.floor();
+        let mut f = (p - p0) as f32;
+        let mut p0 = p0 as isize;
+        if f > 1.0 - 1e-6 {
+            (p0, f) = (p0 + 1, 0.0);
+        } else if f < 1e-6 {
+            f = 0.0;
+        }
+        scratch.offsets.push(p0);
+        scratch.fractions.push(f);
+    }
+    scratch.horizons.clear();
+    scratch.horizons.resize(n_lines * n_steps, f32::NEG_INFINITY);
+    let (offsets, fractions) = (&scratch.offsets, &scratch.fractions);
     // Pass 1: the horizon of every line at every step, `horizons[line * n_steps + i]`.
-    horizons
+    scratch
+        .horizons
         .par_chunks_mut(n_steps)
         .enumerate()
         .for_each(|(line, line_horizons)| {
-            let q = q_min + line as f64;
+            let q = q_min + line as isize;
             let at = |i: usize, j: isize| -> f32 {
                 if j < 0 || j >= n_lat as isize {
                     f32::NEG_INFINITY
                 } else {
-                    height_at(walk.index(i, j))
+                    heights[walk.index(i, j)]
                 }
             };
             let mut highest = f32::NEG_INFINITY; // M = max(h, H) at the previous step
             for (i, horizon) in line_horizons.iter_mut().enumerate() {
                 *horizon = highest - walk.drop;
-                let p = q - shift * i as f64;
-                let p0 = p.floor();
-                let f = (p - p0) as f32;
-                let p0 = p0 as isize;
+                let p0 = q + offsets[i];
+                let f = fractions[i];
                 // −∞ on a side with weight (hole or border) stays −∞: the horizon resets.
-                let h = if f < 1e-6 {
+                let h = if f == 0.0 {
                     at(i, p0)
-                } else if f > 1.0 - 1e-6 {
-                    at(i, p0 + 1)
                 } else {
                     (1.0 - f) * at(i, p0) + f * at(i, p0 + 1)
                 };
@@ -507,40 +541,47 @@ fn sweep(
                 };
             }
         });
-    // Pass 2: each valid pixel against the horizon interpolated between its two lines.
-    let horizons = &*horizons;
-    out.par_chunks_mut(width)
+    // Pass 2: each valid pixel against the horizon interpolated between its two lines, in
+    // bands of TILE rows and tiles of TILE columns so that the lines read stay in cache.
+    let horizons = &scratch.horizons;
+    out.par_chunks_mut(width * TILE)
         .enumerate()
-        .for_each(|(row, out_row)| {
-            for (col, o) in out_row.iter_mut().enumerate() {
-                let x = row * width + col;
-                let h = height_at(x);
-                if h == f32::NEG_INFINITY {
-                    continue;
-                }
-                let (along, j) = if walk.along_cols {
-                    (col, row)
-                } else {
-                    (row, col)
-                };
-                let i = if walk.di < 0 {
-                    n_steps - 1 - along
-                } else {
-                    along
-                };
-                let q = j as f64 + shift * i as f64 - q_min;
-                let q0 = q.floor();
-                let f = (q - q0) as f32;
-                let a = q0 as usize * n_steps + i;
-                let horizon = if f < 1e-6 {
-                    horizons[a]
-                } else if f > 1.0 - 1e-6 {
-                    horizons[a + n_steps]
-                } else {
-                    (1.0 - f) * horizons[a] + f * horizons[a + n_steps]
-                };
-                if h < horizon - tolerance {
-                    *o = 1;
+        .for_each(|(band, out_band)| {
+            let row0 = band * TILE;
+            let rows = out_band.len() / width;
+            for col0 in (0..width).step_by(TILE) {
+                for r in 0..rows {
+                    let row = row0 + r;
+                    for col in col0..(col0 + TILE).min(width) {
+                        let x = row * width + col;
+                        let h = heights[x];
+                        if h == f32::NEG_INFINITY {
+                            continue;
+                        }
+                        let (along, j) = if walk.along_cols {
+                            (col, row)
+                        } else {
+                            (row, col)
+                        };
+                        let i = if walk.di < 0 {
+                            n_steps - 1 - along
+                        } else {
+                            along
+                        };
+                        // The pixel lies at lateral j = q − shift·i, i.e. on line
+                        // q = j − offsets[i] − fractions[i]: between lines q0 − 1 and q0.
+                        let q0 = (j as isize - offsets[i] - q_min) as usize;
+                        let f = fractions[i];
+                        let a = q0 * n_steps + i;
+                        let horizon = if f == 0.0 {
+                            horizons[a]
+                        } else {
+                            f * horizons[a - n_steps] + (1.0 - f) * horizons[a]
+                        };
+                        if h < horizon - tolerance {
+                            out_band[r * width + col] = 1;
+                        }
+                    }
                 }
             }
         });
