@@ -33,7 +33,9 @@ fn field() -> (Vec<f32>, Vec<[f32; 3]>, Vec<bool>) {
     let f = |x: f64, y: f64| -> f64 {
         bumps
             .iter()
-            .map(|b| b[2] * (-((x - b[0]).powi(2) + (y - b[1]).powi(2)) / (2.0 * b[3] * b[3])).exp())
+            .map(|b| {
+                b[2] * (-((x - b[0]).powi(2) + (y - b[1]).powi(2)) / (2.0 * b[3] * b[3])).exp()
+            })
             .sum()
     };
     let (cx, cy) = (WIDTH as f64 / 2.0, HEIGHT as f64 / 2.0);
@@ -43,7 +45,8 @@ fn field() -> (Vec<f32>, Vec<[f32; 3]>, Vec<bool>) {
     for row in 0..HEIGHT {
         for col in 0..WIDTH {
             let (x, y) = (col as f64, row as f64);
-            if ((x - cx) / (0.45 * WIDTH as f64)).powi(2) + ((y - cy) / (0.45 * HEIGHT as f64)).powi(2)
+            if ((x - cx) / (0.45 * WIDTH as f64)).powi(2)
+                + ((y - cy) / (0.45 * HEIGHT as f64)).powi(2)
                 < 1.0
             {
                 let i = row * WIDTH + col;

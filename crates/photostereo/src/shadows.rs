@@ -144,11 +144,18 @@ pub fn shadow_maps(
     let mut flags = vec![0u8; n * lights.len()];
     if n > 0 {
         let heights = valid_heights(depth, mask);
-        flags
-            .par_chunks_mut(n)
-            .zip(units.par_iter())
-            .for_each_init(SweepScratch::default, |scratch, (out, l)| {
-                sweep(&heights, width, height, *l, params.cast_tolerance_px, scratch, out);
+        flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
+            SweepScratch::default,
+            |scratch, (out, l)| {
+                sweep(
+                    &heights,
+                    width,
+                    height,
+                    *l,
+                    params.cast_tolerance_px,
+                    scratch,
+                    out,
+                );
                 let tau = params.attached_tolerance;
                 for ((o, nrm), &inside) in out.iter_mut().zip(normals).zip(mask) {
                     // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
@@ -159,7 +166,8 @@ pub fn shadow_maps(
                     }
                     *o = f;
                 }
-            });
+            },
+        );
     }
     Ok(ShadowMaps {
         width,
@@ -507,7 +515,9 @@ fn sweep(
         scratch.fractions.push(f);
     }
     scratch.horizons.clear();
-    scratch.horizons.resize(n_lines * n_steps, f32::NEG_INFINITY);
+    scratch
+        .horizons
+        .resize(n_lines * n_steps, f32::NEG_INFINITY);
     let (offsets, fractions) = (&scratch.offsets, &scratch.fractions);
     // Pass 1: the horizon of every line at every step, `horizons[line * n_steps + i]`.
     scratch

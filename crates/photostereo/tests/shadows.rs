@@ -197,7 +197,10 @@ fn sphere_on_plane_ring_of_8_at_40_degrees() {
              tolerance 0 vs scene::ray_march_shadows agreement {agree_r:.4} IoU {iou_r:.4} \
              (default tolerance: IoU {iou_r_default:.4})"
         );
-        assert!(iou >= 0.95 && iou_r >= 0.95, "light {k}: IoU {iou} / {iou_r}");
+        assert!(
+            iou >= 0.95 && iou_r >= 0.95,
+            "light {k}: IoU {iou} / {iou_r}"
+        );
         assert!(agree >= 0.99 && agree_r >= 0.99);
     }
 }
@@ -257,8 +260,10 @@ fn shadow_maps_match_single_light_sweeps_and_respect_the_mask() {
             }
         }
     }
-    assert!(maps.flags.iter().any(|&b| b == ShadowMaps::CAST));
-    assert!(maps.flags.iter().any(|&b| b == ShadowMaps::ATTACHED | ShadowMaps::CAST));
+    assert!(maps.flags.contains(&ShadowMaps::CAST));
+    assert!(maps
+        .flags
+        .contains(&(ShadowMaps::ATTACHED | ShadowMaps::CAST)));
 }
 
 /// Normals of the field by central differences (∂f/∂col = −n_x/n_z, ∂f/∂row = +n_y/n_z).
@@ -290,29 +295,62 @@ fn mirrored_and_transposed_scenes_give_mirrored_maps() {
     let f = bumps(64, 5);
     let n = f.width;
     let params = ShadowParams::default();
-    let flip = |v: &[f32]| -> Vec<f32> { (0..n * n).map(|i| v[(i / n) * n + n - 1 - i % n]).collect() };
-    let transpose = |v: &[f32]| -> Vec<f32> { (0..n * n).map(|i| v[(i % n) * n + i / n]).collect() };
-    for l in lights(&[10.0, 55.0, 100.0, 145.0, 190.0, 235.0, 280.0, 325.0], &[30.0, 65.0]) {
+    let flip =
+        |v: &[f32]| -> Vec<f32> { (0..n * n).map(|i| v[(i / n) * n + n - 1 - i % n]).collect() };
+    let transpose =
+        |v: &[f32]| -> Vec<f32> { (0..n * n).map(|i| v[(i % n) * n + i / n]).collect() };
+    for l in lights(
+        &[10.0, 55.0, 100.0, 145.0, 190.0, 235.0, 280.0, 325.0],
+        &[30.0, 65.0],
+    ) {
         let base = cast_shadows(&f.depth, &f.mask, n, n, l, &params).unwrap();
         let as_f32 = |b: &[bool]| b.iter().map(|&s| s as u8 as f32).collect::<Vec<_>>();
         let flipped =
             cast_shadows(&flip(&f.depth), &f.mask, n, n, [-l[0], l[1], l[2]], &params).unwrap();
-        assert_eq!(as_f32(&flipped), flip(&as_f32(&base)), "mirror, light {l:?}");
-        let transposed =
-            cast_shadows(&transpose(&f.depth), &f.mask, n, n, [-l[1], -l[0], l[2]], &params)
-                .unwrap();
-        assert_eq!(as_f32(&transposed), transpose(&as_f32(&base)), "transpose, light {l:?}");
+        assert_eq!(
+            as_f32(&flipped),
+            flip(&as_f32(&base)),
+            "mirror, light {l:?}"
+        );
+        let transposed = cast_shadows(
+            &transpose(&f.depth),
+            &f.mask,
+            n,
+            n,
+            [-l[1], -l[0], l[2]],
+            &params,
+        )
+        .unwrap();
+        assert_eq!(
+            as_f32(&transposed),
+            transpose(&as_f32(&base)),
+            "transpose, light {l:?}"
+        );
     }
 }
 
 #[test]
 fn zenith_light_casts_nothing_and_grazing_light_shadows_a_dent() {
     let f = bowl(64);
-    let none = cast_shadows(&f.depth, &f.mask, 64, 64, [0.0, 0.0, 1.0], &ShadowParams::default())
-        .unwrap();
+    let none = cast_shadows(
+        &f.depth,
+        &f.mask,
+        64,
+        64,
+        [0.0, 0.0, 1.0],
+        &ShadowParams::default(),
+    )
+    .unwrap();
     assert!(none.iter().all(|&s| !s));
-    let grazing = cast_shadows(&f.depth, &f.mask, 64, 64, [0.99, 0.0, 0.141], &ShadowParams::default())
-        .unwrap();
+    let grazing = cast_shadows(
+        &f.depth,
+        &f.mask,
+        64,
+        64,
+        [0.99, 0.0, 0.141],
+        &ShadowParams::default(),
+    )
+    .unwrap();
     // The bowl's lit-side half (toward the light, +x) lies in the rim's shadow.
     let inside_right = (0..64 * 64)
         .filter(|&i| f.depth[i] < -1.0 && (i % 64) > 34 && grazing[i])
@@ -368,8 +406,16 @@ fn bad_inputs_are_errors() {
     let normals = vec![[0f32, 0.0, 1.0]; 11];
     let e = shadow_maps(&depth, &normals, &mask, 4, 3, &[[0.0, 0.0, 1.0]], &p).unwrap_err();
     assert!(e.to_string().contains("normals"), "{e}");
-    let e = shadow_maps(&depth, &[[0.0, 0.0, 1.0]; 12], &mask, 4, 3, &[[0.0, 0.0, 1.0], [0.0; 3]], &p)
-        .unwrap_err();
+    let e = shadow_maps(
+        &depth,
+        &[[0.0, 0.0, 1.0]; 12],
+        &mask,
+        4,
+        3,
+        &[[0.0, 0.0, 1.0], [0.0; 3]],
+        &p,
+    )
+    .unwrap_err();
     assert!(e.to_string().contains("light 2"), "{e}");
 }
 
@@ -389,14 +435,22 @@ fn montage_shows_each_light_as_a_labelled_tile() {
     assert!(c.width >= 3 * 100 && c.height >= 2 * 67);
     let (gap, label) = (6, 11);
     let cell_w = 100 + gap;
-    let tile = |k: usize, x: usize, y: usize| px(gap + (k % 3) * cell_w + x, gap + (k / 3) * (67 + label + gap) + label + y);
+    let tile = |k: usize, x: usize, y: usize| {
+        px(
+            gap + (k % 3) * cell_w + x,
+            gap + (k / 3) * (67 + label + gap) + label + y,
+        )
+    };
     assert_eq!(tile(0, 50, 30), 255);
     assert_eq!(tile(1, 50, 30), 0);
     assert_eq!(tile(2, 10, 30), 0);
     assert_eq!(tile(2, 90, 30), 255);
     assert_eq!(tile(4, 99, 66), 0);
     // Labels: some black pixels above the first tile.
-    let label_dark = (0..label).flat_map(|y| (0..30).map(move |x| (x, y))).filter(|&(x, y)| px(gap + x, gap + y) == 0).count();
+    let label_dark = (0..label)
+        .flat_map(|y| (0..30).map(move |x| (x, y)))
+        .filter(|&(x, y)| px(gap + x, gap + y) == 0)
+        .count();
     assert!(label_dark > 5);
 }
 
@@ -441,8 +495,10 @@ fn default_tolerance_keeps_smooth_lit_slopes_lit() {
         .map(|f| {
             ls.iter()
                 .map(|l| {
-                    cast_shadows_ray_march(&f.depth, &f.mask, f.width, f.height, *l, MARCH_STEP, 0.0)
-                        .unwrap()
+                    cast_shadows_ray_march(
+                        &f.depth, &f.mask, f.width, f.height, *l, MARCH_STEP, 0.0,
+                    )
+                    .unwrap()
                 })
                 .collect()
         })
@@ -453,7 +509,8 @@ fn default_tolerance_keeps_smooth_lit_slopes_lit() {
             cast_tolerance_px: tol,
             ..ShadowParams::default()
         };
-        let (mut lit, mut false_shadow, mut truth_shadow, mut kept) = (0usize, 0usize, 0usize, 0usize);
+        let (mut lit, mut false_shadow, mut truth_shadow, mut kept) =
+            (0usize, 0usize, 0usize, 0usize);
         for (f, truth) in fields.iter().zip(&truths) {
             let normals = numeric_normals(f);
             for (l, t) in ls.iter().zip(truth) {

@@ -1,4 +1,5 @@
 //! Height fields shared by the shadow tests (a module of the `shadows*` test targets).
+//! (Also built as its own, empty test target.)
 #![allow(dead_code)]
 
 /// A height field with its mask and analytic normals.
@@ -71,7 +72,7 @@ pub fn bowl(size: usize) -> Field {
 /// Deterministic pseudo-random numbers in [0, 1) (64-bit LCG).
 pub struct Lcg(pub u64);
 impl Lcg {
-    pub fn next(&mut self) -> f64 {
+    pub fn uniform(&mut self) -> f64 {
         self.0 = self
             .0
             .wrapping_mul(6364136223846793005)
@@ -87,10 +88,10 @@ pub fn bumps(size: usize, seed: u64) -> Field {
     let bumps: Vec<[f64; 4]> = (0..12)
         .map(|_| {
             [
-                (rng.next() - 0.5) * s,
-                (rng.next() - 0.5) * s,
-                -6.0 + 20.0 * rng.next(),
-                4.0 + 8.0 * rng.next(),
+                (rng.uniform() - 0.5) * s,
+                (rng.uniform() - 0.5) * s,
+                -6.0 + 20.0 * rng.uniform(),
+                4.0 + 8.0 * rng.uniform(),
             ]
         })
         .collect();
@@ -152,6 +153,10 @@ pub fn agreement(a: &[bool], b: &[bool], mask: &[bool]) -> (f64, f64) {
     }
     (
         same as f64 / n.max(1) as f64,
-        if uni == 0 { 1.0 } else { inter as f64 / uni as f64 },
+        if uni == 0 {
+            1.0
+        } else {
+            inter as f64 / uni as f64
+        },
     )
 }
