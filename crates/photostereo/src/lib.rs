@@ -16,8 +16,8 @@
 //! ## Stages (data flows one way)
 //! [`capture`] loads images and lights → [`estimate`] computes normals and albedo →
 //! [`metrics`] scores them → [`export`] writes the output folder. [`pipeline`] drives a run;
-//! [`scene`] renders ground-truth scenes. The library never prints: progress goes through
-//! [`progress::Progress`].
+//! [`scene`] renders ground-truth scenes; [`shadows`] finds the attached and cast shadows of a
+//! height field. The library never prints: progress goes through [`progress::Progress`].
 
 pub mod calibrate;
 pub mod capture;
@@ -35,6 +35,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod report;
 pub mod scene;
+pub mod shadows;
 pub mod stats;
 
 pub use capture::{Capture, CaptureFiles};

@@ -1,0 +1,598 @@
+//! Attached and cast shadows of a reconstructed height field under distant lights
+//! (ALGORITHMS.md §6).
+//!
+//! Inputs share one layout: a height field `depth` (pixel units, z toward the camera,
+//! `height * width` values row-major), an object `mask` of the same size, and light directions
+//! as vectors from the surface toward the light in the camera frame (x = +col, y = −row,
+//! z toward the camera; they are normalised here). A pixel is *valid* when it is inside the mask
+//! and its height is finite; invalid pixels are never marked and cast no shadow (their height is
+//! unknown).
+//!
+//! - Attached shadow: n·l ≤ τ ([`ShadowParams::attached_tolerance`]).
+//! - Cast shadow: the height field rises above the ray x + t·l for some t > 0.
+//!   [`cast_shadows`] finds it with a horizon sweep in O(H·W) per light;
+//!   [`cast_shadows_ray_march`] is the plain per-pixel reference it is tested against.
+//!
+//! **Holes.** A ray that crosses an invalid pixel stops there: the horizon is not carried
+//! through holes or past the image border (it resets to −∞). Both the sweep and the ray march
+//! follow this rule, so an occluder on the far side of a hole in the mask casts nothing across it.
+
+use crate::error::{Error, Result};
+use crate::figure::{text_width, Canvas};
+use rayon::prelude::*;
+
+/// Thresholds of the shadow tests.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ShadowParams {
+    /// A pixel is in attached shadow when n·l ≤ this cosine (dimensionless). Default 0.02,
+    /// i.e. the light within about 1.1° of the tangent plane or behind it.
+    pub attached_tolerance: f64,
+    /// A pixel is in cast shadow when its height is below the horizon toward the light by more
+    /// than this, in pixel units of height. Default 0.05 px: it halves the sweep's false shadows
+    /// on smooth lit slopes (interpolation error near grazing light) while keeping about 97% of
+    /// the exact cast shadow on surfaces facing the light (measurements in `docs/shadows.md`); it
+    /// shortens a shadow by about `tolerance · tan(slant)` pixels.
+    pub cast_tolerance_px: f64,
+}
+
+impl Default for ShadowParams {
+    fn default() -> Self {
+        ShadowParams {
+            attached_tolerance: 0.02,
+            cast_tolerance_px: 0.05,
+        }
+    }
+}
+
+impl ShadowParams {
+    fn check(&self) -> Result<()> {
+        if !self.attached_tolerance.is_finite() || self.attached_tolerance.abs() >= 1.0 {
+            return Err(Error::invalid(format!(
+                "shadow parameter attached_tolerance = {}: expected a cosine in (-1, 1)",
+                self.attached_tolerance
+            )));
+        }
+        if !self.cast_tolerance_px.is_finite() || self.cast_tolerance_px < 0.0 {
+            return Err(Error::invalid(format!(
+                "shadow parameter cast_tolerance_px = {}: expected a finite height >= 0 in pixels",
+                self.cast_tolerance_px
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Per-light shadow flags of a height field: `(lights, height, width)` bytes, row-major per
+/// light, each a combination of [`ShadowMaps::ATTACHED`] and [`ShadowMaps::CAST`]; 0 outside
+/// the mask.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShadowMaps {
+    pub width: usize,
+    pub height: usize,
+    pub lights: usize,
+    /// `flags[(k * height + row) * width + col]` for light k.
+    pub flags: Vec<u8>,
+}
+
+impl ShadowMaps {
+    /// Bit set when n·l ≤ τ.
+    pub const ATTACHED: u8 = 1;
+    /// Bit set when the height field hides the light.
+    pub const CAST: u8 = 2;
+
+    /// The flags of light `k` (`height * width`, row-major).
+    pub fn flags_of(&self, k: usize) -> &[u8] {
+        let n = self.width * self.height;
+        &self.flags[k * n..(k + 1) * n]
+    }
+
+    /// Attached-shadow map of light `k`.
+    pub fn attached(&self, k: usize) -> Vec<bool> {
+        self.map(k, Self::ATTACHED)
+    }
+
+    /// Cast-shadow map of light `k`.
+    pub fn cast(&self, k: usize) -> Vec<bool> {
+        self.map(k, Self::CAST)
+    }
+
+    /// Union of the attached and cast shadows of light `k`.
+    pub fn union(&self, k: usize) -> Vec<bool> {
+        self.map(k, Self::ATTACHED | Self::CAST)
+    }
+
+    /// True when pixel `pixel` (flat row-major index) is in either shadow of light `k`.
+    #[inline]
+    pub fn is_shadowed(&self, k: usize, pixel: usize) -> bool {
+        self.flags[k * self.width * self.height + pixel] != 0
+    }
+
+    fn map(&self, k: usize, bits: u8) -> Vec<bool> {
+        self.flags_of(k).iter().map(|f| f & bits != 0).collect()
+    }
+}
+
+/// Shadow maps of every light: attached shadows from `normals` (unit, camera frame) and cast
+/// shadows from `depth` by the horizon sweep, computed in parallel over the lights.
+///
+/// Errors when a buffer's length is not `width * height`, a light is not a finite non-zero
+/// vector, or a parameter is out of its domain.
+pub fn shadow_maps(
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    lights: &[[f64; 3]],
+    params: &ShadowParams,
+) -> Result<ShadowMaps> {
+    check_inputs(depth, mask, width, height)?;
+    params.check()?;
+    if normals.len() != width * height {
+        return Err(Error::invalid(format!(
+            "shadow maps: {} normals for a {width}×{height} height field (expected {})",
+            normals.len(),
+            width * height
+        )));
+    }
+    let units = lights
+        .iter()
+        .enumerate()
+        .map(|(k, l)| unit_light(*l).map_err(|m| Error::invalid(format!("light {}: {m}", k + 1))))
+        .collect::<Result<Vec<_>>>()?;
+    let n = width * height;
+    let mut flags = vec![0u8; n * lights.len()];
+    if n > 0 {
+        let heights = valid_heights(depth, mask);
+        flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
+            SweepScratch::default,
+            |scratch, (out, l)| {
+                sweep(
+                    &heights,
+                    width,
+                    height,
+                    *l,
+                    params.cast_tolerance_px,
+                    scratch,
+                    out,
+                );
+                let tau = params.attached_tolerance;
+                for ((o, nrm), &inside) in out.iter_mut().zip(normals).zip(mask) {
+                    // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
+                    let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
+                    let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                    if inside && s <= tau {
+                        f |= ShadowMaps::ATTACHED;
+                    }
+                    *o = f;
+                }
+            },
+        );
+    }
+    Ok(ShadowMaps {
+        width,
+        height,
+        lights: lights.len(),
+        flags,
+    })
+}
+
+/// Cast-shadow map of one light by a horizon sweep (see the module notes for holes).
+///
+/// The image is walked from the light's side along the dominant horizontal direction of the
+/// light (columns when |l_x| ≥ |l_y|, rows otherwise; the 8 octants differ only in the walk's
+/// direction), one column (row) per step. Sweep lines parallel to the light start one pixel
+/// apart; along each, the point u one step toward the light is interpolated linearly between
+/// the two pixels of the previous column (row) that bracket the ray, and the horizon is
+/// H(x) = max(h(u), H(u)) − k·step, k = l_z / ‖(l_x, l_y)‖ the fall of the ray per pixel of
+/// horizontal travel and step the horizontal length of one step. A pixel takes the horizon
+/// interpolated between the two sweep lines that bracket it and is shadowed when
+/// h(x) < H(x) − `cast_tolerance_px`. O(H·W) work, O(1) per pixel; the sweep lines are
+/// independent and run in parallel. A light at the zenith casts no shadow.
+pub fn cast_shadows(
+    depth: &[f32],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    light: [f64; 3],
+    params: &ShadowParams,
+) -> Result<Vec<bool>> {
+    check_inputs(depth, mask, width, height)?;
+    params.check()?;
+    let l = unit_light(light).map_err(|m| Error::invalid(format!("light {light:?}: {m}")))?;
+    let mut out = vec![0u8; width * height];
+    sweep(
+        &valid_heights(depth, mask),
+        width,
+        height,
+        l,
+        params.cast_tolerance_px,
+        &mut SweepScratch::default(),
+        &mut out,
+    );
+    Ok(out.into_iter().map(|f| f != 0).collect())
+}
+
+/// Reference cast-shadow map of one light: from every valid pixel, march toward the light in
+/// steps of `step` pixels of horizontal travel, sampling the height bilinearly, and mark the
+/// pixel when a sample rises above the ray by more than `tolerance_px` (+ 1e-4 px against
+/// rounding; pass [`ShadowParams::cast_tolerance_px`] to compare with the sweep). The march stops when the ray
+/// climbs above the highest valid height, leaves the image, or reaches a sample whose bilinear
+/// support touches an invalid pixel (holes do not carry the horizon). Parallel over rows.
+pub fn cast_shadows_ray_march(
+    depth: &[f32],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    light: [f64; 3],
+    step: f64,
+    tolerance_px: f64,
+) -> Result<Vec<bool>> {
+    check_inputs(depth, mask, width, height)?;
+    if !(step.is_finite() && step > 0.0) {
+        return Err(Error::invalid(format!(
+            "ray march step = {step}: expected a positive number of pixels"
+        )));
+    }
+    if !(tolerance_px.is_finite() && tolerance_px >= 0.0) {
+        return Err(Error::invalid(format!(
+            "ray march tolerance = {tolerance_px}: expected a finite height >= 0 in pixels"
+        )));
+    }
+    let threshold = tolerance_px + 1e-4;
+    let l = unit_light(light).map_err(|m| Error::invalid(format!("light {light:?}: {m}")))?;
+    let mut out = vec![false; width * height];
+    let horiz = l[0].hypot(l[1]);
+    if horiz < ZENITH_EPS || out.is_empty() {
+        return Ok(out);
+    }
+    // Per unit of horizontal travel: columns grow with x, rows shrink with y.
+    let (dc, dr, dz) = (l[0] / horiz, -l[1] / horiz, l[2] / horiz);
+    let valid = |i: usize| mask[i] && depth[i].is_finite();
+    let max_h = (0..width * height)
+        .filter(|&i| valid(i))
+        .map(|i| depth[i] as f64)
+        .fold(f64::NEG_INFINITY, f64::max);
+    let (last_r, last_c) = ((height - 1) as f64, (width - 1) as f64);
+    let sample = |r: f64, c: f64| -> Option<f64> {
+        let r0 = r.floor() as usize;
+        let c0 = c.floor() as usize;
+        let fr = r - r0 as f64;
+        let fc = c - c0 as f64;
+        let mut acc = 0.0;
+        for (rr, wr) in [(r0, 1.0 - fr), (r0 + 1, fr)] {
+            for (cc, wc) in [(c0, 1.0 - fc), (c0 + 1, fc)] {
+                let w = wr * wc;
+                if w > 1e-9 {
+                    let i = rr * width + cc;
+                    if rr >= height || cc >= width || !valid(i) {
+                        return None;
+                    }
+                    acc += w * depth[i] as f64;
+                }
+            }
+        }
+        Some(acc)
+    };
+    out.par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(row, out_row)| {
+            for (col, o) in out_row.iter_mut().enumerate() {
+                let i = row * width + col;
+                if !valid(i) {
+                    continue;
+                }
+                let h0 = depth[i] as f64;
+                let mut t = step;
+                loop {
+                    let z = h0 + dz * t;
+                    if z > max_h {
+                        break;
+                    }
+                    let (r, c) = (row as f64 + dr * t, col as f64 + dc * t);
+                    if r < 0.0 || c < 0.0 || r > last_r || c > last_c {
+                        break;
+                    }
+                    match sample(r, c) {
+                        Some(h) if h - z > threshold => {
+                            *o = true;
+                            break;
+                        }
+                        Some(_) => {}
+                        None => break,
+                    }
+                    t += step;
+                }
+            }
+        });
+    Ok(out)
+}
+
+/// A montage of per-light binary maps (each `width * height`, row-major, true = shadowed):
+/// a grid of tiles, each reduced by an integer factor to at most 128 px on a side (grey level =
+/// share of shadowed pixels, white = lit, black = shadowed), labelled with the light's 1-based
+/// index above it.
+pub fn shadow_montage(maps: &[Vec<bool>], width: usize, height: usize) -> Canvas {
+    const TILE_MAX: usize = 128;
+    const GAP: usize = 6;
+    const LABEL_H: usize = 11;
+    let background = [200, 200, 210];
+    if maps.is_empty() || width == 0 || height == 0 {
+        return Canvas::new(1, 1, background);
+    }
+    let factor = width.max(height).div_ceil(TILE_MAX).max(1);
+    let (tw, th) = (width.div_ceil(factor), height.div_ceil(factor));
+    let cols = (maps.len() as f64).sqrt().ceil() as usize;
+    let rows = maps.len().div_ceil(cols);
+    let cell_w = tw.max(text_width(&maps.len().to_string(), 1)) + GAP;
+    let cell_h = th + LABEL_H + GAP;
+    let mut canvas = Canvas::new(cols * cell_w + GAP, rows * cell_h + GAP, background);
+    for (k, map) in maps.iter().enumerate() {
+        let x0 = GAP + (k % cols) * cell_w;
+        let y0 = GAP + (k / cols) * cell_h;
+        canvas.text(x0, y0, &(k + 1).to_string(), 1, [0, 0, 0]);
+        let ty = y0 + LABEL_H;
+        for y in 0..th {
+            for x in 0..tw {
+                let (mut shadowed, mut total) = (0usize, 0usize);
+                for r in y * factor..((y + 1) * factor).min(height) {
+                    for c in x * factor..((x + 1) * factor).min(width) {
+                        total += 1;
+                        if map.get(r * width + c).copied().unwrap_or(false) {
+                            shadowed += 1;
+                        }
+                    }
+                }
+                let g = 255 - (255 * shadowed / total.max(1)) as u8;
+                canvas.put(x0 + x, ty + y, [g, g, g]);
+            }
+        }
+    }
+    canvas
+}
+
+/// Below this horizontal component the light counts as at the zenith: no cast shadow.
+const ZENITH_EPS: f64 = 1e-9;
+
+fn check_inputs(depth: &[f32], mask: &[bool], width: usize, height: usize) -> Result<()> {
+    let n = width
+        .checked_mul(height)
+        .ok_or_else(|| Error::invalid(format!("height field {width}×{height} is too large")))?;
+    if depth.len() != n || mask.len() != n {
+        return Err(Error::invalid(format!(
+            "shadows: height field of {} values and mask of {} for a {width}×{height} image \
+             (expected {n} each)",
+            depth.len(),
+            mask.len()
+        )));
+    }
+    Ok(())
+}
+
+fn unit_light(l: [f64; 3]) -> std::result::Result<[f64; 3], String> {
+    let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+    if !norm.is_finite() || norm < 1e-12 {
+        return Err("expected a finite, non-zero direction toward the light".into());
+    }
+    Ok(l.map(|v| v / norm))
+}
+
+/// How a light's sweep walks the image: step i (0 at the light's side) along the primary axis,
+/// lateral index j across it; pixel (i, j) is at `base + i·di + j·dj`.
+struct Walk {
+    n_steps: usize,
+    n_lat: usize,
+    base: isize,
+    di: isize,
+    dj: isize,
+    /// True when the primary axis is the column axis.
+    along_cols: bool,
+    /// Lateral offset (pixels) of the point one step toward the light.
+    shift: f64,
+    /// Fall of the ray over one step away from the light (pixel units of height):
+    /// k · step, k = l_z / ‖(l_x, l_y)‖, step = horizontal length of one step.
+    drop: f32,
+}
+
+impl Walk {
+    /// `None` for a light at the zenith or an empty image.
+    fn new(width: usize, height: usize, l: [f64; 3]) -> Option<Walk> {
+        let horiz = l[0].hypot(l[1]);
+        if horiz < ZENITH_EPS || width == 0 || height == 0 {
+            return None;
+        }
+        // Image steps toward the light per unit of horizontal travel.
+        let (dc, dr) = (l[0] / horiz, -l[1] / horiz);
+        let w = width as isize;
+        let (along_cols, toward_plus, primary, lateral) = if dc.abs() >= dr.abs() {
+            (true, dc > 0.0, dc, dr)
+        } else {
+            (false, dr > 0.0, dr, dc)
+        };
+        let (n_steps, n_lat, stride_primary, stride_lateral) = if along_cols {
+            (width, height, 1, w)
+        } else {
+            (height, width, w, 1)
+        };
+        let step = 1.0 / primary.abs();
+        Some(Walk {
+            n_steps,
+            n_lat,
+            base: if toward_plus {
+                (n_steps as isize - 1) * stride_primary
+            } else {
+                0
+            },
+            di: if toward_plus {
+                -stride_primary
+            } else {
+                stride_primary
+            },
+            dj: stride_lateral,
+            along_cols,
+            shift: lateral * step,
+            drop: (l[2] / horiz * step) as f32,
+        })
+    }
+
+    #[inline]
+    fn index(&self, i: usize, j: isize) -> usize {
+        (self.base + i as isize * self.di + j * self.dj) as usize
+    }
+}
+
+/// Heights of valid pixels, −∞ elsewhere (outside the mask or not finite).
+fn valid_heights(depth: &[f32], mask: &[bool]) -> Vec<f32> {
+    depth
+        .par_iter()
+        .zip(mask.par_iter())
+        .map(|(&h, &inside)| {
+            if inside && h.is_finite() {
+                h
+            } else {
+                f32::NEG_INFINITY
+            }
+        })
+        .collect()
+}
+
+/// Buffers of one light's sweep, reused across lights on a thread.
+#[derive(Default)]
+struct SweepScratch {
+    /// Horizon of every sweep line at every step.
+    horizons: Vec<f32>,
+    /// Per step i: integer part and fraction of −shift·i.
+    offsets: Vec<isize>,
+    fractions: Vec<f32>,
+}
+
+/// Side of the square tiles in which pass 2 of the sweep visits pixels (cache locality).
+const TILE: usize = 64;
+
+/// Writes 1 into `out` where light `l` (unit) is hidden by the height field `heights` (−∞ at
+/// invalid pixels), 0 elsewhere.
+///
+/// Lines q = 0, 1, … run parallel to the light at lateral position p = q_min + q − shift·i
+/// (step i); along each, the height at the ray's crossing of the step is interpolated between the
+/// two pixels that bracket it, and the horizon recursion H(i) = max(h(i−1), H(i−1)) − drop runs
+/// exactly (the lines are independent: parallel over lines). A pixel's horizon is then
+/// interpolated between the two lines that bracket it. An invalid sample (hole, border) resets a
+/// line's horizon to −∞.
+fn sweep(
+    heights: &[f32],
+    width: usize,
+    height: usize,
+    l: [f64; 3],
+    tolerance: f64,
+    scratch: &mut SweepScratch,
+    out: &mut [u8],
+) {
+    out.fill(0);
+    let Some(walk) = Walk::new(width, height, l) else {
+        return;
+    };
+    let tolerance = tolerance as f32;
+    let (n_steps, n_lat, shift) = (walk.n_steps, walk.n_lat, walk.shift);
+    let span = shift * (n_steps - 1) as f64;
+    let q_min = span.min(0.0).floor() as isize;
+    let q_max = (n_lat as f64 - 1.0 + span.max(0.0)).ceil() as isize;
+    let n_lines = (q_max - q_min + 1) as usize;
+    // Line q = q_min + line sits at lateral q − shift·i at step i: the integer part and the
+    // fraction of −shift·i are the same for every line, so they are tabulated once per step.
+    scratch.offsets.clear();
+    scratch.fractions.clear();
+    for i in 0..n_steps {
+        let p = -shift * i as f64;
+        let p0 = p.floor();
+        let mut f = (p - p0) as f32;
+        let mut p0 = p0 as isize;
+        if f > 1.0 - 1e-6 {
+            (p0, f) = (p0 + 1, 0.0);
+        } else if f < 1e-6 {
+            f = 0.0;
+        }
+        scratch.offsets.push(p0);
+        scratch.fractions.push(f);
+    }
+    scratch.horizons.clear();
+    scratch
+        .horizons
+        .resize(n_lines * n_steps, f32::NEG_INFINITY);
+    let (offsets, fractions) = (&scratch.offsets, &scratch.fractions);
+    // Pass 1: the horizon of every line at every step, `horizons[line * n_steps + i]`.
+    scratch
+        .horizons
+        .par_chunks_mut(n_steps)
+        .enumerate()
+        .for_each(|(line, line_horizons)| {
+            let q = q_min + line as isize;
+            let at = |i: usize, j: isize| -> f32 {
+                if j < 0 || j >= n_lat as isize {
+                    f32::NEG_INFINITY
+                } else {
+                    heights[walk.index(i, j)]
+                }
+            };
+            let mut highest = f32::NEG_INFINITY; // M = max(h, H) at the previous step
+            for (i, horizon) in line_horizons.iter_mut().enumerate() {
+                *horizon = highest - walk.drop;
+                let p0 = q + offsets[i];
+                let f = fractions[i];
+                // −∞ on a side with weight (hole or border) stays −∞: the horizon resets.
+                let h = if f == 0.0 {
+                    at(i, p0)
+                } else {
+                    (1.0 - f) * at(i, p0) + f * at(i, p0 + 1)
+                };
+                highest = if h == f32::NEG_INFINITY {
+                    h
+                } else {
+                    h.max(*horizon)
+                };
+            }
+        });
+    // Pass 2: each valid pixel against the horizon interpolated between its two lines, in
+    // bands of TILE rows and tiles of TILE columns so that the lines read stay in cache.
+    let horizons = &scratch.horizons;
+    out.par_chunks_mut(width * TILE)
+        .enumerate()
+        .for_each(|(band, out_band)| {
+            let row0 = band * TILE;
+            let rows = out_band.len() / width;
+            for col0 in (0..width).step_by(TILE) {
+                for r in 0..rows {
+                    let row = row0 + r;
+                    for col in col0..(col0 + TILE).min(width) {
+                        let x = row * width + col;
+                        let h = heights[x];
+                        if h == f32::NEG_INFINITY {
+                            continue;
+                        }
+                        let (along, j) = if walk.along_cols {
+                            (col, row)
+                        } else {
+                            (row, col)
+                        };
+                        let i = if walk.di < 0 {
+                            n_steps - 1 - along
+                        } else {
+                            along
+                        };
+                        // The pixel lies at lateral j = q − shift·i, i.e. on line
+                        // q = j − offsets[i] − fractions[i]: between lines q0 − 1 and q0.
+                        let q0 = (j as isize - offsets[i] - q_min) as usize;
+                        let f = fractions[i];
+                        let a = q0 * n_steps + i;
+                        let horizon = if f == 0.0 {
+                            horizons[a]
+                        } else {
+                            f * horizons[a - n_steps] + (1.0 - f) * horizons[a]
+                        };
+                        if h < horizon - tolerance {
+                            out_band[r * width + col] = 1;
+                        }
+                    }
+                }
+            }
+        });
+}
