@@ -242,6 +242,7 @@ impl Estimator for ColemanJain {
             albedo,
             light_status: Some(light_status),
             detection: None,
+            recursive: None,
         })
     }
 }

@@ -32,6 +32,8 @@ pub struct Estimate {
     pub light_status: Option<Vec<u8>>,
     /// The detector's maps, when the estimator ran it.
     pub detection: Option<crate::detect::Detection>,
+    /// Shadow maps, highlight map and per-iteration figures of the recursive method.
+    pub recursive: Option<Box<crate::recursive::RecursiveDiagnostics>>,
 }
 
 /// Values of `light_status` (CONVENTIONS.md): which lights a pixel's estimate used.
@@ -117,6 +119,7 @@ pub fn solve_subsets(
         albedo,
         light_status: None,
         detection: None,
+        recursive: None,
     }
 }
 

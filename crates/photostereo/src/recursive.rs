@@ -1,0 +1,344 @@
+//! Recursive photometric stereo (Argyriou & Petrou, §3 and Fig. 2; ALGORITHMS.md §7).
+//!
+//! 1. Detect the non-Lambertian pixels E with the χ² test and attribute their faults
+//!    ([`crate::detect`]); estimate every pixel from the lights it kept.
+//! 2. Integrate the normals into a height field, with low weight on the pixels of E (which
+//!    fills them from their reliable surroundings) and zero weight where fewer than three lights
+//!    remain.
+//! 3. From that surface, each light's attached shadow (n·l ≤ τ) and cast shadow (horizon sweep,
+//!    [`crate::shadows`]).
+//! 4. The highlight map H = E − (S₁ ∪ … ∪ S_N): unreliable pixels no shadow explains.
+//! 5. Per pixel, the usable lights: every light in geometric shadow is dropped; at the pixels of
+//!    E, the remaining lights are tested again and the faulty ones dropped one by one while the
+//!    χ² test fails — a light brighter than the Lambertian prediction of the others is a
+//!    highlight source (the paper's intensity threshold, set by the noise level and the test's
+//!    confidence rather than by hand), a darker one a shadow the surface missed.
+//! 6. Re-estimate every pixel from its usable lights, and repeat from 2 until the usable-light
+//!    sets change at fewer than `change_tolerance` of the pixels, or `max_iterations`.
+//!
+//! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
+//! completed by [`Fallback`].
+
+use crate::capture::Capture;
+use crate::detect::{detect, Attributor, DetectionParams};
+use crate::error::Result;
+use crate::estimate::{channel_mean, solve_subsets, status, write_normal_albedo, Estimate, Estimator, CHUNK};
+use crate::integrate::{integrate_normals, normals_from_depth, IntegratorKind};
+use crate::metrics::angular_error_deg;
+use crate::progress::{Progress, Silent};
+use crate::shadows::{shadow_maps, ShadowMaps, ShadowParams};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What to do at pixels with fewer than three usable lights.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Fallback {
+    /// Complement them with the brightest remaining lights (the paper's choice).
+    BrightestLights,
+    /// Take the normal of the integrated surface there, i.e. from the reliable neighbours.
+    Neighbours,
+}
+
+impl FromStr for Fallback {
+    type Err = crate::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "brightest" => Ok(Fallback::BrightestLights),
+            "neighbours" | "neighbors" => Ok(Fallback::Neighbours),
+            _ => Err(crate::Error::invalid(format!("unknown fallback '{s}': expected brightest or neighbours"))),
+        }
+    }
+}
+
+/// Parameters of the recursive method; every default comes from a stated principle.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecursiveParams {
+    /// The detector (noise level, χ² confidence, attribution floor).
+    pub detection: DetectionParams,
+    /// The integrator that turns normals into the surface whose shadows are computed.
+    #[serde(serialize_with = "serialize_kind")]
+    pub integrator: IntegratorKind,
+    /// Attached and cast shadow tolerances.
+    #[serde(skip)]
+    pub shadows: ShadowParams,
+    /// Integration weight of unreliable pixels whose usable lights do not yet pass the test.
+    /// Default 0.1: one tenth of a reliable pixel, so that the surface there follows the
+    /// reliable surroundings (the paper's interpolation) while keeping the detail of estimates
+    /// that are merely uncertain.
+    pub unreliable_weight: f32,
+    /// Iteration limit (default 5; the paper gives none).
+    pub max_iterations: usize,
+    /// Stop when the usable-light sets change at fewer than this share of the mask pixels
+    /// (default 0.002: the estimate then changes at a handful of pixels per thousand).
+    pub change_tolerance: f64,
+    /// Completion of pixels with fewer than three usable lights.
+    pub fallback: Fallback,
+}
+
+fn serialize_kind<S: serde::Serializer>(k: &IntegratorKind, s: S) -> std::result::Result<S::Ok, S::Error> {
+    s.serialize_str(k.name())
+}
+
+impl Default for RecursiveParams {
+    fn default() -> Self {
+        RecursiveParams {
+            detection: DetectionParams::default(),
+            integrator: IntegratorKind::Poisson,
+            shadows: ShadowParams::default(),
+            unreliable_weight: 0.1,
+            max_iterations: 5,
+            change_tolerance: 0.002,
+            fallback: Fallback::BrightestLights,
+        }
+    }
+}
+
+/// Figures of one iteration.
+#[derive(Clone, Debug, Serialize)]
+pub struct IterationRecord {
+    pub iteration: usize,
+    /// Mask pixels whose usable-light set changed.
+    pub changed_pixels: usize,
+    pub changed_share: f64,
+    /// Pixels of the highlight map H.
+    pub highlight_pixels: usize,
+    /// Pixels left with fewer than three usable lights.
+    pub fewer_than_three: usize,
+    /// Mean share of (pixel, light) pairs in geometric shadow.
+    pub shadowed_share: f64,
+    /// Mean angular error against ground truth, when given (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_error_deg: Option<f64>,
+    pub seconds: f64,
+}
+
+/// Maps and figures of a recursive run, beyond the normals and albedo.
+#[derive(Clone, Debug)]
+pub struct RecursiveDiagnostics {
+    /// Shadow maps of the last surface.
+    pub shadows: ShadowMaps,
+    /// H, full frame.
+    pub highlight: Vec<bool>,
+    /// Pixels with fewer than three usable lights (before the fallback), full frame.
+    pub fewer_than_three: Vec<bool>,
+    /// The last surface, full frame, NaN outside the mask.
+    pub depth: Vec<f32>,
+    pub iterations: Vec<IterationRecord>,
+    pub fallback: Fallback,
+}
+
+/// The recursive method as an [`Estimator`].
+#[derive(Clone, Debug, Default)]
+pub struct Recursive {
+    pub params: RecursiveParams,
+    /// Ground-truth normals (full frame) for the per-iteration error figures, when known.
+    pub truth: Option<Arc<Vec<[f32; 3]>>>,
+}
+
+impl Estimator for Recursive {
+    fn name(&self) -> &'static str {
+        "recursive"
+    }
+
+    fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
+        recursive(capture, &self.params, self.truth.as_deref().map(|v| v.as_slice()), progress, &mut |_| {})
+    }
+}
+
+/// Runs the recursive method. `truth` (full-frame normals) adds error figures per iteration;
+/// `on_iteration` is called after each iteration.
+pub fn recursive(
+    capture: &Capture,
+    params: &RecursiveParams,
+    truth: Option<&[[f32; 3]]>,
+    progress: &dyn Progress,
+    on_iteration: &mut dyn FnMut(&IterationRecord),
+) -> Result<Estimate> {
+    if !(params.unreliable_weight >= 0.0 && params.unreliable_weight <= 1.0) {
+        return Err(crate::Error::invalid(format!(
+            "unreliable_weight {}: expected a value in [0, 1]",
+            params.unreliable_weight
+        )));
+    }
+    let n = capture.n_lights();
+    let np = capture.n_pixels();
+    let (w, h) = (capture.width, capture.height);
+    let c = capture.channels;
+    let detection = detect(capture, &params.detection, progress)?;
+    let attributor = Attributor::new(capture, &params.detection, detection.noise)?;
+    let unreliable = detection.unreliable.clone();
+    let mut light_status = detection.light_status.clone();
+    let mut est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
+    // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
+    let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
+    let mut few = vec![false; np];
+    let mut records = Vec::new();
+    let mut last_maps = None;
+    let mut last_depth = Vec::new();
+    let mut highlight = vec![false; np];
+    let truth_masked: Option<Vec<[f32; 3]>> = truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
+    progress.begin("recursive", params.max_iterations as u64);
+    for iteration in 1..=params.max_iterations {
+        let start = Instant::now();
+        // 2. The surface.
+        let mut weights = vec![0f32; w * h];
+        let mut normals_full = vec![[0f32; 3]; w * h];
+        for (p, &i) in capture.pixels.iter().enumerate() {
+            let i = i as usize;
+            let nrm = est.normals[p];
+            let valid = nrm != [0.0; 3] && nrm[2] > 0.0 && !few[p];
+            normals_full[i] = if valid { nrm } else { [0.0, 0.0, 1.0] };
+            weights[i] = if !valid {
+                0.0
+            } else if consistent[p] {
+                1.0
+            } else {
+                params.unreliable_weight
+            };
+        }
+        let depth = integrate_normals(w, h, &normals_full, Some(&capture.mask), Some(&weights), params.integrator)?;
+        let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
+        // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
+        let shading: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| if weights[i] >= 1.0 { normals_full[i] } else { surface_normals[i] })
+            .collect();
+        // 3. Shadows of every light.
+        let maps = shadow_maps(&depth.values, &shading, &capture.mask, w, h, &capture.lights.directions, &params.shadows)?;
+        // 4–5. Usable lights.
+        let mut new_status = vec![status::USED; np * n];
+        let mut new_consistent = vec![false; np];
+        let mut new_few = vec![false; np];
+        let mut new_highlight = vec![false; np];
+        new_status
+            .par_chunks_mut(CHUNK * n)
+            .zip(new_consistent.par_chunks_mut(CHUNK))
+            .zip(new_few.par_chunks_mut(CHUNK))
+            .zip(new_highlight.par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each_init(
+                || (vec![0f64; n], attributor.scratch()),
+                |(grey, scratch), (chunk, (((st, cons), fw), hl))| {
+                    for dp in 0..cons.len() {
+                        let p = chunk * CHUNK + dp;
+                        let pix = capture.pixels[p] as usize;
+                        let s = &mut st[dp * n..(dp + 1) * n];
+                        let mut shadowed = 0;
+                        for (k, sk) in s.iter_mut().enumerate() {
+                            if maps.is_shadowed(k, pix) {
+                                *sk = status::SHADOW;
+                                shadowed += 1;
+                            }
+                        }
+                        channel_mean(capture.pixel_samples(p), c, grey);
+                        let count = if unreliable[p] {
+                            hl[dp] = shadowed == 0;
+                            let (stat, count) = attributor.run(grey, s, scratch);
+                            cons[dp] = count > 3 && stat <= attributor.threshold(count);
+                            count
+                        } else {
+                            cons[dp] = true;
+                            n - shadowed
+                        };
+                        if count < 3 {
+                            fw[dp] = true;
+                            cons[dp] = false;
+                            if params.fallback == Fallback::BrightestLights {
+                                complete_with_brightest(s, grey, count);
+                            }
+                        }
+                    }
+                },
+            );
+        let changed_pixels = (0..np)
+            .filter(|&p| new_status[p * n..(p + 1) * n] != light_status[p * n..(p + 1) * n])
+            .count();
+        light_status = new_status;
+        consistent = new_consistent;
+        few = new_few;
+        highlight = new_highlight;
+        // 6. Re-estimate.
+        est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
+        if params.fallback == Fallback::Neighbours {
+            for p in (0..np).filter(|&p| few[p]) {
+                let pix = capture.pixels[p] as usize;
+                let nrm = surface_normals[pix];
+                if nrm != [0.0; 3] {
+                    let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
+                    let mut out_n = [0f32; 3];
+                    let used: Vec<bool> = light_status[p * n..(p + 1) * n].iter().map(|&s| s == status::USED).collect();
+                    write_normal_albedo(capture, capture.pixel_samples(p), &m, Some(&used), &mut out_n, &mut est.albedo[p * c..(p + 1) * c]);
+                    est.normals[p] = nrm;
+                }
+            }
+        }
+        let shadowed_share = maps.flags.iter().filter(|&&f| f != 0).count() as f64 / (n * np).max(1) as f64;
+        let record = IterationRecord {
+            iteration,
+            changed_pixels,
+            changed_share: changed_pixels as f64 / np.max(1) as f64,
+            highlight_pixels: highlight.iter().filter(|&&x| x).count(),
+            fewer_than_three: few.iter().filter(|&&x| x).count(),
+            shadowed_share,
+            mean_error_deg: truth_masked.as_ref().map(|t| mean_error(&est.normals, t)),
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        on_iteration(&record);
+        progress.advance(1);
+        let done = record.changed_share < params.change_tolerance;
+        records.push(record);
+        last_maps = Some(maps);
+        last_depth = depth.values;
+        if done {
+            break;
+        }
+    }
+    progress.end();
+    let diagnostics = RecursiveDiagnostics {
+        shadows: last_maps.expect("at least one iteration"),
+        highlight: capture.scatter(&highlight, 1, false),
+        fewer_than_three: capture.scatter(&few, 1, false),
+        depth: last_depth,
+        iterations: records,
+        fallback: params.fallback,
+    };
+    est.light_status = Some(light_status);
+    est.detection = Some(detection);
+    est.recursive = Some(Box::new(diagnostics));
+    Ok(est)
+}
+
+/// Usable-light flags from statuses.
+fn usable(light_status: &[u8]) -> Vec<bool> {
+    light_status.iter().map(|&s| s == status::USED).collect()
+}
+
+/// Marks the brightest unused lights as used until three are.
+fn complete_with_brightest(status_row: &mut [u8], grey: &[f64], mut count: usize) {
+    while count < 3 {
+        let best = (0..status_row.len())
+            .filter(|&k| status_row[k] != status::USED)
+            .max_by(|&a, &b| grey[a].total_cmp(&grey[b]));
+        match best {
+            Some(k) => {
+                status_row[k] = status::USED;
+                count += 1;
+            }
+            None => break,
+        }
+    }
+}
+
+fn mean_error(normals: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (a, t) in normals.iter().zip(truth) {
+        if *t != [0.0; 3] {
+            let e = if *a == [0.0; 3] { 90.0 } else { angular_error_deg(*a, *t) };
+            sum += e;
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
