@@ -26,6 +26,7 @@ pub mod export;
 pub mod figure;
 pub mod groundtruth;
 pub mod imageio;
+pub mod integrate;
 pub mod lights;
 pub mod matfile;
 pub mod metrics;
@@ -33,6 +34,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod report;
 pub mod scene;
+pub mod surface;
 
 pub use capture::{Capture, CaptureFiles};
 pub use error::{Error, Result};
