@@ -34,6 +34,8 @@ pub(crate) struct Level {
     pub south: Vec<f32>,
     /// Diagonal `d_i`; 0 marks an inactive cell.
     pub diag: Vec<f32>,
+    /// `1 / d_i` (0 for inactive cells).
+    pub inv_diag: Vec<f32>,
 }
 
 /// A raw pointer that may cross threads; used by red–black sweeps, where the cells written in a
@@ -70,12 +72,17 @@ impl Level {
                 *d = s;
             }
         });
+        let inv_diag = diag
+            .par_iter()
+            .map(|&d| if d > 0.0 { 1.0 / d } else { 0.0 })
+            .collect();
         Level {
             w,
             h,
             east,
             south,
             diag,
+            inv_diag,
         }
     }
 
@@ -96,77 +103,88 @@ impl Level {
         s
     }
 
-    /// `Σ_j w_ij x_j` at cell `(r, c)`.
-    #[inline(always)]
-    fn neighbour_sum<T: Copy + Into<f64>>(&self, x: &[T], i: usize, r: usize, c: usize) -> f64 {
+    /// The operator's rows at row `r`: east and south weights, the south weights of the row
+    /// above (zeros on the first row) and the diagonal.
+    #[inline]
+    fn op_rows<'a>(
+        &'a self,
+        r: usize,
+        zeros: &'a [f32],
+    ) -> (&'a [f32], &'a [f32], &'a [f32], &'a [f32]) {
         let w = self.w;
-        let mut s = 0f64;
-        if c + 1 < w {
-            s += self.east[i] as f64 * x[i + 1].into();
-        }
-        if c > 0 {
-            s += self.east[i - 1] as f64 * x[i - 1].into();
-        }
-        if r + 1 < self.h {
-            s += self.south[i] as f64 * x[i + w].into();
-        }
-        if r > 0 {
-            s += self.south[i - w] as f64 * x[i - w].into();
-        }
-        s
+        let lo = r * w;
+        let s_up = if r > 0 {
+            &self.south[lo - w..lo]
+        } else {
+            &zeros[..w]
+        };
+        (
+            &self.east[lo..lo + w],
+            &self.south[lo..lo + w],
+            s_up,
+            &self.diag[lo..lo + w],
+        )
     }
 
-    /// `Σ_j w_ij x_j` in f32 (the V-cycle's kernels).
-    #[inline(always)]
-    fn neighbour_sum32(&self, x: &[f32], i: usize, r: usize, c: usize) -> f32 {
+    /// Rows `r − 1`, `r + 1` of `x` (zeros beyond the grid).
+    #[inline]
+    fn x_rows<'a, T>(&self, x: &'a [T], r: usize, zeros: &'a [T]) -> (&'a [T], &'a [T]) {
         let w = self.w;
-        let mut s = 0f32;
-        if c + 1 < w {
-            s += self.east[i] * x[i + 1];
-        }
-        if c > 0 {
-            s += self.east[i - 1] * x[i - 1];
-        }
-        if r + 1 < self.h {
-            s += self.south[i] * x[i + w];
-        }
-        if r > 0 {
-            s += self.south[i - w] * x[i - w];
-        }
-        s
+        let up = if r > 0 {
+            &x[(r - 1) * w..r * w]
+        } else {
+            &zeros[..w]
+        };
+        let down = if r + 1 < self.h {
+            &x[(r + 1) * w..(r + 2) * w]
+        } else {
+            &zeros[..w]
+        };
+        (up, down)
     }
 
-    /// `out = A x` (f32 input and output, f64 accumulation per cell).
+    /// `out = A x` (f32 input and output, f64 arithmetic per cell: A x of a smooth x cancels
+    /// heavily, and CG needs it accurately).
     pub fn apply32(&self, x: &[f32], out: &mut [f32]) {
         let w = self.w;
-        out.par_chunks_mut(w * ROWS_PER_TASK)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                for (k, o) in chunk.iter_mut().enumerate() {
-                    let i = t * w * ROWS_PER_TASK + k;
-                    let d = self.diag[i];
-                    *o = if d > 0.0 {
-                        let (r, c) = (i / w, i % w);
-                        (d as f64 * x[i] as f64 - self.neighbour_sum(x, i, r, c)) as f32
-                    } else {
-                        0.0
-                    };
-                }
-            });
+        let zeros = vec![0f32; w];
+        out.par_chunks_mut(w).enumerate().for_each(|(r, o)| {
+            let (e, s, su, d) = self.op_rows(r, &zeros);
+            let (up, down) = self.x_rows(x, r, &zeros);
+            let mid = &x[r * w..(r + 1) * w];
+            let f = |v: f32| v as f64;
+            let vert = |c: usize| f(d[c]) * f(mid[c]) - f(s[c]) * f(down[c]) - f(su[c]) * f(up[c]);
+            if w == 1 {
+                o[0] = vert(0) as f32;
+                return;
+            }
+            o[0] = (vert(0) - f(e[0]) * f(mid[1])) as f32;
+            for c in 1..w - 1 {
+                o[c] = (vert(c) - f(e[c]) * f(mid[c + 1]) - f(e[c - 1]) * f(mid[c - 1])) as f32;
+            }
+            o[w - 1] = (vert(w - 1) - f(e[w - 2]) * f(mid[w - 2])) as f32;
+        });
     }
 
     /// `r = b − A x` with f64 `x` and `b` (the CG's true residual).
-    pub fn residual64(&self, b: &[f64], x: &[f64], r: &mut [f64]) {
+    pub fn residual64(&self, b: &[f64], x: &[f64], res: &mut [f64]) {
         let w = self.w;
-        r.par_chunks_mut(w).enumerate().for_each(|(row, out)| {
-            for (c, o) in out.iter_mut().enumerate() {
-                let i = row * w + c;
-                let d = self.diag[i];
-                *o = if d > 0.0 {
-                    b[i] - (d as f64 * x[i] - self.neighbour_sum(x, i, row, c))
-                } else {
-                    0.0
-                };
+        let zeros = vec![0f32; w];
+        let zeros64 = vec![0f64; w];
+        res.par_chunks_mut(w).enumerate().for_each(|(r, o)| {
+            let (e, s, su, d) = self.op_rows(r, &zeros);
+            let (up, down) = self.x_rows(x, r, &zeros64);
+            let mid = &x[r * w..(r + 1) * w];
+            let brow = &b[r * w..(r + 1) * w];
+            for c in 0..w {
+                let mut v = d[c] as f64 * mid[c] - s[c] as f64 * down[c] - su[c] as f64 * up[c];
+                if c + 1 < w {
+                    v -= e[c] as f64 * mid[c + 1];
+                }
+                if c > 0 {
+                    v -= e[c - 1] as f64 * mid[c - 1];
+                }
+                o[c] = if d[c] > 0.0 { brow[c] - v } else { 0.0 };
             }
         });
     }
@@ -174,52 +192,85 @@ impl Level {
     /// `res = b − A x` in f32.
     fn residual32(&self, b: &[f32], x: &[f32], res: &mut [f32]) {
         let w = self.w;
-        res.par_chunks_mut(w * ROWS_PER_TASK)
-            .enumerate()
-            .for_each(|(t, chunk)| {
-                for (k, o) in chunk.iter_mut().enumerate() {
-                    let i = t * w * ROWS_PER_TASK + k;
-                    let d = self.diag[i];
-                    *o = if d > 0.0 {
-                        let (r, c) = (i / w, i % w);
-                        b[i] - (d * x[i] - self.neighbour_sum32(x, i, r, c))
-                    } else {
-                        0.0
-                    };
-                }
-            });
+        let zeros = vec![0f32; w];
+        res.par_chunks_mut(w).enumerate().for_each(|(r, o)| {
+            let (e, s, su, d) = self.op_rows(r, &zeros);
+            let (up, down) = self.x_rows(x, r, &zeros);
+            let mid = &x[r * w..(r + 1) * w];
+            let brow = &b[r * w..(r + 1) * w];
+            if w == 1 {
+                o[0] = brow[0] - d[0] * mid[0] + s[0] * down[0] + su[0] * up[0];
+                return;
+            }
+            o[0] = brow[0] - d[0] * mid[0] + e[0] * mid[1] + s[0] * down[0] + su[0] * up[0];
+            for c in 1..w - 1 {
+                o[c] = brow[c] - d[c] * mid[c]
+                    + e[c] * mid[c + 1]
+                    + e[c - 1] * mid[c - 1]
+                    + s[c] * down[c]
+                    + su[c] * up[c];
+            }
+            let c = w - 1;
+            o[c] = brow[c] - d[c] * mid[c] + e[c - 1] * mid[c - 1] + s[c] * down[c] + su[c] * up[c];
+        });
     }
 
-    /// One Gauss–Seidel half-sweep over the cells with `(r + c) % 2 == colour`.
-    fn half_sweep(&self, b: &[f32], x: &mut [f32], colour: usize) {
+    /// One Gauss–Seidel half-sweep over the cells with `(r + c) % 2 == colour`. Each row's new
+    /// values are computed for every cell in a vectorisable pass (the cells of the colour being
+    /// updated depend only on cells of the other colour), then copied to the colour's cells.
+    fn half_sweep(&self, b: &[f32], x: &mut [f32], colour: usize, zeros: &[f32]) {
         let (w, h) = (self.w, self.h);
-        debug_assert_eq!(x.len(), w * h);
+        assert_eq!(x.len(), w * h);
         let ptr = SharedMut(x.as_mut_ptr());
         (0..h.div_ceil(ROWS_PER_TASK))
             .into_par_iter()
-            .for_each(|t| {
-                let ptr = ptr;
-                let r0 = t * ROWS_PER_TASK;
-                let r1 = (r0 + ROWS_PER_TASK).min(h);
-                // SAFETY: this half-sweep writes only cells of one colour and reads only cells of the
-                // other colour (its 4-neighbours) and read-only arrays; different tasks write disjoint
-                // rows. So no cell is written by one thread while another reads or writes it.
-                let xs = unsafe { std::slice::from_raw_parts_mut(ptr.0, w * h) };
-                for r in r0..r1 {
-                    let start = (r + colour) % 2;
-                    let base = r * w;
-                    let mut c = start;
-                    while c < w {
-                        let i = base + c;
-                        let d = self.diag[i];
-                        if d > 0.0 {
-                            let s = b[i] + self.neighbour_sum32(xs, i, r, c);
-                            xs[i] = s / d;
+            .for_each_init(
+                || vec![0f32; w],
+                |tmp, t| {
+                    let ptr = ptr;
+                    let r0 = t * ROWS_PER_TASK;
+                    let r1 = (r0 + ROWS_PER_TASK).min(h);
+                    // SAFETY: `ptr` covers `w * h` initialised f32 (asserted above) and outlives this
+                    // call. A half-sweep writes only cells of one colour and reads only cells of the
+                    // other colour (their 4-neighbours); different tasks write disjoint rows. So no
+                    // cell is written by one thread while another reads or writes it.
+                    let xs = unsafe { std::slice::from_raw_parts_mut(ptr.0, w * h) };
+                    for r in r0..r1 {
+                        let lo = r * w;
+                        let (e, s, su) = {
+                            let (e, s, su, _) = self.op_rows(r, zeros);
+                            (e, s, su)
+                        };
+                        let inv = &self.inv_diag[lo..lo + w];
+                        let (before, rest) = xs.split_at_mut(lo);
+                        let (mid, after) = rest.split_at_mut(w);
+                        let up = if r > 0 {
+                            &before[(r - 1) * w..]
+                        } else {
+                            &zeros[..w]
+                        };
+                        let down = if r + 1 < h { &after[..w] } else { &zeros[..w] };
+                        let brow = &b[lo..lo + w];
+                        let tmp = &mut tmp[..w];
+                        let vert = |c: usize| brow[c] + s[c] * down[c] + su[c] * up[c];
+                        if w == 1 {
+                            tmp[0] = vert(0) * inv[0];
+                        } else {
+                            tmp[0] = (vert(0) + e[0] * mid[1]) * inv[0];
+                            for c in 1..w - 1 {
+                                tmp[c] =
+                                    (vert(c) + e[c] * mid[c + 1] + e[c - 1] * mid[c - 1]) * inv[c];
+                            }
+                            tmp[w - 1] = (vert(w - 1) + e[w - 2] * mid[w - 2]) * inv[w - 1];
                         }
-                        c += 2;
+                        let mut c = (r + colour) % 2;
+                        while c < w {
+                            mid[c] = tmp[c];
+                            c += 2;
+                        }
                     }
-                }
-            });
+                },
+            );
     }
 
     /// The next coarser level by 2×2 aggregation (see the module notes).
@@ -409,6 +460,8 @@ pub(crate) struct Hierarchy {
     levels: Vec<Level>,
     coarse: CoarseSolver,
     work: Vec<Work>,
+    /// A row of zeros as long as the widest level.
+    zeros: Vec<f32>,
     /// Gauss–Seidel sweeps (red + black) before and after the coarse correction.
     pub sweeps: usize,
 }
@@ -440,10 +493,12 @@ impl Hierarchy {
                 }
             })
             .collect();
+        let zeros = vec![0f32; levels[0].w];
         Hierarchy {
             levels,
             coarse,
             work,
+            zeros,
             sweeps: 1,
         }
     }
@@ -473,8 +528,8 @@ impl Hierarchy {
         x.fill(0.0);
         let level = &self.levels[l];
         for _ in 0..self.sweeps {
-            level.half_sweep(b, x, 0);
-            level.half_sweep(b, x, 1);
+            level.half_sweep(b, x, 0, &self.zeros);
+            level.half_sweep(b, x, 1, &self.zeros);
         }
         level.residual32(b, x, res);
         let mut next = std::mem::take(&mut self.work[l + 1]);
@@ -484,8 +539,8 @@ impl Hierarchy {
         level.prolong_add(&next.x, x);
         self.work[l + 1] = next;
         for _ in 0..self.sweeps {
-            level.half_sweep(b, x, 1);
-            level.half_sweep(b, x, 0);
+            level.half_sweep(b, x, 1, &self.zeros);
+            level.half_sweep(b, x, 0, &self.zeros);
         }
     }
 }
