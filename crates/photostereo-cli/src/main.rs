@@ -6,6 +6,7 @@
 mod common;
 mod demo;
 mod eval;
+mod integrate;
 mod run;
 
 use clap::{Parser, Subcommand};
@@ -25,6 +26,8 @@ enum Command {
     Run(run::RunArgs),
     /// Compare a normal map with ground truth: mean, median and shares under 5°/10°/20°.
     Eval(eval::EvalArgs),
+    /// Integrate a normal map into depth (depth.npy/.exr/.png), meshes (mesh.ply/.obj) and curl.npy.
+    Integrate(integrate::IntegrateArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),
 }
@@ -35,6 +38,7 @@ fn main() -> ExitCode {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
         Command::Demo(a) => demo::main(a),
+        Command::Integrate(a) => integrate::main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

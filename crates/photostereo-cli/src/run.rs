@@ -4,6 +4,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::capture::CaptureFiles;
+use photostereo::integrate::IntegratorKind;
 use photostereo::pipeline::{run, Method, RunOptions};
 use std::path::{Path, PathBuf};
 
@@ -33,11 +34,21 @@ pub struct RunArgs {
     /// Upper end of the error map's scale, degrees.
     #[arg(long, default_value_t = 45.0)]
     pub error_map_max: f32,
+    /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
+    #[arg(long)]
+    pub no_depth: bool,
+    /// Integration method for depth: poisson (any mask), dct, fft (full rectangle), paths.
+    #[arg(long, default_value = "poisson", value_parser = parse_integrator)]
+    pub integrator: IntegratorKind,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
     #[command(flatten)]
     pub out: OutputOpts,
+}
+
+fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
 fn parse_method(s: &str) -> Result<Method, String> {
@@ -103,6 +114,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         ground_truth: a.gt.clone(),
         error_map: a.error_map,
         error_map_max_deg: a.error_map_max,
+        integration: (!a.no_depth).then_some(a.integrator),
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;
@@ -133,6 +145,15 @@ pub fn main(a: RunArgs) -> Result<()> {
                 100.0 * e.under_10deg,
                 100.0 * e.under_20deg,
                 e.pixels
+            );
+        }
+        if let Some(s) = &rec.surface {
+            println!(
+                "depth: {} ({} iterations), mean |curl| {:.4}, {} bad normals masked out",
+                s.depth.stats.method,
+                s.depth.stats.iterations,
+                s.mean_abs_curl,
+                s.rejected_invalid + s.rejected_backfacing
             );
         }
         let total = r

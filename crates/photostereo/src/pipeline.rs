@@ -8,6 +8,7 @@ use crate::estimate::{Estimate, Estimator, LeastSquares};
 use crate::export::{write_albedo, write_json, write_normals, OutputFolder};
 use crate::figure::write_error_map;
 use crate::groundtruth::{read_normal_map, NormalMap};
+use crate::integrate::{surface_from_normals, IntegratorKind, Surface, DEFAULT_MAX_SLOPE};
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::Progress;
 use crate::report::{InputSummary, Report};
@@ -68,6 +69,8 @@ pub struct RunOptions {
     pub error_map: bool,
     /// Upper end of the error map's colour scale, degrees.
     pub error_map_max_deg: f32,
+    /// Integrate the normals into depth and meshes with this method (`None`: skip).
+    pub integration: Option<IntegratorKind>,
 }
 
 impl Default for RunOptions {
@@ -77,6 +80,7 @@ impl Default for RunOptions {
             ground_truth: None,
             error_map: false,
             error_map_max_deg: 45.0,
+            integration: Some(IntegratorKind::default()),
         }
     }
 }
@@ -95,6 +99,8 @@ pub struct Reconstruction {
     pub mask: Vec<bool>,
     /// Per-pixel angular errors in degrees (NaN where not evaluated), with ground truth.
     pub error_map: Option<Vec<f32>>,
+    /// Depth, curl and integration figures, when integration ran.
+    pub surface: Option<Surface>,
     pub report: Report,
 }
 
@@ -128,6 +134,7 @@ pub fn reconstruct(
         albedo: capture.scatter(&est.albedo, capture.channels, 0.0),
         mask: capture.mask.clone(),
         error_map: None,
+        surface: None,
         report: report.clone(),
     })
 }
@@ -164,6 +171,9 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         &rec.albedo,
         &rec.mask,
     )?;
+    if let Some(surface) = &rec.surface {
+        crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+    }
     if options.error_map {
         if let Some(map) = &rec.error_map {
             write_error_map(
@@ -209,6 +219,25 @@ pub fn run(
         evaluate_against(&mut rec, truth, path)?;
         rec.report.param("ground_truth", path.display().to_string());
         rec.report.time("evaluate", t);
+    }
+    if let Some(kind) = options.integration {
+        let t = Instant::now();
+        let surface = surface_from_normals(
+            rec.width,
+            rec.height,
+            &rec.normals,
+            Some(&rec.mask),
+            None,
+            kind.integrator().as_ref(),
+            DEFAULT_MAX_SLOPE,
+            progress,
+        )?;
+        rec.report.param("integration", kind.name());
+        rec.report
+            .extra
+            .insert("integration".into(), surface.summary());
+        rec.surface = Some(surface);
+        rec.report.time("integrate", t);
     }
     let t = Instant::now();
     write_reconstruction(&rec, folder.path(), options)?;
