@@ -7,6 +7,7 @@ mod calibrate;
 mod common;
 mod demo;
 mod eval;
+mod integrate;
 mod run;
 
 use clap::{Parser, Subcommand};
@@ -28,6 +29,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Calibrate light directions from a mirror sphere (intensities from a matte one).
     Calibrate(calibrate::CalibrateArgs),
+    /// Integrate a normal map into depth (depth.npy/.exr/.png), meshes (mesh.ply/.obj) and curl.npy.
+    Integrate(integrate::IntegrateArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),
 }
@@ -39,6 +42,7 @@ fn main() -> ExitCode {
         Command::Eval(a) => eval::main(a),
         Command::Demo(a) => demo::main(a),
         Command::Calibrate(a) => calibrate::main(a),
+        Command::Integrate(a) => integrate::main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -4,6 +4,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::capture::CaptureFiles;
+use photostereo::integrate::IntegratorKind;
 use photostereo::pipeline::{run, LightSubset, Method, RunOptions};
 use std::path::{Path, PathBuf};
 
@@ -46,6 +47,12 @@ pub struct RunArgs {
     /// Skip the non-Lambertian detector and its maps (residual.npy, unreliable*.png, light_status.npy).
     #[arg(long)]
     pub no_detect: bool,
+    /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
+    #[arg(long)]
+    pub no_depth: bool,
+    /// Integration method for depth: poisson (any mask), dct, fft (full rectangle), paths.
+    #[arg(long, default_value = "poisson", value_parser = parse_integrator)]
+    pub integrator: IntegratorKind,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -54,6 +61,10 @@ pub struct RunArgs {
 }
 
 fn parse_subset(s: &str) -> Result<LightSubset, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
+}
+
+fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
@@ -127,6 +138,7 @@ pub fn main(a: RunArgs) -> Result<()> {
             ..Default::default()
         },
         light_subset: a.light_subset.clone(),
+        integration: (!a.no_depth).then_some(a.integrator),
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;
@@ -157,6 +169,15 @@ pub fn main(a: RunArgs) -> Result<()> {
                 100.0 * e.under_10deg,
                 100.0 * e.under_20deg,
                 e.pixels
+            );
+        }
+        if let Some(s) = &rec.surface {
+            println!(
+                "depth: {} ({} iterations), mean |curl| {:.4}, {} bad normals masked out",
+                s.depth.stats.method,
+                s.depth.stats.iterations,
+                s.mean_abs_curl,
+                s.rejected_invalid + s.rejected_backfacing
             );
         }
         let total = r

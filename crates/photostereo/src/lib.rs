@@ -28,15 +28,18 @@ pub mod export;
 pub mod figure;
 pub mod groundtruth;
 pub mod imageio;
+pub mod integrate;
 pub mod lights;
 pub mod matfile;
 pub mod metrics;
 pub mod pipeline;
 pub mod progress;
+pub mod recursive;
 pub mod report;
 pub mod scene;
 pub mod shadows;
 pub mod stats;
+pub mod surface;
 
 pub use capture::{Capture, CaptureFiles};
 pub use error::{Error, Result};

@@ -12,6 +12,7 @@ use crate::export::{
 use crate::figure::write_error_map;
 use crate::groundtruth::{read_normal_map, NormalMap};
 use crate::imageio::write_png8;
+use crate::integrate::{surface_from_normals, IntegratorKind, Surface, DEFAULT_MAX_SLOPE};
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::Progress;
 use crate::report::{InputSummary, Report};
@@ -145,6 +146,8 @@ pub struct RunOptions {
     pub detection: DetectionParams,
     /// Use only these lights.
     pub light_subset: Option<LightSubset>,
+    /// Integrate the normals into depth and meshes with this method (`None`: skip).
+    pub integration: Option<IntegratorKind>,
 }
 
 impl Default for RunOptions {
@@ -157,6 +160,7 @@ impl Default for RunOptions {
             detect: true,
             detection: DetectionParams::default(),
             light_subset: None,
+            integration: Some(IntegratorKind::default()),
         }
     }
 }
@@ -178,6 +182,8 @@ pub struct Reconstruction {
     /// Detector maps, full frame: ‖r‖/σ (0 outside), unreliable flags, per-light status
     /// (`n_lights * height * width`, 255 outside).
     pub detection: Option<DetectionMaps>,
+    /// Depth, curl and integration figures, when integration ran.
+    pub surface: Option<Surface>,
     pub report: Report,
 }
 
@@ -278,6 +284,7 @@ pub fn reconstruct(
         mask: capture.mask.clone(),
         error_map: None,
         detection,
+        surface: None,
         report: report.clone(),
     })
 }
@@ -343,6 +350,9 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             .collect();
         write_png8(&dir.join("unreliable_mask.png"), w, h, 1, &binary)?;
     }
+    if let Some(surface) = &rec.surface {
+        crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+    }
     if options.error_map {
         if let Some(map) = &rec.error_map {
             write_error_map(
@@ -401,6 +411,25 @@ pub fn run(
         evaluate_against(&mut rec, truth, path)?;
         rec.report.param("ground_truth", path.display().to_string());
         rec.report.time("evaluate", t);
+    }
+    if let Some(kind) = options.integration {
+        let t = Instant::now();
+        let surface = surface_from_normals(
+            rec.width,
+            rec.height,
+            &rec.normals,
+            Some(&rec.mask),
+            None,
+            kind.integrator().as_ref(),
+            DEFAULT_MAX_SLOPE,
+            progress,
+        )?;
+        rec.report.param("integration", kind.name());
+        rec.report
+            .extra
+            .insert("integration".into(), surface.summary());
+        rec.surface = Some(surface);
+        rec.report.time("integrate", t);
     }
     let t = Instant::now();
     write_reconstruction(&rec, folder.path(), options)?;

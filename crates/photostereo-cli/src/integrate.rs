@@ -1,0 +1,148 @@
+//! `photostereo integrate`: a normal map in, depth and meshes out.
+
+use crate::common::{print_json, OutputOpts};
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use photostereo::export::{write_json, OutputFolder};
+use photostereo::groundtruth::read_normal_map;
+use photostereo::imageio::read_mask;
+use photostereo::integrate::{
+    surface_from_normals, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
+};
+use photostereo::report::Report;
+use photostereo::surface::write_surface;
+use std::path::PathBuf;
+use std::time::Instant;
+
+#[derive(Args, Debug)]
+pub struct IntegrateArgs {
+    /// Normal map: .npy (H, W, 3), DiLiGenT .mat, 16-bit normal-map PNG, or float EXR/TIFF.
+    pub normals: PathBuf,
+    /// Mask image (non-zero = object). Default: the pixels with a non-zero normal.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// Integration method: poisson (any mask), dct, fft (full rectangle), paths.
+    #[arg(long, default_value = "poisson", value_parser = parse_kind)]
+    pub method: IntegratorKind,
+    /// Cap on |∂f/∂col| and |∂f/∂row| (pixels per pixel) for near-grazing normals.
+    #[arg(long, default_value_t = DEFAULT_MAX_SLOPE)]
+    pub max_slope: f32,
+    /// Relative residual at which poisson stops.
+    #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
+    pub tolerance: f64,
+    /// Skip mesh.ply and mesh.obj (large for big maps).
+    #[arg(long)]
+    pub no_mesh: bool,
+    /// Output folder.
+    #[arg(short, long, default_value = "photostereo-depth")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+fn parse_kind(s: &str) -> Result<IntegratorKind, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
+}
+
+pub fn main(a: IntegrateArgs) -> Result<()> {
+    if !(a.tolerance > 0.0 && a.tolerance < 1.0) {
+        bail!("--tolerance {}: expected a number in (0, 1)", a.tolerance);
+    }
+    let folder = OutputFolder::create(&a.output, a.out.force)?;
+    let start = Instant::now();
+    let mut report = Report::new(a.method.name());
+    let t = Instant::now();
+    let map = read_normal_map(&a.normals)?;
+    let mask = match &a.mask {
+        Some(path) => {
+            let (h, w, m) = read_mask(path)?;
+            if (w, h) != (map.width, map.height) {
+                bail!(
+                    "{}: mask is {w}×{h} but the normal map {} is {}×{}",
+                    path.display(),
+                    a.normals.display(),
+                    map.width,
+                    map.height
+                );
+            }
+            Some(m)
+        }
+        None => None,
+    };
+    report.time("load", t);
+    report.param("normals", a.normals.display().to_string());
+    if let Some(m) = &a.mask {
+        report.param("mask", m.display().to_string());
+    }
+    report.param("integration", a.method.name());
+    report.param("max_slope", a.max_slope);
+    report.input.width = map.width;
+    report.input.height = map.height;
+    let integrator: Box<dyn photostereo::integrate::Integrator> = match a.method {
+        IntegratorKind::Poisson => {
+            report.param("tolerance", a.tolerance);
+            Box::new(Poisson {
+                tolerance: a.tolerance,
+                ..Poisson::default()
+            })
+        }
+        other => other.integrator(),
+    };
+    let progress = a.out.progress();
+    let t = Instant::now();
+    let surface = surface_from_normals(
+        map.width,
+        map.height,
+        &map.normals,
+        mask.as_deref(),
+        None,
+        integrator.as_ref(),
+        a.max_slope,
+        &progress,
+    )?;
+    report.time("integrate", t);
+    report.input.mask_pixels = surface
+        .depth
+        .values
+        .iter()
+        .filter(|v| v.is_finite())
+        .count();
+    report.extra.insert("integration".into(), surface.summary());
+    let t = Instant::now();
+    write_surface(folder.path(), &surface, &map.normals, !a.no_mesh)
+        .with_context(|| format!("writing {}", a.output.display()))?;
+    report.time("write", t);
+    report.time("total", start);
+    write_json(&folder.file("report.json"), &report)?;
+    folder.commit()?;
+    let s = &surface.depth.stats;
+    if a.out.json {
+        let mut v = serde_json::to_value(&report)?;
+        v["output"] = serde_json::Value::from(a.output.display().to_string());
+        print_json(&v);
+    } else if !a.out.quiet {
+        for n in &s.notes {
+            eprintln!("note: {n}");
+        }
+        println!(
+            "{}: {}×{}, {} pixels integrated ({} components), method {}, {} iterations",
+            a.normals.display(),
+            map.width,
+            map.height,
+            report.input.mask_pixels,
+            s.components,
+            s.method,
+            s.iterations
+        );
+        println!(
+            "mean |curl| {:.4}; masked out: {} invalid, {} facing away; {} slopes capped at {}",
+            surface.mean_abs_curl,
+            surface.rejected_invalid,
+            surface.rejected_backfacing,
+            surface.capped,
+            a.max_slope
+        );
+        println!("wrote {}", a.output.display());
+    }
+    Ok(())
+}

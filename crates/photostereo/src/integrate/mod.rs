@@ -1,0 +1,704 @@
+//! Integrating normals into a height field (ALGORITHMS.md §5).
+//!
+//! Frame and units: the height field f is in pixel units, toward the camera (z); gradients are
+//! per pixel, `p = ∂f/∂col = −n_x/n_z` and `q = ∂f/∂row = +n_y/n_z` (row index grows downward,
+//! y upward). Depth maps are `height * width` f32, row-major, NaN outside the mask.
+//!
+//! Every integrator minimises the same discrete energy on the mask's 4-neighbour graph:
+//! `Σ_edges w_e (f_b − f_a − d_e)² + λ Σ_i (f_i − prior_i)²`, where the edge target `d_e` is the
+//! mean of the two pixels' gradients along the edge (the trapezoid rule, second-order accurate)
+//! and `w_e = max(min(w_a, w_b), min_edge_weight)`. Without a prior each connected component is
+//! defined up to a constant: its mean is set to zero.
+//!
+//! - [`Poisson`] solves the normal equations (a graph Laplacian) on any mask by multigrid-
+//!   preconditioned conjugate gradients: O(n) per iteration, grid-independent iteration counts.
+//! - [`Dct`] solves the same equations on the full rectangle by a DCT (Neumann boundary).
+//! - [`Fft`] is Frankot–Chellappa: the least-squares fit in the Fourier basis with the
+//!   spectral derivative, on the rectangle mirrored to 2H × 2W (no periodic wrap-around bias).
+//! - [`Paths`] averages path integrals along L-shaped scan orders from several seeds (eqs. 11–12).
+//!
+//! `dct` and `fft` work on the whole rectangle: outside the mask the gradients are taken as 0
+//! (a flat apron), which biases the result near the mask's border; use `poisson` on masks.
+//!
+//! Weights (per pixel, 0..1): pixels whose weight is below `fill_below` are unreliable; their
+//! gradients are replaced by a harmonic interpolation (Laplace's equation) of the reliable
+//! gradients around them before integration (ALGORITHMS.md §4), so garbage there cannot leak.
+
+mod multigrid;
+mod paths;
+mod poisson;
+mod spectral;
+
+pub use paths::Paths;
+pub use poisson::{InitialGuess, Poisson};
+pub use spectral::{Dct, Fft};
+
+use crate::error::{Error, Result};
+use crate::progress::{Progress, Silent};
+use multigrid::{pcg, Hierarchy, Level};
+use rayon::prelude::*;
+use serde::Serialize;
+use std::str::FromStr;
+
+/// Default cap on |p| and |q| (pixel units per pixel): a slope of 20 is 87.1° from the view
+/// direction. Normals closer to grazing get their slope clamped.
+pub const DEFAULT_MAX_SLOPE: f32 = 20.0;
+/// Default relative residual at which `poisson` stops.
+pub const DEFAULT_TOLERANCE: f64 = 1e-6;
+/// Default weight below which a pixel's gradient is replaced by interpolation.
+pub const DEFAULT_FILL_BELOW: f32 = 0.05;
+/// Default lower bound of an edge weight (keeps every component connected and solvable).
+pub const DEFAULT_MIN_EDGE_WEIGHT: f32 = 1e-3;
+
+/// Gradients of a height field from a normal map, with the mask of usable pixels.
+#[derive(Clone, Debug)]
+pub struct Gradients {
+    pub width: usize,
+    pub height: usize,
+    /// `∂f/∂col`, `height * width`, 0 outside the mask.
+    pub p: Vec<f32>,
+    /// `∂f/∂row`, `height * width`, 0 outside the mask.
+    pub q: Vec<f32>,
+    /// Pixels with a usable normal (inside the given mask, finite, non-zero, `n_z > 0`).
+    pub mask: Vec<bool>,
+    /// Pixels of the given mask dropped for a NaN/infinite or zero normal.
+    pub rejected_invalid: usize,
+    /// Pixels of the given mask dropped because `n_z ≤ 0` (facing away from the camera).
+    pub rejected_backfacing: usize,
+    /// Pixels whose |p| or |q| was clamped to `max_slope`.
+    pub capped: usize,
+}
+
+/// Computes `p = −n_x/n_z`, `q = n_y/n_z` (clamped to ±`max_slope`) over `mask` (default: the
+/// pixels with a non-zero normal). Bad normals (NaN, zero, `n_z ≤ 0`) are dropped from the mask
+/// and counted. Errors on wrong lengths or a non-positive `max_slope`.
+pub fn gradients_from_normals(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    max_slope: f32,
+) -> Result<Gradients> {
+    let n = width * height;
+    if normals.len() != n {
+        return Err(Error::invalid(format!(
+            "normal map has {} vectors: expected {width}×{height} = {n}",
+            normals.len()
+        )));
+    }
+    if let Some(m) = mask {
+        if m.len() != n {
+            return Err(Error::invalid(format!(
+                "mask has {} pixels: expected {width}×{height} = {n}",
+                m.len()
+            )));
+        }
+    }
+    if !(max_slope > 0.0 && max_slope.is_finite()) {
+        return Err(Error::invalid(format!(
+            "max_slope {max_slope}: expected a positive finite number"
+        )));
+    }
+    let mut g = Gradients {
+        width,
+        height,
+        p: vec![0.0; n],
+        q: vec![0.0; n],
+        mask: vec![false; n],
+        rejected_invalid: 0,
+        rejected_backfacing: 0,
+        capped: 0,
+    };
+    for i in 0..n {
+        let v = normals[i];
+        let zero = v == [0.0; 3];
+        let wanted = match mask {
+            Some(m) => m[i],
+            None => !zero,
+        };
+        if !wanted {
+            continue;
+        }
+        let finite = v.iter().all(|x| x.is_finite());
+        let norm = (v[0] as f64).hypot(v[1] as f64).hypot(v[2] as f64);
+        if !finite || zero || norm < 1e-12 {
+            g.rejected_invalid += 1;
+            continue;
+        }
+        if v[2] <= 0.0 {
+            g.rejected_backfacing += 1;
+            continue;
+        }
+        let p = -(v[0] as f64) / v[2] as f64;
+        let q = v[1] as f64 / v[2] as f64;
+        let cap = max_slope as f64;
+        if p.abs() > cap || q.abs() > cap {
+            g.capped += 1;
+        }
+        g.p[i] = p.clamp(-cap, cap) as f32;
+        g.q[i] = q.clamp(-cap, cap) as f32;
+        g.mask[i] = true;
+    }
+    Ok(g)
+}
+
+/// The integrability map of eq. 10: `curl = (p[r+1,c] − p[r,c]) − (q[r,c+1] − q[r,c])`, defined
+/// where the 2×2 block starting at `(r, c)` lies inside the mask, NaN elsewhere. Returns the map
+/// and the mean |curl| over the defined pixels (0 when none).
+pub fn curl_map(
+    width: usize,
+    height: usize,
+    p: &[f32],
+    q: &[f32],
+    mask: &[bool],
+) -> (Vec<f32>, f64) {
+    let mut curl = vec![f32::NAN; width * height];
+    let (mut sum, mut count) = (0f64, 0usize);
+    for r in 0..height.saturating_sub(1) {
+        for c in 0..width.saturating_sub(1) {
+            let i = r * width + c;
+            if mask[i] && mask[i + 1] && mask[i + width] && mask[i + width + 1] {
+                let v = (p[i + width] - p[i]) - (q[i + 1] - q[i]);
+                curl[i] = v;
+                sum += v.abs() as f64;
+                count += 1;
+            }
+        }
+    }
+    (curl, if count > 0 { sum / count as f64 } else { 0.0 })
+}
+
+/// Normals of a depth map by central differences inside the mask (one-sided at its border; a
+/// pixel without any neighbour along an axis gets slope 0 along it). Zero outside the mask or
+/// where the depth is not finite. The inverse of [`gradients_from_normals`] for testing and
+/// shading.
+pub fn normals_from_depth(
+    width: usize,
+    height: usize,
+    depth: &[f32],
+    mask: &[bool],
+) -> Vec<[f32; 3]> {
+    let ok = |i: usize| mask[i] && depth[i].is_finite();
+    let mut out = vec![[0f32; 3]; width * height];
+    out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
+        for (c, o) in row.iter_mut().enumerate() {
+            let i = r * width + c;
+            if !ok(i) {
+                continue;
+            }
+            let left = c > 0 && ok(i - 1);
+            let right = c + 1 < width && ok(i + 1);
+            let up = r > 0 && ok(i - width);
+            let down = r + 1 < height && ok(i + width);
+            let d = |a: usize| depth[a] as f64;
+            let p = match (left, right) {
+                (true, true) => (d(i + 1) - d(i - 1)) / 2.0,
+                (false, true) => d(i + 1) - d(i),
+                (true, false) => d(i) - d(i - 1),
+                (false, false) => 0.0,
+            };
+            let q = match (up, down) {
+                (true, true) => (d(i + width) - d(i - width)) / 2.0,
+                (false, true) => d(i + width) - d(i),
+                (true, false) => d(i) - d(i - width),
+                (false, false) => 0.0,
+            };
+            let norm = (p * p + q * q + 1.0).sqrt();
+            *o = [(-p / norm) as f32, (q / norm) as f32, (1.0 / norm) as f32];
+        }
+    });
+    out
+}
+
+/// A depth prior: the solution is pulled toward `depth` with strength `lambda` per pixel
+/// (relative to unit edge weights).
+#[derive(Clone, Copy, Debug)]
+pub struct Prior<'a> {
+    /// `height * width`, pixel units; must be finite inside the mask.
+    pub depth: &'a [f32],
+    /// ≥ 0.
+    pub lambda: f32,
+}
+
+/// The input every integrator takes.
+#[derive(Clone, Copy, Debug)]
+pub struct IntegrationProblem<'a> {
+    pub width: usize,
+    pub height: usize,
+    /// `∂f/∂col`, `height * width`, row-major.
+    pub p: &'a [f32],
+    /// `∂f/∂row`, `height * width`, row-major.
+    pub q: &'a [f32],
+    /// Pixels to reconstruct.
+    pub mask: &'a [bool],
+    /// Per-pixel reliability in 0..1 (1 when absent).
+    pub weights: Option<&'a [f32]>,
+    pub prior: Option<Prior<'a>>,
+}
+
+impl<'a> IntegrationProblem<'a> {
+    /// An unweighted problem without prior.
+    pub fn new(width: usize, height: usize, p: &'a [f32], q: &'a [f32], mask: &'a [bool]) -> Self {
+        IntegrationProblem {
+            width,
+            height,
+            p,
+            q,
+            mask,
+            weights: None,
+            prior: None,
+        }
+    }
+
+    /// Checks shapes and values; errors name the offending input.
+    pub fn validate(&self) -> Result<()> {
+        let n = self.width * self.height;
+        if self.width == 0 || self.height == 0 {
+            return Err(Error::invalid("integration: the grid is empty"));
+        }
+        for (name, len) in [
+            ("p", self.p.len()),
+            ("q", self.q.len()),
+            ("mask", self.mask.len()),
+        ] {
+            if len != n {
+                return Err(Error::invalid(format!(
+                    "integration: {name} has {len} values, expected {}×{} = {n}",
+                    self.width, self.height
+                )));
+            }
+        }
+        if let Some(i) =
+            (0..n).find(|&i| self.mask[i] && !(self.p[i].is_finite() && self.q[i].is_finite()))
+        {
+            return Err(Error::invalid(format!(
+                "integration: gradient at row {}, column {} is not finite",
+                i / self.width,
+                i % self.width
+            )));
+        }
+        if let Some(w) = self.weights {
+            if w.len() != n {
+                return Err(Error::invalid(format!(
+                    "integration: weights have {} values, expected {n}",
+                    w.len()
+                )));
+            }
+            if let Some(i) = (0..n).find(|&i| self.mask[i] && !(0.0..=1.0).contains(&w[i])) {
+                return Err(Error::invalid(format!(
+                    "integration: weight {} at row {}, column {}: expected 0..1",
+                    w[i],
+                    i / self.width,
+                    i % self.width
+                )));
+            }
+        }
+        if let Some(prior) = self.prior {
+            if prior.depth.len() != n {
+                return Err(Error::invalid(format!(
+                    "integration: prior depth has {} values, expected {n}",
+                    prior.depth.len()
+                )));
+            }
+            if !(prior.lambda >= 0.0 && prior.lambda.is_finite()) {
+                return Err(Error::invalid(format!(
+                    "integration: prior lambda {}: expected ≥ 0",
+                    prior.lambda
+                )));
+            }
+            if let Some(i) = (0..n).find(|&i| self.mask[i] && !prior.depth[i].is_finite()) {
+                return Err(Error::invalid(format!(
+                    "integration: prior depth at row {}, column {} is not finite",
+                    i / self.width,
+                    i % self.width
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Figures an integrator reports.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct IntegrationStats {
+    pub method: String,
+    /// Solver iterations (CG iterations for `poisson`, paths averaged for `paths`, 0 for direct
+    /// methods).
+    pub iterations: usize,
+    /// Final ‖b − A f‖ / ‖b‖ of the normal equations (`poisson`; 0 otherwise).
+    pub relative_residual: f64,
+    /// Connected components of the mask.
+    pub components: usize,
+    /// Pixels whose gradients were interpolated (weight below `fill_below`).
+    pub filled_pixels: usize,
+    /// Multigrid levels (`poisson`).
+    pub levels: usize,
+    pub notes: Vec<String>,
+}
+
+/// An integrated height field.
+#[derive(Clone, Debug)]
+pub struct Depth {
+    pub width: usize,
+    pub height: usize,
+    /// `height * width`, pixel units toward the camera, NaN outside the mask.
+    pub values: Vec<f32>,
+    pub stats: IntegrationStats,
+}
+
+/// Something that turns gradients into depth.
+pub trait Integrator: Send + Sync {
+    /// The name accepted by `--method`.
+    fn name(&self) -> &'static str;
+    /// Integrates `problem`; reports progress as stage "integrate".
+    fn integrate(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth>;
+}
+
+/// The integration methods on offer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum IntegratorKind {
+    /// Masked weighted least squares by multigrid-preconditioned CG (any mask).
+    #[default]
+    Poisson,
+    /// Full-rectangle least squares by DCT (Neumann).
+    Dct,
+    /// Frankot–Chellappa on the mirrored rectangle.
+    Fft,
+    /// Averaged path integration (eqs. 11–12).
+    Paths,
+}
+
+impl IntegratorKind {
+    /// Every method, default first.
+    pub const ALL: &'static [IntegratorKind] = &[
+        IntegratorKind::Poisson,
+        IntegratorKind::Dct,
+        IntegratorKind::Fft,
+        IntegratorKind::Paths,
+    ];
+
+    /// The name accepted by `--method` / `--integrator`.
+    pub fn name(self) -> &'static str {
+        match self {
+            IntegratorKind::Poisson => "poisson",
+            IntegratorKind::Dct => "dct",
+            IntegratorKind::Fft => "fft",
+            IntegratorKind::Paths => "paths",
+        }
+    }
+
+    /// The integrator with its default parameters.
+    pub fn integrator(self) -> Box<dyn Integrator> {
+        match self {
+            IntegratorKind::Poisson => Box::new(Poisson::default()),
+            IntegratorKind::Dct => Box::new(Dct::default()),
+            IntegratorKind::Fft => Box::new(Fft::default()),
+            IntegratorKind::Paths => Box::new(Paths::default()),
+        }
+    }
+}
+
+impl FromStr for IntegratorKind {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        IntegratorKind::ALL
+            .iter()
+            .copied()
+            .find(|m| m.name() == s)
+            .ok_or_else(|| {
+                let names: Vec<&str> = IntegratorKind::ALL.iter().map(|m| m.name()).collect();
+                Error::invalid(format!(
+                    "unknown integration method '{s}': expected one of {}",
+                    names.join(", ")
+                ))
+            })
+    }
+}
+
+/// Integrates a normal map (`height * width` vectors in the camera frame) over `mask` (default:
+/// non-zero normals) with optional per-pixel `weights` (0..1), using `method` with its default
+/// parameters and [`DEFAULT_MAX_SLOPE`]. Bad normals are masked out (NaN depth there).
+pub fn integrate_normals(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    weights: Option<&[f32]>,
+    method: IntegratorKind,
+) -> Result<Depth> {
+    let g = gradients_from_normals(width, height, normals, mask, DEFAULT_MAX_SLOPE)?;
+    let problem = IntegrationProblem {
+        weights,
+        ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
+    };
+    method.integrator().integrate(&problem, &Silent)
+}
+
+/// A depth map with its diagnostics: what `run` and `photostereo integrate` write.
+#[derive(Clone, Debug)]
+pub struct Surface {
+    pub depth: Depth,
+    /// Eq. 10's map, NaN where undefined.
+    pub curl: Vec<f32>,
+    pub mean_abs_curl: f64,
+    pub rejected_invalid: usize,
+    pub rejected_backfacing: usize,
+    pub capped: usize,
+    pub max_slope: f32,
+}
+
+impl Surface {
+    /// The figures for `report.json`.
+    pub fn summary(&self) -> serde_json::Value {
+        serde_json::json!({
+            "method": self.depth.stats.method,
+            "iterations": self.depth.stats.iterations,
+            "relative_residual": self.depth.stats.relative_residual,
+            "levels": self.depth.stats.levels,
+            "components": self.depth.stats.components,
+            "filled_pixels": self.depth.stats.filled_pixels,
+            "mean_abs_curl": self.mean_abs_curl,
+            "max_slope": self.max_slope,
+            "capped_pixels": self.capped,
+            "rejected_invalid_normals": self.rejected_invalid,
+            "rejected_backfacing_normals": self.rejected_backfacing,
+            "notes": self.depth.stats.notes,
+        })
+    }
+}
+
+/// Gradients, curl and depth from a normal map in one call.
+pub fn surface_from_normals(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    weights: Option<&[f32]>,
+    integrator: &dyn Integrator,
+    max_slope: f32,
+    progress: &dyn Progress,
+) -> Result<Surface> {
+    let g = gradients_from_normals(width, height, normals, mask, max_slope)?;
+    let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
+    let problem = IntegrationProblem {
+        weights,
+        ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
+    };
+    let depth = integrator.integrate(&problem, progress)?;
+    Ok(Surface {
+        depth,
+        curl,
+        mean_abs_curl,
+        rejected_invalid: g.rejected_invalid,
+        rejected_backfacing: g.rejected_backfacing,
+        capped: g.capped,
+        max_slope,
+    })
+}
+
+// ---------------------------------------------------------------------------------------------
+// Shared machinery.
+
+/// Labels the 4-connected components of `mask`: `u32::MAX` outside; returns the labels and the
+/// number of components.
+pub(crate) fn label_components(width: usize, height: usize, mask: &[bool]) -> (Vec<u32>, usize) {
+    let n = width * height;
+    let mut labels = vec![u32::MAX; n];
+    if mask.iter().all(|&m| m) {
+        labels.fill(0);
+        return (labels, usize::from(n > 0));
+    }
+    let mut count = 0u32;
+    let mut stack: Vec<u32> = Vec::new();
+    for seed in 0..n {
+        if !mask[seed] || labels[seed] != u32::MAX {
+            continue;
+        }
+        labels[seed] = count;
+        stack.push(seed as u32);
+        while let Some(i) = stack.pop() {
+            let i = i as usize;
+            let (r, c) = (i / width, i % width);
+            let mut visit = |j: usize| {
+                if mask[j] && labels[j] == u32::MAX {
+                    labels[j] = count;
+                    stack.push(j as u32);
+                }
+            };
+            if c > 0 {
+                visit(i - 1);
+            }
+            if c + 1 < width {
+                visit(i + 1);
+            }
+            if r > 0 {
+                visit(i - width);
+            }
+            if r + 1 < height {
+                visit(i + width);
+            }
+        }
+        count += 1;
+    }
+    (labels, count as usize)
+}
+
+/// Subtracts each component's mean (over its pixels) from `f`.
+pub(crate) fn remove_component_means(f: &mut [f64], labels: &[u32], components: usize) {
+    let mut sum = vec![0f64; components];
+    let mut cnt = vec![0usize; components];
+    for (v, &l) in f.iter().zip(labels) {
+        if l != u32::MAX {
+            sum[l as usize] += v;
+            cnt[l as usize] += 1;
+        }
+    }
+    for (v, &l) in f.iter_mut().zip(labels) {
+        if l != u32::MAX {
+            *v -= sum[l as usize] / cnt[l as usize].max(1) as f64;
+        }
+    }
+}
+
+/// Edge targets: `dh[i]` for the edge `i → i + 1`, `dv[i]` for `i → i + w` (mean of the two
+/// pixels' gradients; 0 where the edge leaves the mask).
+pub(crate) fn edge_targets(
+    width: usize,
+    height: usize,
+    p: &[f32],
+    q: &[f32],
+    mask: &[bool],
+) -> (Vec<f32>, Vec<f32>) {
+    let n = width * height;
+    let mut dh = vec![0f32; n];
+    let mut dv = vec![0f32; n];
+    dh.par_chunks_mut(width)
+        .zip(dv.par_chunks_mut(width))
+        .enumerate()
+        .for_each(|(r, (hrow, vrow))| {
+            for c in 0..width {
+                let i = r * width + c;
+                if !mask[i] {
+                    continue;
+                }
+                if c + 1 < width && mask[i + 1] {
+                    hrow[c] = 0.5 * (p[i] + p[i + 1]);
+                }
+                if r + 1 < height && mask[i + width] {
+                    vrow[c] = 0.5 * (q[i] + q[i + width]);
+                }
+            }
+        });
+    (dh, dv)
+}
+
+/// Gradients with the pixels of weight below `fill_below` replaced by the harmonic interpolation
+/// of the others (Laplace's equation on the mask graph, Dirichlet data from reliable neighbours;
+/// a component without reliable pixels gets zero gradients). Returns `(p, q, filled_count)`.
+pub(crate) fn fill_unreliable(
+    problem: &IntegrationProblem,
+    fill_below: f32,
+) -> (Vec<f32>, Vec<f32>, usize) {
+    let (w, h) = (problem.width, problem.height);
+    let mut p = problem.p.to_vec();
+    let mut q = problem.q.to_vec();
+    let Some(weights) = problem.weights else {
+        return (p, q, 0);
+    };
+    let hole: Vec<bool> = (0..w * h)
+        .map(|i| problem.mask[i] && weights[i] < fill_below)
+        .collect();
+    let filled = hole.iter().filter(|&&b| b).count();
+    if filled == 0 {
+        return (p, q, 0);
+    }
+    let mask = problem.mask;
+    let n = w * h;
+    let mut east = vec![0f32; n];
+    let mut south = vec![0f32; n];
+    let mut extra = vec![0f32; n];
+    let mut bp = vec![0f64; n];
+    let mut bq = vec![0f64; n];
+    for r in 0..h {
+        for c in 0..w {
+            let i = r * w + c;
+            if !hole[i] {
+                continue;
+            }
+            let mut nbrs = [usize::MAX; 4];
+            if c > 0 {
+                nbrs[0] = i - 1;
+            }
+            if c + 1 < w {
+                nbrs[1] = i + 1;
+            }
+            if r > 0 {
+                nbrs[2] = i - w;
+            }
+            if r + 1 < h {
+                nbrs[3] = i + w;
+            }
+            for j in nbrs.into_iter().filter(|&j| j != usize::MAX) {
+                if hole[j] {
+                    continue;
+                }
+                if mask[j] {
+                    extra[i] += 1.0;
+                    bp[i] += problem.p[j] as f64;
+                    bq[i] += problem.q[j] as f64;
+                }
+            }
+            if c + 1 < w && hole[i + 1] {
+                east[i] = 1.0;
+            }
+            if r + 1 < h && hole[i + w] {
+                south[i] = 1.0;
+            }
+        }
+    }
+    // Components of the hole without any reliable neighbour: pin one cell (zero gradient).
+    let (labels, k) = label_components(w, h, &hole);
+    let mut anchored = vec![false; k];
+    for i in 0..n {
+        if hole[i] && extra[i] > 0.0 {
+            anchored[labels[i] as usize] = true;
+        }
+    }
+    for i in 0..n {
+        if hole[i] && !anchored[labels[i] as usize] {
+            extra[i] = 1.0;
+            anchored[labels[i] as usize] = true;
+        }
+    }
+    let mut hier = Hierarchy::new(Level::from_parts(w, h, east, south, &extra, &hole));
+    let sp = pcg(&mut hier, bp, None, 1e-6, 200, &Silent);
+    let sq = pcg(&mut hier, bq, None, 1e-6, 200, &Silent);
+    for i in 0..n {
+        if hole[i] {
+            p[i] = sp.x[i] as f32;
+            q[i] = sq.x[i] as f32;
+        }
+    }
+    (p, q, filled)
+}
+
+/// Converts a solution to a depth map (NaN outside the mask).
+pub(crate) fn to_depth(
+    width: usize,
+    height: usize,
+    f: &[f64],
+    mask: &[bool],
+    stats: IntegrationStats,
+) -> Depth {
+    let values = f
+        .par_iter()
+        .zip(mask.par_iter())
+        .map(|(&v, &m)| if m { v as f32 } else { f32::NAN })
+        .collect();
+    Depth {
+        width,
+        height,
+        values,
+        stats,
+    }
+}

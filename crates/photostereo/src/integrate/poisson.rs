@@ -1,0 +1,209 @@
+//! `poisson`: masked weighted least squares, solved by multigrid-preconditioned CG.
+
+use super::multigrid::{pcg, Hierarchy, Level};
+use super::{
+    fill_unreliable, label_components, remove_component_means, to_depth, Depth, IntegrationProblem,
+    IntegrationStats, Integrator, Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT,
+    DEFAULT_TOLERANCE,
+};
+use crate::error::Result;
+use crate::progress::Progress;
+use rayon::prelude::*;
+
+/// Where the CG iteration starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum InitialGuess {
+    /// f = 0.
+    #[default]
+    Zero,
+    /// The averaged path integral ([`Paths`]), as the paper seeds its global solve.
+    Paths,
+}
+
+/// Masked least-squares integration (see the module notes of [`crate::integrate`]).
+#[derive(Clone, Debug)]
+pub struct Poisson {
+    /// Stop when ‖b − A f‖ ≤ tolerance · ‖b‖.
+    pub tolerance: f64,
+    pub max_iterations: usize,
+    /// Pixels with a weight below this get interpolated gradients.
+    pub fill_below: f32,
+    /// Lower bound of every edge weight.
+    pub min_edge_weight: f32,
+    /// Red–black Gauss–Seidel sweeps before and after each coarse correction.
+    pub smoothing_sweeps: usize,
+    pub initial_guess: InitialGuess,
+}
+
+impl Default for Poisson {
+    fn default() -> Self {
+        Poisson {
+            tolerance: DEFAULT_TOLERANCE,
+            max_iterations: 200,
+            fill_below: DEFAULT_FILL_BELOW,
+            min_edge_weight: DEFAULT_MIN_EDGE_WEIGHT,
+            smoothing_sweeps: 1,
+            initial_guess: InitialGuess::Zero,
+        }
+    }
+}
+
+/// The normal equations of one problem: operator (finest level) and right-hand side.
+pub(crate) struct System {
+    pub level: Level,
+    pub rhs: Vec<f64>,
+}
+
+/// Builds `A` and `b` of `Σ w_e (f_b − f_a − d_e)² + λ Σ (f_i − z_i)²` from (filled) gradients.
+/// `pins` get an extra diagonal of 1 (the caller removes the component means afterwards).
+pub(crate) fn build_system(
+    problem: &IntegrationProblem,
+    p: &[f32],
+    q: &[f32],
+    min_edge_weight: f32,
+    pins: &[usize],
+) -> System {
+    let (w, h) = (problem.width, problem.height);
+    let n = w * h;
+    let mask = problem.mask;
+    let weight = |i: usize| problem.weights.map_or(1.0, |ws| ws[i]);
+    let edge = |a: usize, b: usize| weight(a).min(weight(b)).max(min_edge_weight);
+    let mut east = vec![0f32; n];
+    let mut south = vec![0f32; n];
+    east.par_chunks_mut(w)
+        .zip(south.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(r, (erow, srow))| {
+            for c in 0..w {
+                let i = r * w + c;
+                if !mask[i] {
+                    continue;
+                }
+                if c + 1 < w && mask[i + 1] {
+                    erow[c] = edge(i, i + 1);
+                }
+                if r + 1 < h && mask[i + w] {
+                    srow[c] = edge(i, i + w);
+                }
+            }
+        });
+    let mut rhs = vec![0f64; n];
+    let lambda = problem.prior.map_or(0.0, |pr| pr.lambda);
+    rhs.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
+        for (c, b) in row.iter_mut().enumerate() {
+            let i = r * w + c;
+            if !mask[i] {
+                continue;
+            }
+            let mut s = 0f64;
+            if c + 1 < w && east[i] > 0.0 {
+                s -= east[i] as f64 * 0.5 * (p[i] as f64 + p[i + 1] as f64);
+            }
+            if c > 0 && east[i - 1] > 0.0 {
+                s += east[i - 1] as f64 * 0.5 * (p[i] as f64 + p[i - 1] as f64);
+            }
+            if r + 1 < h && south[i] > 0.0 {
+                s -= south[i] as f64 * 0.5 * (q[i] as f64 + q[i + w] as f64);
+            }
+            if r > 0 && south[i - w] > 0.0 {
+                s += south[i - w] as f64 * 0.5 * (q[i] as f64 + q[i - w] as f64);
+            }
+            if let Some(prior) = problem.prior {
+                s += lambda as f64 * prior.depth[i] as f64;
+            }
+            *b = s;
+        }
+    });
+    let mut extra = vec![lambda; n];
+    for &i in pins {
+        extra[i] += 1.0;
+    }
+    let level = Level::from_parts(w, h, east, south, &extra, mask);
+    System { level, rhs }
+}
+
+impl Integrator for Poisson {
+    fn name(&self) -> &'static str {
+        "poisson"
+    }
+
+    fn integrate(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
+        problem.validate()?;
+        let (w, h) = (problem.width, problem.height);
+        let (p, q, filled) = fill_unreliable(problem, self.fill_below);
+        let has_prior = problem.prior.is_some_and(|pr| pr.lambda > 0.0);
+        let (labels, components) = label_components(w, h, problem.mask);
+        let pins: Vec<usize> = if has_prior {
+            Vec::new()
+        } else {
+            // The first pixel of each component in scan order.
+            let mut seen = vec![false; components];
+            let mut pins = Vec::with_capacity(components);
+            for (i, &l) in labels.iter().enumerate() {
+                if l != u32::MAX && !seen[l as usize] {
+                    seen[l as usize] = true;
+                    pins.push(i);
+                    if pins.len() == components {
+                        break;
+                    }
+                }
+            }
+            pins
+        };
+        let x0 = match self.initial_guess {
+            InitialGuess::Zero => None,
+            InitialGuess::Paths => {
+                let filled_problem = IntegrationProblem {
+                    p: &p,
+                    q: &q,
+                    weights: None,
+                    prior: None,
+                    ..*problem
+                };
+                let d = Paths::default().integrate(&filled_problem, &crate::progress::Silent)?;
+                Some(
+                    d.values
+                        .iter()
+                        .map(|&v| if v.is_finite() { v as f64 } else { 0.0 })
+                        .collect::<Vec<f64>>(),
+                )
+            }
+        };
+        let System { level, rhs } = build_system(problem, &p, &q, self.min_edge_weight, &pins);
+        drop(p);
+        drop(q);
+        let mut hier = Hierarchy::new(level);
+        hier.sweeps = self.smoothing_sweeps.max(1);
+        progress.begin("integrate", self.max_iterations as u64);
+        let solve = pcg(
+            &mut hier,
+            rhs,
+            x0,
+            self.tolerance,
+            self.max_iterations,
+            progress,
+        );
+        progress.end();
+        let mut x = solve.x;
+        if !has_prior {
+            remove_component_means(&mut x, &labels, components);
+        }
+        let mut notes = Vec::new();
+        if solve.relative_residual > self.tolerance {
+            notes.push(format!(
+                "poisson stopped after {} iterations at relative residual {:.2e} (tolerance {:.1e})",
+                solve.iterations, solve.relative_residual, self.tolerance
+            ));
+        }
+        let stats = IntegrationStats {
+            method: "poisson".into(),
+            iterations: solve.iterations,
+            relative_residual: solve.relative_residual,
+            components,
+            filled_pixels: filled,
+            levels: hier.depth(),
+            notes,
+        };
+        Ok(to_depth(w, h, &x, problem.mask, stats))
+    }
+}

@@ -1,0 +1,485 @@
+//! Integration of normals on analytic surfaces with exact gradients, on full, circular and
+//! irregular masks; agreement of the full-rectangle methods; filling of zero-weight holes; bad
+//! normals; and DiLiGenT's ball (ground-truth normals → depth → normals).
+
+use photostereo::integrate::{
+    curl_map, gradients_from_normals, integrate_normals, normals_from_depth, Dct, Fft,
+    InitialGuess, IntegrationProblem, Integrator, IntegratorKind, Paths, Poisson, Prior,
+};
+use photostereo::progress::Silent;
+
+const W: usize = 128;
+const H: usize = 96;
+
+/// A height field in pixel units as a function of (col, row).
+type Surface = fn(f64, f64) -> f64;
+
+fn sphere_cap(c: f64, r: f64) -> f64 {
+    // Radius 1.3 × the half-diagonal: the cap covers the whole rectangle.
+    let rad = 1.3 * ((W * W + H * H) as f64).sqrt() / 2.0;
+    let (x, y) = (c - W as f64 / 2.0, r - H as f64 / 2.0);
+    (rad * rad - x * x - y * y).sqrt()
+}
+
+fn peaks(c: f64, r: f64) -> f64 {
+    let s = W as f64 / 6.0;
+    let (u, v) = ((c - W as f64 / 2.0) / s, (r - H as f64 / 2.0) / s);
+    let z = 3.0 * (1.0 - u).powi(2) * (-u * u - (v + 1.0).powi(2)).exp()
+        - 10.0 * (u / 5.0 - u.powi(3) - v.powi(5)) * (-u * u - v * v).exp()
+        - (-(u + 1.0).powi(2) - v * v).exp() / 3.0;
+    4.0 * z
+}
+
+fn plane(c: f64, r: f64) -> f64 {
+    0.3 * c - 0.7 * r + 5.0
+}
+
+/// Exact gradients (central differences with a tiny step in f64: error ~1e-9).
+fn gradients(f: Surface) -> (Vec<f32>, Vec<f32>, Vec<f64>) {
+    let e = 1e-4;
+    let mut p = vec![0f32; W * H];
+    let mut q = vec![0f32; W * H];
+    let mut z = vec![0f64; W * H];
+    for r in 0..H {
+        for c in 0..W {
+            let (cf, rf) = (c as f64, r as f64);
+            p[r * W + c] = ((f(cf + e, rf) - f(cf - e, rf)) / (2.0 * e)) as f32;
+            q[r * W + c] = ((f(cf, rf + e) - f(cf, rf - e)) / (2.0 * e)) as f32;
+            z[r * W + c] = f(cf, rf);
+        }
+    }
+    (p, q, z)
+}
+
+fn full_mask() -> Vec<bool> {
+    vec![true; W * H]
+}
+
+fn circle_mask() -> Vec<bool> {
+    (0..W * H)
+        .map(|i| {
+            let (r, c) = ((i / W) as f64, (i % W) as f64);
+            (c - 63.5).hypot(r - 47.5) < 0.45 * H as f64
+        })
+        .collect()
+}
+
+/// Two overlapping discs with a notch, a thin bridge and a separate blob (two components).
+fn irregular_mask() -> Vec<bool> {
+    (0..W * H)
+        .map(|i| {
+            let (r, c) = ((i / W) as f64, (i % W) as f64);
+            let a = (c - 40.0).hypot(r - 45.0) < 30.0;
+            let b = (c - 80.0).hypot(r - 50.0) < 25.0;
+            let notch = (r - 45.0).abs() < 3.0 && c > 45.0 && c < 70.0;
+            let blob = (c - 115.0).hypot(r - 15.0) < 9.0;
+            ((a || b) && !notch) || blob
+        })
+        .collect()
+}
+
+/// RMSE of `depth − truth` after removing each component's mean offset, and the depth range,
+/// over the mask. Components are found by flood fill here (independently of the library).
+fn rmse_and_range(depth: &[f32], truth: &[f64], mask: &[bool]) -> (f64, f64) {
+    let mut label = vec![usize::MAX; W * H];
+    let mut k = 0;
+    for s in 0..W * H {
+        if !mask[s] || label[s] != usize::MAX {
+            continue;
+        }
+        let mut stack = vec![s];
+        label[s] = k;
+        while let Some(i) = stack.pop() {
+            let (r, c) = (i / W, i % W);
+            let nb = [
+                (c > 0).then(|| i - 1),
+                (c + 1 < W).then(|| i + 1),
+                (r > 0).then(|| i - W),
+                (r + 1 < H).then(|| i + W),
+            ];
+            for j in nb.into_iter().flatten() {
+                if mask[j] && label[j] == usize::MAX {
+                    label[j] = k;
+                    stack.push(j);
+                }
+            }
+        }
+        k += 1;
+    }
+    let mut off = vec![(0f64, 0usize); k];
+    for i in 0..W * H {
+        if mask[i] {
+            assert!(depth[i].is_finite(), "depth at {i} is not finite");
+            off[label[i]].0 += depth[i] as f64 - truth[i];
+            off[label[i]].1 += 1;
+        } else {
+            assert!(depth[i].is_nan(), "depth outside the mask must be NaN");
+        }
+    }
+    let (mut se, mut n) = (0f64, 0usize);
+    let (mut lo, mut hi) = (f64::INFINITY, f64::NEG_INFINITY);
+    for i in 0..W * H {
+        if mask[i] {
+            let (s, m) = off[label[i]];
+            let d = depth[i] as f64 - truth[i] - s / m as f64;
+            se += d * d;
+            n += 1;
+            lo = lo.min(truth[i]);
+            hi = hi.max(truth[i]);
+        }
+    }
+    ((se / n as f64).sqrt(), hi - lo)
+}
+
+fn solve(method: &dyn Integrator, p: &[f32], q: &[f32], mask: &[bool]) -> Vec<f32> {
+    let problem = IntegrationProblem::new(W, H, p, q, mask);
+    method.integrate(&problem, &Silent).unwrap().values
+}
+
+#[test]
+fn every_method_recovers_analytic_surfaces_on_the_full_rectangle() {
+    let methods: Vec<Box<dyn Integrator>> =
+        IntegratorKind::ALL.iter().map(|k| k.integrator()).collect();
+    for (name, f) in [
+        ("sphere", sphere_cap as Surface),
+        ("peaks", peaks),
+        ("plane", plane),
+    ] {
+        let (p, q, z) = gradients(f);
+        let mask = full_mask();
+        for m in &methods {
+            let d = solve(m.as_ref(), &p, &q, &mask);
+            let (rmse, range) = rmse_and_range(&d, &z, &mask);
+            println!(
+                "full/{name}/{}: rmse {:.4}% of range",
+                m.name(),
+                100.0 * rmse / range
+            );
+            assert!(
+                rmse <= 0.005 * range,
+                "{} on {name}: rmse {rmse:.4} range {range:.2}",
+                m.name()
+            );
+        }
+    }
+}
+
+#[test]
+fn poisson_and_paths_recover_analytic_surfaces_on_masks() {
+    for (mname, mask) in [("circle", circle_mask()), ("irregular", irregular_mask())] {
+        for (name, f) in [
+            ("sphere", sphere_cap as Surface),
+            ("peaks", peaks),
+            ("plane", plane),
+        ] {
+            let (p, q, z) = gradients(f);
+            for m in [&Poisson::default() as &dyn Integrator, &Paths::default()] {
+                let d = solve(m, &p, &q, &mask);
+                let (rmse, range) = rmse_and_range(&d, &z, &mask);
+                println!(
+                    "{mname}/{name}/{}: rmse {:.4}% of range",
+                    m.name(),
+                    100.0 * rmse / range
+                );
+                assert!(
+                    rmse <= 0.005 * range,
+                    "{} on {name}/{mname}: rmse {rmse:.4} range {range:.2}",
+                    m.name()
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn dct_fft_and_poisson_agree_on_the_full_rectangle() {
+    let (p, q, _) = gradients(peaks);
+    let mask = full_mask();
+    let a = solve(&Poisson::default(), &p, &q, &mask);
+    let b = solve(&Dct::default(), &p, &q, &mask);
+    let c = solve(&Fft::default(), &p, &q, &mask);
+    let range = b.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v))
+        - b.iter().fold(f32::INFINITY, |m, &v| m.min(v));
+    // poisson and dct solve the same discrete equations: equal up to the CG tolerance.
+    let max_pd = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    println!("poisson vs dct max {:.2e} of range", max_pd / range);
+    assert!(
+        max_pd <= 1e-4 * range,
+        "poisson vs dct: max diff {max_pd} (range {range})"
+    );
+    // fft uses the spectral derivative instead of the trapezoid rule: equal to discretisation error.
+    let rms_fd = (c
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| ((x - y) as f64).powi(2))
+        .sum::<f64>()
+        / (W * H) as f64)
+        .sqrt();
+    println!("fft vs dct rms {:.2e} of range", rms_fd / range as f64);
+    assert!(
+        rms_fd <= 2e-3 * range as f64,
+        "fft vs dct: rms diff {rms_fd} (range {range})"
+    );
+}
+
+#[test]
+fn paths_as_initial_guess_gives_the_same_solution_in_fewer_iterations() {
+    let (p, q, _) = gradients(peaks);
+    let mask = irregular_mask();
+    let problem = IntegrationProblem::new(W, H, &p, &q, &mask);
+    let zero = Poisson::default().integrate(&problem, &Silent).unwrap();
+    let seeded = Poisson {
+        initial_guess: InitialGuess::Paths,
+        ..Poisson::default()
+    }
+    .integrate(&problem, &Silent)
+    .unwrap();
+    let max = zero
+        .values
+        .iter()
+        .zip(&seeded.values)
+        .filter(|(a, _)| a.is_finite())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f32, f32::max);
+    assert!(max < 1e-3, "max diff {max}");
+    println!(
+        "iterations: zero start {}, paths start {}",
+        zero.stats.iterations, seeded.stats.iterations
+    );
+    assert!(seeded.stats.iterations <= zero.stats.iterations);
+    assert_eq!(zero.stats.components, 2);
+}
+
+#[test]
+fn a_zero_weight_hole_with_garbage_gradients_is_filled_close_to_the_surface() {
+    let (mut p, mut q, z) = gradients(sphere_cap);
+    let mask = circle_mask();
+    let mut weights = vec![1f32; W * H];
+    let hole = |i: usize| {
+        let (r, c) = ((i / W) as f64, (i % W) as f64);
+        (c - 70.0).hypot(r - 40.0) < 8.0
+    };
+    let mut seed = 12345u64;
+    for i in 0..W * H {
+        if hole(i) {
+            weights[i] = 0.0;
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            p[i] = ((seed >> 33) % 1000) as f32 / 100.0 - 5.0;
+            q[i] = ((seed >> 13) % 1000) as f32 / 100.0 - 5.0;
+        }
+    }
+    let problem = IntegrationProblem::new(W, H, &p, &q, &mask);
+    let unweighted = Poisson::default().integrate(&problem, &Silent).unwrap();
+    let weighted = Poisson::default()
+        .integrate(
+            &IntegrationProblem {
+                weights: Some(&weights),
+                ..problem
+            },
+            &Silent,
+        )
+        .unwrap();
+    assert!(weighted.stats.filled_pixels > 150);
+    let hole_err = |d: &[f32]| {
+        let (rmse, range) = rmse_and_range(d, &z, &mask);
+        let off: f64 = (0..W * H)
+            .filter(|&i| mask[i])
+            .map(|i| d[i] as f64 - z[i])
+            .sum::<f64>()
+            / mask.iter().filter(|&&m| m).count() as f64;
+        let max_hole = (0..W * H)
+            .filter(|&i| hole(i))
+            .map(|i| (d[i] as f64 - z[i] - off).abs())
+            .fold(0f64, f64::max);
+        (rmse, range, max_hole)
+    };
+    let (rmse_w, range, max_w) = hole_err(&weighted.values);
+    let (_, _, max_u) = hole_err(&unweighted.values);
+    assert!(
+        rmse_w <= 0.005 * range,
+        "weighted rmse {rmse_w} range {range}"
+    );
+    println!(
+        "hole: weighted max {max_w:.4} px, unweighted max {max_u:.3} px, rmse {:.4}% of range",
+        100.0 * rmse_w / range
+    );
+    assert!(max_w <= 0.05, "weighted: max error in the hole {max_w} px");
+    assert!(
+        max_u > 20.0 * max_w,
+        "the garbage must matter without weights: {max_u} vs {max_w}"
+    );
+    // The other methods fill the same way.
+    for m in [
+        &Dct::default() as &dyn Integrator,
+        &Fft::default(),
+        &Paths::default(),
+    ] {
+        let full = full_mask();
+        let d = m
+            .integrate(
+                &IntegrationProblem {
+                    weights: Some(&weights),
+                    ..IntegrationProblem::new(W, H, &p, &q, &full)
+                },
+                &Silent,
+            )
+            .unwrap();
+        let (rmse, range) = rmse_and_range(&d.values, &z, &full);
+        assert!(
+            rmse <= 0.005 * range,
+            "{}: rmse {rmse} range {range}",
+            m.name()
+        );
+    }
+}
+
+#[test]
+fn a_prior_pulls_the_level_and_dct_matches_poisson_with_it() {
+    let (p, q, z) = gradients(plane);
+    let mask = full_mask();
+    let prior: Vec<f32> = z.iter().map(|&v| v as f32).collect();
+    let problem = IntegrationProblem {
+        prior: Some(Prior {
+            depth: &prior,
+            lambda: 1e-3,
+        }),
+        ..IntegrationProblem::new(W, H, &p, &q, &mask)
+    };
+    for m in [&Poisson::default() as &dyn Integrator, &Dct::default()] {
+        let d = m.integrate(&problem, &Silent).unwrap();
+        let max = d
+            .values
+            .iter()
+            .zip(&z)
+            .map(|(a, b)| (*a as f64 - b).abs())
+            .fold(0f64, f64::max);
+        assert!(
+            max < 1e-2,
+            "{}: max error with an exact prior {max}",
+            m.name()
+        );
+    }
+    assert!(Fft::default().integrate(&problem, &Silent).is_err());
+    assert!(Paths::default().integrate(&problem, &Silent).is_err());
+}
+
+#[test]
+fn bad_normals_are_masked_out_and_counted_and_shapes_are_checked() {
+    let (p, q, z) = gradients(sphere_cap);
+    let mut normals: Vec<[f32; 3]> = p
+        .iter()
+        .zip(&q)
+        .map(|(&p, &q)| {
+            let n = (p * p + q * q + 1.0).sqrt();
+            [-p / n, q / n, 1.0 / n]
+        })
+        .collect();
+    normals[5 * W + 5] = [f32::NAN, 0.0, 1.0];
+    normals[6 * W + 7] = [0.0, 0.0, 0.0];
+    normals[7 * W + 9] = [0.6, 0.0, -0.8];
+    normals[8 * W + 11] = [0.999_999, 0.0, 1e-6];
+    let mask = full_mask();
+    let g = gradients_from_normals(W, H, &normals, Some(&mask), 20.0).unwrap();
+    assert_eq!(
+        (g.rejected_invalid, g.rejected_backfacing, g.capped),
+        (2, 1, 1)
+    );
+    assert_eq!(g.p[8 * W + 11], -20.0);
+    let d = integrate_normals(W, H, &normals, Some(&mask), None, IntegratorKind::Poisson).unwrap();
+    for i in [5 * W + 5, 6 * W + 7, 7 * W + 9] {
+        assert!(d.values[i].is_nan());
+    }
+    let (rmse, range) = rmse_and_range(&d.values, &z, &g.mask);
+    assert!(rmse <= 0.005 * range, "rmse {rmse} range {range}");
+    // Default mask: the non-zero normals.
+    let g2 = gradients_from_normals(W, H, &normals, None, 20.0).unwrap();
+    assert!(!g2.mask[6 * W + 7] && g2.rejected_invalid == 1);
+    // Shapes.
+    let e = gradients_from_normals(W, H + 1, &normals, None, 20.0)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("expected"), "{e}");
+    let short = vec![0f32; 10];
+    let e = Poisson::default()
+        .integrate(&IntegrationProblem::new(W, H, &short, &q, &mask), &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("p has 10 values"), "{e}");
+    assert!("nope".parse::<IntegratorKind>().is_err());
+    assert_eq!(
+        "fft".parse::<IntegratorKind>().unwrap(),
+        IntegratorKind::Fft
+    );
+}
+
+#[test]
+fn curl_vanishes_on_integrable_fields_and_flags_a_rotational_one() {
+    let (p, q, _) = gradients(peaks);
+    let mask = full_mask();
+    let (map, mean) = curl_map(W, H, &p, &q, &mask);
+    assert!(mean < 0.05, "mean |curl| of an integrable field {mean}");
+    assert!(map[(H - 1) * W].is_nan() && map[W - 1].is_nan());
+    // p = −row, q = col: curl = −1 − 1 = −2 everywhere.
+    let p2: Vec<f32> = (0..W * H).map(|i| -((i / W) as f32)).collect();
+    let q2: Vec<f32> = (0..W * H).map(|i| (i % W) as f32).collect();
+    let (map2, mean2) = curl_map(W, H, &p2, &q2, &mask);
+    assert!((mean2 - 2.0).abs() < 1e-9 && map2[0] == -2.0);
+}
+
+fn diligent(object: &str) -> (usize, usize, Vec<[f32; 3]>, Vec<bool>) {
+    let dir = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/diligent"
+    ))
+    .join(format!("{object}PNG"));
+    let gt = photostereo::groundtruth::read_normal_map(&dir.join("Normal_gt.mat")).unwrap();
+    let (h, w, mask) = photostereo::imageio::read_mask(&dir.join("mask.png")).unwrap();
+    assert_eq!((w, h), (gt.width, gt.height));
+    (w, h, gt.normals, mask)
+}
+
+/// Mean angular difference (degrees) between the ground truth and the normals re-derived from
+/// the integrated depth, over the mask pixels with a ground-truth normal.
+fn rederived_error(object: &str, kind: IntegratorKind) -> f64 {
+    let (w, h, normals, mask) = diligent(object);
+    let d = integrate_normals(w, h, &normals, Some(&mask), None, kind).unwrap();
+    let valid: Vec<bool> = d.values.iter().map(|v| v.is_finite()).collect();
+    let back = normals_from_depth(w, h, &d.values, &valid);
+    let (mut s, mut n) = (0f64, 0usize);
+    for i in 0..w * h {
+        if valid[i] {
+            s += photostereo::metrics::angular_error_deg(back[i], normals[i]);
+            n += 1;
+        }
+    }
+    s / n as f64
+}
+
+#[test]
+fn diligent_ball_normals_survive_integration_within_one_degree() {
+    let e = rederived_error("ball", IntegratorKind::Poisson);
+    println!("ball: {e:.3}°");
+    assert!(e <= 1.0, "ball: mean difference {e:.3}°");
+}
+
+/// Prints the figures of `docs/integration.md` for ball, cat and bear (no assertion on cat and
+/// bear: their ground truth is not integrable). `cargo test --release -- --ignored --nocapture`.
+#[test]
+#[ignore]
+fn print_diligent_integration_figures() {
+    for object in ["ball", "cat", "bear"] {
+        for kind in [IntegratorKind::Poisson, IntegratorKind::Paths] {
+            println!(
+                "{object} {}: {:.2}°",
+                kind.name(),
+                rederived_error(object, kind)
+            );
+        }
+    }
+}
