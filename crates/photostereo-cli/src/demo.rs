@@ -51,7 +51,13 @@ pub fn main(a: DemoArgs) -> Result<()> {
             error_map: true,
             ..RunOptions::default()
         };
-        let mut rec = reconstruct(&capture, &options, &Silent, &mut report)?;
+        let mut rec = reconstruct(
+            &capture,
+            &options,
+            Some(&scene.normals),
+            &Silent,
+            &mut report,
+        )?;
         let (map, stats) = evaluate(&rec.normals, &scene.normals, Some(&scene.mask))?;
         rec.error_map = Some(map.clone());
         rec.report.error = Some(stats.clone());

@@ -22,8 +22,8 @@ pub struct RunArgs {
     /// Mask image (non-zero = object); overrides the layout's own mask.
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Estimation method.
-    #[arg(long, default_value = "l2", value_parser = parse_method)]
+    /// Estimation method: recursive, l2, coleman-jain, barsky-petrou.
+    #[arg(long, default_value = "recursive", value_parser = parse_method)]
     pub method: Method,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG) to score against.
     #[arg(long)]
@@ -47,6 +47,19 @@ pub struct RunArgs {
     /// Skip the non-Lambertian detector and its maps (residual.npy, unreliable*.png, light_status.npy).
     #[arg(long)]
     pub no_detect: bool,
+    /// Recursive method: iteration limit.
+    #[arg(long, default_value_t = 5)]
+    pub max_iterations: usize,
+    /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
+    #[arg(long, default_value_t = 0.002)]
+    pub change_tolerance: f64,
+    /// Recursive method: integration weight of unreliable pixels (0 = fill them from neighbours).
+    #[arg(long, default_value_t = 0.1)]
+    pub unreliable_weight: f32,
+    /// Recursive method: completion of pixels with fewer than three usable lights: `brightest`
+    /// (the paper's choice) or `neighbours` (the normal of the integrated surface).
+    #[arg(long, default_value = "brightest", value_parser = parse_fallback)]
+    pub fallback: photostereo::recursive::Fallback,
     /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
     #[arg(long)]
     pub no_depth: bool,
@@ -65,6 +78,10 @@ fn parse_subset(s: &str) -> Result<LightSubset, String> {
 }
 
 fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
+}
+
+fn parse_fallback(s: &str) -> Result<photostereo::recursive::Fallback, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
@@ -139,6 +156,13 @@ pub fn main(a: RunArgs) -> Result<()> {
         },
         light_subset: a.light_subset.clone(),
         integration: (!a.no_depth).then_some(a.integrator),
+        recursive: photostereo::recursive::RecursiveParams {
+            max_iterations: a.max_iterations,
+            change_tolerance: a.change_tolerance,
+            unreliable_weight: a.unreliable_weight,
+            fallback: a.fallback,
+            ..Default::default()
+        },
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;

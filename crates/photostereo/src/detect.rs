@@ -635,7 +635,11 @@ pub struct Attributor<'a> {
 impl<'a> Attributor<'a> {
     /// For a capture, with the detector's parameters and noise model.
     pub fn new(capture: &Capture, params: &'a DetectionParams, noise: NoiseModel) -> Result<Self> {
-        Ok(Attributor { test: Test::new(capture, params)?, params, noise })
+        Ok(Attributor {
+            test: Test::new(capture, params)?,
+            params,
+            noise,
+        })
     }
 
     /// Per-thread scratch space for [`Attributor::run`].
@@ -646,16 +650,29 @@ impl<'a> Attributor<'a> {
     /// Attribution at a pixel with grey intensities `grey` (one per light), starting from the
     /// lights whose `status` is USED (others keep their status). Updates `status` and returns
     /// (χ² statistic of the final set, or NaN if fewer than three lights remain; kept count).
-    pub fn run(&self, grey: &[f64], status: &mut [u8], scratch: &mut AttributionScratch) -> (f64, usize) {
+    pub fn run(
+        &self,
+        grey: &[f64],
+        status: &mut [u8],
+        scratch: &mut AttributionScratch,
+    ) -> (f64, usize) {
         let s = &mut scratch.0;
         s.grey.copy_from_slice(grey);
         for (w, &st) in s.weight.iter_mut().zip(status.iter()) {
-            *w = if st == crate::estimate::status::USED { 1.0 } else { 0.0 };
+            *w = if st == crate::estimate::status::USED {
+                1.0
+            } else {
+                0.0
+            };
         }
         let (_, rss, count) = attribute_from(&self.test, self.params, &self.noise, s, status);
         let n = grey.len();
         let level = grey.iter().sum::<f64>() / n as f64;
-        let stat = if count > 3 { rss / self.noise.variance(level) } else { f64::NAN };
+        let stat = if count > 3 {
+            rss / self.noise.variance(level)
+        } else {
+            f64::NAN
+        };
         (stat, count)
     }
 

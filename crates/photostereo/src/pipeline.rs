@@ -15,9 +15,11 @@ use crate::imageio::write_png8;
 use crate::integrate::{surface_from_normals, IntegratorKind, Surface, DEFAULT_MAX_SLOPE};
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::Progress;
+use crate::recursive::{Recursive, RecursiveParams};
 use crate::report::{InputSummary, Report};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
+use std::sync::Arc;
 use std::time::Instant;
 
 /// The estimation methods `run` offers.
@@ -29,11 +31,19 @@ pub enum Method {
     ColemanJain,
     /// Barsky & Petrou: the eq. 5 test and one faulty light dropped (iterated for N > 4).
     BarskyPetrou,
+    /// Recursive photometric stereo (Argyriou & Petrou): shadows from the reconstructed surface,
+    /// highlights from what the shadows do not explain, repeated.
+    Recursive,
 }
 
 impl Method {
     /// Every method, in the order tables list them.
-    pub const ALL: &'static [Method] = &[Method::L2, Method::ColemanJain, Method::BarskyPetrou];
+    pub const ALL: &'static [Method] = &[
+        Method::L2,
+        Method::ColemanJain,
+        Method::BarskyPetrou,
+        Method::Recursive,
+    ];
 
     /// The name accepted by `--method`.
     pub fn name(self) -> &'static str {
@@ -41,12 +51,22 @@ impl Method {
             Method::L2 => "l2",
             Method::ColemanJain => "coleman-jain",
             Method::BarskyPetrou => "barsky-petrou",
+            Method::Recursive => "recursive",
         }
     }
 
     /// The estimator implementing the method, with the detector's parameters where it uses them.
-    pub fn estimator(self, detection: &DetectionParams) -> Box<dyn Estimator> {
+    /// `truth` (full-frame normals) only feeds the recursive method's per-iteration figures.
+    pub fn estimator(self, options: &RunOptions, truth: Option<&[[f32; 3]]>) -> Box<dyn Estimator> {
+        let detection = &options.detection;
         match self {
+            Method::Recursive => Box::new(Recursive {
+                params: RecursiveParams {
+                    detection: detection.clone(),
+                    ..options.recursive.clone()
+                },
+                truth: truth.map(|t| Arc::new(t.to_vec())),
+            }),
             Method::L2 => Box::new(LeastSquares),
             Method::ColemanJain => Box::new(ColemanJain {
                 params: detection.clone(),
@@ -148,6 +168,8 @@ pub struct RunOptions {
     pub light_subset: Option<LightSubset>,
     /// Integrate the normals into depth and meshes with this method (`None`: skip).
     pub integration: Option<IntegratorKind>,
+    /// Parameters of the recursive method (its detector's come from `detection`).
+    pub recursive: RecursiveParams,
 }
 
 impl Default for RunOptions {
@@ -161,6 +183,7 @@ impl Default for RunOptions {
             detection: DetectionParams::default(),
             light_subset: None,
             integration: Some(IntegratorKind::default()),
+            recursive: RecursiveParams::default(),
         }
     }
 }
@@ -184,6 +207,10 @@ pub struct Reconstruction {
     pub detection: Option<DetectionMaps>,
     /// Depth, curl and integration figures, when integration ran.
     pub surface: Option<Surface>,
+    /// Per-pixel integration weights (full frame): low where the estimate is unreliable.
+    pub integration_weights: Option<Vec<f32>>,
+    /// The recursive method's shadow, highlight and fewer-than-three maps.
+    pub recursive: Option<Box<crate::recursive::RecursiveDiagnostics>>,
     pub report: Report,
 }
 
@@ -227,6 +254,7 @@ impl DetectionMaps {
 pub fn reconstruct(
     capture: &Capture,
     options: &RunOptions,
+    truth: Option<&[[f32; 3]]>,
     progress: &dyn Progress,
     report: &mut Report,
 ) -> Result<Reconstruction> {
@@ -244,8 +272,14 @@ pub fn reconstruct(
     };
     report.notes.extend(capture.notes.iter().cloned());
     let t = Instant::now();
+    if method == Method::Recursive {
+        report.param(
+            "recursive",
+            serde_json::to_value(&options.recursive).unwrap_or_default(),
+        );
+    }
     let mut est: Estimate = method
-        .estimator(&options.detection)
+        .estimator(options, truth)
         .estimate(capture, progress)?;
     report.time("estimate", t);
     let can_detect = capture.n_lights() >= 4;
@@ -270,6 +304,41 @@ pub fn reconstruct(
             }),
         );
     }
+    // Integration weights: unreliable estimates count for little (ALGORITHMS.md §4).
+    let low = options.recursive.unreliable_weight;
+    let integration_weights = match (&est.recursive, &est.detection) {
+        (Some(r), _) => Some(
+            r.reliable
+                .iter()
+                .map(|&ok| if ok { 1.0 } else { low })
+                .collect(),
+        ),
+        (None, Some(d)) if method != Method::BarskyPetrou => Some(
+            capture.scatter(
+                &d.unreliable
+                    .iter()
+                    .map(|&u| if u { low } else { 1.0 })
+                    .collect::<Vec<f32>>(),
+                1,
+                0.0,
+            ),
+        ),
+        _ => None,
+    };
+    if let Some(r) = &est.recursive {
+        let few = r.fewer_than_three.iter().filter(|&&f| f).count();
+        report.extra.insert(
+            "recursive".into(),
+            serde_json::json!({
+                "iterations": r.iterations,
+                "fewer_than_three_pixels": few,
+                "fallback": r.fallback,
+            }),
+        );
+        report
+            .extra
+            .insert("fewer_than_three_pixels".into(), few.into());
+    }
     let detection = match (&est.light_status, &est.detection) {
         (Some(st), d) => Some(DetectionMaps::new(capture, st, d.as_ref())),
         (None, Some(d)) => Some(DetectionMaps::new(capture, &d.light_status, Some(d))),
@@ -285,6 +354,8 @@ pub fn reconstruct(
         error_map: None,
         detection,
         surface: None,
+        integration_weights,
+        recursive: est.recursive.take(),
         report: report.clone(),
     })
 }
@@ -350,6 +421,24 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             .collect();
         write_png8(&dir.join("unreliable_mask.png"), w, h, 1, &binary)?;
     }
+    if let Some(r) = &rec.recursive {
+        let (w, h) = (rec.width, rec.height);
+        let maps: Vec<Vec<bool>> = (0..r.shadows.lights).map(|k| r.shadows.union(k)).collect();
+        crate::shadows::shadow_montage(&maps, w, h).save(&dir.join("shadows.png"))?;
+        let bytes = |m: &[bool]| {
+            m.iter()
+                .map(|&b| if b { 255u8 } else { 0 })
+                .collect::<Vec<u8>>()
+        };
+        write_png8(&dir.join("highlight.png"), w, h, 1, &bytes(&r.highlight))?;
+        write_png8(
+            &dir.join("fewer_than_three.png"),
+            w,
+            h,
+            1,
+            &bytes(&r.fewer_than_three),
+        )?;
+    }
     if let Some(surface) = &rec.surface {
         crate::surface::write_surface(dir, surface, &rec.normals, true)?;
     }
@@ -404,7 +493,13 @@ pub fn run(
         "detection",
         serde_json::to_value(&options.detection).unwrap_or_default(),
     );
-    let mut rec = reconstruct(&capture, options, progress, &mut report)?;
+    let truth_normals = match &truth {
+        Some(t) if (t.width, t.height) == (capture.width, capture.height) => {
+            Some(t.normals.as_slice())
+        }
+        _ => None,
+    };
+    let mut rec = reconstruct(&capture, options, truth_normals, progress, &mut report)?;
     drop(capture);
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();
@@ -419,7 +514,7 @@ pub fn run(
             rec.height,
             &rec.normals,
             Some(&rec.mask),
-            None,
+            rec.integration_weights.as_deref(),
             kind.integrator().as_ref(),
             DEFAULT_MAX_SLOPE,
             progress,

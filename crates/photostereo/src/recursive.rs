@@ -22,7 +22,9 @@
 use crate::capture::Capture;
 use crate::detect::{detect, Attributor, DetectionParams};
 use crate::error::Result;
-use crate::estimate::{channel_mean, solve_subsets, status, write_normal_albedo, Estimate, Estimator, CHUNK};
+use crate::estimate::{
+    channel_mean, solve_subsets, status, write_normal_albedo, Estimate, Estimator, CHUNK,
+};
 use crate::integrate::{integrate_normals, normals_from_depth, IntegratorKind};
 use crate::metrics::angular_error_deg;
 use crate::progress::{Progress, Silent};
@@ -48,7 +50,9 @@ impl FromStr for Fallback {
         match s {
             "brightest" => Ok(Fallback::BrightestLights),
             "neighbours" | "neighbors" => Ok(Fallback::Neighbours),
-            _ => Err(crate::Error::invalid(format!("unknown fallback '{s}': expected brightest or neighbours"))),
+            _ => Err(crate::Error::invalid(format!(
+                "unknown fallback '{s}': expected brightest or neighbours"
+            ))),
         }
     }
 }
@@ -78,7 +82,10 @@ pub struct RecursiveParams {
     pub fallback: Fallback,
 }
 
-fn serialize_kind<S: serde::Serializer>(k: &IntegratorKind, s: S) -> std::result::Result<S::Ok, S::Error> {
+fn serialize_kind<S: serde::Serializer>(
+    k: &IntegratorKind,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
     s.serialize_str(k.name())
 }
 
@@ -126,6 +133,8 @@ pub struct RecursiveDiagnostics {
     pub fewer_than_three: Vec<bool>,
     /// The last surface, full frame, NaN outside the mask.
     pub depth: Vec<f32>,
+    /// Pixels whose usable lights pass the χ² test (or were never unreliable), full frame.
+    pub reliable: Vec<bool>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,
 }
@@ -144,7 +153,13 @@ impl Estimator for Recursive {
     }
 
     fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
-        recursive(capture, &self.params, self.truth.as_deref().map(|v| v.as_slice()), progress, &mut |_| {})
+        recursive(
+            capture,
+            &self.params,
+            self.truth.as_deref().map(|v| v.as_slice()),
+            progress,
+            &mut |_| {},
+        )
     }
 }
 
@@ -179,7 +194,8 @@ pub fn recursive(
     let mut last_maps = None;
     let mut last_depth = Vec::new();
     let mut highlight = vec![false; np];
-    let truth_masked: Option<Vec<[f32; 3]>> = truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
+    let truth_masked: Option<Vec<[f32; 3]>> =
+        truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
     progress.begin("recursive", params.max_iterations as u64);
     for iteration in 1..=params.max_iterations {
         let start = Instant::now();
@@ -199,14 +215,35 @@ pub fn recursive(
                 params.unreliable_weight
             };
         }
-        let depth = integrate_normals(w, h, &normals_full, Some(&capture.mask), Some(&weights), params.integrator)?;
+        let depth = integrate_normals(
+            w,
+            h,
+            &normals_full,
+            Some(&capture.mask),
+            Some(&weights),
+            params.integrator,
+        )?;
         let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
         // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
         let shading: Vec<[f32; 3]> = (0..w * h)
-            .map(|i| if weights[i] >= 1.0 { normals_full[i] } else { surface_normals[i] })
+            .map(|i| {
+                if weights[i] >= 1.0 {
+                    normals_full[i]
+                } else {
+                    surface_normals[i]
+                }
+            })
             .collect();
         // 3. Shadows of every light.
-        let maps = shadow_maps(&depth.values, &shading, &capture.mask, w, h, &capture.lights.directions, &params.shadows)?;
+        let maps = shadow_maps(
+            &depth.values,
+            &shading,
+            &capture.mask,
+            w,
+            h,
+            &capture.lights.directions,
+            &params.shadows,
+        )?;
         // 4–5. Usable lights.
         let mut new_status = vec![status::USED; np * n];
         let mut new_consistent = vec![false; np];
@@ -268,13 +305,24 @@ pub fn recursive(
                 if nrm != [0.0; 3] {
                     let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
                     let mut out_n = [0f32; 3];
-                    let used: Vec<bool> = light_status[p * n..(p + 1) * n].iter().map(|&s| s == status::USED).collect();
-                    write_normal_albedo(capture, capture.pixel_samples(p), &m, Some(&used), &mut out_n, &mut est.albedo[p * c..(p + 1) * c]);
+                    let used: Vec<bool> = light_status[p * n..(p + 1) * n]
+                        .iter()
+                        .map(|&s| s == status::USED)
+                        .collect();
+                    write_normal_albedo(
+                        capture,
+                        capture.pixel_samples(p),
+                        &m,
+                        Some(&used),
+                        &mut out_n,
+                        &mut est.albedo[p * c..(p + 1) * c],
+                    );
                     est.normals[p] = nrm;
                 }
             }
         }
-        let shadowed_share = maps.flags.iter().filter(|&&f| f != 0).count() as f64 / (n * np).max(1) as f64;
+        let shadowed_share =
+            maps.flags.iter().filter(|&&f| f != 0).count() as f64 / (n * np).max(1) as f64;
         let record = IterationRecord {
             iteration,
             changed_pixels,
@@ -301,6 +349,7 @@ pub fn recursive(
         highlight: capture.scatter(&highlight, 1, false),
         fewer_than_three: capture.scatter(&few, 1, false),
         depth: last_depth,
+        reliable: capture.scatter(&consistent, 1, false),
         iterations: records,
         fallback: params.fallback,
     };
@@ -335,7 +384,11 @@ fn mean_error(normals: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
     let (mut sum, mut count) = (0.0, 0usize);
     for (a, t) in normals.iter().zip(truth) {
         if *t != [0.0; 3] {
-            let e = if *a == [0.0; 3] { 90.0 } else { angular_error_deg(*a, *t) };
+            let e = if *a == [0.0; 3] {
+                90.0
+            } else {
+                angular_error_deg(*a, *t)
+            };
             sum += e;
             count += 1;
         }
