@@ -7,6 +7,7 @@ mod common;
 mod demo;
 mod eval;
 mod run;
+mod synth;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -27,6 +28,8 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),
+    /// Render a built-in scene under a light rig, with ground truth (DiLiGenT layout + gt/).
+    Synth(synth::SynthArgs),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +38,7 @@ fn main() -> ExitCode {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
         Command::Demo(a) => demo::main(a),
+        Command::Synth(a) => synth::main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
