@@ -16,9 +16,10 @@ pub const BLINN_PHONG_KS: f64 = 0.6;
 /// Blinn–Phong exponent: the lobe `(n·h)^100` falls to 2% of full scale at 15° from h.
 pub const BLINN_PHONG_EXPONENT: f64 = 100.0;
 /// Torrance–Sparrow specular coefficient.
-pub const TORRANCE_SPARROW_KS: f64 = 0.25;
-/// Beckmann RMS slope m of the micro-facets.
-pub const BECKMANN_ROUGHNESS: f64 = 0.2;
+pub const TORRANCE_SPARROW_KS: f64 = 0.15;
+/// Beckmann RMS slope m of the micro-facets: with k_s = 0.15 the lobe peaks at 0.56 of full
+/// scale and falls to 2% at about 15° from h, like the Blinn–Phong lobe.
+pub const BECKMANN_ROUGHNESS: f64 = 0.15;
 /// Schlick reflectance at normal incidence; Fresnel is normalised to 1 at normal incidence.
 pub const FRESNEL_F0: f64 = 0.04;
 
