@@ -1,20 +1,29 @@
-//! `photostereo demo`: built-in scenes, every method, a table of errors, figures on disk.
+//! `photostereo demo`: the six built-in scenes under the paper's four-light rig, every method,
+//! a table of mean angular errors shaped like the paper's Table 1, and outputs plus one figure
+//! per scene on disk.
 
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use photostereo::export::{write_json, OutputFolder};
-use photostereo::figure::{grey_picture, heat_map, normals_picture, Canvas};
-use photostereo::metrics::evaluate;
+use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
+use photostereo::imageio::Image;
+use photostereo::metrics::{evaluate, ErrorStats};
 use photostereo::pipeline::{reconstruct, write_reconstruction, Method, RunOptions};
 use photostereo::progress::Silent;
 use photostereo::report::Report;
-use photostereo::scene::{lambert_capture, ring_lights, sphere_on_plane};
+use photostereo::scene::{synthesize, write_capture, Brdf, Rig, SceneKind, SynthSpec};
 use std::path::PathBuf;
 use std::time::Instant;
 
 /// Marker file that identifies a folder written by `demo` (so re-running replaces it).
 const MARKER: &str = ".photostereo-demo";
+/// The demo's fixed noise seed.
+const DEMO_SEED: u64 = 2007;
+/// The demo's noise σ, fraction of full scale.
+const DEMO_NOISE: f64 = 0.005;
+/// Upper end of the error maps' colour scale, degrees.
+const ERROR_SCALE_DEG: f32 = 30.0;
 
 #[derive(Args, Debug)]
 pub struct DemoArgs {
@@ -22,10 +31,16 @@ pub struct DemoArgs {
     #[arg(short, long, default_value = "photostereo-demo")]
     pub output: PathBuf,
     /// Scene size in pixels.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 128)]
     pub size: usize,
     #[command(flatten)]
     pub out: OutputOpts,
+}
+
+struct Row {
+    scene: &'static str,
+    method: &'static str,
+    stats: ErrorStats,
 }
 
 pub fn main(a: DemoArgs) -> Result<()> {
@@ -36,86 +51,183 @@ pub fn main(a: DemoArgs) -> Result<()> {
     let folder = OutputFolder::create(&a.output, a.out.force || ours)?;
     std::fs::write(folder.file(MARKER), "written by photostereo demo\n")?;
     let start = Instant::now();
-    let scene = sphere_on_plane(a.size);
-    let lights = ring_lights(8, 40.0);
-    let (capture, _shadows) = lambert_capture(&scene, &lights)?;
-    let mut rows = Vec::new();
-    let mut panels = vec![
-        grey_picture(&mean_image(&capture), scene.width, scene.height),
-        normals_picture(&scene.normals, scene.width, scene.height),
-    ];
-    for &method in Method::ALL {
-        let mut report = Report::new(method.name());
-        let options = RunOptions {
-            method,
-            error_map: true,
-            ..RunOptions::default()
-        };
-        let mut rec = reconstruct(
-            &capture,
-            &options,
-            Some(&scene.normals),
-            &Silent,
-            &mut report,
-        )?;
-        let (map, stats) = evaluate(&rec.normals, &scene.normals, Some(&scene.mask))?;
-        rec.error_map = Some(map.clone());
-        rec.report.error = Some(stats.clone());
-        let dir = folder.path().join(&scene.name).join(method.name());
-        std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
-        let options = RunOptions {
-            method,
-            error_map: true,
-            ..RunOptions::default()
-        };
-        write_reconstruction(&rec, &dir, &options)?;
-        write_json(&dir.join("report.json"), &rec.report)?;
-        panels.push(normals_picture(&rec.normals, scene.width, scene.height));
-        panels.push(heat_map(&map, scene.width, scene.height, 30.0, "°"));
-        rows.push((scene.name.clone(), method.name(), stats));
+    let rig = Rig::Square4;
+    let mut rows: Vec<Row> = Vec::new();
+    let mut scene_stats = Vec::new();
+    for &kind in SceneKind::ALL {
+        let mut spec = SynthSpec::new(kind, rig.clone());
+        spec.size = a.size;
+        spec.render.brdf = Brdf::BlinnPhong;
+        spec.render.noise_sigma = DEMO_NOISE;
+        spec.render.seed = DEMO_SEED;
+        let rendered = synthesize(&spec)?;
+        let scene_dir = folder.path().join(kind.name());
+        let capture_dir = scene_dir.join("capture");
+        std::fs::create_dir_all(&capture_dir).with_context(|| capture_dir.display().to_string())?;
+        write_capture(&capture_dir, &rendered, Some(&spec))?;
+        let capture = rendered.capture()?;
+        let truth = &rendered.truth;
+        let (w, h) = (truth.width, truth.height);
+        let mut figure_rows: Vec<(String, Vec<Canvas>)> = Vec::new();
+        let mut inputs: Vec<Canvas> = rendered.images.iter().map(rgb_picture).collect();
+        inputs.push(normals_picture(&truth.normals, w, h));
+        figure_rows.push(("inputs / truth".into(), inputs));
+        for &method in Method::ALL {
+            let mut report = Report::new(method.name());
+            let options = RunOptions {
+                method,
+                error_map: true,
+                error_map_max_deg: ERROR_SCALE_DEG,
+                ..RunOptions::default()
+            };
+            let mut rec = reconstruct(
+                &capture,
+                &options,
+                Some(&truth.normals),
+                &Silent,
+                &mut report,
+            )?;
+            let (map, stats) = evaluate(&rec.normals, &truth.normals, Some(&truth.mask))?;
+            rec.error_map = Some(map.clone());
+            rec.report.error = Some(stats.clone());
+            let dir = scene_dir.join(method.name());
+            std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+            write_reconstruction(&rec, &dir, &options)?;
+            write_json(&dir.join("report.json"), &rec.report)?;
+            figure_rows.push((
+                format!("{}  mae {:.2}", method.name(), stats.mean_deg),
+                vec![
+                    normals_picture(&rec.normals, w, h),
+                    heat_map(&map, w, h, ERROR_SCALE_DEG, "°"),
+                ],
+            ));
+            rows.push(Row {
+                scene: kind.name(),
+                method: method.name(),
+                stats,
+            });
+        }
+        figure(kind.name(), &figure_rows)
+            .save(&folder.path().join(format!("{}.png", kind.name())))?;
+        scene_stats.push((kind.name(), rendered.stats.clone()));
     }
-    montage(&panels).save(&folder.path().join(format!("{}.png", scene.name)))?;
     let elapsed = start.elapsed().as_secs_f64();
     let target = folder.commit()?;
     if a.out.json {
         let v: Vec<_> = rows
             .iter()
-            .map(|(s, m, e)| serde_json::json!({"scene": s, "method": m, "error": e}))
+            .map(|r| {
+                serde_json::json!({"scene": r.scene, "rig": rig.name(), "method": r.method, "error": r.stats})
+            })
             .collect();
-        print_json(
-            &serde_json::json!({"output": target.display().to_string(), "results": v, "seconds": elapsed}),
-        );
+        let s: Vec<_> = scene_stats
+            .iter()
+            .map(|(name, st)| serde_json::json!({"scene": name, "rig": rig.name(), "stats": st}))
+            .collect();
+        print_json(&serde_json::json!({
+            "output": target.display().to_string(),
+            "results": v,
+            "scenes": s,
+            "seconds": elapsed,
+        }));
     } else if a.out.text() {
-        println!("Lambertian sphere on a plane, {}×{}, 8 lights at slant 40° (mean angular error, degrees)", a.size, a.size);
-        println!("{:<18} {:>8} {:>8}", "scene", "method", "MAE");
-        for (s, m, e) in &rows {
-            println!("{:<18} {:>8} {:>8.2}", s, m, e.mean_deg);
+        println!(
+            "Mean angular error (degrees): six scenes {}×{} under square4 (4 lights, slant 35°), Blinn–Phong, noise σ {}%",
+            a.size,
+            a.size,
+            DEMO_NOISE * 100.0
+        );
+        print!("{:<10}", "method");
+        for (name, _) in &scene_stats {
+            print!(" {:>9}", name);
+        }
+        println!(" {:>9}", "mean");
+        for &method in Method::ALL {
+            print!("{:<10}", method.name());
+            let errs: Vec<f64> = rows
+                .iter()
+                .filter(|r| r.method == method.name())
+                .map(|r| r.stats.mean_deg)
+                .collect();
+            for e in &errs {
+                print!(" {:>9.2}", e);
+            }
+            println!(
+                " {:>9.2}",
+                errs.iter().sum::<f64>() / errs.len().max(1) as f64
+            );
+        }
+        for (label, pick) in [("shadow %", 0usize), ("cast %", 1), ("highlt %", 2)] {
+            print!("{:<10}", label);
+            for (_, st) in &scene_stats {
+                let v = match pick {
+                    0 => st.shadow_fraction,
+                    1 => st.cast_shadow_fraction,
+                    _ => st.highlight_fraction,
+                };
+                print!(" {:>9.1}", 100.0 * v);
+            }
+            println!();
         }
         println!("wrote {} in {:.2} s", target.display(), elapsed);
     }
     Ok(())
 }
 
-/// Mean over lights and channels of a capture's images, for display (scaled to its maximum).
-fn mean_image(capture: &photostereo::Capture) -> Vec<f32> {
-    let n = capture.n_lights() * capture.channels;
-    let per: Vec<f32> = (0..capture.n_pixels())
-        .map(|p| capture.pixel_samples(p).iter().sum::<f32>() / n as f32)
-        .collect();
-    let max = per.iter().cloned().fold(1e-6, f32::max);
-    let scaled: Vec<f32> = per.iter().map(|v| v / max).collect();
-    capture.scatter(&scaled, 1, 0.0)
+/// An RGB image (values in [0, 1]) as an 8-bit picture.
+fn rgb_picture(img: &Image) -> Canvas {
+    let mut c = Canvas::new(img.width, img.height, [0, 0, 0]);
+    for row in 0..img.height {
+        for col in 0..img.width {
+            let px = if img.channels >= 3 {
+                [
+                    img.at(row, col, 0),
+                    img.at(row, col, 1),
+                    img.at(row, col, 2),
+                ]
+            } else {
+                [img.at(row, col, 0); 3]
+            };
+            c.put(
+                col,
+                row,
+                px.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
+            );
+        }
+    }
+    c
 }
 
-/// Places pictures side by side with a 4-pixel gap.
-fn montage(panels: &[Canvas]) -> Canvas {
-    let w: usize = panels.iter().map(|p| p.width + 4).sum();
-    let h = panels.iter().map(|p| p.height).max().unwrap_or(1);
-    let mut c = Canvas::new(w, h, [255, 255, 255]);
-    let mut x = 0;
-    for p in panels {
-        c.blit(p, x, 0);
-        x += p.width + 4;
+/// A figure: a title, then one labelled row of panels per entry, 4-pixel gaps.
+fn figure(title: &str, rows: &[(String, Vec<Canvas>)]) -> Canvas {
+    const GAP: usize = 4;
+    const LABEL: usize = 12;
+    let row_w = |panels: &[Canvas]| panels.iter().map(|p| p.width + GAP).sum::<usize>();
+    let width = rows
+        .iter()
+        .map(|(label, p)| row_w(p).max(text_width(label, 1) + GAP))
+        .max()
+        .unwrap_or(1)
+        .max(text_width(title, 2) + GAP)
+        + GAP;
+    let height = 2 * 7
+        + 2 * GAP
+        + rows
+            .iter()
+            .map(|(_, p)| LABEL + p.iter().map(|c| c.height).max().unwrap_or(0) + GAP)
+            .sum::<usize>();
+    let mut c = Canvas::new(width, height, [255, 255, 255]);
+    c.text(GAP, GAP, title, 2, [0, 0, 0]);
+    let mut y = 2 * 7 + 2 * GAP;
+    for (label, panels) in rows {
+        c.text(GAP, y + 2, label, 1, [0, 0, 0]);
+        y += LABEL;
+        let mut x = GAP;
+        for p in panels {
+            c.blit(p, x, y);
+            x += p.width + GAP;
+        }
+        y += panels.iter().map(|p| p.height).max().unwrap_or(0) + GAP;
     }
     c
 }

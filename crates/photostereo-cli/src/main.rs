@@ -9,6 +9,7 @@ mod demo;
 mod eval;
 mod integrate;
 mod run;
+mod synth;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -33,6 +34,8 @@ enum Command {
     Integrate(integrate::IntegrateArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),
+    /// Render a built-in scene under a light rig, with ground truth (DiLiGenT layout + gt/).
+    Synth(synth::SynthArgs),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +46,7 @@ fn main() -> ExitCode {
         Command::Demo(a) => demo::main(a),
         Command::Calibrate(a) => calibrate::main(a),
         Command::Integrate(a) => integrate::main(a),
+        Command::Synth(a) => synth::main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

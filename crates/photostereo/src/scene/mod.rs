@@ -1,11 +1,38 @@
-//! Built-in scenes with exact ground truth: height fields in pixel units (z toward the camera),
-//! their analytic normals, and Lambertian renderings with attached and cast shadows.
+//! Ground-truth scenes: height fields in pixel units (z toward the camera) with analytic
+//! normals, rendered under distant lights with Lambertian, Blinn–Phong or Torrance–Sparrow
+//! reflectance, attached and cast shadows, sensor noise, clipping at white and 16-bit
+//! quantisation; with per-light ground-truth shadow and highlight masks.
 //!
-//! Cast shadows here come from a fine ray march against the height field, independent of any
-//! horizon sweep an estimator may use, so that errors cannot cancel.
+//! - [`surfaces`]: the built-in surfaces ([`SceneKind`]) and masks ([`MaskShape`]).
+//! - [`rigs`]: light rigs ([`Rig`]: `square4`, `ring8`, `dome-N`, light files).
+//! - [`reflectance`]: the reflectance models ([`Brdf`]).
+//! - [`shadows`]: cast shadows by a fine ray march against the height field, independent of any
+//!   horizon sweep an estimator may use, so that errors cannot cancel.
+//! - [`render`]: rendering to images and ground truth in memory ([`synthesize`], [`render`]) and
+//!   writing the DiLiGenT layout plus `gt/` ([`write_capture`], [`synth_to_folder`]).
+//!
+//! Frame (CONVENTIONS.md): x right, y up (opposite to the row index), z toward the camera; a
+//! height field f has ∂f/∂col = −n_x/n_z and ∂f/∂row = +n_y/n_z. Light directions point from
+//! the surface toward the light.
+
+pub mod reflectance;
+pub mod render;
+pub mod rigs;
+pub mod rng;
+pub mod shadows;
+pub mod surfaces;
+
+pub use reflectance::Brdf;
+pub use render::{
+    render, synth_to_folder, synthesize, write_capture, CaptureStats, GroundTruth,
+    LightIntensities, RenderOptions, Rendered, SynthSpec,
+};
+pub use rigs::Rig;
+pub use shadows::{cast_shadows, ray_march_shadows};
+pub use surfaces::{MaskShape, SceneKind};
 
 use crate::capture::Capture;
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::imageio::Image;
 use crate::lights::Lights;
 use rayon::prelude::*;
@@ -16,7 +43,7 @@ pub struct Scene {
     pub name: String,
     pub width: usize,
     pub height: usize,
-    /// Height toward the camera per pixel, pixel units, row-major.
+    /// Height toward the camera per pixel, pixel units, row-major (defined on the whole frame).
     pub depth: Vec<f32>,
     /// Unit normals, camera frame, row-major.
     pub normals: Vec<[f32; 3]>,
@@ -26,7 +53,137 @@ pub struct Scene {
     pub mask: Vec<bool>,
 }
 
-/// A sphere of radius 0.3·size resting on a plane: the demo's first scene.
+impl Scene {
+    /// Samples a height field at the pixel centres. `surface(col, row)` returns the height in
+    /// pixel units and its exact derivatives `[h, ∂h/∂col, ∂h/∂row]`; the normal is
+    /// (−∂h/∂col, +∂h/∂row, 1) normalised. `albedo(col, row)` gives RGB, `inside(col, row)` the
+    /// mask. Rows are computed in parallel.
+    pub fn from_height_fn(
+        name: &str,
+        width: usize,
+        height: usize,
+        surface: impl Fn(f64, f64) -> [f64; 3] + Sync,
+        albedo: impl Fn(f64, f64) -> [f64; 3] + Sync,
+        inside: impl Fn(f64, f64) -> bool + Sync,
+    ) -> Result<Scene> {
+        if width == 0 || height == 0 {
+            return Err(Error::invalid(format!(
+                "scene size {width}×{height}: expected at least one pixel"
+            )));
+        }
+        let rows: Vec<Vec<(f32, [f32; 3], [f32; 3], bool)>> = (0..height)
+            .into_par_iter()
+            .map(|row| {
+                (0..width)
+                    .map(|col| {
+                        let (c, r) = (col as f64, row as f64);
+                        let [h, h_col, h_row] = surface(c, r);
+                        let n = [-h_col, h_row, 1.0];
+                        let norm = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
+                        let a = albedo(c, r);
+                        (
+                            h as f32,
+                            [
+                                (n[0] / norm) as f32,
+                                (n[1] / norm) as f32,
+                                (1.0 / norm) as f32,
+                            ],
+                            [a[0] as f32, a[1] as f32, a[2] as f32],
+                            inside(c, r),
+                        )
+                    })
+                    .collect()
+            })
+            .collect();
+        let n = width * height;
+        let mut scene = Scene {
+            name: name.to_string(),
+            width,
+            height,
+            depth: Vec::with_capacity(n),
+            normals: Vec::with_capacity(n),
+            albedo: Vec::with_capacity(n),
+            mask: Vec::with_capacity(n),
+        };
+        for (h, nrm, a, m) in rows.into_iter().flatten() {
+            scene.depth.push(h);
+            scene.normals.push(nrm);
+            scene.albedo.push(a);
+            scene.mask.push(m);
+        }
+        if !scene.mask.iter().any(|&m| m) {
+            return Err(Error::invalid(format!("scene '{name}': the mask is empty")));
+        }
+        Ok(scene)
+    }
+
+    /// A built-in scene of `size`×`size` pixels with its default mask unless `mask` is given;
+    /// `textured` modulates the albedo with a smooth colour texture.
+    pub fn builtin(
+        kind: SceneKind,
+        size: usize,
+        mask: Option<MaskShape>,
+        textured: bool,
+    ) -> Result<Scene> {
+        if !(8..=8192).contains(&size) {
+            return Err(Error::invalid(format!(
+                "scene size {size}: expected 8..=8192 pixels"
+            )));
+        }
+        let mask = mask.unwrap_or(kind.default_mask());
+        let frame = Frame::new(size);
+        Scene::from_height_fn(
+            kind.name(),
+            size,
+            size,
+            |col, row| frame.height_and_gradient(kind, col, row),
+            |col, row| {
+                let (u, v) = frame.uv(col, row);
+                kind.albedo(u, v, textured)
+            },
+            |col, row| {
+                let (u, v) = frame.uv(col, row);
+                mask.contains(u, v)
+            },
+        )
+    }
+}
+
+/// The mapping between pixel coordinates and the normalised coordinates of [`surfaces`].
+#[derive(Clone, Copy, Debug)]
+pub struct Frame {
+    /// Image centre, (N − 1)/2.
+    pub centre: f64,
+    /// Half size S = N/2: pixels per normalised unit.
+    pub scale: f64,
+}
+
+impl Frame {
+    /// The frame of an N×N image.
+    pub fn new(size: usize) -> Self {
+        Frame {
+            centre: (size as f64 - 1.0) / 2.0,
+            scale: size as f64 / 2.0,
+        }
+    }
+
+    /// Normalised (u right, v up) coordinates of pixel (col, row).
+    pub fn uv(&self, col: f64, row: f64) -> (f64, f64) {
+        (
+            (col - self.centre) / self.scale,
+            (self.centre - row) / self.scale,
+        )
+    }
+
+    /// `[h, ∂h/∂col, ∂h/∂row]` of a built-in surface at pixel (col, row), pixel units.
+    pub fn height_and_gradient(&self, kind: SceneKind, col: f64, row: f64) -> [f64; 3] {
+        let (u, v) = self.uv(col, row);
+        let [g, gu, gv] = kind.surface(u, v, 1.0 / self.scale);
+        [self.scale * g, gu, -gv]
+    }
+}
+
+/// A sphere of radius 0.3·size resting on a plane (full mask, constant albedo).
 pub fn sphere_on_plane(size: usize) -> Scene {
     let r = 0.3 * size as f64;
     let c = (size as f64 - 1.0) / 2.0;
@@ -55,94 +212,16 @@ pub fn sphere_on_plane(size: usize) -> Scene {
     }
 }
 
-/// Bilinear height at fractional (row, col); `None` outside the frame or the mask.
-fn height_at(scene: &Scene, row: f64, col: f64) -> Option<f64> {
-    if row < 0.0 || col < 0.0 || row > (scene.height - 1) as f64 || col > (scene.width - 1) as f64 {
-        return None;
-    }
-    let r0 = row.floor() as usize;
-    let c0 = col.floor() as usize;
-    let r1 = (r0 + 1).min(scene.height - 1);
-    let c1 = (c0 + 1).min(scene.width - 1);
-    let fr = row - r0 as f64;
-    let fc = col - c0 as f64;
-    let idx = |r: usize, c: usize| r * scene.width + c;
-    if !(scene.mask[idx(r0, c0)]
-        && scene.mask[idx(r0, c1)]
-        && scene.mask[idx(r1, c0)]
-        && scene.mask[idx(r1, c1)])
-    {
-        return None;
-    }
-    let h = |r: usize, c: usize| scene.depth[idx(r, c)] as f64;
-    Some(
-        h(r0, c0) * (1.0 - fr) * (1.0 - fc)
-            + h(r0, c1) * (1.0 - fr) * fc
-            + h(r1, c0) * fr * (1.0 - fc)
-            + h(r1, c1) * fr * fc,
-    )
-}
-
-/// Cast-shadow flags for one light by ray marching from every pixel toward the light in steps
-/// of `step` pixels; a pixel is shadowed when the height field rises above the ray.
-pub fn ray_march_shadows(scene: &Scene, light: [f64; 3], step: f64) -> Vec<bool> {
-    let horiz = (light[0] * light[0] + light[1] * light[1]).sqrt();
-    let mut out = vec![false; scene.width * scene.height];
-    if horiz < 1e-9 {
-        return out;
-    }
-    // Per unit of horizontal travel: columns grow with x, rows shrink with y.
-    let (dc, dr, dz) = (light[0] / horiz, -light[1] / horiz, light[2] / horiz);
-    let max_h = scene
-        .depth
-        .iter()
-        .cloned()
-        .fold(f32::NEG_INFINITY, f32::max) as f64;
-    out.par_chunks_mut(scene.width)
-        .enumerate()
-        .for_each(|(row, out_row)| {
-            for (col, o) in out_row.iter_mut().enumerate() {
-                if !scene.mask[row * scene.width + col] {
-                    continue;
-                }
-                let h0 = scene.depth[row * scene.width + col] as f64;
-                let mut t = step;
-                loop {
-                    let z = h0 + 1e-4 + dz * t;
-                    if z > max_h {
-                        break;
-                    }
-                    match height_at(scene, row as f64 + dr * t, col as f64 + dc * t) {
-                        Some(h) if h > z => {
-                            *o = true;
-                            break;
-                        }
-                        Some(_) => {}
-                        None if row as f64 + dr * t < 0.0
-                            || col as f64 + dc * t < 0.0
-                            || row as f64 + dr * t > (scene.height - 1) as f64
-                            || col as f64 + dc * t > (scene.width - 1) as f64 =>
-                        {
-                            break
-                        }
-                        None => {}
-                    }
-                    t += step;
-                }
-            }
-        });
-    out
-}
-
-/// Lambertian images of the scene under `lights` (RGB, float), with attached shadows (n·l ≤ 0)
-/// and cast shadows (ray march). Returns the images and the per-light shadow flags.
+/// Noise-free Lambertian images of the scene under `lights` (RGB, float, not clipped), with
+/// attached shadows (n·l ≤ 0) and cast shadows (ray march). Returns the images and the per-light
+/// shadow flags. For the full model (specular lobes, noise, quantisation) use [`render`].
 pub fn render_lambert(scene: &Scene, lights: &Lights) -> (Vec<Image>, Vec<Vec<bool>>) {
     lights
         .directions
         .par_iter()
         .zip(&lights.intensities)
         .map(|(l, e)| {
-            let cast = ray_march_shadows(scene, *l, 0.25);
+            let cast = cast_shadows(scene, *l);
             let mut data = vec![0f32; scene.width * scene.height * 3];
             let mut shadow = vec![false; scene.width * scene.height];
             for i in 0..scene.width * scene.height {
@@ -169,7 +248,7 @@ pub fn render_lambert(scene: &Scene, lights: &Lights) -> (Vec<Image>, Vec<Vec<bo
         .unzip()
 }
 
-/// Renders the scene and builds the capture (mask = the scene's mask).
+/// Renders the scene (noise-free Lambert) and builds the capture (mask = the scene's mask).
 pub fn lambert_capture(scene: &Scene, lights: &Lights) -> Result<(Capture, Vec<Vec<bool>>)> {
     let (images, shadows) = render_lambert(scene, lights);
     let capture = Capture::from_images(&images, lights.clone(), Some(scene.mask.clone()))?;
@@ -178,14 +257,8 @@ pub fn lambert_capture(scene: &Scene, lights: &Lights) -> Result<(Capture, Vec<V
 
 /// `n` lights evenly spread in tilt at slant `slant_deg` (tilt 0 = +x, counter-clockwise).
 pub fn ring_lights(n: usize, slant_deg: f64) -> Lights {
-    let s = slant_deg.to_radians();
-    let dirs: Vec<[f64; 3]> = (0..n)
-        .map(|k| {
-            let t = 2.0 * std::f64::consts::PI * k as f64 / n as f64;
-            [s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]
-        })
-        .collect();
-    Lights::new(&dirs).expect("ring directions are unit vectors")
+    let tilts: Vec<f64> = (0..n).map(|k| 360.0 * k as f64 / n as f64).collect();
+    rigs::slant_tilt_lights(slant_deg, &tilts)
 }
 
 #[cfg(test)]

@@ -1,0 +1,498 @@
+//! Rendering a scene under a rig into 16-bit images with ground truth, in memory
+//! ([`synthesize`], [`render`]) or as a DiLiGenT-layout folder with a `gt/` subfolder
+//! ([`write_capture`], [`synth_to_folder`]).
+//!
+//! Image model, per light k, pixel p and channel c, in units of full scale:
+//! `I = E_k,c · (ρ_p,c · max(n·l, 0) + specular(n, l))`, zero where the pixel is shadowed
+//! (attached: n·l ≤ 0; cast: ray march), plus shot noise (Gaussian, variance I / full_well)
+//! and Gaussian read noise (σ), then clipped to [0, 1] and quantised to 16 bits. Pixels outside
+//! the mask are 0 (no noise). Noise comes from a PCG32 stream per (light, row), so parallel
+//! rendering is deterministic: the same seed gives the same bytes.
+//!
+//! Highlight rule (ground truth): a mask pixel is a highlight for light k when it is not shadowed
+//! and its specular contribution (mean over channels of E_k,c · specular) exceeds
+//! max(0.02, 3σ) of full scale.
+
+use super::reflectance::Brdf;
+use super::rigs::Rig;
+use super::rng::{splitmix64, Pcg32};
+use super::shadows::cast_shadows;
+use super::surfaces::{MaskShape, SceneKind};
+use super::Scene;
+use crate::capture::Capture;
+use crate::error::{Error, Result};
+use crate::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder};
+use crate::imageio::{write_png16, write_png8, Image};
+use crate::lights::Lights;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+
+/// Smallest specular contribution (fraction of full scale) that counts as a highlight.
+pub const HIGHLIGHT_MIN_FULL_SCALE: f64 = 0.02;
+/// A highlight's specular contribution must also exceed this many noise σ.
+pub const HIGHLIGHT_MIN_SIGMAS: f64 = 3.0;
+
+/// Per-light intensity patterns of the renderer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LightIntensities {
+    /// Every light (1, 1, 1).
+    Uniform,
+    /// Grey intensities in [0.7, 1.0] varying from light to light.
+    Varied,
+    /// Coloured lights: each channel in [0.65, 1.0], varying from light to light.
+    Coloured,
+}
+
+impl LightIntensities {
+    /// Every pattern, in `--list` order.
+    pub const ALL: &'static [LightIntensities] = &[
+        LightIntensities::Uniform,
+        LightIntensities::Varied,
+        LightIntensities::Coloured,
+    ];
+
+    /// The name `--intensities` accepts.
+    pub fn name(self) -> &'static str {
+        match self {
+            LightIntensities::Uniform => "uniform",
+            LightIntensities::Varied => "varied",
+            LightIntensities::Coloured => "coloured",
+        }
+    }
+
+    /// Parses a name of [`LightIntensities::ALL`].
+    pub fn parse(s: &str) -> Result<Self> {
+        Self::ALL
+            .iter()
+            .copied()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| {
+                Error::invalid(format!(
+                    "unknown light intensities '{s}': expected uniform, varied or coloured"
+                ))
+            })
+    }
+
+    /// The RGB intensity of light `k` (a fixed low-discrepancy pattern, independent of the seed).
+    pub fn of_light(self, k: usize) -> [f64; 3] {
+        let frac = |x: f64| x - x.floor();
+        let golden = 0.618_033_988_749_895;
+        match self {
+            LightIntensities::Uniform => [1.0; 3],
+            LightIntensities::Varied => [0.7 + 0.3 * frac(0.5 + golden * k as f64); 3],
+            LightIntensities::Coloured => {
+                let mut v = [0.0; 3];
+                for (c, x) in v.iter_mut().enumerate() {
+                    *x = 0.65 + 0.35 * frac(golden * (k + 1) as f64 + 0.37 * c as f64);
+                }
+                v
+            }
+        }
+    }
+}
+
+/// How images are formed from a scene and lights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RenderOptions {
+    pub brdf: Brdf,
+    /// Gaussian read-noise σ, fraction of full scale (0.005 = 0.5%).
+    pub noise_sigma: f64,
+    /// Shot noise: the full-well count (photo-electrons at full scale); the noise variance of a
+    /// value I is I / full_well. 0 = no shot noise.
+    pub shot_full_well: f64,
+    /// Seed of the noise.
+    pub seed: u64,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        RenderOptions {
+            brdf: Brdf::BlinnPhong,
+            noise_sigma: 0.005,
+            shot_full_well: 0.0,
+            seed: 1,
+        }
+    }
+}
+
+/// A built-in scene under a rig: everything `synth` takes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SynthSpec {
+    pub scene: SceneKind,
+    pub rig: Rig,
+    /// Image width and height, pixels.
+    pub size: usize,
+    /// Mask override (`None` = the scene's default).
+    pub mask: Option<MaskShape>,
+    /// Smooth colour texture on the albedo (else the scene's constant colour).
+    pub textured_albedo: bool,
+    pub intensities: LightIntensities,
+    pub render: RenderOptions,
+}
+
+impl SynthSpec {
+    /// A spec with the defaults of `photostereo synth`: size 128, textured albedo, uniform
+    /// intensities, Blinn–Phong, σ = 0.5%, no shot noise, seed 1.
+    pub fn new(scene: SceneKind, rig: Rig) -> Self {
+        SynthSpec {
+            scene,
+            rig,
+            size: 128,
+            mask: None,
+            textured_albedo: true,
+            intensities: LightIntensities::Uniform,
+            render: RenderOptions::default(),
+        }
+    }
+}
+
+/// Ground truth of a rendered capture. Maps are `height * width`, row-major.
+#[derive(Clone, Debug)]
+pub struct GroundTruth {
+    pub width: usize,
+    pub height: usize,
+    /// Unit normals used for shading, camera frame; (0, 0, 0) outside the mask.
+    pub normals: Vec<[f32; 3]>,
+    /// Height toward the camera, pixel units; NaN outside the mask.
+    pub depth: Vec<f32>,
+    /// Albedo (RGB); 0 outside the mask.
+    pub albedo: Vec<[f32; 3]>,
+    pub mask: Vec<bool>,
+    /// Per light: attached ∪ cast shadow (false outside the mask).
+    pub shadow: Vec<Vec<bool>>,
+    /// Per light: cast shadow on a surface facing the light (n·l > 0 but occluded); false
+    /// outside the mask.
+    pub cast_shadow: Vec<Vec<bool>>,
+    /// Per light: highlight (see the module's rule; never where shadowed).
+    pub highlight: Vec<Vec<bool>>,
+}
+
+/// Shares of mask pixels, averaged over lights.
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct CaptureStats {
+    /// Shadowed (attached or cast).
+    pub shadow_fraction: f64,
+    /// In a cast shadow while facing the light (not attached).
+    pub cast_shadow_fraction: f64,
+    /// Highlighted.
+    pub highlight_fraction: f64,
+    /// With at least one channel clipped at white.
+    pub clipped_fraction: f64,
+}
+
+/// A rendered capture in memory.
+#[derive(Clone, Debug)]
+pub struct Rendered {
+    /// Scene name.
+    pub scene: String,
+    /// Rig name.
+    pub rig: String,
+    /// One RGB image per light, values k/65535 (16-bit quantised), bit depth 16.
+    pub images: Vec<Image>,
+    /// Directions and intensities used.
+    pub lights: Lights,
+    pub truth: GroundTruth,
+    pub stats: CaptureStats,
+}
+
+impl Rendered {
+    /// The capture of the images (mask = the scene's mask; images divided by the intensities).
+    pub fn capture(&self) -> Result<Capture> {
+        Capture::from_images(
+            &self.images,
+            self.lights.clone(),
+            Some(self.truth.mask.clone()),
+        )
+    }
+
+    /// The object mask.
+    pub fn mask(&self) -> &[bool] {
+        &self.truth.mask
+    }
+}
+
+/// Builds the spec's scene and renders it.
+pub fn synthesize(spec: &SynthSpec) -> Result<Rendered> {
+    let scene = Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?;
+    let mut lights = spec.rig.lights()?;
+    let intensities = (0..lights.len())
+        .map(|k| spec.intensities.of_light(k))
+        .collect();
+    lights = lights.with_intensities(intensities)?;
+    let mut out = render(&scene, &lights, &spec.render)?;
+    out.rig = spec.rig.name();
+    Ok(out)
+}
+
+/// Renders `scene` under `lights` (directions and RGB intensities) with `options`.
+pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result<Rendered> {
+    if lights.is_empty() {
+        return Err(Error::invalid("rendering needs at least one light"));
+    }
+    if !(options.noise_sigma.is_finite() && options.noise_sigma >= 0.0) {
+        return Err(Error::invalid(format!(
+            "noise σ {}: expected a finite value ≥ 0 (fraction of full scale)",
+            options.noise_sigma
+        )));
+    }
+    if !(options.shot_full_well.is_finite() && options.shot_full_well >= 0.0) {
+        return Err(Error::invalid(format!(
+            "shot-noise full well {}: expected a finite value ≥ 0 (0 = off)",
+            options.shot_full_well
+        )));
+    }
+    let (w, h) = (scene.width, scene.height);
+    let threshold = HIGHLIGHT_MIN_FULL_SCALE.max(HIGHLIGHT_MIN_SIGMAS * options.noise_sigma);
+    let seed = splitmix64(options.seed);
+    let per_light: Vec<LightResult> = lights
+        .directions
+        .par_iter()
+        .zip(&lights.intensities)
+        .enumerate()
+        .map(|(k, (l, e))| render_light(scene, k, *l, *e, options, seed, threshold))
+        .collect();
+    let n = lights.len();
+    let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
+    let mut stats = CaptureStats::default();
+    let mut images = Vec::with_capacity(n);
+    let mut truth = GroundTruth {
+        width: w,
+        height: h,
+        normals: scene
+            .normals
+            .iter()
+            .zip(&scene.mask)
+            .map(|(nrm, &m)| if m { *nrm } else { [0.0; 3] })
+            .collect(),
+        depth: scene
+            .depth
+            .iter()
+            .zip(&scene.mask)
+            .map(|(d, &m)| if m { *d } else { f32::NAN })
+            .collect(),
+        albedo: scene
+            .albedo
+            .iter()
+            .zip(&scene.mask)
+            .map(|(a, &m)| if m { *a } else { [0.0; 3] })
+            .collect(),
+        mask: scene.mask.clone(),
+        shadow: Vec::with_capacity(n),
+        cast_shadow: Vec::with_capacity(n),
+        highlight: Vec::with_capacity(n),
+    };
+    let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
+    for r in per_light {
+        stats.shadow_fraction += count(&r.shadow);
+        stats.cast_shadow_fraction += count(&r.cast);
+        stats.highlight_fraction += count(&r.highlight);
+        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
+        images.push(Image {
+            width: w,
+            height: h,
+            channels: 3,
+            bit_depth: 16,
+            data: r.image,
+        });
+        truth.shadow.push(r.shadow);
+        truth.cast_shadow.push(r.cast);
+        truth.highlight.push(r.highlight);
+    }
+    stats.shadow_fraction /= n as f64;
+    stats.cast_shadow_fraction /= n as f64;
+    stats.highlight_fraction /= n as f64;
+    stats.clipped_fraction /= n as f64;
+    Ok(Rendered {
+        scene: scene.name.clone(),
+        rig: String::new(),
+        images,
+        lights: lights.clone(),
+        truth,
+        stats,
+    })
+}
+
+struct LightResult {
+    image: Vec<f32>,
+    shadow: Vec<bool>,
+    cast: Vec<bool>,
+    highlight: Vec<bool>,
+    clipped: usize,
+}
+
+fn render_light(
+    scene: &Scene,
+    k: usize,
+    l: [f64; 3],
+    e: [f64; 3],
+    options: &RenderOptions,
+    seed: u64,
+    highlight_threshold: f64,
+) -> LightResult {
+    let (w, h) = (scene.width, scene.height);
+    let mut cast = cast_shadows(scene, l);
+    let mut image = vec![0f32; w * h * 3];
+    let mut shadow = vec![false; w * h];
+    let mut highlight = vec![false; w * h];
+    let clipped: usize = image
+        .par_chunks_mut(w * 3)
+        .zip(shadow.par_chunks_mut(w))
+        .zip(highlight.par_chunks_mut(w))
+        .zip(cast.par_chunks_mut(w))
+        .enumerate()
+        .map(|(row, (((img, sh), hl), cs))| {
+            let mut rng = Pcg32::new(seed, (k as u64) * (h as u64) + row as u64);
+            let mut clipped = 0;
+            for col in 0..w {
+                let i = row * w + col;
+                if !scene.mask[i] {
+                    cs[col] = false;
+                    continue;
+                }
+                let nf = scene.normals[i];
+                let n = [nf[0] as f64, nf[1] as f64, nf[2] as f64];
+                let n_dot_l = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
+                let attached = n_dot_l <= 0.0;
+                let shadowed = attached || cs[col];
+                cs[col] = cs[col] && !attached;
+                sh[col] = shadowed;
+                let (diffuse, specular) = if shadowed {
+                    (0.0, 0.0)
+                } else {
+                    (n_dot_l, options.brdf.specular(n, l))
+                };
+                let spec_mean = specular * (e[0] + e[1] + e[2]) / 3.0;
+                hl[col] = !shadowed && spec_mean > highlight_threshold;
+                let mut clip = false;
+                for c in 0..3 {
+                    let clean = e[c] * (scene.albedo[i][c] as f64 * diffuse + specular);
+                    let mut value = clean;
+                    if options.shot_full_well > 0.0 {
+                        value +=
+                            (clean.max(0.0) / options.shot_full_well).sqrt() * rng.next_normal();
+                    }
+                    if options.noise_sigma > 0.0 {
+                        value += options.noise_sigma * rng.next_normal();
+                    }
+                    if value >= 1.0 {
+                        clip = true;
+                    }
+                    let q = (value.clamp(0.0, 1.0) * 65535.0).round();
+                    img[col * 3 + c] = (q / 65535.0) as f32;
+                }
+                clipped += clip as usize;
+            }
+            clipped
+        })
+        .sum();
+    LightResult {
+        image,
+        shadow,
+        cast,
+        highlight,
+        clipped,
+    }
+}
+
+/// Parameters and statistics written to `synth.json`.
+#[derive(Serialize)]
+struct SynthRecord<'a> {
+    scene: &'a str,
+    rig: &'a str,
+    width: usize,
+    height: usize,
+    lights: usize,
+    brdf: Option<&'a str>,
+    noise_sigma: Option<f64>,
+    shot_full_well: Option<f64>,
+    seed: Option<u64>,
+    mask: Option<&'a str>,
+    textured_albedo: Option<bool>,
+    intensities: Option<&'a str>,
+    highlight_rule: String,
+    stats: &'a CaptureStats,
+}
+
+/// Writes a rendered capture into `dir` (an existing folder, e.g. an [`OutputFolder`]'s staging
+/// folder): the DiLiGenT layout — `001.png`… (16-bit RGB), `filenames.txt`,
+/// `light_directions.txt`, `light_intensities.txt`, `mask.png` (8-bit, 255 = object) — and
+/// `gt/normal.npy` (float32 (H, W, 3)), `gt/depth.npy` (float32 (H, W), NaN outside the mask),
+/// `gt/albedo.npy` (float32 (H, W, 3)), `gt/shadow.npy` and `gt/highlight.npy` (bool (N, H, W)),
+/// and `synth.json` (parameters and statistics; `spec` fills the parameters when given).
+pub fn write_capture(dir: &Path, rendered: &Rendered, spec: Option<&SynthSpec>) -> Result<()> {
+    let (w, h) = (rendered.truth.width, rendered.truth.height);
+    let n = rendered.images.len();
+    let digits = n.to_string().len().max(3);
+    let names: Vec<String> = (1..=n).map(|k| format!("{k:0digits$}.png")).collect();
+    rendered
+        .images
+        .par_iter()
+        .zip(&names)
+        .try_for_each(|(img, name)| {
+            let data: Vec<u16> = img
+                .data
+                .iter()
+                .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+                .collect();
+            write_png16(&dir.join(name), w, h, img.channels, &data)
+        })?;
+    let list = dir.join("filenames.txt");
+    std::fs::write(&list, names.join("\n") + "\n").map_err(|e| Error::io(&list, e))?;
+    rendered
+        .lights
+        .write_directions(&dir.join("light_directions.txt"))?;
+    rendered
+        .lights
+        .write_intensities(&dir.join("light_intensities.txt"))?;
+    let mask: Vec<u8> = rendered
+        .truth
+        .mask
+        .iter()
+        .map(|&m| if m { 255 } else { 0 })
+        .collect();
+    write_png8(&dir.join("mask.png"), w, h, 1, &mask)?;
+    let gt = dir.join("gt");
+    std::fs::create_dir_all(&gt).map_err(|e| Error::io(&gt, e))?;
+    let t = &rendered.truth;
+    let flat3 = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
+    write_npy_f32(&gt.join("normal.npy"), &[h, w, 3], &flat3(&t.normals))?;
+    write_npy_f32(&gt.join("depth.npy"), &[h, w], &t.depth)?;
+    write_npy_f32(&gt.join("albedo.npy"), &[h, w, 3], &flat3(&t.albedo))?;
+    let stack = |v: &[Vec<bool>]| v.iter().flatten().copied().collect::<Vec<bool>>();
+    write_npy_bool(&gt.join("shadow.npy"), &[n, h, w], &stack(&t.shadow))?;
+    write_npy_bool(&gt.join("highlight.npy"), &[n, h, w], &stack(&t.highlight))?;
+    let record = SynthRecord {
+        scene: &rendered.scene,
+        rig: &rendered.rig,
+        width: w,
+        height: h,
+        lights: n,
+        brdf: spec.map(|s| s.render.brdf.name()),
+        noise_sigma: spec.map(|s| s.render.noise_sigma),
+        shot_full_well: spec.map(|s| s.render.shot_full_well),
+        seed: spec.map(|s| s.render.seed),
+        mask: spec.map(|s| s.mask.unwrap_or(s.scene.default_mask()).name()),
+        textured_albedo: spec.map(|s| s.textured_albedo),
+        intensities: spec.map(|s| s.intensities.name()),
+        highlight_rule: format!(
+            "not shadowed and mean-over-channels specular > max({HIGHLIGHT_MIN_FULL_SCALE}, {HIGHLIGHT_MIN_SIGMAS}·noise σ) of full scale"
+        ),
+        stats: &rendered.stats,
+    };
+    write_json(&dir.join("synth.json"), &record)
+}
+
+/// Renders `spec` and writes it to `output` atomically (staging folder renamed into place);
+/// refuses an existing `output` unless `force`. Returns the rendering and the final path.
+pub fn synth_to_folder(
+    spec: &SynthSpec,
+    output: &Path,
+    force: bool,
+) -> Result<(Rendered, PathBuf)> {
+    let folder = OutputFolder::create(output, force)?;
+    let rendered = synthesize(spec)?;
+    write_capture(folder.path(), &rendered, Some(spec))?;
+    let target = folder.commit()?;
+    Ok((rendered, target))
+}

@@ -1,0 +1,215 @@
+//! Cast shadows by ray marching against a scene's height field (bilinear heights, pixel
+//! units). This is deliberately a different method from the horizon sweep an estimator may use,
+//! so that errors in one cannot cancel errors in the other.
+//!
+//! A pixel is in the cast shadow of a light when the height field of the object (mask pixels
+//! only: the background casts nothing) rises above the ray from the pixel's surface point toward
+//! the light, sampled every `step` pixels of horizontal travel.
+
+use super::Scene;
+use rayon::prelude::*;
+
+/// Horizontal step of the renderer's ray march, pixels.
+pub const RENDER_STEP_PX: f64 = 0.25;
+
+/// Rays start this far (pixels) above the surface, so that a surface does not shadow itself
+/// through rounding.
+const RAY_OFFSET: f64 = 1e-4;
+
+/// Side of the tiles whose maximum height lets [`cast_shadows`] skip empty space, pixels.
+const TILE: usize = 8;
+
+/// Bilinear height at fractional (row, col); `None` outside the frame or when a corner of the
+/// cell is outside the mask.
+fn height_at(scene: &Scene, row: f64, col: f64) -> Option<f64> {
+    if row < 0.0 || col < 0.0 || row > (scene.height - 1) as f64 || col > (scene.width - 1) as f64 {
+        return None;
+    }
+    let r0 = row.floor() as usize;
+    let c0 = col.floor() as usize;
+    let r1 = (r0 + 1).min(scene.height - 1);
+    let c1 = (c0 + 1).min(scene.width - 1);
+    let fr = row - r0 as f64;
+    let fc = col - c0 as f64;
+    let idx = |r: usize, c: usize| r * scene.width + c;
+    if !(scene.mask[idx(r0, c0)]
+        && scene.mask[idx(r0, c1)]
+        && scene.mask[idx(r1, c0)]
+        && scene.mask[idx(r1, c1)])
+    {
+        return None;
+    }
+    let h = |r: usize, c: usize| scene.depth[idx(r, c)] as f64;
+    Some(
+        h(r0, c0) * (1.0 - fr) * (1.0 - fc)
+            + h(r0, c1) * (1.0 - fr) * fc
+            + h(r1, c0) * fr * (1.0 - fc)
+            + h(r1, c1) * fr * fc,
+    )
+}
+
+/// The ray's direction per unit of horizontal travel: (d row, d col, d z), or `None` for a light
+/// on the viewing axis (no cast shadows) or at or below the horizon.
+fn ray_steps(light: [f64; 3]) -> Option<(f64, f64, f64)> {
+    let horiz = (light[0] * light[0] + light[1] * light[1]).sqrt();
+    if horiz < 1e-9 || light[2] <= 0.0 {
+        return None;
+    }
+    // Columns grow with x, rows shrink with y.
+    Some((-light[1] / horiz, light[0] / horiz, light[2] / horiz))
+}
+
+fn max_mask_height(scene: &Scene) -> f64 {
+    scene
+        .depth
+        .iter()
+        .zip(&scene.mask)
+        .filter(|(_, &m)| m)
+        .map(|(&h, _)| h as f64)
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+fn outside_frame(scene: &Scene, row: f64, col: f64) -> bool {
+    row < 0.0 || col < 0.0 || row > (scene.height - 1) as f64 || col > (scene.width - 1) as f64
+}
+
+/// Cast-shadow flags (row-major) for one light by a plain ray march: from every mask pixel,
+/// samples at t = step, 2·step, … pixels of horizontal travel until the ray is above the highest
+/// point of the object or leaves the frame. The reference for [`cast_shadows`]. Lights at or
+/// below the horizon give no cast shadow (they are attached shadows everywhere).
+pub fn ray_march_shadows(scene: &Scene, light: [f64; 3], step: f64) -> Vec<bool> {
+    let mut out = vec![false; scene.width * scene.height];
+    let Some((dr, dc, dz)) = ray_steps(light) else {
+        return out;
+    };
+    let max_h = max_mask_height(scene);
+    out.par_chunks_mut(scene.width)
+        .enumerate()
+        .for_each(|(row, out_row)| {
+            for (col, o) in out_row.iter_mut().enumerate() {
+                if !scene.mask[row * scene.width + col] {
+                    continue;
+                }
+                let h0 = scene.depth[row * scene.width + col] as f64;
+                let mut k = 1u64;
+                loop {
+                    let t = k as f64 * step;
+                    let z = h0 + RAY_OFFSET + dz * t;
+                    if z > max_h {
+                        break;
+                    }
+                    let (r, c) = (row as f64 + dr * t, col as f64 + dc * t);
+                    if outside_frame(scene, r, c) {
+                        break;
+                    }
+                    if matches!(height_at(scene, r, c), Some(h) if h > z) {
+                        *o = true;
+                        break;
+                    }
+                    k += 1;
+                }
+            }
+        });
+    out
+}
+
+/// Cast-shadow flags for one light, identical to `ray_march_shadows(scene, light, 0.25)` but
+/// faster: samples inside a tile whose highest point (cell corners included) is below the ray
+/// are skipped, which cannot change the result because the ray only rises.
+pub fn cast_shadows(scene: &Scene, light: [f64; 3]) -> Vec<bool> {
+    let step = RENDER_STEP_PX;
+    let (w, hgt) = (scene.width, scene.height);
+    let mut out = vec![false; w * hgt];
+    let Some((dr, dc, dz)) = ray_steps(light) else {
+        return out;
+    };
+    let max_h = max_mask_height(scene);
+    let tiles = TileMax::new(scene);
+    out.par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, out_row)| {
+            for (col, o) in out_row.iter_mut().enumerate() {
+                if !scene.mask[row * w + col] {
+                    continue;
+                }
+                let h0 = scene.depth[row * w + col] as f64;
+                let mut k = 1u64;
+                loop {
+                    let t = k as f64 * step;
+                    let z = h0 + RAY_OFFSET + dz * t;
+                    if z > max_h {
+                        break;
+                    }
+                    let (r, c) = (row as f64 + dr * t, col as f64 + dc * t);
+                    if outside_frame(scene, r, c) {
+                        break;
+                    }
+                    let (tr, tc) = (r as usize / TILE, c as usize / TILE);
+                    if z > tiles.max(tr, tc) {
+                        // Horizontal distance to the tile's far side along the ray.
+                        let exit_r = axis_exit(r, dr, tr);
+                        let exit_c = axis_exit(c, dc, tc);
+                        let exit = exit_r.min(exit_c);
+                        let skip = ((exit - 1e-7) / step).floor();
+                        k += if skip >= 1.0 { skip as u64 } else { 1 };
+                        continue;
+                    }
+                    if matches!(height_at(scene, r, c), Some(h) if h > z) {
+                        *o = true;
+                        break;
+                    }
+                    k += 1;
+                }
+            }
+        });
+    out
+}
+
+/// Travel (pixels along the ray's horizontal direction) from coordinate `x` until it leaves the
+/// tile `tile` on its axis, moving by `d` per unit of travel.
+fn axis_exit(x: f64, d: f64, tile: usize) -> f64 {
+    let lo = (tile * TILE) as f64;
+    let hi = lo + TILE as f64;
+    if d > 1e-12 {
+        (hi - x) / d
+    } else if d < -1e-12 {
+        (x - lo) / -d
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Maximum height of mask pixels per tile, over the tile's pixels and the next row and column
+/// (the corners a bilinear sample inside the tile may use); −∞ for tiles without mask pixels.
+struct TileMax {
+    cols: usize,
+    max: Vec<f64>,
+}
+
+impl TileMax {
+    fn new(scene: &Scene) -> Self {
+        let rows = scene.height.div_ceil(TILE);
+        let cols = scene.width.div_ceil(TILE);
+        let mut max = vec![f64::NEG_INFINITY; rows * cols];
+        for tr in 0..rows {
+            for tc in 0..cols {
+                let mut m = f64::NEG_INFINITY;
+                for r in tr * TILE..((tr + 1) * TILE + 1).min(scene.height) {
+                    for c in tc * TILE..((tc + 1) * TILE + 1).min(scene.width) {
+                        let i = r * scene.width + c;
+                        if scene.mask[i] {
+                            m = m.max(scene.depth[i] as f64);
+                        }
+                    }
+                }
+                max[tr * cols + tc] = m;
+            }
+        }
+        TileMax { cols, max }
+    }
+
+    #[inline]
+    fn max(&self, tr: usize, tc: usize) -> f64 {
+        self.max[tr * self.cols + tc]
+    }
+}
