@@ -469,17 +469,90 @@ fn diligent_ball_normals_survive_integration_within_one_degree() {
 }
 
 /// Prints the figures of `docs/integration.md` for ball, cat and bear (no assertion on cat and
-/// bear: their ground truth is not integrable). `cargo test --release -- --ignored --nocapture`.
+/// bear: their ground truth is not integrable), with where the curl and the re-derivation error
+/// concentrate: the band within 3 pixels of the mask's border versus the interior.
+/// `cargo test --release -p photostereo --test integrate -- --ignored --nocapture`.
 #[test]
 #[ignore]
 fn print_diligent_integration_figures() {
     for object in ["ball", "cat", "bear"] {
-        for kind in [IntegratorKind::Poisson, IntegratorKind::Paths] {
+        for kind in IntegratorKind::ALL {
             println!(
                 "{object} {}: {:.2}°",
                 kind.name(),
-                rederived_error(object, kind)
+                rederived_error(object, *kind)
             );
         }
+        let (w, h, normals, mask) = diligent(object);
+        let g = gradients_from_normals(w, h, &normals, Some(&mask), 20.0).unwrap();
+        let (curl, mean) = curl_map(w, h, &g.p, &g.q, &g.mask);
+        // Border band: pixels within 3 steps of a pixel outside the mask.
+        let mut inner = g.mask.clone();
+        for _ in 0..3 {
+            let prev = inner.clone();
+            for i in 0..w * h {
+                let (r, c) = (i / w, i % w);
+                if prev[i]
+                    && (c == 0
+                        || !prev[i - 1]
+                        || c + 1 == w
+                        || !prev[i + 1]
+                        || r == 0
+                        || !prev[i - w]
+                        || r + 1 == h
+                        || !prev[i + w])
+                {
+                    inner[i] = false;
+                }
+            }
+        }
+        let d =
+            integrate_normals(w, h, &normals, Some(&mask), None, IntegratorKind::Poisson).unwrap();
+        let valid: Vec<bool> = d.values.iter().map(|v| v.is_finite()).collect();
+        let back = normals_from_depth(w, h, &d.values, &valid);
+        let (mut cb, mut nb, mut ci, mut ni, mut eb, mut ei, mut big_b, mut big) =
+            (0f64, 0, 0f64, 0, 0f64, 0f64, 0, 0);
+        for i in 0..w * h {
+            if !valid[i] {
+                continue;
+            }
+            let e = photostereo::metrics::angular_error_deg(back[i], normals[i]);
+            let border = !inner[i];
+            if e > 5.0 {
+                big += 1;
+                big_b += usize::from(border);
+            }
+            if border {
+                eb += e;
+            } else {
+                ei += e;
+            }
+            if curl[i].is_finite() {
+                if border {
+                    cb += curl[i].abs() as f64;
+                    nb += 1;
+                } else {
+                    ci += curl[i].abs() as f64;
+                    ni += 1;
+                }
+            }
+        }
+        let border_px = valid
+            .iter()
+            .zip(&inner)
+            .filter(|(v, i)| **v && !**i)
+            .count();
+        let inner_px = valid.iter().zip(&inner).filter(|(v, i)| **v && **i).count();
+        println!(
+            "{object}: mean |curl| {mean:.4} (border band {:.4}, interior {:.4}); error border {:.2}° interior {:.2}°; {} of {} pixels over 5° lie in the border band ({} of {} pixels are border)",
+            cb / nb.max(1) as f64,
+            ci / ni.max(1) as f64,
+            eb / border_px.max(1) as f64,
+            ei / inner_px.max(1) as f64,
+            big_b,
+            big,
+            border_px,
+            border_px + inner_px
+        );
     }
 }

@@ -468,6 +468,7 @@ impl Surface {
 }
 
 /// Gradients, curl and depth from a normal map in one call.
+#[allow(clippy::too_many_arguments)]
 pub fn surface_from_normals(
     width: usize,
     height: usize,

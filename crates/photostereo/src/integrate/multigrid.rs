@@ -45,6 +45,13 @@ struct SharedMut(*mut f32);
 unsafe impl Send for SharedMut {}
 unsafe impl Sync for SharedMut {}
 
+impl SharedMut {
+    /// The pointer (a method, so that closures capture the whole `Send` wrapper).
+    fn get(self) -> *mut f32 {
+        self.0
+    }
+}
+
 impl Level {
     /// Builds a level from edge weights and the extra diagonal `extra` (active cells: `active`).
     pub fn from_parts(
@@ -145,25 +152,34 @@ impl Level {
 
     /// `out = A x` (f32 input and output, f64 arithmetic per cell: A x of a smooth x cancels
     /// heavily, and CG needs it accurately).
-    pub fn apply32(&self, x: &[f32], out: &mut [f32]) {
+    /// Returns `xᵀ A x`.
+    pub fn apply32(&self, x: &[f32], out: &mut [f32]) -> f64 {
         let w = self.w;
         let zeros = vec![0f32; w];
-        out.par_chunks_mut(w).enumerate().for_each(|(r, o)| {
-            let (e, s, su, d) = self.op_rows(r, &zeros);
-            let (up, down) = self.x_rows(x, r, &zeros);
-            let mid = &x[r * w..(r + 1) * w];
-            let f = |v: f32| v as f64;
-            let vert = |c: usize| f(d[c]) * f(mid[c]) - f(s[c]) * f(down[c]) - f(su[c]) * f(up[c]);
-            if w == 1 {
-                o[0] = vert(0) as f32;
-                return;
-            }
-            o[0] = (vert(0) - f(e[0]) * f(mid[1])) as f32;
-            for c in 1..w - 1 {
-                o[c] = (vert(c) - f(e[c]) * f(mid[c + 1]) - f(e[c - 1]) * f(mid[c - 1])) as f32;
-            }
-            o[w - 1] = (vert(w - 1) - f(e[w - 2]) * f(mid[w - 2])) as f32;
-        });
+        out.par_chunks_mut(w)
+            .enumerate()
+            .map(|(r, o)| {
+                let (e, s, su, d) = self.op_rows(r, &zeros);
+                let (up, down) = self.x_rows(x, r, &zeros);
+                let mid = &x[r * w..(r + 1) * w];
+                let f = |v: f32| v as f64;
+                let vert =
+                    |c: usize| f(d[c]) * f(mid[c]) - f(s[c]) * f(down[c]) - f(su[c]) * f(up[c]);
+                if w == 1 {
+                    o[0] = vert(0) as f32;
+                    return f(mid[0]) * f(o[0]);
+                }
+                o[0] = (vert(0) - f(e[0]) * f(mid[1])) as f32;
+                for c in 1..w - 1 {
+                    o[c] = (vert(c) - f(e[c]) * f(mid[c + 1]) - f(e[c - 1]) * f(mid[c - 1])) as f32;
+                }
+                o[w - 1] = (vert(w - 1) - f(e[w - 2]) * f(mid[w - 2])) as f32;
+                mid.iter()
+                    .zip(o.iter())
+                    .map(|(&a, &b)| f(a) * f(b))
+                    .sum::<f64>()
+            })
+            .sum()
     }
 
     /// `r = b − A x` with f64 `x` and `b` (the CG's true residual).
@@ -189,30 +205,44 @@ impl Level {
         });
     }
 
-    /// `res = b − A x` in f32.
-    fn residual32(&self, b: &[f32], x: &[f32], res: &mut [f32]) {
+    /// Row `r` of `b − A x` in f32 into `o`.
+    #[inline]
+    fn residual_row(&self, b: &[f32], x: &[f32], r: usize, zeros: &[f32], o: &mut [f32]) {
         let w = self.w;
-        let zeros = vec![0f32; w];
-        res.par_chunks_mut(w).enumerate().for_each(|(r, o)| {
-            let (e, s, su, d) = self.op_rows(r, &zeros);
-            let (up, down) = self.x_rows(x, r, &zeros);
-            let mid = &x[r * w..(r + 1) * w];
-            let brow = &b[r * w..(r + 1) * w];
-            if w == 1 {
-                o[0] = brow[0] - d[0] * mid[0] + s[0] * down[0] + su[0] * up[0];
-                return;
-            }
-            o[0] = brow[0] - d[0] * mid[0] + e[0] * mid[1] + s[0] * down[0] + su[0] * up[0];
-            for c in 1..w - 1 {
-                o[c] = brow[c] - d[c] * mid[c]
-                    + e[c] * mid[c + 1]
-                    + e[c - 1] * mid[c - 1]
-                    + s[c] * down[c]
-                    + su[c] * up[c];
-            }
-            let c = w - 1;
-            o[c] = brow[c] - d[c] * mid[c] + e[c - 1] * mid[c - 1] + s[c] * down[c] + su[c] * up[c];
-        });
+        let (e, s, su, d) = self.op_rows(r, zeros);
+        let (up, down) = self.x_rows(x, r, zeros);
+        let mid = &x[r * w..(r + 1) * w];
+        let brow = &b[r * w..(r + 1) * w];
+        let o = &mut o[..w];
+        let vert = |c: usize| brow[c] - d[c] * mid[c] + s[c] * down[c] + su[c] * up[c];
+        if w == 1 {
+            o[0] = vert(0);
+            return;
+        }
+        o[0] = vert(0) + e[0] * mid[1];
+        for c in 1..w - 1 {
+            o[c] = vert(c) + e[c] * mid[c + 1] + e[c - 1] * mid[c - 1];
+        }
+        o[w - 1] = vert(w - 1) + e[w - 2] * mid[w - 2];
+    }
+
+    /// `coarse = Pᵀ (b − A x)`: the residual summed over 2×2 blocks, without storing it.
+    fn restrict_residual(&self, b: &[f32], x: &[f32], zeros: &[f32], coarse: &mut [f32]) {
+        let (w, h) = (self.w, self.h);
+        let cw = w.div_ceil(2);
+        coarse.par_chunks_mut(cw).enumerate().for_each_init(
+            || vec![0f32; w],
+            |tmp, (cr, row)| {
+                row.fill(0.0);
+                for r in (2 * cr)..(2 * cr + 2).min(h) {
+                    self.residual_row(b, x, r, zeros, tmp);
+                    for (cc, o) in row.iter_mut().enumerate() {
+                        let c = 2 * cc;
+                        *o += tmp[c] + if c + 1 < w { tmp[c + 1] } else { 0.0 };
+                    }
+                }
+            },
+        );
     }
 
     /// One Gauss–Seidel half-sweep over the cells with `(r + c) % 2 == colour`. Each row's new
@@ -227,14 +257,13 @@ impl Level {
             .for_each_init(
                 || vec![0f32; w],
                 |tmp, t| {
-                    let ptr = ptr;
                     let r0 = t * ROWS_PER_TASK;
                     let r1 = (r0 + ROWS_PER_TASK).min(h);
                     // SAFETY: `ptr` covers `w * h` initialised f32 (asserted above) and outlives this
                     // call. A half-sweep writes only cells of one colour and reads only cells of the
                     // other colour (their 4-neighbours); different tasks write disjoint rows. So no
                     // cell is written by one thread while another reads or writes it.
-                    let xs = unsafe { std::slice::from_raw_parts_mut(ptr.0, w * h) };
+                    let xs = unsafe { std::slice::from_raw_parts_mut(ptr.get(), w * h) };
                     for r in r0..r1 {
                         let lo = r * w;
                         let (e, s, su) = {
@@ -323,29 +352,6 @@ impl Level {
                 }
             });
         Level::from_parts(cw, ch, east, south, &extra, &active)
-    }
-
-    /// `coarse = Pᵀ fine`: sums over 2×2 blocks.
-    fn restrict(&self, fine: &[f32], coarse: &mut [f32]) {
-        let (w, h) = (self.w, self.h);
-        let cw = w.div_ceil(2);
-        coarse.par_chunks_mut(cw).enumerate().for_each(|(cr, row)| {
-            let r = 2 * cr;
-            for (cc, o) in row.iter_mut().enumerate() {
-                let c = 2 * cc;
-                let mut s = fine[r * w + c];
-                if c + 1 < w {
-                    s += fine[r * w + c + 1];
-                }
-                if r + 1 < h {
-                    s += fine[(r + 1) * w + c];
-                    if c + 1 < w {
-                        s += fine[(r + 1) * w + c + 1];
-                    }
-                }
-                *o = s;
-            }
-        });
     }
 
     /// `fine += P coarse` on active cells.
@@ -445,13 +451,12 @@ impl CoarseSolver {
     }
 }
 
-/// Work vectors of one level (`b` and `x` stay empty on the finest level, whose right-hand
-/// side and iterate are the caller's).
+/// Work vectors of one level (empty on the finest level, whose right-hand side and iterate
+/// are the caller's).
 #[derive(Clone, Debug, Default)]
 struct Work {
     b: Vec<f32>,
     x: Vec<f32>,
-    res: Vec<f32>,
 }
 
 /// The multigrid hierarchy: the levels, the coarsest solver and the work vectors.
@@ -479,17 +484,14 @@ impl Hierarchy {
             levels.push(next);
         }
         let coarse = CoarseSolver::new(&levels[levels.len() - 1]);
-        let n_levels = levels.len();
         let work = levels
             .iter()
             .enumerate()
             .map(|(l, level)| {
-                let n = level.n();
-                let last = l + 1 == n_levels;
+                let n = if l == 0 { 0 } else { level.n() };
                 Work {
-                    b: if l == 0 { Vec::new() } else { vec![0.0; n] },
-                    x: if l == 0 { Vec::new() } else { vec![0.0; n] },
-                    res: if last { Vec::new() } else { vec![0.0; n] },
+                    b: vec![0.0; n],
+                    x: vec![0.0; n],
                 }
             })
             .collect();
@@ -515,12 +517,10 @@ impl Hierarchy {
 
     /// `x ≈ A⁻¹ b` by one V-cycle from `x = 0`.
     pub fn vcycle(&mut self, b: &[f32], x: &mut [f32]) {
-        let mut res = std::mem::take(&mut self.work[0].res);
-        self.cycle_at(0, b, x, &mut res);
-        self.work[0].res = res;
+        self.cycle_at(0, b, x);
     }
 
-    fn cycle_at(&mut self, l: usize, b: &[f32], x: &mut [f32], res: &mut [f32]) {
+    fn cycle_at(&mut self, l: usize, b: &[f32], x: &mut [f32]) {
         if l + 1 == self.levels.len() {
             self.coarse.solve(b, x);
             return;
@@ -531,10 +531,9 @@ impl Hierarchy {
             level.half_sweep(b, x, 0, &self.zeros);
             level.half_sweep(b, x, 1, &self.zeros);
         }
-        level.residual32(b, x, res);
         let mut next = std::mem::take(&mut self.work[l + 1]);
-        level.restrict(res, &mut next.b);
-        self.cycle_at(l + 1, &next.b, &mut next.x, &mut next.res);
+        level.restrict_residual(b, x, &self.zeros, &mut next.b);
+        self.cycle_at(l + 1, &next.b, &mut next.x);
         let level = &self.levels[l];
         level.prolong_add(&next.x, x);
         self.work[l + 1] = next;
@@ -613,18 +612,8 @@ pub(crate) fn pcg(
     while iterations < max_iterations {
         iterations += 1;
         let ap = &mut r32;
-        hierarchy.fine().apply32(&p, ap);
-        let pap: f64 = p
-            .par_chunks(1 << 14)
-            .zip(ap.par_chunks(1 << 14))
-            .map(|(a, b)| {
-                a.iter()
-                    .zip(b)
-                    .map(|(&u, &v)| u as f64 * v as f64)
-                    .sum::<f64>()
-            })
-            .sum();
-        if !(pap > 0.0) {
+        let pap = hierarchy.fine().apply32(&p, ap);
+        if pap.is_nan() || pap <= 0.0 {
             break;
         }
         let alpha = rz / pap;

@@ -32,6 +32,7 @@ impl Default for Paths {
 }
 
 /// One path integral from the given seeds (one per component), column first or row first.
+#[allow(clippy::too_many_arguments)]
 fn integrate_once(
     w: usize,
     h: usize,
