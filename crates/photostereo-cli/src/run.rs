@@ -56,9 +56,10 @@ pub struct RunArgs {
     /// Recursive method: integration weight of unreliable pixels (0 = fill them from neighbours).
     #[arg(long, default_value_t = 0.1)]
     pub unreliable_weight: f32,
-    /// Recursive method: completion of pixels with fewer than three usable lights: `brightest`
-    /// (the paper's choice) or `neighbours` (the normal of the integrated surface).
-    #[arg(long, default_value = "brightest", value_parser = parse_fallback)]
+    /// Recursive method: completion of pixels with fewer than three usable lights: `neighbours`
+    /// (their albedo with the two usable lights, else the integrated surface's normal) or
+    /// `brightest` (the paper's choice: add the brightest remaining lights).
+    #[arg(long, default_value = "neighbours", value_parser = parse_fallback)]
     pub fallback: photostereo::recursive::Fallback,
     /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
     #[arg(long)]
