@@ -155,10 +155,14 @@ fn noise_level_is_estimated_from_a_noisy_capture() {
         "estimated {est}, true {grey_sigma}"
     );
     // False alarms near the 5% of the test on clean pixels, detection near 100% on corrupted ones.
-    let clean: Vec<usize> = (0..capture.n_pixels()).filter(|&p| corrupted[p].is_none()).collect();
+    let clean: Vec<usize> = (0..capture.n_pixels())
+        .filter(|&p| corrupted[p].is_none())
+        .collect();
     let fa = clean.iter().filter(|&&p| det.unreliable[p]).count() as f64 / clean.len() as f64;
     assert!(fa < 0.10, "false alarms {fa}");
-    let bad: Vec<usize> = (0..capture.n_pixels()).filter(|&p| corrupted[p].is_some()).collect();
+    let bad: Vec<usize> = (0..capture.n_pixels())
+        .filter(|&p| corrupted[p].is_some())
+        .collect();
     let hit = bad.iter().filter(|&&p| det.unreliable[p]).count() as f64 / bad.len() as f64;
     assert!(bad.len() > 500 && hit > 0.99, "hits {hit}");
 }
