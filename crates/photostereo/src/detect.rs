@@ -57,6 +57,9 @@ pub struct DetectionParams {
     pub shadow_sigmas: f64,
     /// See `shadow_sigmas`.
     pub shadow_ratio: f64,
+    /// Attribute the failures to lights (default true). Without it only the test runs (the
+    /// residual and unreliable maps), in O(N) per pixel.
+    pub attribute: bool,
     /// How σ₀ is estimated when `sigma` is not given (default: from the images).
     pub noise_estimate: NoiseEstimate,
     /// Rounds of noise re-estimation from the pixels' retained lights, for
@@ -74,6 +77,7 @@ impl Default for DetectionParams {
             batch_alpha: 0.05,
             shadow_sigmas: 3.0,
             shadow_ratio: 0.1,
+            attribute: true,
             noise_estimate: NoiseEstimate::Images,
             noise_refinements: 1,
         }
@@ -362,10 +366,19 @@ fn attribute_from(
         b += test.directions[k] * (scratch.grey[k] * scratch.weight[k]);
     }
     let mut m = gram_inv * b;
+    if !params.attribute {
+        // The test alone: the residual sum of squares, O(N).
+        let mut rss = 0.0;
+        for k in 0..n {
+            let e = scratch.grey[k] - (test.lx[k] * m.x + test.ly[k] * m.y + test.lz[k] * m.z);
+            rss += scratch.weight[k] * e * e;
+        }
+        return (rss / var, rss, count);
+    }
     let mut rss = score_pass(test, scratch, &m, &gram_inv);
     let s_all = rss / var;
     let shadow_level = params.shadow_sigmas * sigma + params.shadow_ratio * level;
-    while count > 3 && count > test.min_kept && rss / var > test.thresholds[count - 3] {
+    while params.attribute && count > 3 && count > test.min_kept && rss / var > test.thresholds[count - 3] {
         // The largest deleted residual, and whether it is tied (always so with four lights).
         let (mut best, mut best_score, mut second) = (usize::MAX, -1.0, -1.0);
         for (k, &sc) in scratch.score.iter().enumerate() {
@@ -573,7 +586,8 @@ pub fn image_noise(capture: &Capture) -> Option<f64> {
     for (p, &i) in capture.pixels.iter().enumerate() {
         index[i as usize] = p as u32;
     }
-    // Interior pixels: the 3×3 neighbourhood's sample indices, at most 20000 of them.
+    // Interior pixels: the 3×3 neighbourhood's sample indices (a regular sample of at most 4096
+    // of them per image is used: plenty for a median).
     let mut interior: Vec<[u32; 9]> = Vec::new();
     for &i in &capture.pixels {
         let (r, col) = (i as usize / w, i as usize % w);
@@ -594,7 +608,7 @@ pub fn image_noise(capture: &Capture) -> Option<f64> {
     if interior.len() < 100 {
         return None;
     }
-    let stride = interior.len().div_ceil(20_000);
+    let stride = interior.len().div_ceil(4096);
     let n = capture.n_lights();
     let c = capture.channels;
     const KERNEL: [f64; 9] = [1.0, -2.0, 1.0, -2.0, 4.0, -2.0, 1.0, -2.0, 1.0];

@@ -285,7 +285,13 @@ pub fn reconstruct(
     let can_detect = capture.n_lights() >= 4;
     if options.detect && can_detect && est.detection.is_none() {
         let t = Instant::now();
-        est.detection = Some(detect(capture, &options.detection, progress)?);
+        // The maps of the test only: the method used every light, which is what its
+        // light_status says.
+        let maps_only = DetectionParams {
+            attribute: false,
+            ..options.detection.clone()
+        };
+        est.detection = Some(detect(capture, &maps_only, progress)?);
         report.time("detect", t);
     }
     if options.detect && !can_detect {

@@ -37,6 +37,9 @@ use crate::imageio::Image;
 use crate::lights::Lights;
 use rayon::prelude::*;
 
+/// One sampled pixel: height, unit normal, albedo, inside the mask.
+type Sample = (f32, [f32; 3], [f32; 3], bool);
+
 /// A height field with its exact normals and albedo.
 #[derive(Clone, Debug)]
 pub struct Scene {
@@ -71,7 +74,7 @@ impl Scene {
                 "scene size {width}×{height}: expected at least one pixel"
             )));
         }
-        let rows: Vec<Vec<(f32, [f32; 3], [f32; 3], bool)>> = (0..height)
+        let rows: Vec<Vec<Sample>> = (0..height)
             .into_par_iter()
             .map(|row| {
                 (0..width)

@@ -16,7 +16,7 @@
 use super::reflectance::Brdf;
 use super::rigs::Rig;
 use super::rng::{splitmix64, Pcg32};
-use super::shadows::cast_shadows;
+use super::shadows::cast_shadows_where;
 use super::surfaces::{MaskShape, SceneKind};
 use super::Scene;
 use crate::capture::Capture;
@@ -331,7 +331,13 @@ fn render_light(
     highlight_threshold: f64,
 ) -> LightResult {
     let (w, h) = (scene.width, scene.height);
-    let mut cast = cast_shadows(scene, l);
+    // Rays are marched only from pixels facing the light: the others are in attached shadow.
+    let facing: Vec<bool> = scene
+        .normals
+        .iter()
+        .map(|n| n[0] as f64 * l[0] + n[1] as f64 * l[1] + n[2] as f64 * l[2] > 0.0)
+        .collect();
+    let mut cast = cast_shadows_where(scene, l, Some(&facing));
     let mut image = vec![0f32; w * h * 3];
     let mut shadow = vec![false; w * h];
     let mut highlight = vec![false; w * h];

@@ -44,18 +44,23 @@ impl Pcg32 {
         (hi | lo) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
-    /// A standard normal deviate (mean 0, variance 1) by the Box–Muller transform.
+    /// A standard normal deviate (mean 0, variance 1) by the polar form of the Box–Muller
+    /// transform (Marsaglia): a uniform point in the unit disc gives two deviates without
+    /// trigonometric functions.
     pub fn next_normal(&mut self) -> f64 {
         if let Some(z) = self.spare_normal.take() {
             return z;
         }
-        // u1 in (0, 1] so that the logarithm is finite.
-        let u1 = 1.0 - self.next_f64();
-        let u2 = self.next_f64();
-        let radius = (-2.0 * u1.ln()).sqrt();
-        let angle = 2.0 * std::f64::consts::PI * u2;
-        self.spare_normal = Some(radius * angle.sin());
-        radius * angle.cos()
+        loop {
+            let x = 2.0 * self.next_f64() - 1.0;
+            let y = 2.0 * self.next_f64() - 1.0;
+            let s = x * x + y * y;
+            if s > 0.0 && s < 1.0 {
+                let f = (-2.0 * s.ln() / s).sqrt();
+                self.spare_normal = Some(y * f);
+                return x * f;
+            }
+        }
     }
 }
 

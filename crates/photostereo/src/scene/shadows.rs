@@ -16,8 +16,10 @@ pub const RENDER_STEP_PX: f64 = 0.25;
 /// through rounding.
 const RAY_OFFSET: f64 = 1e-4;
 
-/// Side of the tiles whose maximum height lets [`cast_shadows`] skip empty space, pixels.
-const TILE: usize = 8;
+/// Sides (as powers of two: 16 and 4 pixels) of the coarse and fine tiles whose maximum heights
+/// let [`cast_shadows`] skip empty space.
+const COARSE_SHIFT: u32 = 4;
+const FINE_SHIFT: u32 = 2;
 
 /// Bilinear height at fractional (row, col); `None` outside the frame or when a corner of the
 /// cell is outside the mask.
@@ -25,8 +27,9 @@ fn height_at(scene: &Scene, row: f64, col: f64) -> Option<f64> {
     if row < 0.0 || col < 0.0 || row > (scene.height - 1) as f64 || col > (scene.width - 1) as f64 {
         return None;
     }
-    let r0 = row.floor() as usize;
-    let c0 = col.floor() as usize;
+    // Non-negative here, so truncation is the floor (and avoids a libm call).
+    let r0 = row as usize;
+    let c0 = col as usize;
     let r1 = (r0 + 1).min(scene.height - 1);
     let c1 = (c0 + 1).min(scene.width - 1);
     let fr = row - r0 as f64;
@@ -117,6 +120,16 @@ pub fn ray_march_shadows(scene: &Scene, light: [f64; 3], step: f64) -> Vec<bool>
 /// faster: samples inside a tile whose highest point (cell corners included) is below the ray
 /// are skipped, which cannot change the result because the ray only rises.
 pub fn cast_shadows(scene: &Scene, light: [f64; 3]) -> Vec<bool> {
+    cast_shadows_where(scene, light, None)
+}
+
+/// [`cast_shadows`] restricted to the pixels where `wanted` is true (all mask pixels when
+/// `None`); the others are reported unshadowed.
+pub(crate) fn cast_shadows_where(
+    scene: &Scene,
+    light: [f64; 3],
+    wanted: Option<&[bool]>,
+) -> Vec<bool> {
     let step = RENDER_STEP_PX;
     let (w, hgt) = (scene.width, scene.height);
     let mut out = vec![false; w * hgt];
@@ -124,15 +137,17 @@ pub fn cast_shadows(scene: &Scene, light: [f64; 3]) -> Vec<bool> {
         return out;
     };
     let max_h = max_mask_height(scene);
-    let tiles = TileMax::new(scene);
+    let coarse = TileMax::new(scene, COARSE_SHIFT);
+    let fine = TileMax::new(scene, FINE_SHIFT);
     out.par_chunks_mut(w)
         .enumerate()
         .for_each(|(row, out_row)| {
             for (col, o) in out_row.iter_mut().enumerate() {
-                if !scene.mask[row * w + col] {
+                let i = row * w + col;
+                if !scene.mask[i] || wanted.is_some_and(|m| !m[i]) {
                     continue;
                 }
-                let h0 = scene.depth[row * w + col] as f64;
+                let h0 = scene.depth[i] as f64;
                 let mut k = 1u64;
                 loop {
                     let t = k as f64 * step;
@@ -144,14 +159,29 @@ pub fn cast_shadows(scene: &Scene, light: [f64; 3]) -> Vec<bool> {
                     if outside_frame(scene, r, c) {
                         break;
                     }
-                    let (tr, tc) = (r as usize / TILE, c as usize / TILE);
-                    if z > tiles.max(tr, tc) {
-                        // Horizontal distance to the tile's far side along the ray.
-                        let exit_r = axis_exit(r, dr, tr);
-                        let exit_c = axis_exit(c, dc, tc);
-                        let exit = exit_r.min(exit_c);
-                        let skip = ((exit - 1e-7) / step).floor();
-                        k += if skip >= 1.0 { skip as u64 } else { 1 };
+                    let (ri, ci) = (r as usize, c as usize);
+                    let skip_shift = if z > coarse.max_at(ri, ci) {
+                        Some(COARSE_SHIFT)
+                    } else if z > fine.max_at(ri, ci) {
+                        Some(FINE_SHIFT)
+                    } else {
+                        None
+                    };
+                    if let Some(shift) = skip_shift {
+                        // Horizontal travel to the tile's far side along the ray; the samples
+                        // before it are inside the tile, below the ray.
+                        let exit = axis_exit(r, dr, ri >> shift, shift).min(axis_exit(
+                            c,
+                            dc,
+                            ci >> shift,
+                            shift,
+                        ));
+                        // Jump to the first sample at or past the exit (less a margin far above
+                        // rounding): every sample skipped lies strictly inside the tile.
+                        let x = ((exit - 1e-7) / step).max(0.0);
+                        let whole = x as u64; // truncation = floor here, without a libm call
+                        let jump = if (whole as f64) < x { whole + 1 } else { whole };
+                        k += jump.max(1);
                         continue;
                     }
                     if matches!(height_at(scene, r, c), Some(h) if h > z) {
@@ -165,11 +195,12 @@ pub fn cast_shadows(scene: &Scene, light: [f64; 3]) -> Vec<bool> {
     out
 }
 
-/// Travel (pixels along the ray's horizontal direction) from coordinate `x` until it leaves the
-/// tile `tile` on its axis, moving by `d` per unit of travel.
-fn axis_exit(x: f64, d: f64, tile: usize) -> f64 {
-    let lo = (tile * TILE) as f64;
-    let hi = lo + TILE as f64;
+/// Travel (pixels along the ray's horizontal direction) from coordinate `x` until it leaves
+/// tile number `index` (of side 2^`shift`) on its axis, moving by `d` per unit of travel.
+#[inline]
+fn axis_exit(x: f64, d: f64, index: usize, shift: u32) -> f64 {
+    let lo = (index << shift) as f64;
+    let hi = lo + (1usize << shift) as f64;
     if d > 1e-12 {
         (hi - x) / d
     } else if d < -1e-12 {
@@ -182,20 +213,22 @@ fn axis_exit(x: f64, d: f64, tile: usize) -> f64 {
 /// Maximum height of mask pixels per tile, over the tile's pixels and the next row and column
 /// (the corners a bilinear sample inside the tile may use); −∞ for tiles without mask pixels.
 struct TileMax {
+    shift: u32,
     cols: usize,
     max: Vec<f64>,
 }
 
 impl TileMax {
-    fn new(scene: &Scene) -> Self {
-        let rows = scene.height.div_ceil(TILE);
-        let cols = scene.width.div_ceil(TILE);
+    fn new(scene: &Scene, shift: u32) -> Self {
+        let tile = 1usize << shift;
+        let rows = scene.height.div_ceil(tile);
+        let cols = scene.width.div_ceil(tile);
         let mut max = vec![f64::NEG_INFINITY; rows * cols];
         for tr in 0..rows {
             for tc in 0..cols {
                 let mut m = f64::NEG_INFINITY;
-                for r in tr * TILE..((tr + 1) * TILE + 1).min(scene.height) {
-                    for c in tc * TILE..((tc + 1) * TILE + 1).min(scene.width) {
+                for r in tr * tile..((tr + 1) * tile + 1).min(scene.height) {
+                    for c in tc * tile..((tc + 1) * tile + 1).min(scene.width) {
                         let i = r * scene.width + c;
                         if scene.mask[i] {
                             m = m.max(scene.depth[i] as f64);
@@ -205,11 +238,12 @@ impl TileMax {
                 max[tr * cols + tc] = m;
             }
         }
-        TileMax { cols, max }
+        TileMax { shift, cols, max }
     }
 
+    /// The bound for a bilinear sample whose cell's top-left pixel is (row, col).
     #[inline]
-    fn max(&self, tr: usize, tc: usize) -> f64 {
-        self.max[tr * self.cols + tc]
+    fn max_at(&self, row: usize, col: usize) -> f64 {
+        self.max[(row >> self.shift) * self.cols + (col >> self.shift)]
     }
 }
