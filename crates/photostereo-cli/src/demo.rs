@@ -33,11 +33,15 @@ pub struct DemoArgs {
     /// Scene size in pixels.
     #[arg(long, default_value_t = 128)]
     pub size: usize,
+    /// Light rigs, each giving one table: the paper's `square4`, `ring8`, `dome-N`, `ring-N`.
+    #[arg(long = "rig", default_values_t = ["square4".to_string(), "ring8".to_string(), "dome-20".to_string()])]
+    pub rigs: Vec<String>,
     #[command(flatten)]
     pub out: OutputOpts,
 }
 
 struct Row {
+    rig: String,
     scene: &'static str,
     method: &'static str,
     stats: ErrorStats,
@@ -47,21 +51,106 @@ pub fn main(a: DemoArgs) -> Result<()> {
     if a.size < 16 || a.size > 4096 {
         bail!("--size {}: expected 16..=4096 pixels", a.size);
     }
+    let rigs: Vec<Rig> = a
+        .rigs
+        .iter()
+        .map(|r| Rig::parse(r))
+        .collect::<photostereo::Result<_>>()?;
     let ours = a.output.join(MARKER).exists();
     let folder = OutputFolder::create(&a.output, a.out.force || ours)?;
     std::fs::write(folder.file(MARKER), "written by photostereo demo\n")?;
     let start = Instant::now();
-    let rig = Rig::Square4;
     let mut rows: Vec<Row> = Vec::new();
     let mut scene_stats = Vec::new();
+    for rig in &rigs {
+        run_rig(rig, folder.path(), a.size, &mut rows, &mut scene_stats)?;
+    }
+    let elapsed = start.elapsed().as_secs_f64();
+    let target = folder.commit()?;
+    if a.out.json {
+        let v: Vec<_> = rows
+            .iter()
+            .map(|r| serde_json::json!({"scene": r.scene, "rig": r.rig, "method": r.method, "error": r.stats}))
+            .collect();
+        let s: Vec<_> = scene_stats
+            .iter()
+            .map(|(rig, name, st)| serde_json::json!({"scene": name, "rig": rig, "stats": st}))
+            .collect();
+        print_json(&serde_json::json!({
+            "output": target.display().to_string(),
+            "results": v,
+            "scenes": s,
+            "seconds": elapsed,
+        }));
+    } else if a.out.text() {
+        for rig in &rigs {
+            let name = rig.name();
+            let n_lights = rig.lights().map(|l| l.len()).unwrap_or(0);
+            println!(
+                "Mean angular error (degrees), as the paper's Table 1: six scenes {}×{} under {} ({} lights), Blinn–Phong, noise σ {}%",
+                a.size,
+                a.size,
+                name,
+                n_lights,
+                DEMO_NOISE * 100.0
+            );
+            let stats: Vec<_> = scene_stats.iter().filter(|(r, _, _)| *r == name).collect();
+            print!("{:<14}", "method");
+            for (_, scene, _) in &stats {
+                print!(" {:>9}", scene);
+            }
+            println!(" {:>9}", "mean");
+            for &method in Method::ALL {
+                print!("{:<14}", method.name());
+                let errs: Vec<f64> = rows
+                    .iter()
+                    .filter(|r| r.method == method.name() && r.rig == name)
+                    .map(|r| r.stats.mean_deg)
+                    .collect();
+                for e in &errs {
+                    print!(" {:>9.2}", e);
+                }
+                println!(
+                    " {:>9.2}",
+                    errs.iter().sum::<f64>() / errs.len().max(1) as f64
+                );
+            }
+            for (label, pick) in [("shadowed %", 0usize), ("cast %", 1), ("highlight %", 2)] {
+                print!("{:<14}", label);
+                for (_, _, st) in &stats {
+                    let v = match pick {
+                        0 => st.shadow_fraction,
+                        1 => st.cast_shadow_fraction,
+                        _ => st.highlight_fraction,
+                    };
+                    print!(" {:>9.1}", 100.0 * v);
+                }
+                println!();
+            }
+            println!();
+        }
+        println!("wrote {} in {:.2} s", target.display(), elapsed);
+    }
+    Ok(())
+}
+
+/// Renders the six scenes under one rig, runs every method, writes captures, outputs and one
+/// figure per scene under `root`.
+fn run_rig(
+    rig: &Rig,
+    root: &std::path::Path,
+    size: usize,
+    rows: &mut Vec<Row>,
+    scene_stats: &mut Vec<(String, &'static str, photostereo::scene::CaptureStats)>,
+) -> Result<()> {
     for &kind in SceneKind::ALL {
         let mut spec = SynthSpec::new(kind, rig.clone());
-        spec.size = a.size;
+        spec.size = size;
         spec.render.brdf = Brdf::BlinnPhong;
         spec.render.noise_sigma = DEMO_NOISE;
         spec.render.seed = DEMO_SEED;
         let rendered = synthesize(&spec)?;
-        let scene_dir = folder.path().join(kind.name());
+        let scene_dir = root.join(rig.name()).join(kind.name());
         let capture_dir = scene_dir.join("capture");
         std::fs::create_dir_all(&capture_dir).with_context(|| capture_dir.display().to_string())?;
         write_capture(&capture_dir, &rendered, Some(&spec))?;
@@ -102,74 +191,15 @@ pub fn main(a: DemoArgs) -> Result<()> {
                 ],
             ));
             rows.push(Row {
+                rig: rig.name(),
                 scene: kind.name(),
                 method: method.name(),
                 stats,
             });
         }
-        figure(kind.name(), &figure_rows)
-            .save(&folder.path().join(format!("{}.png", kind.name())))?;
-        scene_stats.push((kind.name(), rendered.stats.clone()));
-    }
-    let elapsed = start.elapsed().as_secs_f64();
-    let target = folder.commit()?;
-    if a.out.json {
-        let v: Vec<_> = rows
-            .iter()
-            .map(|r| {
-                serde_json::json!({"scene": r.scene, "rig": rig.name(), "method": r.method, "error": r.stats})
-            })
-            .collect();
-        let s: Vec<_> = scene_stats
-            .iter()
-            .map(|(name, st)| serde_json::json!({"scene": name, "rig": rig.name(), "stats": st}))
-            .collect();
-        print_json(&serde_json::json!({
-            "output": target.display().to_string(),
-            "results": v,
-            "scenes": s,
-            "seconds": elapsed,
-        }));
-    } else if a.out.text() {
-        println!(
-            "Mean angular error (degrees): six scenes {}×{} under square4 (4 lights, slant 35°), Blinn–Phong, noise σ {}%",
-            a.size,
-            a.size,
-            DEMO_NOISE * 100.0
-        );
-        print!("{:<10}", "method");
-        for (name, _) in &scene_stats {
-            print!(" {:>9}", name);
-        }
-        println!(" {:>9}", "mean");
-        for &method in Method::ALL {
-            print!("{:<10}", method.name());
-            let errs: Vec<f64> = rows
-                .iter()
-                .filter(|r| r.method == method.name())
-                .map(|r| r.stats.mean_deg)
-                .collect();
-            for e in &errs {
-                print!(" {:>9.2}", e);
-            }
-            println!(
-                " {:>9.2}",
-                errs.iter().sum::<f64>() / errs.len().max(1) as f64
-            );
-        }
-        for (label, pick) in [("shadow %", 0usize), ("cast %", 1), ("highlt %", 2)] {
-            print!("{:<10}", label);
-            for (_, st) in &scene_stats {
-                let v = match pick {
-                    0 => st.shadow_fraction,
-                    1 => st.cast_shadow_fraction,
-                    _ => st.highlight_fraction,
-                };
-                print!(" {:>9.1}", 100.0 * v);
-            }
-            println!();
-        }
-        println!("wrote {} in {:.2} s", target.display(), elapsed);
+        figure(&format!("{} {}", rig.name(), kind.name()), &figure_rows)
+            .save(&root.join(format!("{}-{}.png", rig.name(), kind.name())))?;
+        scene_stats.push((rig.name(), kind.name(), rendered.stats.clone()));
     }
     Ok(())
 }

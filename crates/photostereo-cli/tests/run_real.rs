@@ -107,13 +107,21 @@ fn diligent_recursive_beats_the_bounds() {
         assert!(mean <= bound, "{object}: {mean} > {bound}");
         let iterations = v["recursive"]["iterations"].as_array().unwrap();
         assert!(!iterations.is_empty() && iterations[0]["mean_error_deg"].as_f64().is_some());
-        let status: ndarray::Array3<u8> = ndarray_npy::read_npy(out.join("light_status.npy")).unwrap();
+        let status: ndarray::Array3<u8> =
+            ndarray_npy::read_npy(out.join("light_status.npy")).unwrap();
         assert_eq!(status.dim(), (96, 512, 612));
         // Some lights are dropped, outside pixels are 255.
         assert!(status.iter().any(|&s| s == 1) && status[[0, 0, 0]] == 255);
         let depth: ndarray::Array2<f32> = ndarray_npy::read_npy(out.join("depth.npy")).unwrap();
         assert_eq!(depth.dim(), (512, 612));
-        for f in ["shadows.png", "highlight.png", "fewer_than_three.png", "residual.npy", "unreliable_mask.png", "mesh.ply"] {
+        for f in [
+            "shadows.png",
+            "highlight.png",
+            "fewer_than_three.png",
+            "residual.npy",
+            "unreliable_mask.png",
+            "mesh.ply",
+        ] {
             assert!(out.join(f).exists(), "{object}: {f} missing");
         }
     }

@@ -61,15 +61,25 @@ fn bench(c: &mut Criterion) {
 /// On a real DiLiGenT object (when ../shared/data is present): least squares alone, the
 /// detector (noise estimate, χ² test and attribution), and the recursive method.
 fn bench_diligent(c: &mut Criterion) {
-    let dir = std::path::PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/diligent/catPNG"));
-    let Ok(files) = photostereo::CaptureFiles::diligent(&dir) else { return };
+    let dir = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/diligent/catPNG"
+    ));
+    let Ok(files) = photostereo::CaptureFiles::diligent(&dir) else {
+        return;
+    };
     let capture = files.load(&Silent).unwrap();
     let mut g = c.benchmark_group("diligent_cat");
     g.sample_size(10);
     g.bench_function("load", |b| b.iter(|| files.load(&Silent).unwrap()));
-    g.bench_function("l2", |b| b.iter(|| LeastSquares.estimate(&capture, &Silent).unwrap()));
+    g.bench_function("l2", |b| {
+        b.iter(|| LeastSquares.estimate(&capture, &Silent).unwrap())
+    });
     let params = photostereo::detect::DetectionParams::default();
-    let test_only = photostereo::detect::DetectionParams { attribute: false, ..params.clone() };
+    let test_only = photostereo::detect::DetectionParams {
+        attribute: false,
+        ..params.clone()
+    };
     g.bench_function("detect_test_only", |b| {
         b.iter(|| photostereo::detect::detect(&capture, &test_only, &Silent).unwrap())
     });
@@ -77,7 +87,11 @@ fn bench_diligent(c: &mut Criterion) {
         b.iter(|| photostereo::detect::detect(&capture, &params, &Silent).unwrap())
     });
     g.bench_function("recursive", |b| {
-        b.iter(|| photostereo::recursive::Recursive::default().estimate(&capture, &Silent).unwrap())
+        b.iter(|| {
+            photostereo::recursive::Recursive::default()
+                .estimate(&capture, &Silent)
+                .unwrap()
+        })
     });
     g.finish();
 }

@@ -47,7 +47,7 @@ fn main() -> photostereo::Result<()> {
                     Some(&truth.mask),
                 )?;
                 means[i] += s.mean_deg / SceneKind::ALL.len() as f64;
-                line += &format!(" {}={:.4}", method.name(), s.mean_deg);
+                line += &format!(" {}={:.2}", method.name(), s.mean_deg);
                 if let Some(r) = &rec.recursive {
                     let (mut inter, mut uni) = (0usize, 0usize);
                     for k in 0..capture.n_lights() {

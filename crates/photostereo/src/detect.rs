@@ -378,7 +378,11 @@ fn attribute_from(
     let mut rss = score_pass(test, scratch, &m, &gram_inv);
     let s_all = rss / var;
     let shadow_level = params.shadow_sigmas * sigma + params.shadow_ratio * level;
-    while params.attribute && count > 3 && count > test.min_kept && rss / var > test.thresholds[count - 3] {
+    while params.attribute
+        && count > 3
+        && count > test.min_kept
+        && rss / var > test.thresholds[count - 3]
+    {
         // The largest deleted residual, and whether it is tied (always so with four lights).
         let (mut best, mut best_score, mut second) = (usize::MAX, -1.0, -1.0);
         for (k, &sc) in scratch.score.iter().enumerate() {
