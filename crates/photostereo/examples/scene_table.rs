@@ -1,6 +1,7 @@
 //! Prints the mean angular error of every method on the six built-in scenes under a rig, and
 //! the IoU of the recursive method's final shadow maps with the ground truth.
 //! `cargo run --release -p photostereo --example scene_table -- square4 ring8 dome-20`
+//! (`FALLBACK=brightest` or `UW=0.0` vary the recursive method's fallback and unreliable weight).
 use photostereo::pipeline::{reconstruct, Method, RunOptions};
 use photostereo::progress::Silent;
 use photostereo::report::Report;
@@ -31,7 +32,9 @@ fn main() -> photostereo::Result<()> {
                     options.recursive.fallback = f.parse()?;
                 }
                 if let Ok(f) = std::env::var("UW") {
-                    options.recursive.unreliable_weight = f.parse().unwrap();
+                    options.recursive.unreliable_weight = f.parse().map_err(|_| {
+                        photostereo::Error::invalid(format!("UW={f}: not a number"))
+                    })?;
                 }
                 let mut report = Report::new(method.name());
                 let rec = reconstruct(
