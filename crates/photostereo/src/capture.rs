@@ -119,82 +119,17 @@ impl CaptureFiles {
         Ok(files)
     }
 
-    /// The list-file layout: a text file with the image count, the image paths and the mask path;
-    /// lights from a separate file. Paths are taken relative to the list file's folder and,
-    /// failing that, to its parent.
+    /// The list-file layout: a text file with the image count, the image paths and the mask path
+    /// (see [`read_list_file`]); lights from a separate file.
     pub fn list_file(list: &Path, lights_path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
-        let lines: Vec<(usize, &str)> = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty())
-            .collect();
-        let (first_line, first) = *lines
-            .first()
-            .ok_or_else(|| Error::file(list, "empty list file"))?;
-        let count: usize = first.parse().map_err(|_| {
-            Error::parse(
-                list,
-                first_line,
-                format!("'{first}': expected the image count"),
-            )
-        })?;
-        if lines.len() < count + 1 {
-            return Err(Error::file(
-                list,
-                format!("announces {count} images but lists {}", lines.len() - 1),
-            ));
-        }
-        let base = list.parent().unwrap_or(Path::new("."));
-        let candidates = [
-            base.to_path_buf(),
-            base.parent().unwrap_or(Path::new(".")).to_path_buf(),
-        ];
-        let resolve = |rel: &str| -> Option<(usize, PathBuf)> {
-            candidates
-                .iter()
-                .enumerate()
-                .map(|(i, b)| (i, b.join(rel)))
-                .find(|(_, p)| p.exists())
-        };
-        let mut images = Vec::with_capacity(count);
-        let mut used_parent = false;
-        for (line, rel) in &lines[1..=count] {
-            let (which, p) = resolve(rel).ok_or_else(|| {
-                Error::parse(
-                    list,
-                    *line,
-                    format!(
-                        "image '{rel}' not found relative to the list file's folder or its parent"
-                    ),
-                )
-            })?;
-            used_parent |= which == 1;
-            images.push(p);
-        }
-        let mask = match lines.get(count + 1) {
-            Some((line, rel)) => Some(
-                resolve(rel)
-                    .ok_or_else(|| Error::parse(list, *line, format!("mask '{rel}' not found")))?
-                    .1,
-            ),
-            None => None,
-        };
+        let listed = read_list_file(list)?;
         let lights = Lights::read_directions(lights_path)?;
         let mut files = CaptureFiles {
-            images,
+            images: listed.images,
             lights,
-            mask,
-            notes: Vec::new(),
+            mask: listed.mask,
+            notes: listed.notes,
         };
-        if used_parent {
-            files.notes.push(format!(
-                "image paths in {} resolved relative to {}",
-                list.display(),
-                candidates[1].display()
-            ));
-        }
         files.note_renormalised();
         Ok(files)
     }
@@ -345,6 +280,89 @@ impl CaptureFiles {
             notes: self.notes.clone(),
         })
     }
+}
+
+/// The images and mask named by a list file (CONVENTIONS.md, layout 2).
+#[derive(Clone, Debug)]
+pub struct ListFile {
+    pub images: Vec<PathBuf>,
+    pub mask: Option<PathBuf>,
+    /// How the paths were resolved, when it matters.
+    pub notes: Vec<String>,
+}
+
+/// Reads a list file: a first line with the image count, then one image path per line, then an
+/// optional mask path; blank lines and `#` comments are skipped. Paths are taken relative to the
+/// list file's folder and, failing that, to its parent (the shared `psmImages` lists name
+/// `psmImages/<object>/<file>`); a note says when the parent was used.
+pub fn read_list_file(list: &Path) -> Result<ListFile> {
+    let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
+    let lines: Vec<(usize, &str)> = text
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (i + 1, l.trim()))
+        .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
+        .collect();
+    let (first_line, first) = *lines
+        .first()
+        .ok_or_else(|| Error::file(list, "empty list file"))?;
+    let count: usize = first.parse().map_err(|_| {
+        Error::parse(
+            list,
+            first_line,
+            format!("'{first}': expected the image count"),
+        )
+    })?;
+    if lines.len() < count + 1 {
+        return Err(Error::file(
+            list,
+            format!("announces {count} images but lists {}", lines.len() - 1),
+        ));
+    }
+    let base = match list.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let parent = match base.parent() {
+        Some(p) if !p.as_os_str().is_empty() && base != Path::new(".") => p.to_path_buf(),
+        _ => base.join(".."),
+    };
+    let bases = [base, parent];
+    let mut used_parent = false;
+    let mut resolve = |line: usize, rel: &str, what: &str| -> Result<PathBuf> {
+        for (i, b) in bases.iter().enumerate() {
+            let p = b.join(rel);
+            if p.exists() {
+                used_parent |= i == 1;
+                return Ok(p);
+            }
+        }
+        Err(Error::parse(
+            list,
+            line,
+            format!("{what} '{rel}' not found relative to the list file's folder or its parent"),
+        ))
+    };
+    let mut images = Vec::with_capacity(count);
+    for (line, rel) in &lines[1..=count] {
+        images.push(resolve(*line, rel, "image")?);
+    }
+    let mask = match lines.get(count + 1) {
+        Some((line, rel)) => Some(resolve(*line, rel, "mask")?),
+        None => None,
+    };
+    let mut notes = Vec::new();
+    if used_parent {
+        notes.push(format!(
+            "paths in {} resolved relative to its parent folder",
+            list.display()
+        ));
+    }
+    Ok(ListFile {
+        images,
+        mask,
+        notes,
+    })
 }
 
 /// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities).

@@ -68,76 +68,13 @@ impl SphereFiles {
         }
     }
 
-    /// The list-file layout (see [`SphereFiles::resolve`]).
+    /// The list-file layout (see [`SphereFiles::resolve`] and [`crate::capture::read_list_file`]).
     pub fn list_file(list: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
-        let lines: Vec<(usize, &str)> = text
-            .lines()
-            .enumerate()
-            .map(|(i, l)| (i + 1, l.trim()))
-            .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'))
-            .collect();
-        let (first_line, first) = *lines
-            .first()
-            .ok_or_else(|| Error::file(list, "empty list file"))?;
-        let count: usize = first.parse().map_err(|_| {
-            Error::parse(
-                list,
-                first_line,
-                format!("'{first}': expected the image count"),
-            )
-        })?;
-        if lines.len() < count + 1 {
-            return Err(Error::file(
-                list,
-                format!("announces {count} images but lists {}", lines.len() - 1),
-            ));
-        }
-        let base = match list.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        let parent = match base.parent() {
-            Some(p) if !p.as_os_str().is_empty() && base != Path::new(".") => p.to_path_buf(),
-            _ => base.join(".."),
-        };
-        let bases = [base, parent];
-        let mut used_parent = false;
-        let mut resolve = |line: usize, rel: &str, what: &str| -> Result<PathBuf> {
-            for (i, b) in bases.iter().enumerate() {
-                let p = b.join(rel);
-                if p.exists() {
-                    used_parent |= i == 1;
-                    return Ok(p);
-                }
-            }
-            Err(Error::parse(
-                list,
-                line,
-                format!(
-                    "{what} '{rel}' not found relative to the list file's folder or its parent"
-                ),
-            ))
-        };
-        let mut images = Vec::with_capacity(count);
-        for (line, rel) in &lines[1..=count] {
-            images.push(resolve(*line, rel, "image")?);
-        }
-        let mask = match lines.get(count + 1) {
-            Some((line, rel)) => Some(resolve(*line, rel, "mask")?),
-            None => None,
-        };
-        let mut notes = Vec::new();
-        if used_parent {
-            notes.push(format!(
-                "paths in {} resolved relative to its parent folder",
-                list.display()
-            ));
-        }
+        let listed = crate::capture::read_list_file(list)?;
         Ok(SphereFiles {
-            images,
-            mask,
-            notes,
+            images: listed.images,
+            mask: listed.mask,
+            notes: listed.notes,
         })
     }
 
