@@ -724,13 +724,8 @@ mod tests {
         let rn = r.iter().map(|v| v * v).sum::<f64>().sqrt();
         let bn = b_copy.iter().map(|v| v * v).sum::<f64>().sqrt();
         assert!(rn / bn < 1e-6, "true relative residual {}", rn / bn);
-        for i in 0..w * h {
-            assert!(
-                (s.x[i] - truth[i]).abs() < 1e-4,
-                "{i}: {} vs {}",
-                s.x[i],
-                truth[i]
-            );
+        for (i, (x, t)) in s.x.iter().zip(&truth).enumerate() {
+            assert!((x - t).abs() < 1e-4, "{i}: {x} vs {t}");
         }
         assert!(s.iterations < 30, "{} iterations", s.iterations);
     }
