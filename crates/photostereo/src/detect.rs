@@ -148,7 +148,9 @@ impl NoiseModel {
     }
 }
 
-/// The detector's results, per mask pixel (see [`Capture::pixels`]).
+/// The detector's results, per mask pixel (see [`Capture::pixels`]). A pixel is unreliable when
+/// the χ² test fails, or when at least N − 2 of its readings are at the shadow level (faults the
+/// linear test cannot see; see `dark_beyond_the_test`).
 #[derive(Clone, Debug)]
 pub struct Detection {
     /// ‖r‖ / σ_p with all lights: the grey map of the paper's Fig. 6a.
@@ -468,23 +470,26 @@ fn sweep(
     params: &DetectionParams,
     noise: &NoiseModel,
     progress: &dyn Progress,
-) -> (Vec<f32>, Vec<u8>) {
+) -> (Vec<f32>, Vec<u8>, Vec<bool>) {
     let n = capture.n_lights();
     let c = capture.channels;
     let np = capture.n_pixels();
     let mut residual = vec![0f32; np];
     let mut light_status = vec![status::USED; np * n];
+    let mut invisible = vec![false; np];
     progress.begin("detecting", np as u64);
     residual
         .par_chunks_mut(CHUNK)
         .zip(light_status.par_chunks_mut(CHUNK * n))
+        .zip(invisible.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each_init(
             || Scratch::new(n),
-            |scratch, (chunk, (res, st))| {
+            |scratch, (chunk, ((res, st), inv))| {
                 let p0 = chunk * CHUNK;
                 for dp in 0..res.len() {
                     channel_mean(capture.pixel_samples(p0 + dp), c, &mut scratch.grey);
+                    inv[dp] = dark_beyond_the_test(params, noise, &scratch.grey);
                     let (s_all, _, _) =
                         attribute(test, params, noise, scratch, &mut st[dp * n..(dp + 1) * n]);
                     res[dp] = s_all.sqrt() as f32;
@@ -493,7 +498,20 @@ fn sweep(
             },
         );
     progress.end();
-    (residual, light_status)
+    (residual, light_status, invisible)
+}
+
+/// Faults confined to a set S of lights are invisible to the linear test when they can be
+/// absorbed by another normal, which needs |S| ≥ N − 2 (the fault vector must lie in the light
+/// matrix's column space while vanishing on the other lights). Such pixels are recognisable when
+/// the faults are shadows: at least N − 2 readings at the shadow level. They are flagged
+/// unreliable: a pixel lit by at most two lights does not determine a normal anyway.
+fn dark_beyond_the_test(params: &DetectionParams, noise: &NoiseModel, grey: &[f64]) -> bool {
+    let n = grey.len();
+    let level = grey.iter().sum::<f64>() / n as f64;
+    let shadow_level =
+        params.shadow_sigmas * noise.variance(level).sqrt() + params.shadow_ratio * level;
+    grey.iter().filter(|&&g| g <= shadow_level).count() + 2 >= n
 }
 
 /// Fits σ² = σ₀² + κ² · level² to per-bin variance estimates (level, variance), with σ₀², κ² ≥ 0.
@@ -717,11 +735,12 @@ pub fn detect_with_noise(
     params.validate()?;
     let test = Test::new(capture, params)?;
     let n = capture.n_lights();
-    let (residual, light_status) = sweep(capture, &test, params, &noise, progress);
+    let (residual, light_status, invisible) = sweep(capture, &test, params, &noise, progress);
     let threshold = test.thresholds[n - 3];
     let unreliable = residual
         .iter()
-        .map(|&r| (r as f64) * (r as f64) > threshold)
+        .zip(&invisible)
+        .map(|(&r, &dark)| (r as f64) * (r as f64) > threshold || dark)
         .collect();
     Ok(Detection {
         residual,
