@@ -37,6 +37,9 @@ pub struct RunArgs {
     /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
     #[arg(long)]
     pub sigma: Option<f64>,
+    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²).
+    #[arg(long, default_value_t = photostereo::detect::DEFAULT_RELATIVE_NOISE)]
+    pub relative_noise: f64,
     /// Confidence of the χ² test for non-Lambertian pixels.
     #[arg(long, default_value_t = 0.95)]
     pub confidence: f64,
@@ -152,6 +155,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         detect: !a.no_detect,
         detection: photostereo::detect::DetectionParams {
             sigma: a.sigma,
+            relative_noise: Some(a.relative_noise),
             confidence: a.confidence,
             ..Default::default()
         },

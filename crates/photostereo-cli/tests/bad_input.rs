@@ -268,6 +268,17 @@ fn existing_output_needs_force() {
 }
 
 #[test]
+fn out_of_range_parameters_are_refused() {
+    let f = Fixture::new();
+    f.fails(&["--max-iterations", "0"], &["--max-iterations 0"]);
+    f.fails(&["--unreliable-weight", "2"], &["unreliable_weight 2"]);
+    f.fails(&["--sigma=-1"], &["--sigma -1"]);
+    f.fails(&["--relative-noise=-0.5"], &["--relative-noise -0.5"]);
+    f.fails(&["--confidence", "1.5"], &["--confidence 1.5"]);
+    f.fails(&["--light-subset", "1,2,99"], &["light index 99"]);
+}
+
+#[test]
 fn unknown_method_is_a_usage_error() {
     let f = Fixture::new();
     f.fails(&["--method", "magic"], &["unknown method 'magic'"]);

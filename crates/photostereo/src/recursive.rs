@@ -178,6 +178,11 @@ pub fn recursive(
     progress: &dyn Progress,
     on_iteration: &mut dyn FnMut(&IterationRecord),
 ) -> Result<Estimate> {
+    if params.max_iterations == 0 {
+        return Err(crate::Error::invalid(
+            "--max-iterations 0: the recursive method needs at least one iteration",
+        ));
+    }
     if !(params.unreliable_weight >= 0.0 && params.unreliable_weight <= 1.0) {
         return Err(crate::Error::invalid(format!(
             "unreliable_weight {}: expected a value in [0, 1]",
