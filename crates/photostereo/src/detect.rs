@@ -168,6 +168,30 @@ pub struct Detection {
 }
 
 impl Detection {
+    /// The maps of a capture the test cannot examine (three lights): nothing flagged, every
+    /// light used; the noise model is the given or image-estimated one.
+    pub fn untested(capture: &Capture, params: &DetectionParams) -> Self {
+        let c = capture.channels as f64;
+        let sigma0 = params
+            .sigma
+            .map(|s| s / c.sqrt())
+            .or_else(|| image_noise(capture))
+            .unwrap_or(0.0);
+        let np = capture.n_pixels();
+        Detection {
+            residual: vec![0.0; np],
+            unreliable: vec![false; np],
+            light_status: vec![status::USED; np * capture.n_lights()],
+            noise: NoiseModel {
+                sigma0,
+                kappa: params.relative_noise.unwrap_or(DEFAULT_RELATIVE_NOISE),
+                estimated: params.sigma.is_none(),
+            },
+            threshold: f64::INFINITY,
+            params: params.clone(),
+        }
+    }
+
     /// Share of mask pixels flagged unreliable.
     pub fn unreliable_share(&self) -> f64 {
         self.unreliable.iter().filter(|&&u| u).count() as f64 / self.unreliable.len().max(1) as f64

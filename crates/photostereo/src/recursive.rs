@@ -20,7 +20,7 @@
 //! completed by [`Fallback`].
 
 use crate::capture::Capture;
-use crate::detect::{detect, Attributor, DetectionParams};
+use crate::detect::{detect, Attributor, Detection, DetectionParams};
 use crate::error::Result;
 use crate::estimate::{
     channel_mean, solve_subsets, status, write_normal_albedo, Estimate, Estimator, CHUNK,
@@ -193,8 +193,15 @@ pub fn recursive(
     let np = capture.n_pixels();
     let (w, h) = (capture.width, capture.height);
     let c = capture.channels;
-    let detection = detect(capture, &params.detection, progress)?;
-    let attributor = Attributor::new(capture, &params.detection, detection.noise)?;
+    // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
+    // starts reliable and only the geometric shadows of the surface prune lights.
+    let (detection, attributor) = if n >= 4 {
+        let detection = detect(capture, &params.detection, progress)?;
+        let attributor = Attributor::new(capture, &params.detection, detection.noise)?;
+        (detection, Some(attributor))
+    } else {
+        (Detection::untested(capture, &params.detection), None)
+    };
     let unreliable = detection.unreliable.clone();
     let mut light_status = detection.light_status.clone();
     let mut est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
@@ -269,7 +276,7 @@ pub fn recursive(
             .zip(new_highlight.par_chunks_mut(CHUNK))
             .enumerate()
             .for_each_init(
-                || (vec![0f64; n], attributor.scratch()),
+                || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
                 |(grey, scratch), (chunk, (((st, cons), fw), hl))| {
                     for dp in 0..cons.len() {
                         let p = chunk * CHUNK + dp;
@@ -283,10 +290,12 @@ pub fn recursive(
                             }
                         }
                         channel_mean(capture.pixel_samples(p), c, grey);
-                        let count = if unreliable[p] {
+                        let count = if let (true, Some(att), Some(scratch)) =
+                            (unreliable[p], &attributor, scratch.as_mut())
+                        {
                             hl[dp] = shadowed == 0;
-                            let (stat, count) = attributor.run(grey, s, scratch);
-                            cons[dp] = count > 3 && stat <= attributor.threshold(count);
+                            let (stat, count) = att.run(grey, s, scratch);
+                            cons[dp] = count > 3 && stat <= att.threshold(count);
                             count
                         } else {
                             cons[dp] = true;
