@@ -63,3 +63,20 @@ impl Error {
         Error::Invalid(message.into())
     }
 }
+
+/// Finds the item of `all` whose `name` is `s`, or an error listing the accepted names
+/// ("unknown {what} 's': expected one of …"). Shared by the `FromStr` impls of named enums.
+pub fn parse_name<T: Copy>(
+    s: &str,
+    all: &[T],
+    name: impl Fn(T) -> &'static str,
+    what: &str,
+) -> Result<T> {
+    all.iter().copied().find(|&t| name(t) == s).ok_or_else(|| {
+        let names: Vec<&str> = all.iter().map(|&t| name(t)).collect();
+        Error::invalid(format!(
+            "unknown {what} '{s}': expected one of {}",
+            names.join(", ")
+        ))
+    })
+}

@@ -36,6 +36,7 @@ pub mod pipeline;
 pub mod progress;
 pub mod recursive;
 pub mod report;
+pub mod rng;
 pub mod scene;
 pub mod shadows;
 pub mod stats;

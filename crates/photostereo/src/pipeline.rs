@@ -82,17 +82,7 @@ impl Method {
 impl FromStr for Method {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Method::ALL
-            .iter()
-            .copied()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<&str> = Method::ALL.iter().map(|m| m.name()).collect();
-                Error::invalid(format!(
-                    "unknown method '{s}': expected one of {}",
-                    names.join(", ")
-                ))
-            })
+        crate::error::parse_name(s, Method::ALL, Method::name, "method")
     }
 }
 

@@ -1,5 +1,5 @@
 //! Distribution functions the detectors need: χ² and normal quantiles (from the regularised
-//! incomplete gamma function), and a small deterministic random generator for calibration.
+//! incomplete gamma function).
 
 /// ln Γ(x) for x > 0 (Lanczos approximation, |error| < 1e-13 in this range).
 pub fn ln_gamma(x: f64) -> f64 {
@@ -111,51 +111,6 @@ pub fn normal_upper_quantile(q: f64) -> f64 {
     chi2_quantile(1.0 - 2.0 * q, 1).sqrt()
 }
 
-/// A small deterministic generator (SplitMix64) with Gaussian draws, for reproducible
-/// calibration and rendering noise.
-#[derive(Clone, Debug)]
-pub struct Rng {
-    state: u64,
-    spare: Option<f64>,
-}
-
-impl Rng {
-    /// A generator from a seed.
-    pub fn new(seed: u64) -> Self {
-        Rng {
-            state: seed ^ 0x9E37_79B9_7F4A_7C15,
-            spare: None,
-        }
-    }
-
-    /// Next 64 random bits.
-    pub fn next_u64(&mut self) -> u64 {
-        self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.state;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [0, 1).
-    pub fn uniform(&mut self) -> f64 {
-        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Standard normal (Box–Muller).
-    pub fn normal(&mut self) -> f64 {
-        if let Some(s) = self.spare.take() {
-            return s;
-        }
-        let u1 = self.uniform().max(1e-300);
-        let u2 = self.uniform();
-        let r = (-2.0 * u1.ln()).sqrt();
-        let t = 2.0 * std::f64::consts::PI * u2;
-        self.spare = Some(r * t.sin());
-        r * t.cos()
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -175,23 +130,5 @@ mod tests {
             assert!((q - x).abs() < 1e-4 * x.max(1.0), "p={p} d={d}: {q} vs {x}");
         }
         assert!((normal_upper_quantile(0.025) - 1.959_964).abs() < 1e-5);
-    }
-
-    #[test]
-    fn rng_normal_has_unit_variance() {
-        let mut r = Rng::new(7);
-        let n = 200_000;
-        let (mut s, mut s2) = (0.0, 0.0);
-        for _ in 0..n {
-            let x = r.normal();
-            s += x;
-            s2 += x * x;
-        }
-        let mean = s / n as f64;
-        let var = s2 / n as f64 - mean * mean;
-        assert!(
-            mean.abs() < 0.01 && (var - 1.0).abs() < 0.01,
-            "{mean} {var}"
-        );
     }
 }

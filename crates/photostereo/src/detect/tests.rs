@@ -130,9 +130,9 @@ fn noise_level_is_estimated_from_a_noisy_capture() {
     let (mut capture, _) = lambert_sphere(64, 28.0, &dirs);
     let n = capture.n_lights();
     let sigma = 0.005;
-    let mut rng = crate::stats::Rng::new(3);
+    let mut rng = crate::rng::Pcg32::new(3, 0);
     for v in capture.samples.iter_mut() {
-        *v += (sigma * rng.normal()) as f32;
+        *v += (sigma * rng.next_normal()) as f32;
     }
     let patch = |p: usize| {
         let (r, c) = capture.pixel_position(p);

@@ -19,7 +19,7 @@ use crate::detect::{noise_model, DetectionParams, NoiseModel};
 use crate::error::Result;
 use crate::estimate::status;
 use crate::progress::Progress;
-use crate::stats::Rng;
+use crate::rng::Pcg32;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -125,7 +125,7 @@ impl ColemanJain {
         let c = capture.channels;
         let all = SubsetSolver::all_lights(capture);
         let dirs = &capture.lights.directions;
-        let mut rng = Rng::new(0x0C0C_5EED);
+        let mut rng = Pcg32::new(0x0C0C_5EED, 0);
         let mut grey = vec![0f64; n];
         let mut sim = vec![0f64; n];
         let kept = vec![true; n];
@@ -147,7 +147,7 @@ impl ColemanJain {
             let sd = noise.variance(level).sqrt();
             for _ in 0..4 {
                 for (s, v) in sim.iter_mut().zip(&clean) {
-                    *s = v + sd * rng.normal();
+                    *s = v + sd * rng.next_normal();
                 }
                 if let Some((sp, _)) =
                     Fit::new(dirs, &kept, &sim).and_then(|f| f.spread(&kept, &sim))

@@ -401,17 +401,12 @@ impl IntegratorKind {
 impl FromStr for IntegratorKind {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        IntegratorKind::ALL
-            .iter()
-            .copied()
-            .find(|m| m.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<&str> = IntegratorKind::ALL.iter().map(|m| m.name()).collect();
-                Error::invalid(format!(
-                    "unknown integration method '{s}': expected one of {}",
-                    names.join(", ")
-                ))
-            })
+        crate::error::parse_name(
+            s,
+            IntegratorKind::ALL,
+            IntegratorKind::name,
+            "integration method",
+        )
     }
 }
 

@@ -18,7 +18,7 @@
 pub mod reflectance;
 pub mod render;
 pub mod rigs;
-pub mod rng;
+pub use crate::rng;
 pub mod shadows;
 pub mod surfaces;
 

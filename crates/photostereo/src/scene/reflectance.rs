@@ -99,17 +99,7 @@ impl fmt::Display for Brdf {
 impl FromStr for Brdf {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        Brdf::ALL
-            .iter()
-            .copied()
-            .find(|b| b.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<&str> = Brdf::ALL.iter().map(|b| b.name()).collect();
-                Error::invalid(format!(
-                    "unknown reflectance model '{s}': expected one of {}",
-                    names.join(", ")
-                ))
-            })
+        crate::error::parse_name(s, Brdf::ALL, Brdf::name, "reflectance model")
     }
 }
 

@@ -156,17 +156,7 @@ impl fmt::Display for SceneKind {
 impl FromStr for SceneKind {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        SceneKind::ALL
-            .iter()
-            .copied()
-            .find(|k| k.name() == s)
-            .ok_or_else(|| {
-                let names: Vec<&str> = SceneKind::ALL.iter().map(|k| k.name()).collect();
-                Error::invalid(format!(
-                    "unknown scene '{s}': expected one of {}",
-                    names.join(", ")
-                ))
-            })
+        crate::error::parse_name(s, SceneKind::ALL, SceneKind::name, "scene")
     }
 }
 

@@ -1,4 +1,4 @@
-//! A small deterministic random number generator for the renderer's noise: PCG32 (O'Neill's
+//! A small deterministic random number generator (the renderer's noise, calibration draws): PCG32 (O'Neill's
 //! XSH-RR output on a 64-bit LCG) with Box–Muller normal deviates. Every (seed, stream) pair
 //! gives its own reproducible sequence, so rendering can be split over lights and rows in
 //! parallel and still produce the same bytes for the same seed.
