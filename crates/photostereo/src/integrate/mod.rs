@@ -38,6 +38,7 @@ use crate::progress::{Progress, Silent};
 use multigrid::{pcg, Hierarchy, Level};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::borrow::Cow;
 use std::str::FromStr;
 
 /// Default cap on |p| and |q| (pixel units per pixel): a slope of 20 is 87.1° from the view
@@ -250,6 +251,15 @@ impl<'a> IntegrationProblem<'a> {
         }
     }
 
+    /// The first pixel of the mask (in scan order) for which `bad` holds; rows are scanned in
+    /// parallel.
+    fn first_masked(&self, bad: impl Fn(usize) -> bool + Sync) -> Option<usize> {
+        let w = self.width;
+        (0..self.height)
+            .into_par_iter()
+            .find_map_first(|r| (r * w..(r + 1) * w).find(|&i| self.mask[i] && bad(i)))
+    }
+
     /// Checks shapes and values; errors name the offending input.
     pub fn validate(&self) -> Result<()> {
         let n = self.width * self.height;
@@ -268,9 +278,7 @@ impl<'a> IntegrationProblem<'a> {
                 )));
             }
         }
-        if let Some(i) =
-            (0..n).find(|&i| self.mask[i] && !(self.p[i].is_finite() && self.q[i].is_finite()))
-        {
+        if let Some(i) = self.first_masked(|i| !(self.p[i].is_finite() && self.q[i].is_finite())) {
             return Err(Error::invalid(format!(
                 "integration: gradient at row {}, column {} is not finite",
                 i / self.width,
@@ -284,7 +292,7 @@ impl<'a> IntegrationProblem<'a> {
                     w.len()
                 )));
             }
-            if let Some(i) = (0..n).find(|&i| self.mask[i] && !(0.0..=1.0).contains(&w[i])) {
+            if let Some(i) = self.first_masked(|i| !(0.0..=1.0).contains(&w[i])) {
                 return Err(Error::invalid(format!(
                     "integration: weight {} at row {}, column {}: expected 0..1",
                     w[i],
@@ -306,7 +314,7 @@ impl<'a> IntegrationProblem<'a> {
                     prior.lambda
                 )));
             }
-            if let Some(i) = (0..n).find(|&i| self.mask[i] && !prior.depth[i].is_finite()) {
+            if let Some(i) = self.first_masked(|i| !prior.depth[i].is_finite()) {
                 return Err(Error::invalid(format!(
                     "integration: prior depth at row {}, column {} is not finite",
                     i / self.width,
@@ -495,64 +503,157 @@ pub fn surface_from_normals(
 // ---------------------------------------------------------------------------------------------
 // Shared machinery.
 
-/// Labels the 4-connected components of `mask`: `u32::MAX` outside; returns the labels and the
-/// number of components.
-pub(crate) fn label_components(width: usize, height: usize, mask: &[bool]) -> (Vec<u32>, usize) {
-    let n = width * height;
-    let mut labels = vec![u32::MAX; n];
-    if mask.iter().all(|&m| m) {
-        labels.fill(0);
-        return (labels, usize::from(n > 0));
-    }
-    let mut count = 0u32;
-    let mut stack: Vec<u32> = Vec::new();
-    for seed in 0..n {
-        if !mask[seed] || labels[seed] != u32::MAX {
-            continue;
-        }
-        labels[seed] = count;
-        stack.push(seed as u32);
-        while let Some(i) = stack.pop() {
-            let i = i as usize;
-            let (r, c) = (i / width, i % width);
-            let mut visit = |j: usize| {
-                if mask[j] && labels[j] == u32::MAX {
-                    labels[j] = count;
-                    stack.push(j as u32);
-                }
-            };
-            if c > 0 {
-                visit(i - 1);
-            }
-            if c + 1 < width {
-                visit(i + 1);
-            }
-            if r > 0 {
-                visit(i - width);
-            }
-            if r + 1 < height {
-                visit(i + width);
-            }
-        }
-        count += 1;
-    }
-    (labels, count as usize)
+/// The 4-connected components of a mask.
+pub(crate) struct Components {
+    /// Component of each pixel (`u32::MAX` outside the mask); empty when the mask covers the
+    /// whole grid (one component), which saves a label per pixel on the common full grid.
+    labels: Vec<u32>,
+    /// Number of components.
+    pub count: usize,
 }
 
-/// Subtracts each component's mean (over its pixels) from `f`.
-pub(crate) fn remove_component_means(f: &mut [f64], labels: &[u32], components: usize) {
-    let mut sum = vec![0f64; components];
-    let mut cnt = vec![0usize; components];
-    for (v, &l) in f.iter().zip(labels) {
-        if l != u32::MAX {
-            sum[l as usize] += v;
-            cnt[l as usize] += 1;
+impl Components {
+    /// Labels the components of `mask` (`width * height`).
+    pub fn of(width: usize, height: usize, mask: &[bool]) -> Components {
+        let n = width * height;
+        if mask.par_iter().all(|&m| m) {
+            return Components {
+                labels: Vec::new(),
+                count: usize::from(n > 0),
+            };
+        }
+        let mut labels = vec![u32::MAX; n];
+        let mut count = 0u32;
+        let mut stack: Vec<u32> = Vec::new();
+        for seed in 0..n {
+            if !mask[seed] || labels[seed] != u32::MAX {
+                continue;
+            }
+            labels[seed] = count;
+            stack.push(seed as u32);
+            while let Some(i) = stack.pop() {
+                let i = i as usize;
+                let (r, c) = (i / width, i % width);
+                let mut visit = |j: usize| {
+                    if mask[j] && labels[j] == u32::MAX {
+                        labels[j] = count;
+                        stack.push(j as u32);
+                    }
+                };
+                if c > 0 {
+                    visit(i - 1);
+                }
+                if c + 1 < width {
+                    visit(i + 1);
+                }
+                if r > 0 {
+                    visit(i - width);
+                }
+                if r + 1 < height {
+                    visit(i + width);
+                }
+            }
+            count += 1;
+        }
+        Components {
+            labels,
+            count: count as usize,
         }
     }
-    for (v, &l) in f.iter_mut().zip(labels) {
-        if l != u32::MAX {
-            *v -= sum[l as usize] / cnt[l as usize].max(1) as f64;
+
+    /// The component of pixel `i` (`None` outside the mask).
+    #[inline]
+    pub fn label(&self, i: usize) -> Option<usize> {
+        if self.labels.is_empty() {
+            return Some(0);
         }
+        let l = self.labels[i];
+        (l != u32::MAX).then_some(l as usize)
+    }
+
+    /// Whether the mask covers the whole grid (one component, no labels).
+    pub fn is_whole_grid(&self) -> bool {
+        self.labels.is_empty()
+    }
+
+    /// The mean of `value(i)` over each component's pixels (labelled masks). Summed over
+    /// threads when the components are few, else in one pass.
+    fn labelled_means(&self, value: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
+        const BLOCK: usize = 1 << 16;
+        let k = self.count;
+        let sums = |lo: usize, labels: &[u32], sum: &mut [f64], cnt: &mut [f64]| {
+            for (j, &l) in labels.iter().enumerate() {
+                if l != u32::MAX {
+                    sum[l as usize] += value(lo + j);
+                    cnt[l as usize] += 1.0;
+                }
+            }
+        };
+        let (sum, cnt) = if k <= 64 {
+            self.labels
+                .par_chunks(BLOCK)
+                .enumerate()
+                .map(|(t, labels)| {
+                    let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
+                    sums(t * BLOCK, labels, &mut sum, &mut cnt);
+                    (sum, cnt)
+                })
+                .reduce(
+                    || (vec![0f64; k], vec![0f64; k]),
+                    |mut a, b| {
+                        a.0.iter_mut().zip(&b.0).for_each(|(x, y)| *x += y);
+                        a.1.iter_mut().zip(&b.1).for_each(|(x, y)| *x += y);
+                        a
+                    },
+                )
+        } else {
+            let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
+            sums(0, &self.labels, &mut sum, &mut cnt);
+            (sum, cnt)
+        };
+        sum.iter().zip(&cnt).map(|(s, &c)| s / c.max(1.0)).collect()
+    }
+
+    /// Subtracts each component's mean from `f` (values outside the mask are left alone).
+    pub fn remove_means(&self, f: &mut [f64]) {
+        if self.is_whole_grid() {
+            let mean = f.par_iter().sum::<f64>() / f.len().max(1) as f64;
+            f.par_iter_mut().for_each(|v| *v -= mean);
+            return;
+        }
+        let mean = self.labelled_means(|i| f[i]);
+        f.par_iter_mut()
+            .zip(self.labels.par_iter())
+            .for_each(|(v, &l)| {
+                if l != u32::MAX {
+                    *v -= mean[l as usize];
+                }
+            });
+    }
+
+    /// The mean of `f` over each component (sums in f64).
+    pub fn means_f32(&self, f: &[f32]) -> Vec<f64> {
+        if self.is_whole_grid() {
+            return vec![f.par_iter().map(|&v| v as f64).sum::<f64>() / f.len().max(1) as f64];
+        }
+        self.labelled_means(|i| f[i] as f64)
+    }
+
+    /// [`Components::remove_means`] for f32 values (sums in f64).
+    pub fn remove_means_f32(&self, f: &mut [f32]) {
+        let mean = self.means_f32(f);
+        if self.is_whole_grid() {
+            f.par_iter_mut()
+                .for_each(|v| *v = (*v as f64 - mean[0]) as f32);
+            return;
+        }
+        f.par_iter_mut()
+            .zip(self.labels.par_iter())
+            .for_each(|(v, &l)| {
+                if l != u32::MAX {
+                    *v = (*v as f64 - mean[l as usize]) as f32;
+                }
+            });
     }
 }
 
@@ -591,23 +692,24 @@ pub(crate) fn edge_targets(
 /// Gradients with the pixels of weight below `fill_below` replaced by the harmonic interpolation
 /// of the others (Laplace's equation on the mask graph, Dirichlet data from reliable neighbours;
 /// a component without reliable pixels gets zero gradients). Returns `(p, q, filled_count)`.
-pub(crate) fn fill_unreliable(
-    problem: &IntegrationProblem,
+pub(crate) fn fill_unreliable<'a>(
+    problem: &IntegrationProblem<'a>,
     fill_below: f32,
-) -> (Vec<f32>, Vec<f32>, usize) {
+) -> (Cow<'a, [f32]>, Cow<'a, [f32]>, usize) {
     let (w, h) = (problem.width, problem.height);
-    let mut p = problem.p.to_vec();
-    let mut q = problem.q.to_vec();
+    let unchanged = (Cow::Borrowed(problem.p), Cow::Borrowed(problem.q), 0);
     let Some(weights) = problem.weights else {
-        return (p, q, 0);
+        return unchanged;
     };
     let hole: Vec<bool> = (0..w * h)
         .map(|i| problem.mask[i] && weights[i] < fill_below)
         .collect();
     let filled = hole.iter().filter(|&&b| b).count();
     if filled == 0 {
-        return (p, q, 0);
+        return unchanged;
     }
+    let mut p = problem.p.to_vec();
+    let mut q = problem.q.to_vec();
     let mask = problem.mask;
     let n = w * h;
     let mut east = vec![0f32; n];
@@ -653,29 +755,31 @@ pub(crate) fn fill_unreliable(
         }
     }
     // Components of the hole without any reliable neighbour: pin one cell (zero gradient).
-    let (labels, k) = label_components(w, h, &hole);
-    let mut anchored = vec![false; k];
-    for i in 0..n {
-        if hole[i] && extra[i] > 0.0 {
-            anchored[labels[i] as usize] = true;
+    let components = Components::of(w, h, &hole);
+    let mut anchored = vec![false; components.count];
+    for (i, &x) in extra.iter().enumerate() {
+        if let Some(l) = components.label(i) {
+            anchored[l] |= x > 0.0;
         }
     }
-    for i in 0..n {
-        if hole[i] && !anchored[labels[i] as usize] {
-            extra[i] = 1.0;
-            anchored[labels[i] as usize] = true;
+    for (i, x) in extra.iter_mut().enumerate() {
+        if let Some(l) = components.label(i) {
+            if !anchored[l] {
+                *x = 1.0;
+                anchored[l] = true;
+            }
         }
     }
-    let mut hier = Hierarchy::new(Level::from_parts(w, h, east, south, &extra, &hole));
-    let sp = pcg(&mut hier, bp, None, 1e-6, 200, &Silent);
-    let sq = pcg(&mut hier, bq, None, 1e-6, 200, &Silent);
+    let mut hier = Hierarchy::new(Level::from_parts(w, h, east, south, |i| extra[i], &hole));
+    let sp = pcg(&mut hier, bp, None, None, 1e-6, 200, &Silent);
+    let sq = pcg(&mut hier, bq, None, None, 1e-6, 200, &Silent);
     for i in 0..n {
         if hole[i] {
             p[i] = sp.x[i] as f32;
             q[i] = sq.x[i] as f32;
         }
     }
-    (p, q, filled)
+    (Cow::Owned(p), Cow::Owned(q), filled)
 }
 
 /// Converts a solution to a depth map (NaN outside the mask).

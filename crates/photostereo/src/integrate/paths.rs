@@ -8,8 +8,8 @@
 //! (spread along the component's scan order) and both orders are averaged.
 
 use super::{
-    edge_targets, fill_unreliable, label_components, remove_component_means, to_depth, Depth,
-    IntegrationProblem, IntegrationStats, Integrator, DEFAULT_FILL_BELOW,
+    edge_targets, fill_unreliable, to_depth, Components, Depth, IntegrationProblem,
+    IntegrationStats, Integrator, DEFAULT_FILL_BELOW,
 };
 use crate::error::{Error, Result};
 use crate::progress::Progress;
@@ -144,12 +144,12 @@ impl Integrator for Paths {
         let (dh, dv) = edge_targets(w, h, &p, &q, problem.mask);
         drop(p);
         drop(q);
-        let (labels, components) = label_components(w, h, problem.mask);
+        let components = Components::of(w, h, problem.mask);
         // Pixels of each component in scan order, to spread the seeds along it.
-        let mut members: Vec<Vec<usize>> = vec![Vec::new(); components];
-        for (i, &l) in labels.iter().enumerate() {
-            if l != u32::MAX {
-                members[l as usize].push(i);
+        let mut members: Vec<Vec<usize>> = vec![Vec::new(); components.count];
+        for i in 0..w * h {
+            if let Some(l) = components.label(i) {
+                members[l].push(i);
             }
         }
         let n = w * h;
@@ -175,7 +175,7 @@ impl Integrator for Paths {
                     &mut f,
                     &mut reached,
                 );
-                remove_component_means(&mut f, &labels, components);
+                components.remove_means(&mut f);
                 sum.iter_mut().zip(&f).for_each(|(s, v)| *s += v);
                 progress.advance(1);
             }
@@ -185,7 +185,7 @@ impl Integrator for Paths {
         let stats = IntegrationStats {
             method: "paths".into(),
             iterations: total,
-            components,
+            components: components.count,
             filled_pixels: filled,
             ..Default::default()
         };

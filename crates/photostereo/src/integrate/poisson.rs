@@ -1,10 +1,9 @@
 //! `poisson`: masked weighted least squares, solved by multigrid-preconditioned CG.
 
-use super::multigrid::{pcg, Hierarchy, Level};
+use super::multigrid::{par_zeros, pcg, Hierarchy, Level};
 use super::{
-    fill_unreliable, label_components, remove_component_means, to_depth, Depth, IntegrationProblem,
-    IntegrationStats, Integrator, Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT,
-    DEFAULT_TOLERANCE,
+    fill_unreliable, to_depth, Components, Depth, IntegrationProblem, IntegrationStats, Integrator,
+    Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT, DEFAULT_TOLERANCE,
 };
 use crate::error::Result;
 use crate::progress::Progress;
@@ -55,21 +54,21 @@ pub(crate) struct System {
 }
 
 /// Builds `A` and `b` of `Σ w_e (f_b − f_a − d_e)² + λ Σ (f_i − z_i)²` from (filled) gradients.
-/// `pins` get an extra diagonal of 1 (the caller removes the component means afterwards).
+/// Without a prior `A` is singular, one constant per component: `b` sums to zero over each
+/// component, CG converges on it, and the caller removes the component means afterwards.
 pub(crate) fn build_system(
     problem: &IntegrationProblem,
     p: &[f32],
     q: &[f32],
     min_edge_weight: f32,
-    pins: &[usize],
 ) -> System {
     let (w, h) = (problem.width, problem.height);
     let n = w * h;
     let mask = problem.mask;
     let weight = |i: usize| problem.weights.map_or(1.0, |ws| ws[i]);
     let edge = |a: usize, b: usize| weight(a).min(weight(b)).max(min_edge_weight);
-    let mut east = vec![0f32; n];
-    let mut south = vec![0f32; n];
+    let mut east: Vec<f32> = par_zeros(n);
+    let mut south: Vec<f32> = par_zeros(n);
     east.par_chunks_mut(w)
         .zip(south.par_chunks_mut(w))
         .enumerate()
@@ -87,7 +86,7 @@ pub(crate) fn build_system(
                 }
             }
         });
-    let mut rhs = vec![0f64; n];
+    let mut rhs: Vec<f64> = par_zeros(n);
     let lambda = problem.prior.map_or(0.0, |pr| pr.lambda);
     rhs.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
         for (c, b) in row.iter_mut().enumerate() {
@@ -114,11 +113,7 @@ pub(crate) fn build_system(
             *b = s;
         }
     });
-    let mut extra = vec![lambda; n];
-    for &i in pins {
-        extra[i] += 1.0;
-    }
-    let level = Level::from_parts(w, h, east, south, &extra, mask);
+    let level = Level::from_parts(w, h, east, south, |_| lambda, mask);
     System { level, rhs }
 }
 
@@ -132,24 +127,7 @@ impl Integrator for Poisson {
         let (w, h) = (problem.width, problem.height);
         let (p, q, filled) = fill_unreliable(problem, self.fill_below);
         let has_prior = problem.prior.is_some_and(|pr| pr.lambda > 0.0);
-        let (labels, components) = label_components(w, h, problem.mask);
-        let pins: Vec<usize> = if has_prior {
-            Vec::new()
-        } else {
-            // The first pixel of each component in scan order.
-            let mut seen = vec![false; components];
-            let mut pins = Vec::with_capacity(components);
-            for (i, &l) in labels.iter().enumerate() {
-                if l != u32::MAX && !seen[l as usize] {
-                    seen[l as usize] = true;
-                    pins.push(i);
-                    if pins.len() == components {
-                        break;
-                    }
-                }
-            }
-            pins
-        };
+        let components = Components::of(w, h, problem.mask);
         let x0 = match self.initial_guess {
             InitialGuess::Zero => None,
             InitialGuess::Paths => {
@@ -169,7 +147,7 @@ impl Integrator for Poisson {
                 )
             }
         };
-        let System { level, rhs } = build_system(problem, &p, &q, self.min_edge_weight, &pins);
+        let System { level, rhs } = build_system(problem, &p, &q, self.min_edge_weight);
         drop(p);
         drop(q);
         let mut hier = Hierarchy::new(level);
@@ -179,6 +157,7 @@ impl Integrator for Poisson {
             &mut hier,
             rhs,
             x0,
+            (!has_prior).then_some(&components),
             self.tolerance,
             self.max_iterations,
             progress,
@@ -186,7 +165,7 @@ impl Integrator for Poisson {
         progress.end();
         let mut x = solve.x;
         if !has_prior {
-            remove_component_means(&mut x, &labels, components);
+            components.remove_means(&mut x);
         }
         let mut notes = Vec::new();
         if solve.relative_residual > self.tolerance {
@@ -199,7 +178,7 @@ impl Integrator for Poisson {
             method: "poisson".into(),
             iterations: solve.iterations,
             relative_residual: solve.relative_residual,
-            components,
+            components: components.count,
             filled_pixels: filled,
             levels: hier.depth(),
             notes,

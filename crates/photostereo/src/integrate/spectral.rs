@@ -48,7 +48,8 @@ impl Default for Fft {
 }
 
 fn masked_gradients(problem: &IntegrationProblem, fill_below: f32) -> (Vec<f32>, Vec<f32>, usize) {
-    let (mut p, mut q, filled) = fill_unreliable(problem, fill_below);
+    let (p, q, filled) = fill_unreliable(problem, fill_below);
+    let (mut p, mut q) = (p.into_owned(), q.into_owned());
     for i in 0..p.len() {
         if !problem.mask[i] {
             p[i] = 0.0;
@@ -190,7 +191,7 @@ impl Integrator for Dct {
         progress.end();
         let stats = IntegrationStats {
             method: "dct".into(),
-            components: super::label_components(w, h, problem.mask).1,
+            components: super::Components::of(w, h, problem.mask).count,
             filled_pixels: filled,
             notes: notes_for(problem, "dct"),
             ..Default::default()
@@ -312,7 +313,7 @@ impl Integrator for Fft {
         progress.end();
         let stats = IntegrationStats {
             method: "fft".into(),
-            components: super::label_components(w, h, problem.mask).1,
+            components: super::Components::of(w, h, problem.mask).count,
             filled_pixels: filled,
             notes: notes_for(problem, "fft"),
             ..Default::default()
