@@ -1,17 +1,21 @@
 //! A weighted 5-point graph Laplacian on a (masked) pixel grid, plus a non-negative diagonal,
 //! solved by conjugate gradients preconditioned with a multigrid V-cycle.
 //!
-//! Operator: `(A x)_i = d_i x_i − Σ_j w_ij x_j` over the 4-neighbours `j` of `i`, with
-//! `d_i = Σ_j w_ij + e_i` (`e_i ≥ 0`: a prior, a Dirichlet anchor or a pin). Inactive cells
-//! (outside the mask) have `d_i = 0` and are never touched.
+//! Operator: `(A x)_i = e_i x_i + Σ_j w_ij (x_i − x_j)` over the 4-neighbours `j` of `i`, with
+//! `e_i ≥ 0` a prior's weight or a Dirichlet anchor (often 0 everywhere). It is applied in this
+//! difference form, so that `A·1 = 0` exactly when `e = 0` whatever the rounding of the f32
+//! weights: such a problem is singular with one constant per connected component, and [`pcg`]
+//! solves it as such (see its `null_space`). Inactive cells (outside the mask) have no edges and
+//! `1/d_i = 0` (`d_i = Σ_j w_ij + e_i`); they are never touched.
 //!
 //! Multigrid: 2×2 aggregation (piecewise-constant prolongation `P`, restriction `Pᵀ`), coarse
 //! operators by Galerkin `PᵀAP` with the Laplacian part scaled by ½ — which is what
 //! rediscretising the Laplacian on the coarse grid gives for a constant weight (plain Galerkin
 //! with piecewise-constant `P` is twice too stiff on smooth modes and loses grid independence).
-//! Smoothing: red–black Gauss–Seidel, red then black before the coarse correction and black then
-//! red after it, so that the V-cycle is a symmetric positive definite preconditioner. The coarsest
-//! grid (at most 8×8) is solved exactly by a dense Cholesky factorisation.
+//! Smoothing: red–black Gauss–Seidel, red then black before the coarse correction (from zero) and
+//! black then red after it, so that the V-cycle is a symmetric positive definite preconditioner.
+//! The coarsest grid (at most 8×8) is solved exactly by a dense Cholesky factorisation, with one
+//! diagonal entry doubled in each component that nothing anchors.
 //!
 //! Storage: f32 for the operator and the V-cycle, f64 for the CG iterate and residual.
 
@@ -33,7 +37,8 @@ pub(crate) struct Level {
     pub east: Vec<f32>,
     /// Weight of the edge from cell `i` to `i + w` (0 in the last row or when absent).
     pub south: Vec<f32>,
-    /// The extra diagonal `e_i ≥ 0` (a prior's weight, a Dirichlet anchor); 0 outside.
+    /// The extra diagonal `e_i ≥ 0` (a prior's weight, a Dirichlet anchor); 0 outside. Empty
+    /// when it is 0 everywhere (no prior, no anchor: the common case).
     pub extra: Vec<f32>,
     /// `1 / d_i` with `d_i = Σ_j w_ij + e_i`; 0 marks an inactive cell.
     pub inv_diag: Vec<f32>,
@@ -87,6 +92,9 @@ impl Level {
                     *inv = if s > 0.0 { 1.0 / s } else { 0.0 };
                 }
             });
+        if extra_diag.par_iter().all(|&x| x == 0.0) {
+            extra_diag = Vec::new();
+        }
         Level {
             w,
             h,
@@ -95,6 +103,12 @@ impl Level {
             extra: extra_diag,
             inv_diag,
         }
+    }
+
+    /// The extra diagonal of cell `i`.
+    #[inline]
+    fn extra_at(&self, i: usize) -> f32 {
+        self.extra.get(i).copied().unwrap_or(0.0)
     }
 
     fn n(&self) -> usize {
@@ -133,7 +147,11 @@ impl Level {
             &self.east[lo..lo + w],
             &self.south[lo..lo + w],
             s_up,
-            &self.extra[lo..lo + w],
+            if self.extra.is_empty() {
+                &zeros[..w]
+            } else {
+                &self.extra[lo..lo + w]
+            },
         )
     }
 
@@ -438,7 +456,7 @@ impl Level {
                                 continue;
                             }
                             a = true;
-                            x += self.extra[i];
+                            x += self.extra_at(i);
                             if dc == 1 {
                                 e += self.east[i];
                             }
@@ -493,7 +511,7 @@ impl CoarseSolver {
         let mut a = vec![0f64; m * m];
         for (k, &i) in cells.iter().enumerate() {
             let (r, c) = (i / level.w, i % level.w);
-            a[k * m + k] = level.extra[i] as f64 + level.edge_sum(i, r, c) as f64;
+            a[k * m + k] = level.extra_at(i) as f64 + level.edge_sum(i, r, c) as f64;
             if c + 1 < level.w && pos[i + 1] != usize::MAX {
                 let j = pos[i + 1];
                 a[k * m + j] -= level.east[i] as f64;
@@ -531,8 +549,9 @@ impl CoarseSolver {
                 a[start * m + start] *= 2.0;
             }
         }
-        // In-place Cholesky; a non-positive pivot (cannot happen for a pinned system, but f32
-        // round-off on huge grids could bring one near zero) is replaced by a tiny positive one.
+        // In-place Cholesky; a non-positive pivot (cannot happen once every component is
+        // anchored, but f32 round-off on huge grids could bring one near zero) is replaced by a
+        // tiny positive one.
         let scale = (0..m).map(|k| a[k * m + k]).fold(0f64, f64::max).max(1e-30);
         for j in 0..m {
             let mut d = a[j * m + j];
@@ -926,10 +945,10 @@ mod tests {
 
     /// A masked grid with unit weights and one pinned cell (the first of the mask).
     fn laplacian(w: usize, h: usize, mask: &[bool]) -> Level {
-        pinned_laplacian(w, h, mask, true)
+        unit_laplacian(w, h, mask, true)
     }
 
-    fn pinned_laplacian(w: usize, h: usize, mask: &[bool], pin: bool) -> Level {
+    fn unit_laplacian(w: usize, h: usize, mask: &[bool], pin: bool) -> Level {
         let mut east = vec![0f32; w * h];
         let mut south = vec![0f32; w * h];
         for r in 0..h {
@@ -951,6 +970,14 @@ mod tests {
         Level::from_parts(w, h, east, south, |i| extra[i], mask)
     }
 
+    /// `A x` in f64 (as the negated residual of `b = 0`).
+    fn product(level: &Level, x: &[f64]) -> Vec<f64> {
+        let mut b = vec![0f64; x.len()];
+        level.residual64(&vec![0f64; x.len()], x, &mut b);
+        b.iter_mut().for_each(|v| *v = -*v);
+        b
+    }
+
     /// A pseudo-random value in [0, 1) from an index.
     fn hash01(i: usize, salt: u64) -> f32 {
         let mut v = (i as u64 ^ salt).wrapping_mul(0x9E37_79B9_7F4A_7C15);
@@ -969,7 +996,7 @@ mod tests {
                 if (r + c) % 2 != colour || level.inv_diag[i] <= 0.0 {
                     continue;
                 }
-                let d = level.extra[i] as f64 + level.edge_sum(i, r, c) as f64;
+                let d = level.extra_at(i) as f64 + level.edge_sum(i, r, c) as f64;
                 let mut s = b[i] as f64;
                 if c + 1 < w {
                     s += level.east[i] as f64 * x[i + 1] as f64;
@@ -1057,7 +1084,7 @@ mod tests {
             })
             .collect();
         // Weights that f32 cannot sum exactly: the operator must stay exactly singular anyway.
-        let mut level = pinned_laplacian(w, h, &mask, false);
+        let mut level = unit_laplacian(w, h, &mask, false);
         for (i, (e, s)) in level
             .east
             .iter_mut()
@@ -1078,9 +1105,7 @@ mod tests {
                 }
             })
             .collect();
-        let mut b = vec![0f64; w * h];
-        level.residual64(&vec![0f64; w * h], &truth, &mut b);
-        b.iter_mut().for_each(|v| *v = -*v);
+        let b = product(&level, &truth);
         let mut hier = Hierarchy::new(level);
         let components = Components::of(w, h, &mask);
         let s = pcg(&mut hier, b, None, Some(&components), 1e-10, 100, &Silent);
@@ -1119,10 +1144,7 @@ mod tests {
                 }
             })
             .collect();
-        let mut b = vec![0f64; w * h];
-        let zero = vec![0f64; w * h];
-        level.residual64(&zero, &truth, &mut b);
-        b.iter_mut().for_each(|v| *v = -*v);
+        let b = product(&level, &truth);
         let mut hier = Hierarchy::new(level);
         let b_copy = b.clone();
         let s = pcg(&mut hier, b, None, None, 1e-10, 100, &Silent);
