@@ -614,46 +614,54 @@ impl Components {
         sum.iter().zip(&cnt).map(|(s, &c)| s / c.max(1.0)).collect()
     }
 
-    /// Subtracts each component's mean from `f` (values outside the mask are left alone).
-    pub fn remove_means(&self, f: &mut [f64]) {
-        if self.is_whole_grid() {
-            let mean = f.par_iter().sum::<f64>() / f.len().max(1) as f64;
-            f.par_iter_mut().for_each(|v| *v -= mean);
-            return;
-        }
-        let mean = self.labelled_means(|i| f[i]);
-        f.par_iter_mut()
-            .zip(self.labels.par_iter())
-            .for_each(|(v, &l)| {
-                if l != u32::MAX {
-                    *v -= mean[l as usize];
-                }
-            });
-    }
-
     /// The mean of `f` over each component (sums in f64).
-    pub fn means_f32(&self, f: &[f32]) -> Vec<f64> {
+    pub fn means<T: Sample>(&self, f: &[T]) -> Vec<f64> {
         if self.is_whole_grid() {
-            return vec![f.par_iter().map(|&v| v as f64).sum::<f64>() / f.len().max(1) as f64];
+            let sum = f.par_iter().map(|&v| v.to_f64()).sum::<f64>();
+            return vec![sum / f.len().max(1) as f64];
         }
-        self.labelled_means(|i| f[i] as f64)
+        self.labelled_means(|i| f[i].to_f64())
     }
 
-    /// [`Components::remove_means`] for f32 values (sums in f64).
-    pub fn remove_means_f32(&self, f: &mut [f32]) {
-        let mean = self.means_f32(f);
+    /// Subtracts each component's mean from `f` (values outside the mask are left alone).
+    pub fn remove_means<T: Sample>(&self, f: &mut [T]) {
+        let mean = self.means(f);
         if self.is_whole_grid() {
             f.par_iter_mut()
-                .for_each(|v| *v = (*v as f64 - mean[0]) as f32);
+                .for_each(|v| *v = T::from_f64(v.to_f64() - mean[0]));
             return;
         }
         f.par_iter_mut()
             .zip(self.labels.par_iter())
             .for_each(|(v, &l)| {
                 if l != u32::MAX {
-                    *v = (*v as f64 - mean[l as usize]) as f32;
+                    *v = T::from_f64(v.to_f64() - mean[l as usize]);
                 }
             });
+    }
+}
+
+/// A stored value (f32 or f64) whose sums are taken in f64.
+pub(crate) trait Sample: Copy + Send + Sync {
+    fn to_f64(self) -> f64;
+    fn from_f64(v: f64) -> Self;
+}
+
+impl Sample for f32 {
+    fn to_f64(self) -> f64 {
+        self as f64
+    }
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+}
+
+impl Sample for f64 {
+    fn to_f64(self) -> f64 {
+        self
+    }
+    fn from_f64(v: f64) -> Self {
+        v
     }
 }
 

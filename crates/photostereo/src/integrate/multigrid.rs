@@ -235,7 +235,7 @@ impl Level {
                         *ov = a as f32;
                         sum += *ov as f64;
                     }
-                    (dot_f32_f64(&x[r * w..(r + 1) * w], &acc[..w]), sum)
+                    (dot_and_sums(&x[r * w..(r + 1) * w], &acc[..w]).0, sum)
                 },
             )
             .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
@@ -702,24 +702,6 @@ pub(crate) struct Solve {
 /// Independent accumulators of the f64 sums below (they let the sums vectorise).
 const LANES: usize = 8;
 
-/// `Σ a_k b_k` in f64 over f32 `a` and f64 `b` (one thread).
-fn dot_f32_f64(a: &[f32], b: &[f64]) -> f64 {
-    let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
-    let tail: f64 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(&u, &v)| u as f64 * v)
-        .sum();
-    let mut acc = [0f64; LANES];
-    for (x, y) in ca.zip(cb) {
-        for k in 0..LANES {
-            acc[k] += x[k] as f64 * y[k];
-        }
-    }
-    acc.iter().sum::<f64>() + tail
-}
-
 /// `(Σ a_k b_k, Σ a_k, Σ b_k)` in f64 over f32 `a` and f64 `b` (one thread).
 fn dot_and_sums(a: &[f32], b: &[f64]) -> (f64, f64, f64) {
     let (ca, cb) = (a.chunks_exact(LANES), b.chunks_exact(LANES));
@@ -871,7 +853,7 @@ pub(crate) fn pcg(
     // mean, subtracted on the fly by the callers.
     let dot_rz = |r: &[f64], z: &mut [f32]| -> (f64, f64) {
         if let Some(c) = null_space.filter(|c| !c.is_whole_grid()) {
-            c.remove_means_f32(z);
+            c.remove_means(z);
         }
         let (rz, z_sum, r_sum) = z
             .par_chunks(CHUNK)
@@ -907,7 +889,7 @@ pub(crate) fn pcg(
                 cg_update(&mut x, &mut r, ap, &p, alpha, |_| mean)
             }
             Some(c) => {
-                let means = c.means_f32(ap);
+                let means = c.means(ap);
                 cg_update(&mut x, &mut r, ap, &p, alpha, |i| {
                     c.label(i).map_or(0.0, |l| means[l])
                 })
