@@ -115,6 +115,20 @@ fn check_lengths(width: usize, height: usize, depth: &[f32], normals: &[[f32; 3]
     Ok(())
 }
 
+/// Checks the inputs of a mesh writer, builds the mesh's indexing and creates the file.
+fn start_mesh(
+    path: &Path,
+    width: usize,
+    height: usize,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+) -> Result<(Mesh, BufWriter<std::fs::File>)> {
+    check_lengths(width, height, depth, normals)?;
+    let mesh = Mesh::new(width, height, depth)?;
+    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
+    Ok((mesh, BufWriter::with_capacity(1 << 20, file)))
+}
+
 /// Writes a binary little-endian PLY mesh of `depth` (NaN = no vertex) with per-vertex
 /// `normals`.
 pub fn write_mesh_ply(
@@ -124,10 +138,7 @@ pub fn write_mesh_ply(
     depth: &[f32],
     normals: &[[f32; 3]],
 ) -> Result<()> {
-    check_lengths(width, height, depth, normals)?;
-    let mesh = Mesh::new(width, height, depth)?;
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    let mut out = BufWriter::with_capacity(1 << 20, file);
+    let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
     write!(
         out,
@@ -168,10 +179,7 @@ pub fn write_mesh_obj(
     depth: &[f32],
     normals: &[[f32; 3]],
 ) -> Result<()> {
-    check_lengths(width, height, depth, normals)?;
-    let mesh = Mesh::new(width, height, depth)?;
-    let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    let mut out = BufWriter::with_capacity(1 << 20, file);
+    let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
     writeln!(
         out,
