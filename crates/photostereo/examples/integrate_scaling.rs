@@ -11,6 +11,10 @@ use photostereo::integrate::{IntegrationProblem, Integrator, Poisson};
 use photostereo::progress::Silent;
 use std::time::Instant;
 
+#[path = "../benches/support/grids.rs"]
+mod grids;
+use grids::irregular_mask;
+
 /// Gradients of a peaks-like surface scaled to an n × n grid (depth range ≈ n / 8 pixels).
 pub fn peaks_gradients(n: usize) -> (Vec<f32>, Vec<f32>) {
     let s = n as f64 / 6.0;
@@ -40,22 +44,6 @@ pub fn peaks_gradients(n: usize) -> (Vec<f32>, Vec<f32>) {
         }
     }
     (p, q)
-}
-
-/// Several discs, a notch and holes: an irregular mask with a few components.
-pub fn irregular_mask(n: usize) -> Vec<bool> {
-    let f = n as f64;
-    (0..n * n)
-        .map(|i| {
-            let (r, c) = ((i / n) as f64 / f, (i % n) as f64 / f);
-            let a = (c - 0.35).hypot(r - 0.45) < 0.3;
-            let b = (c - 0.7).hypot(r - 0.55) < 0.25;
-            let hole = (c - 0.35).hypot(r - 0.4) < 0.05;
-            let notch = (r - 0.5).abs() < 0.02 && c > 0.4 && c < 0.6;
-            let blob = (c - 0.9).hypot(r - 0.12) < 0.07;
-            ((a || b) && !hole && !notch) || blob
-        })
-        .collect()
 }
 
 /// CPU seconds (user + system) used by this process so far, from `/proc/self/stat` (Linux; 0
