@@ -198,74 +198,43 @@ fn missing_highlight_is_warned_and_fails() {
 #[test]
 fn bad_masks_are_errors() {
     let tmp = tempfile::tempdir().unwrap();
-    // An ellipse.
+    // Writes a mask, runs `calibrate` with it and expects a refusal naming the file and `what`.
+    let refused = |name: &str, w: usize, h: usize, pixels: &[u8], what: &str| {
+        let m = tmp.path().join(name);
+        photostereo::imageio::write_png8(&m, w, h, 1, pixels).unwrap();
+        let o = run!(
+            "calibrate",
+            psm("chrome.txt"),
+            "--mask",
+            m,
+            "-o",
+            tmp.path().join(format!("out-{name}"))
+        );
+        assert_eq!(o.status.code(), Some(2));
+        let err = text(&o.stderr);
+        assert!(err.contains(name) && err.contains(what), "{err}");
+    };
     let (w, h) = (512usize, 340usize);
-    let ellipse: Vec<u8> = (0..w * h)
-        .map(|i| {
-            let (r, c) = ((i / w) as f64, (i % w) as f64);
-            if ((c - 253.0) / 120.0).powi(2) + ((r - 148.0) / 90.0).powi(2) <= 1.0 {
-                255
-            } else {
-                0
-            }
-        })
-        .collect();
-    let m = tmp.path().join("ellipse.png");
-    photostereo::imageio::write_png8(&m, w, h, 1, &ellipse).unwrap();
-    let o = run!(
-        "calibrate",
-        psm("chrome.txt"),
-        "--mask",
-        m,
-        "-o",
-        tmp.path().join("a")
-    );
-    assert_eq!(o.status.code(), Some(2));
-    let err = text(&o.stderr);
-    assert!(
-        err.contains("ellipse.png") && err.contains("not circular"),
-        "{err}"
-    );
+    let disc = |inside: &dyn Fn(f64, f64) -> bool| -> Vec<u8> {
+        (0..w * h)
+            .map(|i| {
+                let (r, c) = ((i / w) as f64, (i % w) as f64);
+                if inside(r, c) {
+                    255
+                } else {
+                    0
+                }
+            })
+            .collect()
+    };
+    // An ellipse.
+    let ellipse = disc(&|r, c| ((c - 253.0) / 120.0).powi(2) + ((r - 148.0) / 90.0).powi(2) <= 1.0);
+    refused("ellipse.png", w, h, &ellipse, "not circular");
     // A disc mostly outside the frame.
-    let cut: Vec<u8> = (0..w * h)
-        .map(|i| {
-            let (r, c) = ((i / w) as f64, (i % w) as f64);
-            if (c - 560.0).powi(2) + (r - 170.0).powi(2) <= 100.0 * 100.0 {
-                255
-            } else {
-                0
-            }
-        })
-        .collect();
-    let m = tmp.path().join("cut.png");
-    photostereo::imageio::write_png8(&m, w, h, 1, &cut).unwrap();
-    let o = run!(
-        "calibrate",
-        psm("chrome.txt"),
-        "--mask",
-        m,
-        "-o",
-        tmp.path().join("b")
-    );
-    assert_eq!(o.status.code(), Some(2));
-    let err = text(&o.stderr);
-    assert!(
-        err.contains("cut.png") && err.contains("touches the frame"),
-        "{err}"
-    );
+    let cut = disc(&|r, c| (c - 560.0).powi(2) + (r - 170.0).powi(2) <= 100.0 * 100.0);
+    refused("cut.png", w, h, &cut, "touches the frame");
     // A mask of the wrong size.
-    let m = tmp.path().join("small.png");
-    photostereo::imageio::write_png8(&m, 10, 10, 1, &[255u8; 100]).unwrap();
-    let o = run!(
-        "calibrate",
-        psm("chrome.txt"),
-        "--mask",
-        m,
-        "-o",
-        tmp.path().join("c")
-    );
-    assert_eq!(o.status.code(), Some(2));
-    assert!(text(&o.stderr).contains("small.png"), "{}", text(&o.stderr));
+    refused("small.png", 10, 10, &[255u8; 100], "small.png");
     // Without a mask the dark chrome sphere cannot be detected: a clear error.
     let imgs: Vec<PathBuf> = (0..12)
         .map(|k| psm(&format!("chrome/chrome.{k}.png")))
