@@ -81,3 +81,14 @@ pub fn print_json(value: &serde_json::Value) {
         serde_json::to_string_pretty(value).unwrap_or_default()
     );
 }
+
+/// The library's error with parameters spelt as this program's flags: `relative_noise -0.5:
+/// expected…` becomes `--relative-noise -0.5: expected…`.
+pub fn flag_error(e: photostereo::Error) -> anyhow::Error {
+    match e {
+        photostereo::Error::Parameter { name, message } => {
+            anyhow::anyhow!("--{} {message}", name.replace('_', "-"))
+        }
+        other => other.into(),
+    }
+}

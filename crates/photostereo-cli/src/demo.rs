@@ -5,13 +5,13 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
+use photostereo::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::export::{write_json, OutputFolder};
 use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
 use photostereo::imageio::Image;
 use photostereo::metrics::{evaluate, ErrorStats};
-use photostereo::pipeline::{reconstruct, write_reconstruction, Method, RunOptions};
+use photostereo::pipeline::{write_reconstruction, RunOptions};
 use photostereo::progress::Silent;
-use photostereo::report::Report;
 use photostereo::scene::{synthesize, write_capture, Brdf, Rig, SceneKind, SynthSpec};
 use std::path::PathBuf;
 use std::time::Instant;
@@ -162,20 +162,17 @@ fn run_rig(
         inputs.push(normals_picture(&truth.normals, w, h));
         figure_rows.push(("inputs / truth".into(), inputs));
         for &method in Method::ALL {
-            let mut report = Report::new(method.name());
             let options = RunOptions {
-                method,
+                params: Params {
+                    method,
+                    ..Params::default()
+                },
                 error_map: true,
-                error_map_max_deg: ERROR_SCALE_DEG,
+                error_map_max_deg: Some(ERROR_SCALE_DEG),
                 ..RunOptions::default()
             };
-            let mut rec = reconstruct(
-                &capture,
-                &options,
-                Some(&truth.normals),
-                &Silent,
-                &mut report,
-            )?;
+            let mut rec =
+                reconstruct_with_truth(&capture, &options.params, Some(&truth.normals), &Silent)?;
             let (map, stats) = evaluate(&rec.normals, &truth.normals, Some(&truth.mask))?;
             rec.error_map = Some(map.clone());
             rec.report.error = Some(stats.clone());

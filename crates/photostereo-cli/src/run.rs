@@ -4,9 +4,17 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::capture::CaptureFiles;
-use photostereo::integrate::IntegratorKind;
-use photostereo::pipeline::{run, LightSubset, Method, RunOptions};
+use photostereo::detect::DetectionParams;
+use photostereo::engine::{Method, Params};
+use photostereo::integrate::{IntegrationParams, IntegratorKind};
+use photostereo::pipeline::{run, LightSubset, RunOptions, DEFAULT_ERROR_MAP_MAX_DEG};
+use photostereo::recursive::{Fallback, RecursiveParams};
 use std::path::{Path, PathBuf};
+
+/// The library's defaults, the one source of the flags' defaults.
+fn defaults() -> Params {
+    Params::default()
+}
 
 #[derive(Args, Debug)]
 pub struct RunArgs {
@@ -23,7 +31,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub mask: Option<PathBuf>,
     /// Estimation method: recursive, l2, coleman-jain, barsky-petrou.
-    #[arg(long, default_value = "recursive", value_parser = parse_method)]
+    #[arg(long, default_value = defaults().method.name(), value_parser = parse_method)]
     pub method: Method,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG) to score against.
     #[arg(long)]
@@ -32,7 +40,7 @@ pub struct RunArgs {
     #[arg(long)]
     pub error_map: bool,
     /// Upper end of the error map's scale, degrees.
-    #[arg(long, default_value_t = 45.0)]
+    #[arg(long, default_value_t = DEFAULT_ERROR_MAP_MAX_DEG)]
     pub error_map_max: f32,
     /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
     #[arg(long)]
@@ -41,7 +49,7 @@ pub struct RunArgs {
     #[arg(long, default_value_t = photostereo::detect::DEFAULT_RELATIVE_NOISE)]
     pub relative_noise: f64,
     /// Confidence of the χ² test for non-Lambertian pixels.
-    #[arg(long, default_value_t = 0.95)]
+    #[arg(long, default_value_t = defaults().detection.confidence)]
     pub confidence: f64,
     /// Use only some lights: `square` (the four closest to the paper's rig: slant 35°, tilts 90°
     /// apart), `square:SLANT`, or 1-based indices such as `1,5,9,13`.
@@ -51,25 +59,29 @@ pub struct RunArgs {
     #[arg(long)]
     pub no_detect: bool,
     /// Recursive method: iteration limit.
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = defaults().recursive.max_iterations)]
     pub max_iterations: usize,
     /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
-    #[arg(long, default_value_t = 0.002)]
+    #[arg(long, default_value_t = defaults().recursive.change_tolerance)]
     pub change_tolerance: f64,
-    /// Recursive method: integration weight of unreliable pixels (0 = fill them from neighbours).
-    #[arg(long, default_value_t = 0.1)]
+    /// Integration weight of unreliable pixels relative to reliable ones (0 = fill them from
+    /// their neighbours), for the recursive method's surfaces and the exported depth.
+    #[arg(long, default_value_t = defaults().integration.unreliable_weight)]
     pub unreliable_weight: f32,
     /// Recursive method: completion of pixels with fewer than three usable lights: `neighbours`
     /// (their albedo with the two usable lights, else the integrated surface's normal) or
     /// `brightest` (the paper's choice: add the brightest remaining lights).
-    #[arg(long, default_value = "neighbours", value_parser = parse_fallback)]
-    pub fallback: photostereo::recursive::Fallback,
+    #[arg(long, default_value = defaults().recursive.fallback.name(), value_parser = parse_fallback)]
+    pub fallback: Fallback,
     /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
     #[arg(long)]
     pub no_depth: bool,
     /// Integration method for depth: poisson (any mask), dct, fft (full rectangle), paths.
-    #[arg(long, default_value = "poisson", value_parser = parse_integrator)]
+    #[arg(long, default_value = defaults().integration.method.name(), value_parser = parse_integrator)]
     pub integrator: IntegratorKind,
+    /// Cap on the depth gradient |∂z/∂x|, |∂z/∂y| (pixel units per pixel) when integrating.
+    #[arg(long, default_value_t = defaults().integration.max_slope)]
+    pub max_slope: f32,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -85,7 +97,7 @@ fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
-fn parse_fallback(s: &str) -> Result<photostereo::recursive::Fallback, String> {
+fn parse_fallback(s: &str) -> Result<Fallback, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
@@ -140,6 +152,33 @@ pub fn capture_files(
     Ok(files)
 }
 
+/// The engine's parameters from the flags.
+pub fn params(a: &RunArgs) -> Params {
+    let d = defaults();
+    Params {
+        method: a.method,
+        detection: DetectionParams {
+            sigma: a.sigma,
+            relative_noise: Some(a.relative_noise),
+            confidence: a.confidence,
+            ..d.detection
+        },
+        recursive: RecursiveParams {
+            max_iterations: a.max_iterations,
+            change_tolerance: a.change_tolerance,
+            fallback: a.fallback,
+            ..d.recursive
+        },
+        integration: IntegrationParams {
+            method: a.integrator,
+            max_slope: a.max_slope,
+            unreliable_weight: a.unreliable_weight,
+        },
+        detect: !a.no_detect,
+        integrate: !a.no_depth,
+    }
+}
+
 pub fn main(a: RunArgs) -> Result<()> {
     let files = capture_files(
         &a.input,
@@ -148,29 +187,15 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.mask.as_deref(),
     )?;
     let options = RunOptions {
-        method: a.method,
+        params: params(&a),
         ground_truth: a.gt.clone(),
         error_map: a.error_map,
-        error_map_max_deg: a.error_map_max,
-        detect: !a.no_detect,
-        detection: photostereo::detect::DetectionParams {
-            sigma: a.sigma,
-            relative_noise: Some(a.relative_noise),
-            confidence: a.confidence,
-            ..Default::default()
-        },
+        error_map_max_deg: Some(a.error_map_max),
         light_subset: a.light_subset.clone(),
-        integration: (!a.no_depth).then_some(a.integrator),
-        recursive: photostereo::recursive::RecursiveParams {
-            max_iterations: a.max_iterations,
-            change_tolerance: a.change_tolerance,
-            unreliable_weight: a.unreliable_weight,
-            fallback: a.fallback,
-            ..Default::default()
-        },
     };
     let progress = a.out.progress();
-    let rec = run(&files, &options, &a.output, a.out.force, &progress)?;
+    let rec = run(&files, &options, &a.output, a.out.force, &progress)
+        .map_err(crate::common::flag_error)?;
     let r = &rec.report;
     if a.out.json {
         let mut v = serde_json::to_value(r)?;

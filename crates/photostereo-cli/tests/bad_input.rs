@@ -271,7 +271,9 @@ fn existing_output_needs_force() {
 fn out_of_range_parameters_are_refused() {
     let f = Fixture::new();
     f.fails(&["--max-iterations", "0"], &["--max-iterations 0"]);
-    f.fails(&["--unreliable-weight", "2"], &["unreliable_weight 2"]);
+    f.fails(&["--unreliable-weight", "2"], &["--unreliable-weight 2"]);
+    f.fails(&["--change-tolerance=-0.5"], &["--change-tolerance -0.5"]);
+    f.fails(&["--max-slope", "0"], &["--max-slope 0"]);
     f.fails(&["--sigma=-1"], &["--sigma -1"]);
     f.fails(&["--relative-noise=-0.5"], &["--relative-noise -0.5"]);
     f.fails(&["--confidence", "1.5"], &["--confidence 1.5"]);

@@ -318,7 +318,9 @@ fn run_integrates_by_default_and_no_depth_skips_it() {
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v["timings_s"]["integrate"].as_f64().is_some());
     assert_eq!(v["integration"]["method"], "poisson");
-    assert_eq!(v["parameters"]["integration"], "poisson");
+    assert_eq!(v["parameters"]["integration"]["method"], "poisson");
+    // Parameters as given, not as their f32 storage prints in f64.
+    assert_eq!(v["parameters"]["integration"]["unreliable_weight"], 0.1);
     let out2 = tmp.path().join("ball2");
     let o = run_cmd()
         .args([ball, "-o", out2.to_str().unwrap(), "--no-depth", "--quiet"])

@@ -204,7 +204,7 @@ fn demo_scores_every_method_on_six_scenes_and_replaces_its_own_folder() {
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let results = v["results"].as_array().unwrap();
     // Three rigs × six scenes × every method.
-    let methods = photostereo::pipeline::Method::ALL.len();
+    let methods = photostereo::engine::Method::ALL.len();
     assert_eq!(results.len(), 3 * 6 * methods);
     for r in results {
         let e = r["error"]["mean_deg"].as_f64().unwrap();

@@ -4,12 +4,14 @@
 //! Samples are stored pixel-major for the pixels inside the mask only:
 //! `samples[(p * N + k) * C + c]` is channel `c` of light `k` at the `p`-th mask pixel, already
 //! divided by light `k`'s intensity. Memory is `4 · P · N · C` bytes (P mask pixels, N lights,
-//! C channels), with a transient second copy of the same size while loading.
+//! C channels), with a transient second copy of the same size while loading from files; an
+//! in-memory stack ([`Capture::from_stack`]) is read straight into the store.
 
 use crate::error::{Error, Result};
 use crate::imageio::{read_image, read_mask, Image};
 use crate::lights::Lights;
 use crate::progress::Progress;
+use ndarray::{ArrayView2, ArrayView4, Axis};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 
@@ -474,6 +476,101 @@ impl Capture {
         })
     }
 
+    /// Builds a capture from one image stack in memory: `stack` is (N, H, W, C) with C = 1 or
+    /// 3, any strides (a transposed or sliced view is fine); integer samples are scaled to
+    /// [0, 1] by their type's full scale (255, 65535), float samples taken as they are. Each
+    /// sample is divided by its light's intensity. `mask` is (H, W), true inside the object
+    /// (default: the whole frame).
+    ///
+    /// The stack is read once, straight into the pixel-major sample store: that store is the
+    /// only copy made. Errors name what is wrong (shapes, counts, non-finite samples, an empty
+    /// mask, lights that do not determine a normal).
+    pub fn from_stack(
+        stack: Stack<'_>,
+        lights: Lights,
+        mask: Option<ArrayView2<'_, bool>>,
+    ) -> Result<Self> {
+        let (n, h, w, c) = stack.dim();
+        if n != lights.len() {
+            return Err(Error::invalid(format!(
+                "the image stack holds {n} images but {} lights were given: expected one light per image",
+                lights.len()
+            )));
+        }
+        if n < 3 {
+            return Err(Error::invalid(format!(
+                "{n} image(s): photometric stereo needs at least three"
+            )));
+        }
+        if h == 0 || w == 0 {
+            return Err(Error::invalid(format!(
+                "the images are {w}×{h} (width×height): expected at least one pixel"
+            )));
+        }
+        if c != 1 && c != 3 {
+            return Err(Error::invalid(format!(
+                "the images have {c} channels: expected 1 (grey) or 3 (RGB)"
+            )));
+        }
+        lights.check_rank()?;
+        let mask: Vec<bool> = match mask {
+            Some(m) => {
+                if m.dim() != (h, w) {
+                    return Err(Error::invalid(format!(
+                        "the mask is {}×{} (rows×columns) but the images are {h}×{w}",
+                        m.dim().0,
+                        m.dim().1
+                    )));
+                }
+                m.iter().copied().collect()
+            }
+            None => vec![true; w * h],
+        };
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        if pixels.is_empty() {
+            return Err(Error::invalid(
+                "the mask is empty (no pixel inside the object)",
+            ));
+        }
+        let scales: Vec<[f32; 3]> = lights
+            .intensities
+            .iter()
+            .map(|i| light_scale(i, c))
+            .collect();
+        let (samples, bit_depth) = match stack {
+            Stack::U8(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32 / 255.0), 8),
+            Stack::U16(v) => (
+                gather_stack(&v, &pixels, &scales, |x| x as f32 / 65535.0),
+                16,
+            ),
+            Stack::F32(v) => (gather_stack(&v, &pixels, &scales, |x| x), 32),
+            Stack::F64(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32), 32),
+        };
+        if let Some(bad) = samples.iter().position(|v| !v.is_finite()) {
+            let p = bad / (n * c);
+            let k = (bad / c) % n;
+            let i = pixels[p] as usize;
+            return Err(Error::invalid(format!(
+                "image {} has a non-finite sample at row {}, column {}: expected finite intensities",
+                k + 1,
+                i / w,
+                i % w
+            )));
+        }
+        Ok(Capture {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+            sources: Vec::new(),
+            notes: Vec::new(),
+        })
+    }
+
     /// Number of lights (= images).
     pub fn n_lights(&self) -> usize {
         self.lights.len()
@@ -563,6 +660,64 @@ impl Capture {
         }
         out
     }
+}
+
+/// An (N, H, W, C) image stack in memory: N images of H rows, W columns and C channels, of
+/// one of the sample types cameras and arrays give. See [`Capture::from_stack`].
+#[derive(Clone, Debug)]
+pub enum Stack<'a> {
+    /// 8-bit samples, full scale 255.
+    U8(ArrayView4<'a, u8>),
+    /// 16-bit samples, full scale 65535.
+    U16(ArrayView4<'a, u16>),
+    /// Float samples, full scale 1.
+    F32(ArrayView4<'a, f32>),
+    /// Double samples, full scale 1 (stored as f32).
+    F64(ArrayView4<'a, f64>),
+}
+
+impl Stack<'_> {
+    /// (N, H, W, C).
+    pub fn dim(&self) -> (usize, usize, usize, usize) {
+        match self {
+            Stack::U8(v) => v.dim(),
+            Stack::U16(v) => v.dim(),
+            Stack::F32(v) => v.dim(),
+            Stack::F64(v) => v.dim(),
+        }
+    }
+}
+
+/// The pixel-major sample store (`[pixel][light][channel]`) of the mask pixels `pixels`, read
+/// from an (N, H, W, C) view of any strides, each sample scaled by `to_f32` and its light's
+/// intensity scale. Chunks of pixels run in parallel; within a chunk, light by light, so each
+/// image is read along its rows.
+fn gather_stack<T: Copy + Sync>(
+    view: &ArrayView4<'_, T>,
+    pixels: &[u32],
+    scales: &[[f32; 3]],
+    to_f32: impl Fn(T) -> f32 + Sync,
+) -> Vec<f32> {
+    let (n, _, w, c) = view.dim();
+    let stride = n * c;
+    let mut samples = vec![0f32; pixels.len() * stride];
+    const PIXELS_PER_TASK: usize = 4096;
+    samples
+        .par_chunks_mut(PIXELS_PER_TASK * stride)
+        .zip(pixels.par_chunks(PIXELS_PER_TASK))
+        .for_each(|(out, chunk)| {
+            for (k, scale) in scales.iter().enumerate() {
+                let image = view.index_axis(Axis(0), k);
+                for (dp, &i) in chunk.iter().enumerate() {
+                    let (row, col) = (i as usize / w, i as usize % w);
+                    let dst = &mut out[dp * stride + k * c..dp * stride + (k + 1) * c];
+                    for (ch, d) in dst.iter_mut().enumerate() {
+                        *d = to_f32(image[[row, col, ch]]) * scale[ch];
+                    }
+                }
+            }
+        });
+    samples
 }
 
 #[cfg(test)]

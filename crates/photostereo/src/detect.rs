@@ -24,7 +24,7 @@
 
 use crate::capture::Capture;
 use crate::error::{Error, Result};
-use crate::estimate::{channel_mean, status, CHUNK};
+use crate::lambert::{channel_mean, status, CHUNK};
 use crate::progress::Progress;
 use crate::stats::{chi2_quantile, normal_upper_quantile};
 use nalgebra::{Matrix3, Vector3};
@@ -100,30 +100,53 @@ pub enum NoiseEstimate {
 }
 
 impl DetectionParams {
-    /// Checks the parameters' domains; errors name the parameter.
+    /// Checks the parameters' domains; errors name the parameter (the library's spelling,
+    /// [`Error::Parameter`]).
     pub fn validate(&self) -> Result<()> {
         if let Some(s) = self.sigma {
             if !(s.is_finite() && s > 0.0) {
-                return Err(Error::invalid(format!(
-                    "--sigma {s}: expected a finite positive noise level"
-                )));
+                return Err(Error::parameter(
+                    "sigma",
+                    format!("{s}: expected a finite positive noise level"),
+                ));
             }
         }
         if let Some(k) = self.relative_noise {
             if !(k.is_finite() && k >= 0.0) {
-                return Err(Error::invalid(format!(
-                    "--relative-noise {k}: expected a finite value ≥ 0"
-                )));
+                return Err(Error::parameter(
+                    "relative_noise",
+                    format!("{k}: expected a finite value ≥ 0"),
+                ));
             }
         }
         if !(self.confidence > 0.5 && self.confidence < 1.0) {
-            return Err(Error::invalid(format!(
-                "--confidence {}: expected a value in (0.5, 1)",
-                self.confidence
-            )));
+            return Err(Error::parameter(
+                "confidence",
+                format!("{}: expected a value in (0.5, 1)", self.confidence),
+            ));
         }
         if !(0.0..=1.0).contains(&self.min_kept_share) {
-            return Err(Error::invalid("min_kept_share: expected a value in [0, 1]"));
+            return Err(Error::parameter(
+                "min_kept_share",
+                format!("{}: expected a value in [0, 1]", self.min_kept_share),
+            ));
+        }
+        if !(self.batch_alpha > 0.0 && self.batch_alpha < 1.0) {
+            return Err(Error::parameter(
+                "batch_alpha",
+                format!("{}: expected a value in (0, 1)", self.batch_alpha),
+            ));
+        }
+        for (name, v) in [
+            ("shadow_sigmas", self.shadow_sigmas),
+            ("shadow_ratio", self.shadow_ratio),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(Error::parameter(
+                    name,
+                    format!("{v}: expected a finite value ≥ 0"),
+                ));
+            }
         }
         Ok(())
     }
@@ -199,10 +222,7 @@ impl Detection {
 
     /// Usable-light flags (`n_pixels * n_lights`, true = USED).
     pub fn usable(&self) -> Vec<bool> {
-        self.light_status
-            .iter()
-            .map(|&s| s == status::USED)
-            .collect()
+        crate::lambert::usable(&self.light_status)
     }
 }
 
@@ -811,11 +831,7 @@ impl<'a> Attributor<'a> {
         let s = &mut scratch.0;
         s.grey.copy_from_slice(grey);
         for (w, &st) in s.weight.iter_mut().zip(status.iter()) {
-            *w = if st == crate::estimate::status::USED {
-                1.0
-            } else {
-                0.0
-            };
+            *w = if st == status::USED { 1.0 } else { 0.0 };
         }
         let (_, rss, count) = attribute_from(&self.test, self.params, &self.noise, s, status);
         let n = grey.len();

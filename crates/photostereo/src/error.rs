@@ -27,6 +27,10 @@ pub enum Error {
     /// A parameter or an in-memory input is out of its domain.
     #[error("{0}")]
     Invalid(String),
+    /// A parameter is out of its domain. `name` is the library's name of the parameter
+    /// (`relative_noise`); front ends map it to their own spelling (`--relative-noise`).
+    #[error("{name} {message}")]
+    Parameter { name: &'static str, message: String },
     /// The output folder exists and overwriting it was not asked for.
     #[error("{}: already exists (pass --force to replace it)", path.display())]
     OutputExists { path: PathBuf },
@@ -55,6 +59,14 @@ impl Error {
     pub fn file(path: impl AsRef<Path>, message: impl Into<String>) -> Self {
         Error::File {
             path: path.as_ref().to_path_buf(),
+            message: message.into(),
+        }
+    }
+    /// The parameter `name` (the library's spelling) is out of its domain; `message` says the
+    /// value and what was expected ("-0.5: expected a value ≥ 0").
+    pub fn parameter(name: &'static str, message: impl Into<String>) -> Self {
+        Error::Parameter {
+            name,
             message: message.into(),
         }
     }

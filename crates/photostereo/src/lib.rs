@@ -13,22 +13,43 @@
 //! - A height field f in pixel units has ∂f/∂col = −n_x/n_z and ∂f/∂row = +n_y/n_z.
 //! - Angular error: arccos of the dot product of normalised vectors, in degrees.
 //!
-//! ## Stages (data flows one way)
-//! [`capture`] loads images and lights → [`estimate`] computes normals and albedo →
-//! [`metrics`] scores them → [`export`] writes the output folder. [`pipeline`] drives a run;
-//! [`scene`] renders ground-truth scenes; [`shadows`] finds the attached and cast shadows of a
-//! height field. The library never prints: progress goes through [`progress::Progress`].
+//! ## Layers (data flows one way; no module names a type of a module above it)
+//! 1. Foundations: [`error`], [`stats`], [`rng`], [`progress`].
+//! 2. Inputs in memory: [`lights`] (directions and intensities) and [`capture`] (images, lights
+//!    and mask as pixel-major samples; [`Capture::from_stack`] builds one from an (N, H, W, C)
+//!    array, [`CaptureFiles`] from files).
+//! 3. [`lambert`]: the Lambertian kernel — channel mean, least squares over any subset of lights
+//!    with cached solvers, per-light statuses.
+//! 4. [`detect`]: the χ² test and the attribution of faults to lights (uses [`lambert`]).
+//! 5. [`estimate`]: the estimators `l2`, `coleman-jain`, `barsky-petrou` behind one trait
+//!    (uses [`lambert`], [`detect`]).
+//! 6. [`integrate`] (normals to depth; below the recursive driver) and [`shadows`] (attached
+//!    and cast shadows of a height field).
+//! 7. [`recursive`]: the recursive method, driving [`detect`], [`lambert`], [`integrate`] and
+//!    [`shadows`]; it returns its own diagnostics.
+//! 8. [`engine`]: `reconstruct(&Capture, &Params, &dyn Progress) -> Reconstruction`, every
+//!    output full frame, and a [`report::Report`] value; [`metrics`] scores normals.
+//! 9. io at the edge: [`imageio`], [`groundtruth`], [`matfile`], [`export`], [`surface`],
+//!    [`figure`], [`report`] serialisation, and [`pipeline`], the file driver of `run`
+//!    (load → reconstruct → evaluate → report → export).
+//!
+//! Beside them: [`scene`] renders ground-truth scenes and [`calibrate`] finds lights from a
+//! mirror sphere. The library never prints: progress goes through [`progress::Progress`].
 
 pub mod calibrate;
 pub mod capture;
 pub mod detect;
+pub mod engine;
 pub mod error;
 pub mod estimate;
 pub mod export;
 pub mod figure;
+#[cfg(test)]
+pub(crate) mod fixtures;
 pub mod groundtruth;
 pub mod imageio;
 pub mod integrate;
+pub mod lambert;
 pub mod lights;
 pub mod matfile;
 pub mod metrics;
@@ -43,7 +64,8 @@ pub mod stats;
 pub mod surface;
 
 pub use capture::{Capture, CaptureFiles};
+pub use engine::{reconstruct, Method, Params, Reconstruction};
 pub use error::{Error, Result};
 pub use estimate::{Estimate, Estimator};
 pub use lights::Lights;
-pub use pipeline::{Method, RunOptions};
+pub use pipeline::RunOptions;

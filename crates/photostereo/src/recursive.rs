@@ -21,11 +21,15 @@
 
 use crate::capture::Capture;
 use crate::detect::{detect, Attributor, Detection, DetectionParams};
-use crate::error::Result;
-use crate::estimate::{
-    channel_mean, solve_subsets, status, write_normal_albedo, Estimate, Estimator, CHUNK,
+use crate::error::{Error, Result};
+use crate::estimate::Estimator;
+use crate::integrate::{
+    gradients_from_normals, normals_from_depth, weighted_normals, IntegrationParams,
+    IntegrationProblem,
 };
-use crate::integrate::{integrate_normals, normals_from_depth, IntegratorKind};
+use crate::lambert::{
+    channel_mean, solve_subsets, status, usable, write_normal_albedo, Estimate, CHUNK,
+};
 use crate::metrics::angular_error_deg;
 use crate::progress::{Progress, Silent};
 use crate::shadows::{shadow_maps, ShadowMaps, ShadowParams};
@@ -38,44 +42,48 @@ use std::time::Instant;
 /// What to do at pixels with fewer than three usable lights.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub enum Fallback {
+    #[serde(rename = "brightest")]
     /// Complement them with the brightest remaining lights (the paper's choice).
     BrightestLights,
     /// Use the reliable neighbours: their albedo (median over the nearest reliable pixels) turns
     /// two usable lights into a normal — two-source photometric stereo with known albedo, the
     /// root closer to the integrated surface's normal — and with fewer than two lights the
     /// normal of the integrated surface is taken.
+    #[serde(rename = "neighbours")]
     Neighbours,
 }
 
 impl FromStr for Fallback {
     type Err = crate::Error;
     fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "brightest" => Ok(Fallback::BrightestLights),
-            "neighbours" | "neighbors" => Ok(Fallback::Neighbours),
-            _ => Err(crate::Error::invalid(format!(
-                "unknown fallback '{s}': expected brightest or neighbours"
-            ))),
+        if s == "neighbors" {
+            return Ok(Fallback::Neighbours);
+        }
+        crate::error::parse_name(s, Fallback::ALL, Fallback::name, "fallback")
+    }
+}
+
+impl Fallback {
+    /// Every choice, default first.
+    pub const ALL: &'static [Fallback] = &[Fallback::Neighbours, Fallback::BrightestLights];
+
+    /// The name accepted by `--fallback` (and the Python keyword `fallback`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Fallback::Neighbours => "neighbours",
+            Fallback::BrightestLights => "brightest",
         }
     }
 }
 
-/// Parameters of the recursive method; every default comes from a stated principle.
+/// Parameters of the recursive method; every default comes from a stated principle. The
+/// detector's parameters and the integrator are the reconstruction's own
+/// ([`DetectionParams`], [`IntegrationParams`]): one value of each serves every stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct RecursiveParams {
-    /// The detector (noise level, χ² confidence, attribution floor).
-    pub detection: DetectionParams,
-    /// The integrator that turns normals into the surface whose shadows are computed.
-    #[serde(serialize_with = "serialize_kind")]
-    pub integrator: IntegratorKind,
     /// Attached and cast shadow tolerances.
     #[serde(skip)]
     pub shadows: ShadowParams,
-    /// Integration weight of unreliable pixels whose usable lights do not yet pass the test.
-    /// Default 0.1: one tenth of a reliable pixel, so that the surface there follows the
-    /// reliable surroundings (the paper's interpolation) while keeping the detail of estimates
-    /// that are merely uncertain.
-    pub unreliable_weight: f32,
     /// Iteration limit (default 5; the paper gives none).
     pub max_iterations: usize,
     /// Stop when the usable-light sets change at fewer than this share of the mask pixels
@@ -88,20 +96,10 @@ pub struct RecursiveParams {
     pub fallback: Fallback,
 }
 
-fn serialize_kind<S: serde::Serializer>(
-    k: &IntegratorKind,
-    s: S,
-) -> std::result::Result<S::Ok, S::Error> {
-    s.serialize_str(k.name())
-}
-
 impl Default for RecursiveParams {
     fn default() -> Self {
         RecursiveParams {
-            detection: DetectionParams::default(),
-            integrator: IntegratorKind::Poisson,
             shadows: ShadowParams::default(),
-            unreliable_weight: 0.1,
             max_iterations: 5,
             change_tolerance: 0.002,
             fallback: Fallback::Neighbours,
@@ -128,7 +126,7 @@ pub struct IterationRecord {
     pub seconds: f64,
 }
 
-/// Maps and figures of a recursive run, beyond the normals and albedo.
+/// Maps and figures of a recursive run, beyond the normals, albedo and light statuses.
 #[derive(Clone, Debug)]
 pub struct RecursiveDiagnostics {
     /// Shadow maps of the last surface.
@@ -137,18 +135,36 @@ pub struct RecursiveDiagnostics {
     pub highlight: Vec<bool>,
     /// Pixels with fewer than three usable lights (before the fallback), full frame.
     pub fewer_than_three: Vec<bool>,
-    /// The last surface, full frame, NaN outside the mask.
+    /// The last intermediate surface, full frame, pixel units, NaN outside the mask.
     pub depth: Vec<f32>,
     /// Pixels whose usable lights pass the χ² test (or were never unreliable), full frame.
     pub reliable: Vec<bool>,
+    /// Per-pixel integration trust of the final estimate, full frame, by the rule the
+    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal); the
+    /// input of [`weighted_normals`] for the exported depth.
+    pub trust: Vec<f32>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,
 }
 
-/// The recursive method as an [`Estimator`].
+/// The normals, albedo and light statuses of a recursive run, and its diagnostics.
+#[derive(Clone, Debug)]
+pub struct RecursiveResult {
+    pub estimate: Estimate,
+    /// The initial χ² test over all lights (residual and unreliable maps, noise model), per
+    /// mask pixel; untested (nothing flagged) with three lights.
+    pub detection: Detection,
+    pub diagnostics: RecursiveDiagnostics,
+}
+
+/// The recursive method with everything it needs: its own parameters, the detector's and the
+/// integrator. As an [`Estimator`] it returns the estimate only; [`Recursive::run`] returns the
+/// diagnostics too.
 #[derive(Clone, Debug, Default)]
 pub struct Recursive {
     pub params: RecursiveParams,
+    pub detection: DetectionParams,
+    pub integration: IntegrationParams,
     /// Ground-truth normals (full frame) for the per-iteration error figures, when known.
     pub truth: Option<Arc<Vec<[f32; 3]>>>,
 }
@@ -159,12 +175,45 @@ impl Estimator for Recursive {
     }
 
     fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
+        Ok(self.run(capture, progress, &mut |_| {})?.estimate)
+    }
+}
+
+impl RecursiveParams {
+    /// Checks the domains; errors name the parameter.
+    pub fn validate(&self) -> Result<()> {
+        if self.max_iterations == 0 {
+            return Err(Error::parameter(
+                "max_iterations",
+                "0: the recursive method needs at least one iteration",
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.change_tolerance) {
+            return Err(Error::parameter(
+                "change_tolerance",
+                format!("{}: expected a share in [0, 1]", self.change_tolerance),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Recursive {
+    /// Runs the method. `on_iteration` is called after each iteration.
+    pub fn run(
+        &self,
+        capture: &Capture,
+        progress: &dyn Progress,
+        on_iteration: &mut dyn FnMut(&IterationRecord),
+    ) -> Result<RecursiveResult> {
         recursive(
             capture,
             &self.params,
+            &self.detection,
+            &self.integration,
             self.truth.as_deref().map(|v| v.as_slice()),
             progress,
-            &mut |_| {},
+            on_iteration,
         )
     }
 }
@@ -174,21 +223,15 @@ impl Estimator for Recursive {
 pub fn recursive(
     capture: &Capture,
     params: &RecursiveParams,
+    detection_params: &DetectionParams,
+    integration: &IntegrationParams,
     truth: Option<&[[f32; 3]]>,
     progress: &dyn Progress,
     on_iteration: &mut dyn FnMut(&IterationRecord),
-) -> Result<Estimate> {
-    if params.max_iterations == 0 {
-        return Err(crate::Error::invalid(
-            "--max-iterations 0: the recursive method needs at least one iteration",
-        ));
-    }
-    if !(params.unreliable_weight >= 0.0 && params.unreliable_weight <= 1.0) {
-        return Err(crate::Error::invalid(format!(
-            "unreliable_weight {}: expected a value in [0, 1]",
-            params.unreliable_weight
-        )));
-    }
+) -> Result<RecursiveResult> {
+    params.validate()?;
+    detection_params.validate()?;
+    integration.validate()?;
     let n = capture.n_lights();
     let np = capture.n_pixels();
     let (w, h) = (capture.width, capture.height);
@@ -196,11 +239,11 @@ pub fn recursive(
     // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
     // starts reliable and only the geometric shadows of the surface prune lights.
     let (detection, attributor) = if n >= 4 {
-        let detection = detect(capture, &params.detection, progress)?;
-        let attributor = Attributor::new(capture, &params.detection, detection.noise)?;
+        let detection = detect(capture, detection_params, progress)?;
+        let attributor = Attributor::new(capture, detection_params, detection.noise)?;
         (detection, Some(attributor))
     } else {
-        (Detection::untested(capture, &params.detection), None)
+        (Detection::untested(capture, detection_params), None)
     };
     let unreliable = detection.unreliable.clone();
     let mut light_status = detection.light_status.clone();
@@ -220,29 +263,17 @@ pub fn recursive(
     for iteration in 1..=params.max_iterations {
         let start = Instant::now();
         // 2. The surface.
-        let mut weights = vec![0f32; w * h];
-        let mut normals_full = vec![[0f32; 3]; w * h];
-        for (p, &i) in capture.pixels.iter().enumerate() {
-            let i = i as usize;
-            let nrm = est.normals[p];
-            let valid = nrm != [0.0; 3] && nrm[2] > 0.0 && (!few[p] || solved_two[p]);
-            normals_full[i] = if valid { nrm } else { [0.0, 0.0, 1.0] };
-            weights[i] = if !valid {
-                0.0
-            } else if consistent[p] && !few[p] {
-                1.0
-            } else {
-                params.unreliable_weight
-            };
-        }
-        let depth = integrate_normals(
-            w,
-            h,
-            &normals_full,
-            Some(&capture.mask),
-            Some(&weights),
-            params.integrator,
-        )?;
+        let masked_trust = pixel_trust(
+            &est,
+            &consistent,
+            &few,
+            &solved_two,
+            integration.unreliable_weight,
+        );
+        let trust = capture.scatter(&masked_trust, 1, 0.0);
+        let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
+        let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
+        let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
         let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
         // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
         let shading: Vec<[f32; 3]> = (0..w * h)
@@ -355,7 +386,15 @@ pub fn recursive(
         }
     }
     progress.end();
+    let final_trust = pixel_trust(
+        &est,
+        &consistent,
+        &few,
+        &solved_two,
+        integration.unreliable_weight,
+    );
     let diagnostics = RecursiveDiagnostics {
+        trust: capture.scatter(&final_trust, 1, 0.0),
         shadows: last_maps.expect("at least one iteration"),
         highlight: capture.scatter(&highlight, 1, false),
         fewer_than_three: capture.scatter(&few, 1, false),
@@ -365,9 +404,52 @@ pub fn recursive(
         fallback: params.fallback,
     };
     est.light_status = Some(light_status);
-    est.detection = Some(detection);
-    est.recursive = Some(Box::new(diagnostics));
-    Ok(est)
+    Ok(RecursiveResult {
+        estimate: est,
+        detection,
+        diagnostics,
+    })
+}
+
+/// The recursion's integration trust per mask pixel: 1 where the usable lights pass the test
+/// and at least three remain, `unreliable_weight` where they do not, 0 where the normal came
+/// from neither (fewer than three lights and no two-source solution).
+fn pixel_trust(
+    est: &Estimate,
+    consistent: &[bool],
+    few: &[bool],
+    solved_two: &[bool],
+    unreliable_weight: f32,
+) -> Vec<f32> {
+    (0..est.normals.len())
+        .map(|p| {
+            if few[p] && !solved_two[p] {
+                0.0
+            } else if consistent[p] && !few[p] {
+                1.0
+            } else {
+                unreliable_weight
+            }
+        })
+        .collect()
+}
+
+/// An intermediate surface: the weighted normals integrated with the reconstruction's
+/// integrator and slope cap.
+fn integrate(
+    w: usize,
+    h: usize,
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    weights: &[f32],
+    integration: &IntegrationParams,
+) -> Result<crate::integrate::Depth> {
+    let g = gradients_from_normals(w, h, normals, Some(mask), integration.max_slope)?;
+    let problem = IntegrationProblem {
+        weights: Some(weights),
+        ..IntegrationProblem::new(w, h, &g.p, &g.q, &g.mask)
+    };
+    integration.method.integrator().integrate(&problem, &Silent)
 }
 
 /// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights.
@@ -481,11 +563,6 @@ fn two_source_normal(
         .max_by(|x, y| score(x).total_cmp(&score(y)))?;
     let best = best.normalize();
     (best.z > 0.0).then(|| [best.x as f32, best.y as f32, best.z as f32])
-}
-
-/// Usable-light flags from statuses.
-fn usable(light_status: &[u8]) -> Vec<bool> {
-    light_status.iter().map(|&s| s == status::USED).collect()
 }
 
 /// Marks the brightest unused lights as used until three are.

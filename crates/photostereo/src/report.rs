@@ -41,6 +41,22 @@ pub struct InputSummary {
     pub light_condition_number: f64,
 }
 
+impl InputSummary {
+    /// The summary of a loaded capture.
+    pub fn of(capture: &crate::capture::Capture) -> Self {
+        InputSummary {
+            width: capture.width,
+            height: capture.height,
+            channels: capture.channels,
+            bit_depth: capture.bit_depth,
+            lights: capture.n_lights(),
+            mask_pixels: capture.n_pixels(),
+            lights_renormalised: capture.lights.renormalised,
+            light_condition_number: capture.lights.condition_number(),
+        }
+    }
+}
+
 impl Report {
     /// An empty report for `method`.
     pub fn new(method: &str) -> Self {
@@ -73,4 +89,15 @@ impl Report {
     pub fn param(&mut self, name: &str, value: impl Into<Value>) {
         self.parameters.insert(name.into(), value.into());
     }
+}
+
+/// Serialises an `f32` as the shortest decimal that reads back as it (0.1, not the
+/// 0.10000000149011612 of its exact value in f64): parameters appear as they were given.
+pub fn serialize_f32<S: serde::Serializer>(v: &f32, s: S) -> Result<S::Ok, S::Error> {
+    s.serialize_f64(f32_as_given(*v))
+}
+
+/// The `f64` whose shortest decimal equals the `f32`'s (see [`serialize_f32`]).
+pub fn f32_as_given(v: f32) -> f64 {
+    v.to_string().parse().unwrap_or(v as f64)
 }

@@ -3,10 +3,9 @@
 //! (issues 4 and 6). Every figure is measured against the renderer's ground truth.
 
 use photostereo::detect::{detect, DetectionParams};
+use photostereo::engine::{reconstruct, reconstruct_with_truth, Method, Params};
 use photostereo::metrics::evaluate;
-use photostereo::pipeline::{reconstruct, Method, RunOptions};
 use photostereo::progress::Silent;
-use photostereo::report::Report;
 use photostereo::scene::{synthesize, Brdf, Rendered, Rig, SceneKind, SynthSpec};
 
 const NOISE: f64 = 0.005;
@@ -28,19 +27,11 @@ fn errors(rendered: &Rendered) -> (Vec<f64>, f64) {
     let mut out = Vec::new();
     let mut iou = f64::NAN;
     for &method in Method::ALL {
-        let options = RunOptions {
+        let params = Params {
             method,
-            ..RunOptions::default()
+            ..Params::default()
         };
-        let mut report = Report::new(method.name());
-        let rec = reconstruct(
-            &capture,
-            &options,
-            Some(&truth.normals),
-            &Silent,
-            &mut report,
-        )
-        .unwrap();
+        let rec = reconstruct_with_truth(&capture, &params, Some(&truth.normals), &Silent).unwrap();
         let (_, s) = evaluate(&rec.normals, &truth.normals, Some(&truth.mask)).unwrap();
         out.push(s.mean_deg);
         if let Some(r) = &rec.recursive {
@@ -211,18 +202,11 @@ fn three_lights_recursive_beats_least_squares() {
         let truth = &rendered.truth;
         let mut e = vec![0.0; Method::ALL.len()];
         for m in [Method::L2, Method::Recursive] {
-            let options = RunOptions {
+            let params = Params {
                 method: m,
-                ..RunOptions::default()
+                ..Params::default()
             };
-            let rec = reconstruct(
-                &capture,
-                &options,
-                None,
-                &Silent,
-                &mut Report::new(m.name()),
-            )
-            .unwrap();
+            let rec = reconstruct(&capture, &params, &Silent).unwrap();
             e[index(m)] = evaluate(&rec.normals, &truth.normals, Some(&truth.mask))
                 .unwrap()
                 .1

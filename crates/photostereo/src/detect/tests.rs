@@ -1,5 +1,5 @@
 use super::*;
-use crate::estimate::tests::{lambert_sphere, ring};
+use crate::fixtures::{lambert_sphere, ring};
 use crate::lights::Lights;
 use crate::progress::Silent;
 

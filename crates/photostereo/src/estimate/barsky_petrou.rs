@@ -6,7 +6,7 @@
 
 use super::{solve_subsets, Estimate, Estimator};
 use crate::capture::Capture;
-use crate::detect::{detect, DetectionParams};
+use crate::detect::{detect, Detection, DetectionParams};
 use crate::error::Result;
 use crate::progress::Progress;
 
@@ -16,6 +16,20 @@ pub struct BarskyPetrou {
     pub params: DetectionParams,
 }
 
+impl BarskyPetrou {
+    /// The estimate from a detection already run with attribution (its per-light statuses say
+    /// which lights each pixel keeps): least squares over the kept lights.
+    pub fn from_detection(
+        capture: &Capture,
+        detection: &Detection,
+        progress: &dyn Progress,
+    ) -> Estimate {
+        let mut est = solve_subsets(capture, Some(&detection.usable()), progress);
+        est.light_status = Some(detection.light_status.clone());
+        est
+    }
+}
+
 impl Estimator for BarskyPetrou {
     fn name(&self) -> &'static str {
         "barsky-petrou"
@@ -23,10 +37,6 @@ impl Estimator for BarskyPetrou {
 
     fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
         let detection = detect(capture, &self.params, progress)?;
-        let usable = detection.usable();
-        let mut est = solve_subsets(capture, Some(&usable), progress);
-        est.light_status = Some(detection.light_status.clone());
-        est.detection = Some(detection);
-        Ok(est)
+        Ok(Self::from_detection(capture, &detection, progress))
     }
 }

@@ -241,8 +241,6 @@ impl Estimator for ColemanJain {
             normals,
             albedo,
             light_status: Some(light_status),
-            detection: None,
-            recursive: None,
         })
     }
 }

@@ -437,6 +437,90 @@ pub fn integrate_normals(
     method.integrator().integrate(&problem, &Silent)
 }
 
+/// How a reconstruction's normals are integrated. One value serves both the recursive
+/// method's intermediate surfaces and the exported depth.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct IntegrationParams {
+    /// The integrator (default `poisson`, the only one that honours any mask and weights).
+    #[serde(serialize_with = "serialize_kind")]
+    pub method: IntegratorKind,
+    /// Cap on |p| and |q| in pixel units per pixel (default [`DEFAULT_MAX_SLOPE`]).
+    #[serde(serialize_with = "crate::report::serialize_f32")]
+    pub max_slope: f32,
+    /// Integration weight of unreliable pixels, relative to 1 for a reliable one. Default 0.1:
+    /// one tenth, so that the surface there follows the reliable surroundings (the paper's
+    /// interpolation) while keeping the detail of estimates that are merely uncertain.
+    #[serde(serialize_with = "crate::report::serialize_f32")]
+    pub unreliable_weight: f32,
+}
+
+fn serialize_kind<S: serde::Serializer>(
+    k: &IntegratorKind,
+    s: S,
+) -> std::result::Result<S::Ok, S::Error> {
+    s.serialize_str(k.name())
+}
+
+impl Default for IntegrationParams {
+    fn default() -> Self {
+        IntegrationParams {
+            method: IntegratorKind::default(),
+            max_slope: DEFAULT_MAX_SLOPE,
+            unreliable_weight: 0.1,
+        }
+    }
+}
+
+impl IntegrationParams {
+    /// Checks the domains; errors name the parameter.
+    pub fn validate(&self) -> Result<()> {
+        if !(self.max_slope.is_finite() && self.max_slope > 0.0) {
+            return Err(Error::parameter(
+                "max_slope",
+                format!("{}: expected a finite positive slope", self.max_slope),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.unreliable_weight) {
+            return Err(Error::parameter(
+                "unreliable_weight",
+                format!("{}: expected a value in [0, 1]", self.unreliable_weight),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The one weighting rule of a reconstruction's integration (ALGORITHMS.md §4), used by the
+/// recursive method for its intermediate surfaces and by the engine for the exported depth.
+///
+/// `normals` and `trust` are full frame (`height * width`); `trust` is each pixel's weight in
+/// 0..1 (1 where absent: a trusted estimate, a low weight for an unreliable one, 0 for none).
+/// A pixel without a usable normal (zero, non-finite or `n_z ≤ 0`) gets weight 0 and the
+/// placeholder normal (0, 0, 1): integration fills it from its surroundings rather than leaving
+/// a hole. Outside `mask` the weight is 0. Returns (normals to integrate, weights).
+pub fn weighted_normals(
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    trust: Option<&[f32]>,
+) -> (Vec<[f32; 3]>, Vec<f32>) {
+    let mut out = vec![[0f32; 3]; normals.len()];
+    let mut weights = vec![0f32; normals.len()];
+    out.par_iter_mut()
+        .zip(weights.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (o, w))| {
+            if !mask[i] {
+                return;
+            }
+            let n = normals[i];
+            let t = trust.map_or(1.0, |t| t[i]);
+            let usable = n.iter().all(|v| v.is_finite()) && n[2] > 0.0 && t > 0.0;
+            *o = if usable { n } else { [0.0, 0.0, 1.0] };
+            *w = if usable { t } else { 0.0 };
+        });
+    (out, weights)
+}
+
 /// A depth map with its diagnostics: what `run` and `photostereo integrate` write.
 #[derive(Clone, Debug)]
 pub struct Surface {

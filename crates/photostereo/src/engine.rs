@@ -1,0 +1,425 @@
+//! The engine: [`reconstruct`] turns a [`Capture`] in memory into a [`Reconstruction`] — normals,
+//! albedo, per-light statuses, the detector's maps, depth and curl, all full frame — and a
+//! [`Report`] value. It reads no file, writes none and prints nothing: the CLI's `run`
+//! ([`crate::pipeline`]) and the Python package are thin layers over it.
+//!
+//! Shapes (row-major, H rows, W columns, N lights, C channels; frames as in [`crate::lambert`]):
+//!
+//! | field | shape | outside the mask |
+//! |---|---|---|
+//! | `normals` | (H, W, 3) unit vectors, camera frame | (0, 0, 0) |
+//! | `albedo` | (H, W, C), units of the intensity-normalised images | 0 |
+//! | `light_status` | (N, H, W), values of [`status`] | 255 |
+//! | `residual` | (H, W), ‖r‖ / σ_p of the χ² test with all lights | 0 |
+//! | `unreliable` | (H, W), the χ² test failed | false |
+//! | `depth` | (H, W), pixel units toward the camera | NaN |
+//! | `curl` | (H, W), the integrability residual of eq. 10 | NaN |
+//! | `trust` | (H, W), integration weight of each pixel in 0..1 | 0 |
+
+use crate::capture::Capture;
+use crate::detect::{detect, Detection, DetectionParams};
+use crate::error::{Error, Result};
+use crate::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
+use crate::integrate::{surface_from_normals, weighted_normals, IntegrationParams, Surface};
+use crate::lambert::{status, Estimate};
+use crate::metrics::{evaluate, ErrorStats};
+use crate::progress::Progress;
+use crate::recursive::{Recursive, RecursiveDiagnostics, RecursiveParams};
+use crate::report::{InputSummary, Report};
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// The estimation methods.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Method {
+    /// Least squares over all lights (Woodham).
+    L2,
+    /// Coleman & Jain: highlights by albedo disagreement between light subsets.
+    ColemanJain,
+    /// Barsky & Petrou: the eq. 5 test and one faulty light dropped (iterated for N > 4).
+    BarskyPetrou,
+    /// Recursive photometric stereo (Argyriou & Petrou): shadows from the reconstructed surface,
+    /// highlights from what the shadows do not explain, repeated.
+    Recursive,
+}
+
+impl Method {
+    /// Every method, in the order tables list them.
+    pub const ALL: &'static [Method] = &[
+        Method::L2,
+        Method::ColemanJain,
+        Method::BarskyPetrou,
+        Method::Recursive,
+    ];
+
+    /// The name accepted by `--method` and the Python keyword `method`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::L2 => "l2",
+            Method::ColemanJain => "coleman-jain",
+            Method::BarskyPetrou => "barsky-petrou",
+            Method::Recursive => "recursive",
+        }
+    }
+
+    /// Whether the method decides per pixel which lights to drop from the detector's
+    /// attribution (and so needs the attribution, not only the test).
+    fn attributes(self) -> bool {
+        matches!(self, Method::BarskyPetrou | Method::Recursive)
+    }
+}
+
+impl FromStr for Method {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        crate::error::parse_name(s, Method::ALL, Method::name, "method")
+    }
+}
+
+/// Everything that shapes a reconstruction, and nothing else: no paths, no front-end flags.
+/// Each default is defined once, here and in the parameter types it gathers.
+#[derive(Clone, Debug)]
+pub struct Params {
+    /// The estimation method (default `recursive`).
+    pub method: Method,
+    /// The detector: noise model, χ² confidence, attribution. Shared by every method that uses
+    /// it and by the maps of the others.
+    pub detection: DetectionParams,
+    /// The recursive method's own parameters.
+    pub recursive: RecursiveParams,
+    /// The integrator, slope cap and weight of unreliable pixels, for the recursive method's
+    /// surfaces and the exported depth alike.
+    pub integration: IntegrationParams,
+    /// Run the χ² test for its maps (`residual`, `unreliable`) with methods that do not need it
+    /// (default true; needs four lights or more).
+    pub detect: bool,
+    /// Integrate the final normals into depth and curl (default true).
+    pub integrate: bool,
+}
+
+impl Default for Params {
+    fn default() -> Self {
+        Params {
+            method: Method::Recursive,
+            detection: DetectionParams::default(),
+            recursive: RecursiveParams::default(),
+            integration: IntegrationParams::default(),
+            detect: true,
+            integrate: true,
+        }
+    }
+}
+
+impl Params {
+    /// Checks every parameter's domain; errors name the parameter ([`Error::Parameter`]).
+    pub fn validate(&self) -> Result<()> {
+        self.detection.validate()?;
+        self.recursive.validate()?;
+        self.integration.validate()
+    }
+
+    /// The parameters as `report.json` records them: names as in the library, enum values as
+    /// the front ends spell them.
+    pub fn to_json(&self) -> serde_json::Value {
+        serde_json::json!({
+            "method": self.method.name(),
+            "detect": self.detect,
+            "integrate": self.integrate,
+            "detection": self.detection,
+            "recursive": self.recursive,
+            "integration": self.integration,
+        })
+    }
+}
+
+/// The recursive method's maps, full frame.
+#[derive(Clone, Debug)]
+pub struct RecursiveMaps {
+    /// Shadow maps of the last surface (attached and cast, per light).
+    pub shadows: crate::shadows::ShadowMaps,
+    /// (H, W): unreliable pixels no shadow explains (the highlight map H).
+    pub highlight: Vec<bool>,
+    /// (H, W): pixels left with fewer than three usable lights (before the fallback).
+    pub fewer_than_three: Vec<bool>,
+    /// (H, W): pixels whose usable lights pass the χ² test.
+    pub reliable: Vec<bool>,
+    /// Per-iteration figures.
+    pub iterations: Vec<crate::recursive::IterationRecord>,
+}
+
+/// The result of [`reconstruct`]: every map full frame (shapes in the module documentation).
+#[derive(Clone, Debug)]
+pub struct Reconstruction {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub n_lights: usize,
+    /// (H, W, 3) unit normals; (0, 0, 0) outside the mask and where undetermined.
+    pub normals: Vec<[f32; 3]>,
+    /// (H, W, C) albedo per channel.
+    pub albedo: Vec<f32>,
+    /// (H, W): the mask used.
+    pub mask: Vec<bool>,
+    /// (N, H, W): which lights each pixel's estimate used ([`status`]); all USED for `l2`.
+    pub light_status: Vec<u8>,
+    /// Whether `light_status` holds the method's own decisions (false for `l2`, which uses
+    /// every light, and for `coleman-jain` without detection: nothing to write).
+    pub statuses_decided: bool,
+    /// (H, W) ‖r‖ / σ_p with all lights, when the χ² test ran.
+    pub residual: Option<Vec<f32>>,
+    /// (H, W) the χ² test failed, when it ran.
+    pub unreliable: Option<Vec<bool>>,
+    /// (H, W) the integration weight of each pixel (see [`weighted_normals`]).
+    pub trust: Vec<f32>,
+    /// Depth, curl and integration figures, when integration ran.
+    pub surface: Option<Surface>,
+    /// The recursive method's maps.
+    pub recursive: Option<RecursiveMaps>,
+    /// (H, W) angular error in degrees against ground truth (NaN where not evaluated), when
+    /// evaluated ([`Reconstruction::evaluate`]).
+    pub error_map: Option<Vec<f32>>,
+    /// What `report.json` holds.
+    pub report: Report,
+}
+
+impl Reconstruction {
+    /// (H, W) depth in pixel units toward the camera, NaN outside the mask, when integrated.
+    pub fn depth(&self) -> Option<&[f32]> {
+        self.surface.as_ref().map(|s| s.depth.values.as_slice())
+    }
+
+    /// (H, W) curl of the normals' gradient field, NaN where undefined, when integrated.
+    pub fn curl(&self) -> Option<&[f32]> {
+        self.surface.as_ref().map(|s| s.curl.as_slice())
+    }
+
+    /// Scores the normals against a ground-truth normal map of the same size ((H, W, 3),
+    /// zero where unknown): fills `error_map` and the report's error figures.
+    pub fn evaluate(&mut self, truth: &[[f32; 3]]) -> Result<ErrorStats> {
+        if truth.len() != self.normals.len() {
+            return Err(Error::invalid(format!(
+                "ground truth has {} pixels but the reconstruction {}×{} = {}",
+                truth.len(),
+                self.width,
+                self.height,
+                self.normals.len()
+            )));
+        }
+        let (map, stats) = evaluate(&self.normals, truth, Some(&self.mask))?;
+        self.error_map = Some(map);
+        self.report.error = Some(stats.clone());
+        Ok(stats)
+    }
+}
+
+/// Reconstructs a capture with `params`. See [`reconstruct_with_truth`].
+pub fn reconstruct(
+    capture: &Capture,
+    params: &Params,
+    progress: &dyn Progress,
+) -> Result<Reconstruction> {
+    reconstruct_with_truth(capture, params, None, progress)
+}
+
+/// Reconstructs a capture: estimation by `params.method`, the χ² test's maps, integration of
+/// the final normals with the same weighting rule the recursive method uses, and the report
+/// (input, parameters, stage timings, method figures). `truth` (full-frame normals, optional)
+/// only adds per-iteration error figures to the recursive method's report.
+pub fn reconstruct_with_truth(
+    capture: &Capture,
+    params: &Params,
+    truth: Option<&[[f32; 3]]>,
+    progress: &dyn Progress,
+) -> Result<Reconstruction> {
+    params.validate()?;
+    let method = params.method;
+    let mut report = Report::new(method.name());
+    report.input = InputSummary::of(capture);
+    report.notes.extend(capture.notes.iter().cloned());
+    for (name, value) in params
+        .to_json()
+        .as_object()
+        .into_iter()
+        .flat_map(|m| m.iter())
+    {
+        report.param(name, value.clone());
+    }
+    let can_detect = capture.n_lights() >= 4;
+    if params.detect && !can_detect {
+        report
+            .notes
+            .push("detection skipped: it needs at least four lights".into());
+    }
+    let (estimate, detection, diagnostics) =
+        estimate(capture, params, truth, can_detect, progress, &mut report)?;
+    if let Some(d) = &detection {
+        report.extra.insert(
+            "detection".into(),
+            serde_json::json!({
+                "noise": d.noise,
+                "threshold_chi2": d.threshold,
+                "confidence": d.params.confidence,
+                "unreliable_share": d.unreliable_share(),
+            }),
+        );
+    }
+    let (w, h) = (capture.width, capture.height);
+    let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
+    // Integration trust: the recursive method's own; unreliable pixels low for the methods
+    // that keep faulty lights; 1 for Barsky & Petrou, which drops them itself.
+    let low = params.integration.unreliable_weight;
+    let trust = match (&diagnostics, &detection) {
+        (Some(r), _) => r.trust.clone(),
+        (None, Some(d)) if method != Method::BarskyPetrou => capture.scatter(
+            &d.unreliable
+                .iter()
+                .map(|&u| if u { low } else { 1.0 })
+                .collect::<Vec<f32>>(),
+            1,
+            0.0,
+        ),
+        _ => capture.scatter(&vec![1f32; capture.n_pixels()], 1, 0.0),
+    };
+    let surface = if params.integrate {
+        let t = Instant::now();
+        let (weighted, weights) = weighted_normals(&normals, &capture.mask, Some(&trust));
+        let surface = surface_from_normals(
+            w,
+            h,
+            &weighted,
+            Some(&capture.mask),
+            Some(&weights),
+            params.integration.method.integrator().as_ref(),
+            params.integration.max_slope,
+            progress,
+        )?;
+        report.extra.insert("integration".into(), surface.summary());
+        report.time("integrate", t);
+        Some(surface)
+    } else {
+        None
+    };
+    let statuses_decided = estimate.light_status.is_some() || detection.is_some();
+    let light_status = full_frame_statuses(capture, estimate.light_status.as_deref());
+    let recursive = diagnostics.map(|d| {
+        let few = d.fewer_than_three.iter().filter(|&&f| f).count();
+        report.extra.insert(
+            "recursive".into(),
+            serde_json::json!({
+                "iterations": d.iterations,
+                "fewer_than_three_pixels": few,
+                "fallback": d.fallback,
+            }),
+        );
+        report
+            .extra
+            .insert("fewer_than_three_pixels".into(), few.into());
+        RecursiveMaps {
+            shadows: d.shadows,
+            highlight: d.highlight,
+            fewer_than_three: d.fewer_than_three,
+            reliable: d.reliable,
+            iterations: d.iterations,
+        }
+    });
+    Ok(Reconstruction {
+        width: w,
+        height: h,
+        channels: capture.channels,
+        n_lights: capture.n_lights(),
+        albedo: capture.scatter(&estimate.albedo, capture.channels, 0.0),
+        normals,
+        mask: capture.mask.clone(),
+        light_status,
+        statuses_decided,
+        residual: detection
+            .as_ref()
+            .map(|d| capture.scatter(&d.residual, 1, 0.0)),
+        unreliable: detection
+            .as_ref()
+            .map(|d| capture.scatter(&d.unreliable, 1, false)),
+        trust,
+        surface,
+        recursive,
+        error_map: None,
+        report,
+    })
+}
+
+/// The method's estimate, the χ² test's results (when it ran) and the recursive method's
+/// diagnostics; records the `estimate` and `detect` timings.
+fn estimate(
+    capture: &Capture,
+    params: &Params,
+    truth: Option<&[[f32; 3]]>,
+    can_detect: bool,
+    progress: &dyn Progress,
+    report: &mut Report,
+) -> Result<(Estimate, Option<Detection>, Option<RecursiveDiagnostics>)> {
+    let method = params.method;
+    // The detector runs first for the methods built on it (with attribution) and for the maps
+    // of the others (the test only, O(N) per pixel).
+    let detection = if method == Method::Recursive {
+        None
+    } else if method.attributes() || (params.detect && can_detect) {
+        let t = Instant::now();
+        let detection_params = DetectionParams {
+            attribute: method.attributes(),
+            ..params.detection.clone()
+        };
+        let d = detect(capture, &detection_params, progress)?;
+        report.time("detect", t);
+        Some(d)
+    } else {
+        None
+    };
+    let t = Instant::now();
+    let result = match method {
+        Method::L2 => (LeastSquares.estimate(capture, progress)?, detection, None),
+        Method::ColemanJain => {
+            let cj = ColemanJain {
+                params: params.detection.clone(),
+                ..ColemanJain::default()
+            };
+            (cj.estimate(capture, progress)?, detection, None)
+        }
+        Method::BarskyPetrou => {
+            let d = detection.ok_or_else(|| {
+                Error::invalid("barsky-petrou needs the detector, which needs four lights")
+            })?;
+            (
+                BarskyPetrou::from_detection(capture, &d, progress),
+                Some(d),
+                None,
+            )
+        }
+        Method::Recursive => {
+            let recursive = Recursive {
+                params: params.recursive.clone(),
+                detection: params.detection.clone(),
+                integration: params.integration,
+                truth: truth.map(|t| Arc::new(t.to_vec())),
+            };
+            let r = recursive.run(capture, progress, &mut |_| {})?;
+            let tested = (capture.n_lights() >= 4).then_some(r.detection);
+            (r.estimate, tested, Some(r.diagnostics))
+        }
+    };
+    report.time("estimate", t);
+    Ok(result)
+}
+
+/// (N, H, W) statuses from per-mask-pixel ones (`n_pixels * N`, pixel-major); every light
+/// USED when the method decided none.
+fn full_frame_statuses(capture: &Capture, light_status: Option<&[u8]>) -> Vec<u8> {
+    let n = capture.n_lights();
+    let hw = capture.width * capture.height;
+    let mut full = vec![status::OUTSIDE; n * hw];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        for k in 0..n {
+            full[k * hw + i as usize] = light_status.map_or(status::USED, |s| s[p * n + k]);
+        }
+    }
+    full
+}

@@ -1,0 +1,271 @@
+//! The Lambertian kernel every estimator, the detector and the recursive driver share: the
+//! channel mean, least squares per pixel over any subset of lights (with the 3×3 normal
+//! matrices cached per subset), the per-channel albedo with the normal fixed, and the per-light
+//! statuses. It sits just above the capture and names no module above it.
+//!
+//! Image model (ALGORITHMS.md §1): I_kc = ρ_c · max(0, l_k · n) per light k and channel c, with
+//! the intensities already divided by the lights' intensities. Normals are unit vectors in the
+//! camera frame (x right, y up, z toward the camera); albedo is per channel, in the units of the
+//! intensity-normalised images (full scale = 1).
+
+use crate::capture::Capture;
+use crate::progress::Progress;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// Per-pixel results of an estimator, in mask-pixel order (see [`Capture::pixels`]).
+#[derive(Clone, Debug, Default)]
+pub struct Estimate {
+    /// Unit normal per mask pixel; (0, 0, 0) where the normal is undetermined.
+    pub normals: Vec<[f32; 3]>,
+    /// Albedo per mask pixel and channel (`n_pixels * channels`).
+    pub albedo: Vec<f32>,
+    /// Per-light status of every mask pixel (`n_pixels * n_lights`, values of [`status`]), when
+    /// the estimator decides which lights it used.
+    pub light_status: Option<Vec<u8>>,
+}
+
+/// Values of `light_status` (CONVENTIONS.md): which lights a pixel's estimate used.
+pub mod status {
+    /// The light was used.
+    pub const USED: u8 = 0;
+    /// The pixel is in the light's attached or cast shadow.
+    pub const SHADOW: u8 = 1;
+    /// The light causes a highlight at the pixel.
+    pub const HIGHLIGHT: u8 = 2;
+    /// Rejected for another reason.
+    pub const REJECTED: u8 = 3;
+    /// Outside the mask.
+    pub const OUTSIDE: u8 = 255;
+}
+
+/// Pixels per parallel work item.
+pub const CHUNK: usize = 2048;
+
+/// Solves least squares per pixel over the lights marked usable in `usable`
+/// (`n_pixels * n_lights` flags, true = use), or over all lights when `usable` is `None`.
+///
+/// The normal comes from the channel mean; each channel's albedo is then fitted with that normal
+/// fixed. Pixels with fewer than three usable lights, a singular subset or a zero fit get a
+/// zero normal and zero albedo.
+pub fn solve_subsets(
+    capture: &Capture,
+    usable: Option<&[bool]>,
+    progress: &dyn Progress,
+) -> Estimate {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let np = capture.n_pixels();
+    let mut normals = vec![[0f32; 3]; np];
+    let mut albedo = vec![0f32; np * c];
+    let all = SubsetSolver::all_lights(capture);
+    progress.begin("estimating", np as u64);
+    normals
+        .par_chunks_mut(CHUNK)
+        .zip(albedo.par_chunks_mut(CHUNK * c))
+        .enumerate()
+        .for_each_init(
+            || (SubsetCache::new(capture), vec![0f64; n]),
+            |(cache, grey), (chunk, (nrm, alb))| {
+                let p0 = chunk * CHUNK;
+                for (dp, out_n) in nrm.iter_mut().enumerate() {
+                    let p = p0 + dp;
+                    let samples = capture.pixel_samples(p);
+                    channel_mean(samples, c, grey);
+                    let solved = match usable {
+                        None => all.solve(grey),
+                        Some(flags) => {
+                            let used = &flags[p * n..(p + 1) * n];
+                            cache.solve(used, grey)
+                        }
+                    };
+                    let out_a = &mut alb[dp * c..(dp + 1) * c];
+                    match solved {
+                        Some(m) => {
+                            let used = usable.map(|f| &f[p * n..(p + 1) * n]);
+                            write_normal_albedo(capture, samples, &m, used, out_n, out_a);
+                        }
+                        None => {
+                            *out_n = [0.0; 3];
+                            out_a.fill(0.0);
+                        }
+                    }
+                }
+                progress.advance(nrm.len() as u64);
+            },
+        );
+    progress.end();
+    Estimate {
+        normals,
+        albedo,
+        light_status: None,
+    }
+}
+
+/// Mean over channels of each light's sample, into `grey` (length N).
+#[inline]
+pub fn channel_mean(samples: &[f32], channels: usize, grey: &mut [f64]) {
+    if channels == 1 {
+        for (g, s) in grey.iter_mut().zip(samples) {
+            *g = *s as f64;
+        }
+    } else {
+        let inv = 1.0 / channels as f64;
+        for (g, px) in grey.iter_mut().zip(samples.chunks_exact(channels)) {
+            *g = px.iter().map(|&v| v as f64).sum::<f64>() * inv;
+        }
+    }
+}
+
+/// From the scaled normal m = ρ n: writes n and the per-channel albedo fitted with n fixed
+/// (ρ_c = Σ s_k I_kc / Σ s_k², s_k = l_k · n, over the used lights).
+#[inline]
+pub fn write_normal_albedo(
+    capture: &Capture,
+    samples: &[f32],
+    m: &Vector3<f64>,
+    used: Option<&[bool]>,
+    out_n: &mut [f32; 3],
+    out_a: &mut [f32],
+) {
+    let rho = m.norm();
+    if rho.is_nan() || rho <= 1e-12 || !rho.is_finite() {
+        *out_n = [0.0; 3];
+        out_a.fill(0.0);
+        return;
+    }
+    let nrm = m / rho;
+    *out_n = [nrm.x as f32, nrm.y as f32, nrm.z as f32];
+    let c = capture.channels;
+    let mut num = [0f64; 3];
+    let mut den = 0f64;
+    for (k, d) in capture.lights.directions.iter().enumerate() {
+        if let Some(u) = used {
+            if !u[k] {
+                continue;
+            }
+        }
+        let s = d[0] * nrm.x + d[1] * nrm.y + d[2] * nrm.z;
+        den += s * s;
+        for ch in 0..c {
+            num[ch] += s * samples[k * c + ch] as f64;
+        }
+    }
+    for ch in 0..c {
+        out_a[ch] = if den > 0.0 {
+            (num[ch] / den) as f32
+        } else {
+            0.0
+        };
+    }
+}
+
+/// Least squares over a fixed set of lights: m = (LᵀL)⁻¹ Lᵀ I with the pseudo-inverse cached.
+#[derive(Clone, Debug)]
+pub struct SubsetSolver {
+    /// 3 × N pseudo-inverse, row-major; zero columns for unused lights.
+    pinv: Vec<[f64; 3]>,
+}
+
+impl SubsetSolver {
+    /// The solver for all lights of the capture.
+    pub fn all_lights(capture: &Capture) -> Self {
+        let used = vec![true; capture.n_lights()];
+        Self::new(&capture.lights.directions, &used)
+            .expect("capture lights were checked to have rank 3")
+    }
+
+    /// The solver for the lights flagged in `used`; `None` when fewer than three are used or
+    /// they do not span three dimensions.
+    pub fn new(directions: &[[f64; 3]], used: &[bool]) -> Option<Self> {
+        let mut g = Matrix3::<f64>::zeros();
+        let mut count = 0;
+        for (d, &u) in directions.iter().zip(used) {
+            if u {
+                let v = Vector3::from(*d);
+                g += v * v.transpose();
+                count += 1;
+            }
+        }
+        if count < 3 {
+            return None;
+        }
+        // Refuse subsets whose smallest eigenvalue is negligible (coplanar lights).
+        let eig = nalgebra::SymmetricEigen::new(g).eigenvalues;
+        if eig.min() <= 1e-8 * eig.max() {
+            return None;
+        }
+        let inv = g.try_inverse()?;
+        let pinv = directions
+            .iter()
+            .zip(used)
+            .map(|(d, &u)| {
+                if u {
+                    let v = inv * Vector3::from(*d);
+                    [v.x, v.y, v.z]
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
+        Some(SubsetSolver { pinv })
+    }
+
+    /// The scaled normal m = ρ n for intensities `grey` (one per light).
+    #[inline]
+    pub fn solve(&self, grey: &[f64]) -> Option<Vector3<f64>> {
+        let mut m = [0f64; 3];
+        for (p, &i) in self.pinv.iter().zip(grey) {
+            m[0] += p[0] * i;
+            m[1] += p[1] * i;
+            m[2] += p[2] * i;
+        }
+        Some(Vector3::new(m[0], m[1], m[2]))
+    }
+}
+
+/// Per-thread cache of [`SubsetSolver`]s keyed by the set of usable lights.
+pub struct SubsetCache<'a> {
+    directions: &'a [[f64; 3]],
+    map: HashMap<Vec<u64>, Option<SubsetSolver>>,
+    key: Vec<u64>,
+}
+
+impl<'a> SubsetCache<'a> {
+    /// An empty cache for the capture's lights.
+    pub fn new(capture: &'a Capture) -> Self {
+        let words = capture.n_lights().div_ceil(64);
+        SubsetCache {
+            directions: &capture.lights.directions,
+            map: HashMap::new(),
+            key: vec![0; words],
+        }
+    }
+
+    /// Least squares over the lights flagged in `used`; `None` if the subset cannot determine a
+    /// normal.
+    pub fn solve(&mut self, used: &[bool], grey: &[f64]) -> Option<Vector3<f64>> {
+        self.key.fill(0);
+        for (k, &u) in used.iter().enumerate() {
+            if u {
+                self.key[k / 64] |= 1 << (k % 64);
+            }
+        }
+        if let Some(s) = self.map.get(&self.key) {
+            return s.as_ref()?.solve(grey);
+        }
+        // Bounded cache: many distinct subsets (rare) fall back to solving without caching.
+        let solver = SubsetSolver::new(self.directions, used);
+        let result = solver.as_ref().and_then(|s| s.solve(grey));
+        if self.map.len() < 4096 {
+            self.map.insert(self.key.clone(), solver);
+        }
+        result
+    }
+}
+
+/// Usable-light flags (true = [`status::USED`]) from per-light statuses.
+pub fn usable(light_status: &[u8]) -> Vec<bool> {
+    light_status.iter().map(|&s| s == status::USED).collect()
+}
