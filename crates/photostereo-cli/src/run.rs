@@ -1,7 +1,7 @@
 //! `photostereo run`: reconstruct a capture.
 
 use crate::common::{print_json, OutputOpts};
-use anyhow::{bail, Result};
+use anyhow::Result;
 use clap::Args;
 use photostereo::capture::CaptureFiles;
 use photostereo::detect::DetectionParams;
@@ -105,51 +105,15 @@ fn parse_method(s: &str) -> Result<Method, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
-/// Resolves the input arguments into capture files.
+/// Resolves the input arguments into capture files (every layout; see
+/// [`CaptureFiles::from_inputs`]).
 pub fn capture_files(
     input: &[PathBuf],
     lights: Option<&Path>,
     intensities: Option<&Path>,
     mask: Option<&Path>,
 ) -> Result<CaptureFiles> {
-    let mut files = if input.len() == 1 && input[0].is_dir() {
-        let mut f = CaptureFiles::diligent_with_lights(&input[0], lights)?;
-        if let Some(p) = intensities {
-            f.lights = f.lights.read_intensities(p)?;
-        }
-        f
-    } else if input.len() == 1
-        && input[0]
-            .extension()
-            .and_then(|e| e.to_str())
-            .is_some_and(|e| e.eq_ignore_ascii_case("txt"))
-    {
-        let Some(l) = lights else {
-            bail!(
-                "{}: a list file needs --lights FILE with the light directions",
-                input[0].display()
-            );
-        };
-        let mut f = CaptureFiles::list_file(&input[0], l)?;
-        if let Some(p) = intensities {
-            f.lights = f.lights.read_intensities(p)?;
-        }
-        f
-    } else {
-        let Some(l) = lights else {
-            bail!("image files given explicitly need --lights FILE with one direction per image");
-        };
-        for p in input {
-            if !p.is_file() {
-                bail!("{}: no such image file", p.display());
-            }
-        }
-        CaptureFiles::explicit(input.to_vec(), l, intensities, None)?
-    };
-    if let Some(m) = mask {
-        files.mask = Some(m.to_path_buf());
-    }
-    Ok(files)
+    Ok(CaptureFiles::from_inputs(input, lights, intensities, mask)?)
 }
 
 /// The engine's parameters from the flags.

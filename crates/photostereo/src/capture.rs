@@ -54,6 +54,76 @@ pub struct CaptureFiles {
 }
 
 impl CaptureFiles {
+    /// Every input layout, as the command line and the Python package take it: one folder
+    /// (the DiLiGenT layout; `lights` replaces its directions, `intensities` its intensities),
+    /// one `.txt` list file (with `lights`), or image files (with `lights`). `mask` replaces the
+    /// layout's own mask.
+    pub fn from_inputs(
+        inputs: &[PathBuf],
+        lights: Option<&Path>,
+        intensities: Option<&Path>,
+        mask: Option<&Path>,
+    ) -> Result<Self> {
+        let is_list = |p: &Path| {
+            p.extension()
+                .and_then(|e| e.to_str())
+                .is_some_and(|e| e.eq_ignore_ascii_case("txt"))
+        };
+        let mut files = match inputs {
+            [] => {
+                return Err(Error::invalid(
+                    "no input: expected a capture folder, a list file or image files",
+                ))
+            }
+            [dir] if dir.is_dir() => {
+                let mut f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                if let Some(p) = intensities {
+                    f.lights = f.lights.read_intensities(p)?;
+                }
+                f
+            }
+            [list] if is_list(list) => {
+                if !list.is_file() {
+                    return Err(Error::file(list, "no such list file"));
+                }
+                let Some(l) = lights else {
+                    return Err(Error::file(
+                        list,
+                        "a list file needs the light directions (--lights FILE)",
+                    ));
+                };
+                let mut f = CaptureFiles::list_file(list, l)?;
+                if let Some(p) = intensities {
+                    f.lights = f.lights.read_intensities(p)?;
+                }
+                f
+            }
+            [single] if !single.exists() => {
+                return Err(Error::file(
+                    single,
+                    "no such file or folder (expected a capture folder, a list file or image files)",
+                ));
+            }
+            images => {
+                for p in images {
+                    if !p.is_file() {
+                        return Err(Error::file(p, "no such image file"));
+                    }
+                }
+                let Some(l) = lights else {
+                    return Err(Error::invalid(
+                        "image files given explicitly need the light directions (--lights FILE, one direction per image)",
+                    ));
+                };
+                CaptureFiles::explicit(images.to_vec(), l, intensities, None)?
+            }
+        };
+        if let Some(m) = mask {
+            files.mask = Some(m.to_path_buf());
+        }
+        Ok(files)
+    }
+
     /// The DiLiGenT layout: a folder with the images, `filenames.txt` (optional),
     /// `light_directions.txt`, `light_intensities.txt` (optional) and `mask.png` (optional).
     pub fn diligent(dir: &Path) -> Result<Self> {

@@ -86,6 +86,7 @@ impl Default for DetectionParams {
 
 /// Where the noise floor σ₀ comes from when it is not given.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
 pub enum NoiseEstimate {
     /// The sensor noise of the images themselves: in each image, the robust spread (1.4826 ×
     /// median absolute value) of a 3×3 second-difference filter whose response to a smooth

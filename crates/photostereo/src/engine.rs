@@ -23,7 +23,7 @@ use crate::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
 use crate::integrate::{surface_from_normals, weighted_normals, IntegrationParams, Surface};
 use crate::lambert::{status, Estimate};
 use crate::metrics::{evaluate, ErrorStats};
-use crate::progress::Progress;
+use crate::progress::{check_cancelled, Progress};
 use crate::recursive::{Recursive, RecursiveDiagnostics, RecursiveParams};
 use crate::report::{InputSummary, Report};
 use std::str::FromStr;
@@ -253,6 +253,7 @@ pub fn reconstruct_with_truth(
     }
     let (estimate, detection, diagnostics) =
         estimate(capture, params, truth, can_detect, progress, &mut report)?;
+    check_cancelled(progress)?;
     if let Some(d) = &detection {
         report.extra.insert(
             "detection".into(),
@@ -370,6 +371,7 @@ fn estimate(
         };
         let d = detect(capture, &detection_params, progress)?;
         report.time("detect", t);
+        check_cancelled(progress)?;
         Some(d)
     } else {
         None
@@ -402,6 +404,9 @@ fn estimate(
                 truth: truth.map(|t| Arc::new(t.to_vec())),
             };
             let r = recursive.run(capture, progress, &mut |_| {})?;
+            report
+                .timings_s
+                .insert("detect".into(), r.detect_seconds.into());
             let tested = (capture.n_lights() >= 4).then_some(r.detection);
             (r.estimate, tested, Some(r.diagnostics))
         }

@@ -31,6 +31,9 @@ pub enum Error {
     /// (`relative_noise`); front ends map it to their own spelling (`--relative-noise`).
     #[error("{name} {message}")]
     Parameter { name: &'static str, message: String },
+    /// The caller asked to stop ([`crate::progress::Progress::cancelled`]).
+    #[error("cancelled")]
+    Cancelled,
     /// The output folder exists and overwriting it was not asked for.
     #[error("{}: already exists (pass --force to replace it)", path.display())]
     OutputExists { path: PathBuf },

@@ -10,6 +10,21 @@ pub trait Progress: Sync {
     fn advance(&self, _units: u64) {}
     /// The current stage is over.
     fn end(&self) {}
+    /// Whether the caller asked to stop (Ctrl-C in a front end). The engine checks it between
+    /// stages and between the recursive method's iterations and then returns
+    /// [`crate::Error::Cancelled`]; a stage under way runs to its end.
+    fn cancelled(&self) -> bool {
+        false
+    }
+}
+
+/// [`crate::Error::Cancelled`] when `progress` says the caller asked to stop.
+pub fn check_cancelled(progress: &dyn Progress) -> crate::Result<()> {
+    if progress.cancelled() {
+        Err(crate::Error::Cancelled)
+    } else {
+        Ok(())
+    }
 }
 
 /// Ignores all progress.

@@ -154,6 +154,8 @@ pub struct RecursiveResult {
     /// The initial χ² test over all lights (residual and unreliable maps, noise model), per
     /// mask pixel; untested (nothing flagged) with three lights.
     pub detection: Detection,
+    /// Seconds the initial test and attribution took (part of the method's run time).
+    pub detect_seconds: f64,
     pub diagnostics: RecursiveDiagnostics,
 }
 
@@ -238,6 +240,7 @@ pub fn recursive(
     let c = capture.channels;
     // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
     // starts reliable and only the geometric shadows of the surface prune lights.
+    let detect_start = Instant::now();
     let (detection, attributor) = if n >= 4 {
         let detection = detect(capture, detection_params, progress)?;
         let attributor = Attributor::new(capture, detection_params, detection.noise)?;
@@ -245,6 +248,7 @@ pub fn recursive(
     } else {
         (Detection::untested(capture, detection_params), None)
     };
+    let detect_seconds = detect_start.elapsed().as_secs_f64();
     let unreliable = detection.unreliable.clone();
     let mut light_status = detection.light_status.clone();
     let mut est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
@@ -261,6 +265,7 @@ pub fn recursive(
         truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
     progress.begin("recursive", params.max_iterations as u64);
     for iteration in 1..=params.max_iterations {
+        crate::progress::check_cancelled(progress)?;
         let start = Instant::now();
         // 2. The surface.
         let masked_trust = pixel_trust(
@@ -407,6 +412,7 @@ pub fn recursive(
     Ok(RecursiveResult {
         estimate: est,
         detection,
+        detect_seconds,
         diagnostics,
     })
 }

@@ -1,0 +1,503 @@
+"""photostereo: recursive photometric stereo, numpy in and out.
+
+Per pixel a surface normal and an albedo from images taken from one viewpoint under known
+lights, with shadows and highlights found and left out (Argyriou & Petrou's recursive method and
+its baselines), then a depth map by integrating the normals. The engine is the Rust library
+behind the ``photostereo`` command line; this package is a thin layer over it: the GIL is
+released while it works, Ctrl-C raises KeyboardInterrupt, bad input raises PhotostereoError.
+
+Conventions (the project's CONVENTIONS.md): camera frame x right, y up, z toward the camera;
+arrays are row-major with row 0 at the top; normals are unit vectors with n_z > 0; light
+directions point from the surface toward the light; integer images are scaled to [0, 1] by
+their bit depth; depth is in pixel units toward the camera.
+
+Example::
+
+    import numpy as np, photostereo
+    cap = photostereo.load_capture("catPNG")
+    rec = photostereo.reconstruct(cap)
+    print(rec.report["method"], rec.normals.shape)
+    np.save("normals.npy", rec.normals)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _native
+from ._native import PhotostereoError, __version__
+
+__all__ = [
+    "Capture",
+    "PhotostereoError",
+    "Reconstruction",
+    "angular_error",
+    "calibrate",
+    "defaults",
+    "integrate",
+    "load_capture",
+    "read_image",
+    "read_normals",
+    "reconstruct",
+    "render_scene",
+    "run",
+    "synth",
+    "__version__",
+]
+
+PathLike = Union[str, "os.PathLike[str]"]
+#: ``progress(stage, done, total)``: called from the calling thread while the library works.
+ProgressCallback = Callable[[str, int, int], Any]
+
+
+def defaults() -> Dict[str, Any]:
+    """The library's default for every reconstruction keyword (the one source of defaults)."""
+    return dict(_native.defaults())
+
+
+class Capture:
+    """Images, lights and mask of one capture, held by the library.
+
+    Only the pixels inside the mask are stored, divided by their light's intensity (the
+    library's sample store); ``reconstruct`` uses that store without copying it. Build one with
+    :func:`load_capture` (files) or :func:`Capture.from_arrays` (numpy).
+    """
+
+    __slots__ = ("_native",)
+
+    def __init__(self, native: "_native.NativeCapture"):
+        self._native = native
+
+    @classmethod
+    def from_arrays(
+        cls,
+        images: np.ndarray,
+        lights: Any,
+        intensities: Any = None,
+        mask: Any = None,
+    ) -> "Capture":
+        """A capture from an (N, H, W) or (N, H, W, C) array of uint8, uint16, float32 or
+        float64 (any strides), (N, 3) light directions, optional (N,) or (N, C) intensities and
+        an (H, W) mask (non-zero = object). The array is read once into the library's store."""
+        stack = _as_stack(images)
+        lights_arr = _float_array(lights, "lights")
+        intens = None
+        if intensities is not None:
+            intens = _float_array(intensities, "intensities")
+            if intens.ndim == 1:
+                intens = intens[:, None]
+        mask_arr = None if mask is None else _mask_array(mask)
+        return cls(_native.capture_from_stack(stack, lights_arr, intens, mask_arr))
+
+    @property
+    def width(self) -> int:
+        return self._native.width
+
+    @property
+    def height(self) -> int:
+        return self._native.height
+
+    @property
+    def channels(self) -> int:
+        return self._native.channels
+
+    @property
+    def n_lights(self) -> int:
+        return self._native.n_lights
+
+    @property
+    def bit_depth(self) -> int:
+        """Bits per sample of the source: 8, 16, or 32 for float data."""
+        return self._native.bit_depth
+
+    @property
+    def images(self) -> np.ndarray:
+        """(N, H, W, C) float32, full scale 1; zero outside the mask (built on each access)."""
+        return self._native.images()
+
+    @property
+    def lights(self) -> np.ndarray:
+        """(N, 3) float64 unit directions toward the lights, camera frame."""
+        return self._native.lights()
+
+    @property
+    def intensities(self) -> np.ndarray:
+        """(N, C) float64 light intensities."""
+        return self._native.intensities()
+
+    @property
+    def mask(self) -> np.ndarray:
+        """(H, W) bool, True inside the object."""
+        return self._native.mask()
+
+    @property
+    def notes(self) -> list:
+        """Remarks made while loading (normalised lights, resolved paths...)."""
+        return list(self._native.notes)
+
+    def __reduce__(self):
+        return (
+            _capture_from_state,
+            (self.images, self.lights, self.intensities, self.mask, self.bit_depth),
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"Capture({self.n_lights} lights, {self.width}x{self.height}, "
+            f"{self.channels} channel(s), {self.bit_depth}-bit)"
+        )
+
+
+def _capture_from_state(images, lights, intensities, mask, bit_depth):
+    # The stored images are already multiplied back by the intensities: rebuild with them.
+    return Capture.from_arrays(images, lights, intensities, mask)
+
+
+@dataclass
+class Reconstruction:
+    """The result of :func:`reconstruct`; every map is full frame (H rows, W columns).
+
+    normals:          (H, W, 3) float32 unit normals, camera frame; 0 outside the mask.
+    albedo:           (H, W, C) float32 per channel, in units of the intensity-normalised
+                      images; 0 outside the mask.
+    depth:            (H, W) float32, pixel units toward the camera, NaN outside the mask;
+                      None with ``integrate=False``.
+    light_status:     (N, H, W) uint8: 0 used, 1 shadow, 2 highlight, 3 rejected, 255 outside.
+    residual:         (H, W) float32, the chi-square statistic ||r|| / sigma with all lights;
+                      None when the test did not run (fewer than four lights, detect=False).
+    unreliable:       (H, W) bool, the test failed; None when it did not run.
+    curl:             (H, W) float32 integrability residual (eq. 10); None without depth.
+    trust:            (H, W) float32 integration weight of each pixel (1, unreliable_weight, 0).
+    mask:             (H, W) bool.
+    highlight:        (H, W) bool, the recursive method's highlight map; None for others.
+    fewer_than_three: (H, W) bool, pixels left with fewer than three usable lights (recursive).
+    report:           dict, the content of report.json.
+    """
+
+    normals: np.ndarray
+    albedo: np.ndarray
+    depth: Optional[np.ndarray]
+    light_status: np.ndarray
+    residual: Optional[np.ndarray]
+    unreliable: Optional[np.ndarray]
+    curl: Optional[np.ndarray]
+    trust: np.ndarray
+    mask: np.ndarray
+    highlight: Optional[np.ndarray]
+    fewer_than_three: Optional[np.ndarray]
+    report: Dict[str, Any]
+
+
+def _as_stack(images: Any) -> np.ndarray:
+    """An (N, H, W, C) view of ``images`` without copying when the dtype is accepted."""
+    if isinstance(images, Capture):
+        raise PhotostereoError("images: a Capture needs no lights or intensities")
+    arr = np.asarray(images)
+    if arr.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
+        raise PhotostereoError(
+            f"images: expected uint8, uint16, float32 or float64 samples, got {arr.dtype}"
+        )
+    if arr.ndim == 3:
+        arr = arr[..., None]
+    if arr.ndim != 4:
+        raise PhotostereoError(
+            f"images: expected an (N, H, W) or (N, H, W, C) array, got shape {arr.shape}"
+        )
+    return arr
+
+
+def _float_array(values: Any, name: str) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise PhotostereoError(f"{name}: expected an array of numbers ({e})") from None
+    if name == "lights" and (arr.ndim != 2 or arr.shape[1] != 3):
+        raise PhotostereoError(f"lights: expected an (N, 3) array, got shape {arr.shape}")
+    if name == "intensities" and arr.ndim not in (1, 2):
+        raise PhotostereoError(
+            f"intensities: expected an (N,) or (N, C) array, got shape {arr.shape}"
+        )
+    return arr
+
+
+def _mask_array(mask: Any) -> np.ndarray:
+    arr = np.asarray(mask)
+    if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
+        arr = arr.any(axis=2)
+    if arr.ndim != 2:
+        raise PhotostereoError(f"mask: expected an (H, W) array, got shape {arr.shape}")
+    return arr.astype(bool, copy=False)
+
+
+def _paths(path: Union[PathLike, Sequence[PathLike]]) -> list:
+    if isinstance(path, (str, os.PathLike)):
+        return [os.fspath(path)]
+    return [os.fspath(p) for p in path]
+
+
+def _opt_path(p: Optional[PathLike]) -> Optional[str]:
+    return None if p is None else os.fspath(p)
+
+
+def load_capture(
+    path: Union[PathLike, Sequence[PathLike]],
+    lights: Optional[PathLike] = None,
+    intensities: Optional[PathLike] = None,
+    mask: Optional[PathLike] = None,
+    *,
+    num_threads: Optional[int] = None,
+) -> Capture:
+    """Reads a capture from files, in every layout the command line reads: a DiLiGenT-layout
+    folder (``lights`` replaces its directions), a list file (with ``lights``), or a list of
+    image files (with ``lights``). ``intensities`` and ``mask`` replace the layout's own.
+    Images are decoded in parallel (``num_threads`` caps the threads)."""
+    native = _native.load_capture(
+        _paths(path), _opt_path(lights), _opt_path(intensities), _opt_path(mask), num_threads
+    )
+    return Capture(native)
+
+
+def reconstruct(
+    images: Union[Capture, np.ndarray],
+    lights: Any = None,
+    *,
+    mask: Any = None,
+    intensities: Any = None,
+    method: str = "recursive",
+    sigma: Optional[float] = None,
+    relative_noise: float = 0.01,
+    confidence: float = 0.95,
+    min_kept_share: float = 0.25,
+    batch_alpha: float = 0.05,
+    shadow_sigmas: float = 3.0,
+    shadow_ratio: float = 0.1,
+    noise_estimate: str = "images",
+    noise_refinements: int = 1,
+    max_iterations: int = 5,
+    change_tolerance: float = 0.002,
+    fallback: str = "neighbours",
+    integrator: str = "poisson",
+    max_slope: float = 20.0,
+    unreliable_weight: float = 0.1,
+    detect: bool = True,
+    integrate: bool = True,
+    num_threads: Optional[int] = None,
+    progress: Optional[ProgressCallback] = None,
+) -> Reconstruction:
+    """Normals, albedo, statuses, maps and depth of a capture.
+
+    images: a :class:`Capture`, or an (N, H, W) / (N, H, W, C) array of uint8, uint16,
+        float32 or float64 (any strides; integers scaled by 255 or 65535), with ``lights``
+        (N, 3) unit directions toward the lights and optional ``intensities`` (N,) or (N, C)
+        and ``mask`` (H, W).
+    method: ``l2``, ``coleman-jain``, ``barsky-petrou`` or ``recursive``.
+    sigma: image noise per channel, full scale 1 (None: estimated from the images).
+    relative_noise: model error as a share of a pixel's mean intensity (kappa).
+    confidence: confidence of the chi-square test of non-Lambertian pixels.
+    min_kept_share: the attribution keeps at least this share of the lights (and three).
+    batch_alpha: family-wise error rate for removing several dark readings in one step.
+    shadow_sigmas, shadow_ratio: a too-dark reading is a shadow below
+        shadow_sigmas * sigma_p + shadow_ratio * (the pixel's mean intensity).
+    noise_estimate: ``images`` (sensor noise from the images) or ``residuals``.
+    noise_refinements: rounds of noise re-estimation (``residuals`` only).
+    max_iterations: the recursive method's iteration limit.
+    change_tolerance: stop when the usable-light sets change at fewer than this share of pixels.
+    fallback: completion of pixels with fewer than three lights: ``neighbours`` or ``brightest``.
+    integrator: ``poisson`` (any mask), ``dct``, ``fft`` or ``paths``.
+    max_slope: cap on |dz/dx|, |dz/dy| in pixel units per pixel.
+    unreliable_weight: integration weight of unreliable pixels (reliable ones weigh 1).
+    detect: run the chi-square test for its maps with methods that do not need it.
+    integrate: integrate the normals into depth and curl.
+    num_threads: cap on worker threads (None: all cores); several workers can share a node.
+    progress: ``progress(stage, done, total)``, called from this thread while the work runs.
+    """
+    params = dict(
+        method=method,
+        sigma=sigma,
+        relative_noise=relative_noise,
+        confidence=confidence,
+        min_kept_share=min_kept_share,
+        batch_alpha=batch_alpha,
+        shadow_sigmas=shadow_sigmas,
+        shadow_ratio=shadow_ratio,
+        noise_estimate=noise_estimate,
+        noise_refinements=noise_refinements,
+        max_iterations=max_iterations,
+        change_tolerance=change_tolerance,
+        fallback=fallback,
+        integrator=integrator,
+        max_slope=max_slope,
+        unreliable_weight=unreliable_weight,
+        detect=detect,
+        integrate=integrate,
+    )
+    if isinstance(images, Capture):
+        if lights is not None or intensities is not None or mask is not None:
+            raise PhotostereoError(
+                "images is a Capture: it carries its own lights, intensities and mask"
+            )
+        capture = images
+    else:
+        if lights is None:
+            raise PhotostereoError("lights: an image array needs (N, 3) light directions")
+        capture = Capture.from_arrays(images, lights, intensities, mask)
+    out = _native.reconstruct(capture._native, params, num_threads, progress)
+    report = json.loads(out.pop("report_json"))
+    return Reconstruction(report=report, **out)
+
+
+def run(
+    path: Union[PathLike, Sequence[PathLike]],
+    output: PathLike,
+    *,
+    lights: Optional[PathLike] = None,
+    intensities: Optional[PathLike] = None,
+    mask: Optional[PathLike] = None,
+    gt: Optional[PathLike] = None,
+    error_map: bool = False,
+    light_subset: Optional[str] = None,
+    force: bool = False,
+    num_threads: Optional[int] = None,
+    progress: Optional[ProgressCallback] = None,
+    **params: Any,
+) -> Dict[str, Any]:
+    """The command line's ``run``: reads the capture at ``path`` (any layout, as
+    :func:`load_capture`), reconstructs it, scores it against ``gt`` when given, and writes the
+    output folder ``output`` atomically (normals, albedo, maps, depth, meshes, report.json).
+    ``params`` are :func:`reconstruct`'s keywords (``method=``, ``confidence=``...). Returns
+    the report. ``force`` replaces an existing output folder."""
+    full = defaults()
+    unknown = sorted(set(params) - set(full))
+    if unknown:
+        raise TypeError(f"run() got unexpected keyword argument(s): {', '.join(unknown)}")
+    full.update(params)
+    report = _native.run(
+        _paths(path),
+        os.fspath(output),
+        full,
+        _opt_path(lights),
+        _opt_path(intensities),
+        _opt_path(mask),
+        _opt_path(gt),
+        error_map,
+        light_subset,
+        force,
+        num_threads,
+        progress,
+    )
+    return json.loads(report)
+
+
+def integrate(
+    normals: np.ndarray,
+    mask: Any = None,
+    method: str = "poisson",
+    weights: Optional[np.ndarray] = None,
+    *,
+    max_slope: float = 20.0,
+    num_threads: Optional[int] = None,
+) -> np.ndarray:
+    """Integrates an (H, W, 3) normal map into (H, W) float32 depth (pixel units toward the
+    camera, NaN outside the mask). ``mask`` (H, W) defaults to the non-zero normals;
+    ``weights`` (H, W) in 0..1 lower the say of unreliable pixels (``poisson`` honours any mask
+    and weights; ``dct`` and ``fft`` work on the full rectangle)."""
+    n = np.asarray(normals, dtype=np.float32)
+    if n.ndim != 3:
+        raise PhotostereoError(f"normals: expected an (H, W, 3) array, got shape {n.shape}")
+    m = None if mask is None else _mask_array(mask)
+    w = None if weights is None else np.asarray(weights, dtype=np.float32)
+    return _native.integrate(n, m, method, w, max_slope, num_threads)
+
+
+def angular_error(
+    normals: np.ndarray, truth: np.ndarray, mask: Any = None
+) -> Dict[str, Any]:
+    """Angular error in degrees between (H, W, 3) normals and ground truth, over the mask where
+    the truth is non-zero: ``mean_deg``, ``median_deg``, ``under_5deg``/``10``/``20`` (shares),
+    ``pixels``, ``missing`` (zero predictions, counted as 90 degrees), and ``map`` (H, W)
+    float32 (NaN where not evaluated)."""
+    n = np.asarray(normals, dtype=np.float32)
+    t = np.asarray(truth, dtype=np.float32)
+    if n.ndim != 3 or t.ndim != 3:
+        raise PhotostereoError(
+            f"normals {n.shape} and truth {t.shape}: expected (H, W, 3) arrays"
+        )
+    m = None if mask is None else _mask_array(mask)
+    stats, error_map = _native.angular_error(n, t, m)
+    out = json.loads(stats)
+    out["map"] = error_map
+    return out
+
+
+def calibrate(images: np.ndarray, mask: Any = None) -> Dict[str, Any]:
+    """Light directions from images of a mirror sphere: (N, H, W) or (N, H, W, C) images
+    (integers scaled by their full scale) and an optional (H, W) mask of the sphere. Returns
+    ``lights`` (N, 3) (NaN where no highlight was found), ``confidence`` (N,) in 0..1, and the
+    full calibration (``sphere``, ``per_light`` highlights, ``warnings``)."""
+    stack = _as_stack(images)
+    if stack.dtype == np.uint8:
+        stack = stack.astype(np.float32) / 255.0
+    elif stack.dtype == np.uint16:
+        stack = stack.astype(np.float32) / 65535.0
+    stack = np.asarray(stack, dtype=np.float32)
+    m = None if mask is None else _mask_array(mask)
+    cal = json.loads(_native.calibrate(stack, m))
+    per_light = cal.pop("lights")
+    cal["per_light"] = per_light
+    cal["lights"] = np.array(
+        [p["direction"] if p["direction"] is not None else [np.nan] * 3 for p in per_light],
+        dtype=np.float64,
+    ).reshape(-1, 3)
+    cal["confidence"] = np.array([p["confidence"] for p in per_light], dtype=np.float64)
+    return cal
+
+
+def render_scene(
+    name: str,
+    rig: str = "square4",
+    size: int = 128,
+    *,
+    brdf: str = "blinn-phong",
+    noise: float = 0.005,
+    seed: int = 1,
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Dict[str, np.ndarray]]:
+    """Renders a built-in scene (``sphere``, ``cavities``, ``blocks``, ``terrain``, ``bumps``,
+    ``face``) under a rig (``square4``, ``ring8``, ``dome-N``...) at size x size pixels with
+    16-bit quantisation and Gaussian noise ``noise`` (full scale 1). Returns ``(images (N, S,
+    S, 3) float32, lights (N, 3), mask (S, S), truth)`` with ``truth`` a dict of ``normals``
+    (S, S, 3), ``depth`` (S, S) and per-light ``shadows`` (N, S, S)."""
+    images, lights, mask, normals, depth, shadows = _native.render_scene(
+        name, rig, size, brdf, noise, seed
+    )
+    return images, lights, mask, {"normals": normals, "depth": depth, "shadows": shadows}
+
+
+def synth(
+    name: str,
+    output: PathLike,
+    rig: str = "square4",
+    size: int = 128,
+    *,
+    brdf: str = "blinn-phong",
+    noise: float = 0.005,
+    seed: int = 1,
+    force: bool = False,
+) -> str:
+    """Renders a built-in scene into a DiLiGenT-layout folder with ground truth (``gt/``), as
+    ``photostereo synth`` does. Returns the folder."""
+    return _native.synth(name, os.fspath(output), rig, size, brdf, noise, seed, force)
+
+
+def read_image(path: PathLike) -> np.ndarray:
+    """An image file (PNG 8/16-bit, TIFF, EXR) as (H, W, C) float32, integers scaled to [0, 1]."""
+    return _native.read_image(os.fspath(path))
+
+
+def read_normals(path: PathLike) -> np.ndarray:
+    """A normal map (.npy, DiLiGenT .mat, 16-bit normal-map PNG) as (H, W, 3) float32."""
+    return _native.read_normals(os.fspath(path))
