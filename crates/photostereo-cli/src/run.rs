@@ -9,7 +9,7 @@ use photostereo::engine::{Method, Params};
 use photostereo::integrate::{IntegrationParams, IntegratorKind};
 use photostereo::pipeline::{run, LightSubset, RunOptions, DEFAULT_ERROR_MAP_MAX_DEG};
 use photostereo::recursive::{Fallback, RecursiveParams};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 /// The library's defaults, the one source of the flags' defaults.
 fn defaults() -> Params {
@@ -105,17 +105,6 @@ fn parse_method(s: &str) -> Result<Method, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
-/// Resolves the input arguments into capture files (every layout; see
-/// [`CaptureFiles::from_inputs`]).
-pub fn capture_files(
-    input: &[PathBuf],
-    lights: Option<&Path>,
-    intensities: Option<&Path>,
-    mask: Option<&Path>,
-) -> Result<CaptureFiles> {
-    Ok(CaptureFiles::from_inputs(input, lights, intensities, mask)?)
-}
-
 /// The engine's parameters from the flags.
 pub fn params(a: &RunArgs) -> Params {
     let d = defaults();
@@ -144,7 +133,7 @@ pub fn params(a: &RunArgs) -> Params {
 }
 
 pub fn main(a: RunArgs) -> Result<()> {
-    let files = capture_files(
+    let files = CaptureFiles::from_inputs(
         &a.input,
         a.lights.as_deref(),
         a.intensities.as_deref(),

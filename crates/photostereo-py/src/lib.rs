@@ -385,6 +385,25 @@ impl NativeCapture {
     }
 }
 
+/// The input arguments of `load_capture` and `run`, as the command line takes them.
+struct InputFiles {
+    inputs: Vec<PathBuf>,
+    lights: Option<PathBuf>,
+    intensities: Option<PathBuf>,
+    mask: Option<PathBuf>,
+}
+
+impl InputFiles {
+    fn resolve(&self) -> photostereo::Result<CaptureFiles> {
+        CaptureFiles::from_inputs(
+            &self.inputs,
+            self.lights.as_deref(),
+            self.intensities.as_deref(),
+            self.mask.as_deref(),
+        )
+    }
+}
+
 /// Reads a capture from files: a DiLiGenT-layout folder, a list file with `lights`, or image
 /// files with `lights`.
 #[pyfunction]
@@ -397,14 +416,14 @@ fn load_capture(
     mask: Option<PathBuf>,
     num_threads: Option<usize>,
 ) -> PyResult<NativeCapture> {
+    let files = InputFiles {
+        inputs,
+        lights,
+        intensities,
+        mask,
+    };
     let capture = run_detached(py, num_threads, None, move |progress| {
-        let files = CaptureFiles::from_inputs(
-            &inputs,
-            lights.as_deref(),
-            intensities.as_deref(),
-            mask.as_deref(),
-        )?;
-        files.load(progress)
+        files.resolve()?.load(progress)
     })?;
     Ok(NativeCapture {
         inner: Arc::new(capture),
@@ -623,14 +642,14 @@ fn run(
         error_map_max_deg: None,
         light_subset,
     };
+    let files = InputFiles {
+        inputs,
+        lights,
+        intensities,
+        mask,
+    };
     let rec = run_detached(py, num_threads, progress, move |p| {
-        let files = CaptureFiles::from_inputs(
-            &inputs,
-            lights.as_deref(),
-            intensities.as_deref(),
-            mask.as_deref(),
-        )?;
-        photostereo::pipeline::run(&files, &options, &output, force, p)
+        photostereo::pipeline::run(&files.resolve()?, &options, &output, force, p)
     })?;
     serde_json::to_string(&rec.report).map_err(|e| bad(e.to_string()))
 }

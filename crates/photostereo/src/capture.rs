@@ -532,18 +532,37 @@ impl Capture {
             })
             .collect();
         let samples = interleave(&planes, pixels.len(), c);
-        Ok(Capture {
-            width: w,
-            height: h,
-            channels: c,
-            bit_depth: images[0].bit_depth,
+        Ok(Capture::in_memory(
+            (w, h, c),
+            images[0].bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+        ))
+    }
+
+    /// A capture built in memory (no source files, no notes).
+    fn in_memory(
+        (width, height, channels): (usize, usize, usize),
+        bit_depth: u8,
+        lights: Lights,
+        mask: Vec<bool>,
+        pixels: Vec<u32>,
+        samples: Vec<f32>,
+    ) -> Capture {
+        Capture {
+            width,
+            height,
+            channels,
+            bit_depth,
             lights,
             mask,
             pixels,
             samples,
             sources: Vec::new(),
             notes: Vec::new(),
-        })
+        }
     }
 
     /// Builds a capture from one image stack in memory: `stack` is (N, H, W, C) with C = 1 or
@@ -627,18 +646,14 @@ impl Capture {
                 i % w
             )));
         }
-        Ok(Capture {
-            width: w,
-            height: h,
-            channels: c,
+        Ok(Capture::in_memory(
+            (w, h, c),
             bit_depth,
             lights,
             mask,
             pixels,
             samples,
-            sources: Vec::new(),
-            notes: Vec::new(),
-        })
+        ))
     }
 
     /// Number of lights (= images).
