@@ -28,7 +28,8 @@
 //! 7. [`recursive`]: the recursive method, driving [`detect`], [`lambert`], [`integrate`] and
 //!    [`shadows`]; it returns its own diagnostics.
 //! 8. [`engine`]: `reconstruct(&Capture, &Params, &dyn Progress) -> Reconstruction`, every
-//!    output full frame, and a [`report::Report`] value; [`metrics`] scores normals.
+//!    output full frame, and a [`report::Report`] value; [`metrics`] scores normals;
+//!    [`indicators`] measures the paper's Table 2 indicator from the capture and the statuses.
 //! 9. io at the edge: [`imageio`], [`groundtruth`], [`matfile`], [`export`], [`surface`],
 //!    [`figure`], [`report`] serialisation, and [`pipeline`], the file driver of `run`
 //!    (load → reconstruct → evaluate → report → export).
@@ -48,6 +49,7 @@ pub mod figure;
 pub(crate) mod fixtures;
 pub mod groundtruth;
 pub mod imageio;
+pub mod indicators;
 pub mod integrate;
 pub mod lambert;
 pub mod lights;
