@@ -53,6 +53,7 @@ pub mod indicators;
 pub mod integrate;
 pub mod lambert;
 pub mod lights;
+pub mod maps;
 pub mod matfile;
 pub mod metrics;
 pub mod pipeline;
