@@ -292,6 +292,19 @@ pub fn colour_bar(
     c
 }
 
+/// Steps that divide a [`nice_ceil`] scale end into round tick values (1 → 2, 2 → 4, 2.5 → 5,
+/// 3 → 3, 5 → 5, 10 → 5 times a power of ten).
+pub fn nice_steps(max: f32) -> usize {
+    if !(max.is_finite() && max > 0.0) {
+        return 1;
+    }
+    let m = max / 10f32.powf(max.log10().floor());
+    [(1.0, 2), (2.0, 4), (2.5, 5), (3.0, 3), (5.0, 5), (10.0, 5)]
+        .iter()
+        .find(|(v, _)| (m - v).abs() < 1e-3)
+        .map_or(4, |&(_, s)| s)
+}
+
 /// Evenly spaced ticks 0, max/k, …, max for a bar, labelled with `unit` appended.
 pub fn even_ticks(max: f32, steps: usize, unit: &str) -> Vec<(f32, String)> {
     (0..=steps)
@@ -333,6 +346,8 @@ pub fn hstack(panels: &[Canvas], gap: usize) -> Canvas {
 pub struct Grid {
     pub title: Vec<String>,
     pub headings: Vec<String>,
+    /// The headings are drawn just above this row (0: above the first).
+    pub headings_at: usize,
     pub rows: Vec<(String, Vec<Canvas>)>,
     /// Drawn under the rows (legends).
     pub footer: Vec<Canvas>,
@@ -392,16 +407,16 @@ impl Grid {
             c.text(gap, y, t, s, INK);
             y += line;
         }
-        if !self.headings.is_empty() {
-            y += gap / 2;
-            let mut x = gap;
-            for (j, h) in self.headings.iter().enumerate() {
-                c.text(x, y, h, s, [60, 60, 140]);
-                x += col_w[j] + gap;
+        for (row, (label, panels)) in self.rows.iter().enumerate() {
+            if !self.headings.is_empty() && row == self.headings_at.min(self.rows.len() - 1) {
+                y += gap / 2;
+                let mut x = gap;
+                for (j, h) in self.headings.iter().enumerate() {
+                    c.text(x, y, h, s, [60, 60, 140]);
+                    x += col_w[j] + gap;
+                }
+                y += line;
             }
-            y += line;
-        }
-        for (label, panels) in &self.rows {
             c.text(gap, y + s, label, s, INK);
             y += line;
             let mut x = gap;
@@ -660,6 +675,9 @@ mod tests {
         assert_eq!(tick_label(45.0), "45");
         assert_eq!(tick_label(22.5), "22.5");
         assert_eq!(tick_label(0.25), "0.25");
+        assert_eq!(nice_steps(30.0), 3);
+        assert_eq!(nice_steps(2.5), 5);
+        assert_eq!(nice_steps(100.0), 2);
     }
 
     #[test]
