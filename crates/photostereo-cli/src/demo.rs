@@ -8,8 +8,8 @@ use clap::Args;
 use photostereo::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::export::{write_json, OutputFolder};
 use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
-use photostereo::maps::{nice_ceil, tick_label};
 use photostereo::imageio::Image;
+use photostereo::maps::{nice_ceil, tick_label};
 use photostereo::metrics::{evaluate, ErrorStats};
 use photostereo::pipeline::{write_reconstruction, RunOptions};
 use photostereo::progress::Silent;
@@ -179,27 +179,25 @@ fn run_rig(
             .iter()
             .map(|(_, rec, _)| percentile95(rec.error_map.as_deref().unwrap_or(&[])))
             .collect();
-        let scale = nice_ceil(p95.iter().copied().fold(1.0f32, f32::max)).min(ERROR_SCALE_DEG * 3.0);
+        let scale =
+            nice_ceil(p95.iter().copied().fold(1.0f32, f32::max)).min(ERROR_SCALE_DEG * 3.0);
         // A second, finer scale fitted to the best method, when the first would flatten it.
         let fine = nice_ceil(p95.iter().copied().fold(f32::INFINITY, f32::min).max(0.1));
         let fine = (fine * 3.0 <= scale).then_some(fine);
         let method_rows: Vec<(String, Vec<Canvas>)> = results
             .iter()
             .map(|(method, rec, stats)| {
-                (
-                    format!("{}  mae {:.2}°", method.name(), stats.mean_deg),
-                    {
-                        let errors = rec.error_map.as_deref().unwrap_or(&[]);
-                        let mut panels = vec![
-                            normals_picture(&rec.normals, w, h),
-                            heat_map(errors, w, h, scale, "°"),
-                        ];
-                        if let Some(f) = fine {
-                            panels.push(heat_map(errors, w, h, f, "°"));
-                        }
-                        panels
-                    },
-                )
+                (format!("{}  mae {:.2}°", method.name(), stats.mean_deg), {
+                    let errors = rec.error_map.as_deref().unwrap_or(&[]);
+                    let mut panels = vec![
+                        normals_picture(&rec.normals, w, h),
+                        heat_map(errors, w, h, scale, "°"),
+                    ];
+                    if let Some(f) = fine {
+                        panels.push(heat_map(errors, w, h, f, "°"));
+                    }
+                    panels
+                })
             })
             .collect();
         let row_width = method_rows
@@ -244,10 +242,18 @@ fn run_rig(
                 tick_label(scale),
                 tick_label(f)
             ),
-            None => format!("{} {}: error 0-{}°", rig.name(), kind.name(), tick_label(scale)),
+            None => format!(
+                "{} {}: error 0-{}°",
+                rig.name(),
+                kind.name(),
+                tick_label(scale)
+            ),
         };
-        figure(&title, &figure_rows)
-            .save(&root.join(format!("{}-{}.png", rig.name(), kind.name())))?;
+        figure(&title, &figure_rows).save(&root.join(format!(
+            "{}-{}.png",
+            rig.name(),
+            kind.name()
+        )))?;
         scene_stats.push((rig.name(), kind.name(), rendered.stats.clone()));
     }
     Ok(())

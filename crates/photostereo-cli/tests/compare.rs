@@ -147,15 +147,7 @@ fn highlight_and_shadow_intensities_match_a_recomputation_from_the_files() {
     let mut classified = 0;
     for method in ["l2", "coleman-jain", "barsky-petrou", "recursive"] {
         let out = tmp.path().join(method);
-        let v = photostereo(&[
-            "run",
-            s(&cap),
-            "--method",
-            method,
-            "-o",
-            s(&out),
-            "--json",
-        ]);
+        let v = photostereo(&["run", s(&cap), "--method", method, "-o", s(&out), "--json"]);
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap())
                 .unwrap();
@@ -208,15 +200,7 @@ fn compare_rows_equal_four_separate_runs() {
     let cap = synth(tmp.path());
     let gt = cap.join("gt/normal.npy");
     let out = tmp.path().join("cmp");
-    let v = photostereo(&[
-        "compare",
-        s(&cap),
-        "--gt",
-        s(&gt),
-        "-o",
-        s(&out),
-        "--json",
-    ]);
+    let v = photostereo(&["compare", s(&cap), "--gt", s(&gt), "-o", s(&out), "--json"]);
     let file: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("compare.json")).unwrap()).unwrap();
     assert!(out.join("compare.png").exists());
@@ -251,7 +235,10 @@ fn compare_rows_equal_four_separate_runs() {
             "{method}"
         );
     }
-    assert_eq!(v["table1_mean_angular_error_deg"], file["table1_mean_angular_error_deg"]);
+    assert_eq!(
+        v["table1_mean_angular_error_deg"],
+        file["table1_mean_angular_error_deg"]
+    );
     // Written atomically: a second compare into the same folder is refused without --force.
     let again = Command::new(BIN)
         .args(["compare", s(&cap), "-o", s(&out)])

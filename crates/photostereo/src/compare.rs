@@ -20,8 +20,7 @@ use crate::indicators::{raw_scale, status_intensities, StatusIntensities};
 use crate::lambert::status;
 use crate::maps::{
     colour_bar, even_ticks, hstack, light_counts, nice_ceil, nice_steps, shaded_depth_panel,
-    tick_label,
-    titled, Grid, View, RAKING_LIGHT,
+    tick_label, titled, Grid, View, RAKING_LIGHT,
 };
 use crate::pipeline::{write_reconstruction, LightSubset, RunOptions};
 use crate::progress::Progress;

@@ -216,14 +216,22 @@ mod tests {
             [0.0, 0.5, 0.866],
             [-0.5, 0.0, 0.866],
         ];
-        let lights = Lights::new(&dirs).unwrap().with_intensities(intensities).unwrap();
+        let lights = Lights::new(&dirs)
+            .unwrap()
+            .with_intensities(intensities)
+            .unwrap();
         let (h, w) = (2, 3);
         let stack = Array4::from_shape_fn((4, h, w, channels), |(k, r, col, ch)| {
             0.1 * (k + 1) as f32 + 0.01 * (r * w + col) as f32 + 0.001 * ch as f32
         });
         let mut mask = ndarray::Array2::from_elem((h, w), true);
         mask[[1, 2]] = false;
-        Capture::from_stack(crate::capture::Stack::F32(stack.view()), lights, Some(mask.view())).unwrap()
+        Capture::from_stack(
+            crate::capture::Stack::F32(stack.view()),
+            lights,
+            Some(mask.view()),
+        )
+        .unwrap()
     }
 
     #[test]
@@ -250,7 +258,11 @@ mod tests {
         let m = s.highlights.mean_intensity.as_ref().unwrap();
         for ch in 0..3 {
             let want = (0.1 + 0.44 + 2.0 * 0.001 * ch as f64) / 2.0;
-            assert!((m.channels[ch] - want).abs() < 1e-6, "{ch}: {}", m.channels[ch]);
+            assert!(
+                (m.channels[ch] - want).abs() < 1e-6,
+                "{ch}: {}",
+                m.channels[ch]
+            );
         }
         assert!((m.grey - m.channels.iter().sum::<f64>() / 3.0).abs() < 1e-12);
         let m255 = s.highlights.mean_intensity_255.as_ref().unwrap();

@@ -466,17 +466,10 @@ pub fn unreliable_figure(
             (f * root_top, format!("{}", tick_label(round_sig(v))))
         })
         .collect();
-    let mut bar = colour_bar(
-        panel.height,
-        root_top,
-        &ticks,
-        "r/sigma",
-        scale,
-        &|t| {
-            let g = (t * 255.0) as u8;
-            [g, g, g]
-        },
-    );
+    let mut bar = colour_bar(panel.height, root_top, &ticks, "r/sigma", scale, &|t| {
+        let g = (t * 255.0) as u8;
+        [g, g, g]
+    });
     if let Some(t) = threshold.filter(|t| t.is_finite() && *t > 0.0) {
         let pos = ((t as f32) / top).sqrt().min(1.0) * root_top;
         // The threshold: a red mark across the bar (its value is in the caption).
@@ -579,7 +572,11 @@ pub fn unusable_lights_figure(
     let ticks: Vec<(f32, String)> = (0..=steps)
         .map(|i| {
             let v = max * i as f32 / steps as f32;
-            let more = if i == steps && max < n as f32 { "+" } else { "" };
+            let more = if i == steps && max < n as f32 {
+                "+"
+            } else {
+                ""
+            };
             (
                 v,
                 format!("{}{more} ({:.0}%)", tick_label(v), 100.0 * v / n as f32),
@@ -691,7 +688,10 @@ mod tests {
             status::SHADOW,
             status::OUTSIDE,
         ];
-        assert_eq!(light_counts(&st, 2, &mask, Some(status::SHADOW))[..2], [1.0, 1.0]);
+        assert_eq!(
+            light_counts(&st, 2, &mask, Some(status::SHADOW))[..2],
+            [1.0, 1.0]
+        );
         assert_eq!(light_counts(&st, 2, &mask, None)[..2], [2.0, 1.0]);
         assert!(light_counts(&st, 2, &mask, None)[2].is_nan());
     }
