@@ -299,8 +299,8 @@ fn thumbnails(inputs: &[Canvas], w: usize, h: usize, max_width: usize) -> Canvas
                 for yy in y * factor..((y + 1) * factor).min(img.height) {
                     for xx in x * factor..((x + 1) * factor).min(img.width) {
                         let i = (yy * img.width + xx) * 3;
-                        for ch in 0..3 {
-                            sum[ch] += img.data[i + ch] as u32;
+                        for (acc, &v) in sum.iter_mut().zip(&img.data[i..i + 3]) {
+                            *acc += v as u32;
                         }
                         cnt += 1;
                     }

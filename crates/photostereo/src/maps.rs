@@ -463,7 +463,7 @@ pub fn unreliable_figure(
         .iter()
         .map(|f| {
             let v = (f * root_top).powi(2);
-            (f * root_top, format!("{}", tick_label(round_sig(v))))
+            (f * root_top, tick_label(round_sig(v)))
         })
         .collect();
     let mut bar = colour_bar(panel.height, root_top, &ticks, "r/sigma", scale, &|t| {
