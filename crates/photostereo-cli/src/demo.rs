@@ -9,6 +9,7 @@ use photostereo::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::export::{write_json, OutputFolder};
 use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
 use photostereo::imageio::Image;
+use photostereo::maps::{nice_ceil, tick_label};
 use photostereo::metrics::{evaluate, ErrorStats};
 use photostereo::pipeline::{write_reconstruction, RunOptions};
 use photostereo::progress::Silent;
@@ -22,7 +23,8 @@ const MARKER: &str = ".photostereo-demo";
 const DEMO_SEED: u64 = 2007;
 /// The demo's noise σ, fraction of full scale.
 const DEMO_NOISE: f64 = 0.005;
-/// Upper end of the error maps' colour scale, degrees.
+/// The error maps' colour scale fits each scene's results (the largest 95th percentile of the
+/// methods' errors, rounded up); it never exceeds three times this, degrees.
 const ERROR_SCALE_DEG: f32 = 30.0;
 
 #[derive(Args, Debug)]
@@ -158,35 +160,73 @@ fn run_rig(
         let truth = &rendered.truth;
         let (w, h) = (truth.width, truth.height);
         let mut figure_rows: Vec<(String, Vec<Canvas>)> = Vec::new();
-        let mut inputs: Vec<Canvas> = rendered.images.iter().map(rgb_picture).collect();
-        inputs.push(normals_picture(&truth.normals, w, h));
-        figure_rows.push(("inputs / truth".into(), inputs));
+        let inputs: Vec<Canvas> = rendered.images.iter().map(rgb_picture).collect();
+        let mut results = Vec::new();
         for &method in Method::ALL {
+            let params = Params {
+                method,
+                ..Params::default()
+            };
+            let mut rec = reconstruct_with_truth(&capture, &params, Some(&truth.normals), &Silent)?;
+            let (map, stats) = evaluate(&rec.normals, &truth.normals, Some(&truth.mask))?;
+            rec.error_map = Some(map);
+            rec.report.error = Some(stats.clone());
+            results.push((method, rec, stats));
+        }
+        // One error scale per scene that fits its results: the largest 95th percentile of the
+        // methods' errors, rounded up to a round number (errors above it clip to yellow).
+        let p95: Vec<f32> = results
+            .iter()
+            .map(|(_, rec, _)| percentile95(rec.error_map.as_deref().unwrap_or(&[])))
+            .collect();
+        let scale =
+            nice_ceil(p95.iter().copied().fold(1.0f32, f32::max)).min(ERROR_SCALE_DEG * 3.0);
+        // A second, finer scale fitted to the best method, when the first would flatten it.
+        let fine = nice_ceil(p95.iter().copied().fold(f32::INFINITY, f32::min).max(0.1));
+        let fine = (fine * 3.0 <= scale).then_some(fine);
+        let method_rows: Vec<(String, Vec<Canvas>)> = results
+            .iter()
+            .map(|(method, rec, stats)| {
+                (format!("{}  mae {:.2}°", method.name(), stats.mean_deg), {
+                    let errors = rec.error_map.as_deref().unwrap_or(&[]);
+                    let mut panels = vec![
+                        normals_picture(&rec.normals, w, h),
+                        heat_map(errors, w, h, scale, "°"),
+                    ];
+                    if let Some(f) = fine {
+                        panels.push(heat_map(errors, w, h, f, "°"));
+                    }
+                    panels
+                })
+            })
+            .collect();
+        let row_width = method_rows
+            .iter()
+            .map(|(_, p)| p.iter().map(|c| c.width + 4).sum::<usize>())
+            .max()
+            .unwrap_or(w);
+        figure_rows.push((
+            format!("truth / {} inputs", inputs.len()),
+            vec![
+                normals_picture(&truth.normals, w, h),
+                thumbnails(&inputs, w, h, row_width.saturating_sub(w + 8)),
+            ],
+        ));
+        figure_rows.extend(method_rows);
+        for (method, rec, stats) in results {
             let options = RunOptions {
                 params: Params {
                     method,
                     ..Params::default()
                 },
                 error_map: true,
-                error_map_max_deg: Some(ERROR_SCALE_DEG),
+                error_map_max_deg: Some(scale),
                 ..RunOptions::default()
             };
-            let mut rec =
-                reconstruct_with_truth(&capture, &options.params, Some(&truth.normals), &Silent)?;
-            let (map, stats) = evaluate(&rec.normals, &truth.normals, Some(&truth.mask))?;
-            rec.error_map = Some(map.clone());
-            rec.report.error = Some(stats.clone());
             let dir = scene_dir.join(method.name());
             std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
             write_reconstruction(&rec, &dir, &options)?;
             write_json(&dir.join("report.json"), &rec.report)?;
-            figure_rows.push((
-                format!("{}  mae {:.2}", method.name(), stats.mean_deg),
-                vec![
-                    normals_picture(&rec.normals, w, h),
-                    heat_map(&map, w, h, ERROR_SCALE_DEG, "°"),
-                ],
-            ));
             rows.push(Row {
                 rig: rig.name(),
                 scene: kind.name(),
@@ -194,11 +234,82 @@ fn run_rig(
                 stats,
             });
         }
-        figure(&format!("{} {}", rig.name(), kind.name()), &figure_rows)
-            .save(&root.join(format!("{}-{}.png", rig.name(), kind.name())))?;
+        let title = match fine {
+            Some(f) => format!(
+                "{} {}: error 0-{}° and 0-{}°",
+                rig.name(),
+                kind.name(),
+                tick_label(scale),
+                tick_label(f)
+            ),
+            None => format!(
+                "{} {}: error 0-{}°",
+                rig.name(),
+                kind.name(),
+                tick_label(scale)
+            ),
+        };
+        figure(&title, &figure_rows).save(&root.join(format!(
+            "{}-{}.png",
+            rig.name(),
+            kind.name()
+        )))?;
         scene_stats.push((rig.name(), kind.name(), rendered.stats.clone()));
     }
     Ok(())
+}
+
+/// The 95th percentile of the finite values (0 when none).
+fn percentile95(values: &[f32]) -> f32 {
+    let mut v: Vec<f32> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    let k = ((v.len() - 1) as f64 * 0.95).round() as usize;
+    *v.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}
+
+/// The inputs as numbered thumbnails in a grid at most `max_width` wide: each reduced by the
+/// smallest integer factor (up to 4) that keeps the grid within 1.25 times a panel's height,
+/// so the method rows below keep their full size whatever the number of lights.
+fn thumbnails(inputs: &[Canvas], w: usize, h: usize, max_width: usize) -> Canvas {
+    const GAP: usize = 3;
+    const LABEL: usize = 9;
+    let n = inputs.len().max(1);
+    let layout = |f: usize| {
+        let (tw, th) = (w.div_ceil(f), h.div_ceil(f));
+        let cols = (max_width / (tw + GAP)).clamp(1, n);
+        let rows = n.div_ceil(cols);
+        (tw, th, cols, rows)
+    };
+    let factor = (1..=4)
+        .find(|&f| {
+            let (_, th, _, rows) = layout(f);
+            rows * (th + LABEL + GAP) <= h * 5 / 4
+        })
+        .unwrap_or(4);
+    let (tw, th, cols, rows) = layout(factor);
+    let mut c = Canvas::new(cols * (tw + GAP), rows * (th + LABEL + GAP), [255; 3]);
+    for (k, img) in inputs.iter().enumerate() {
+        let (x0, y0) = ((k % cols) * (tw + GAP), (k / cols) * (th + LABEL + GAP));
+        c.text(x0, y0, &(k + 1).to_string(), 1, [90, 90, 90]);
+        for y in 0..th {
+            for x in 0..tw {
+                let (mut sum, mut cnt) = ([0u32; 3], 0u32);
+                for yy in y * factor..((y + 1) * factor).min(img.height) {
+                    for xx in x * factor..((x + 1) * factor).min(img.width) {
+                        let i = (yy * img.width + xx) * 3;
+                        for (acc, &v) in sum.iter_mut().zip(&img.data[i..i + 3]) {
+                            *acc += v as u32;
+                        }
+                        cnt += 1;
+                    }
+                }
+                c.put(x0 + x, y0 + LABEL + y, sum.map(|v| (v / cnt.max(1)) as u8));
+            }
+        }
+    }
+    c
 }
 
 /// An RGB image (values in [0, 1]) as an 8-bit picture.

@@ -5,6 +5,7 @@
 
 mod calibrate;
 mod common;
+mod compare;
 mod demo;
 mod eval;
 mod integrate;
@@ -28,6 +29,9 @@ enum Command {
     Run(run::RunArgs),
     /// Compare a normal map with ground truth: mean, median and shares under 5°/10°/20°.
     Eval(eval::EvalArgs),
+    /// Run every method on one capture: the paper's Table 1 row (with --gt) and Table 2 row
+    /// (mean highlight intensity), compare.json and a side-by-side figure (compare.png).
+    Compare(compare::CompareArgs),
     /// Calibrate light directions from a mirror sphere (intensities from a matte one).
     Calibrate(calibrate::CalibrateArgs),
     /// Integrate a normal map into depth (depth.npy/.exr/.png), meshes (mesh.ply/.obj) and curl.npy.
@@ -43,6 +47,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
+        Command::Compare(a) => compare::main(a),
         Command::Demo(a) => demo::main(a),
         Command::Calibrate(a) => calibrate::main(a),
         Command::Integrate(a) => integrate::main(a),

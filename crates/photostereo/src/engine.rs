@@ -303,6 +303,7 @@ pub fn reconstruct_with_truth(
     };
     let statuses_decided = estimate.light_status.is_some() || detection.is_some();
     let light_status = full_frame_statuses(capture, estimate.light_status.as_deref());
+    crate::indicators::record(capture, &light_status, statuses_decided, &mut report);
     let recursive = diagnostics.map(|d| {
         let few = d.fewer_than_three.iter().filter(|&&f| f).count();
         report.extra.insert(

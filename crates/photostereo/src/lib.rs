@@ -28,16 +28,19 @@
 //! 7. [`recursive`]: the recursive method, driving [`detect`], [`lambert`], [`integrate`] and
 //!    [`shadows`]; it returns its own diagnostics.
 //! 8. [`engine`]: `reconstruct(&Capture, &Params, &dyn Progress) -> Reconstruction`, every
-//!    output full frame, and a [`report::Report`] value; [`metrics`] scores normals.
+//!    output full frame, and a [`report::Report`] value; [`metrics`] scores normals;
+//!    [`indicators`] measures the paper's Table 2 indicator from the capture and the statuses.
 //! 9. io at the edge: [`imageio`], [`groundtruth`], [`matfile`], [`export`], [`surface`],
 //!    [`figure`], [`report`] serialisation, and [`pipeline`], the file driver of `run`
-//!    (load → reconstruct → evaluate → report → export).
+//!    (load → reconstruct → evaluate → report → export); [`compare`] runs every method on one
+//!    capture (the paper's Tables 1–2 and Figs. 7–12); [`maps`] draws legible figures.
 //!
 //! Beside them: [`scene`] renders ground-truth scenes and [`calibrate`] finds lights from a
 //! mirror sphere. The library never prints: progress goes through [`progress::Progress`].
 
 pub mod calibrate;
 pub mod capture;
+pub mod compare;
 pub mod detect;
 pub mod engine;
 pub mod error;
@@ -48,9 +51,11 @@ pub mod figure;
 pub(crate) mod fixtures;
 pub mod groundtruth;
 pub mod imageio;
+pub mod indicators;
 pub mod integrate;
 pub mod lambert;
 pub mod lights;
+pub mod maps;
 pub mod matfile;
 pub mod metrics;
 pub mod pipeline;

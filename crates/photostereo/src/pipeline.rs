@@ -109,27 +109,21 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
     }
     if let (Some(residual), Some(unreliable)) = (&rec.residual, &rec.unreliable) {
         write_npy_f32(&dir.join("residual.npy"), &[h, w], residual)?;
-        // Fig. 6a: the statistic as grey (square root of ‖r‖/σ over its maximum); Fig. 6b: binary.
-        let top = residual
-            .iter()
-            .zip(&rec.mask)
-            .filter(|(_, &m)| m)
-            .map(|(r, _)| *r)
-            .fold(1e-6f32, f32::max);
-        let grey: Vec<u8> = residual
-            .iter()
-            .map(|r| ((r / top).sqrt().clamp(0.0, 1.0) * 255.0) as u8)
-            .collect();
-        write_png8(&dir.join("unreliable.png"), w, h, 1, &grey)?;
+        // Fig. 6a: the statistic as grey with its scale and the test's threshold; Fig. 6b: binary.
+        crate::maps::write_unreliable(dir, rec, residual)?;
         let binary: Vec<u8> = unreliable
             .iter()
             .map(|&u| if u { 255 } else { 0 })
             .collect();
         write_png8(&dir.join("unreliable_mask.png"), w, h, 1, &binary)?;
     }
+    if rec.statuses_decided {
+        crate::maps::write_unusable_lights(dir, rec)?;
+    }
     if let Some(r) = &rec.recursive {
         let maps: Vec<Vec<bool>> = (0..r.shadows.lights).map(|k| r.shadows.union(k)).collect();
-        crate::shadows::shadow_montage(&maps, w, h).save(&dir.join("shadows.png"))?;
+        crate::shadows::shadow_montage_outlined(&maps, Some(&rec.mask), w, h)
+            .save(&dir.join("shadows.png"))?;
         let bytes = |m: &[bool]| {
             m.iter()
                 .map(|&b| if b { 255u8 } else { 0 })

@@ -313,6 +313,35 @@ pub fn cast_shadows_ray_march(
 /// share of shadowed pixels, white = lit, black = shadowed), labelled with the light's 1-based
 /// index above it.
 pub fn shadow_montage(maps: &[Vec<bool>], width: usize, height: usize) -> Canvas {
+    shadow_montage_outlined(maps, None, width, height)
+}
+
+/// [`shadow_montage`] with the object drawn: with `mask`, each map is first cropped to the
+/// object's bounding box (plus a small margin), tile pixels outside the object are blue-grey,
+/// its border red, each label adds the share of the object in shadow (when the tile is wide
+/// enough), and a legend line is added under the grid.
+pub fn shadow_montage_outlined(
+    maps: &[Vec<bool>],
+    mask: Option<&[bool]>,
+    width: usize,
+    height: usize,
+) -> Canvas {
+    let Some(m) = mask.filter(|m| m.len() == width * height) else {
+        return montage(maps, None, width, height);
+    };
+    let v = crate::maps::View::of_mask(m, width, height, usize::MAX);
+    let (cw, ch) = (v.x1 - v.x0, v.y1 - v.y0);
+    let crop = |full: &[bool]| -> Vec<bool> {
+        (v.y0..v.y1)
+            .flat_map(|r| (v.x0..v.x1).map(move |c| r * width + c))
+            .map(|i| full.get(i).copied().unwrap_or(false))
+            .collect()
+    };
+    let cropped: Vec<Vec<bool>> = maps.iter().map(|map| crop(map)).collect();
+    montage(&cropped, Some(&crop(m)), cw, ch)
+}
+
+fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usize) -> Canvas {
     const TILE_MAX: usize = 128;
     const GAP: usize = 6;
     const LABEL_H: usize = 11;
@@ -326,14 +355,75 @@ pub fn shadow_montage(maps: &[Vec<bool>], width: usize, height: usize) -> Canvas
     let rows = maps.len().div_ceil(cols);
     let cell_w = tw.max(text_width(&maps.len().to_string(), 1)) + GAP;
     let cell_h = th + LABEL_H + GAP;
-    let mut canvas = Canvas::new(cols * cell_w + GAP, rows * cell_h + GAP, background);
+    const LEGEND: &str = "black: shadow  white: lit  red: object outline";
+    let legend_h = if mask.is_some() { LABEL_H + GAP } else { 0 };
+    let mut canvas = Canvas::new(
+        (cols * cell_w + GAP).max(text_width(LEGEND, 1) + 2 * GAP * mask.is_some() as usize),
+        rows * cell_h + GAP + legend_h,
+        background,
+    );
+    // Per tile pixel: how many of its frame pixels are inside the object.
+    let inside: Option<Vec<(usize, usize)>> = mask.map(|m| {
+        let mut v = vec![(0usize, 0usize); tw * th];
+        for y in 0..th {
+            for x in 0..tw {
+                let (mut n, mut total) = (0, 0);
+                for r in y * factor..((y + 1) * factor).min(height) {
+                    for c in x * factor..((x + 1) * factor).min(width) {
+                        total += 1;
+                        n += m.get(r * width + c).copied().unwrap_or(false) as usize;
+                    }
+                }
+                v[y * tw + x] = (n, total);
+            }
+        }
+        v
+    });
+    let object_pixels = mask.map(|m| m.iter().filter(|&&b| b).count());
+    let outline = |x: usize, y: usize, v: &[(usize, usize)]| {
+        let (n, total) = v[y * tw + x];
+        if n == 0 {
+            return false;
+        }
+        let out = |xx: usize, yy: usize| v[yy * tw + xx].0 == 0;
+        n < total
+            || x == 0
+            || y == 0
+            || x + 1 == tw
+            || y + 1 == th
+            || out(x - 1, y)
+            || out(x + 1, y)
+            || out(x, y - 1)
+            || out(x, y + 1)
+    };
     for (k, map) in maps.iter().enumerate() {
         let x0 = GAP + (k % cols) * cell_w;
         let y0 = GAP + (k / cols) * cell_h;
-        canvas.text(x0, y0, &(k + 1).to_string(), 1, [0, 0, 0]);
+        let mut label = (k + 1).to_string();
+        if let (Some(m), Some(total)) = (mask, object_pixels) {
+            let shadowed = map.iter().zip(m).filter(|(&s, &o)| s && o).count();
+            let with_share = format!(
+                "{label} {:.0}%",
+                100.0 * shadowed as f64 / total.max(1) as f64
+            );
+            if text_width(&with_share, 1) <= tw {
+                label = with_share;
+            }
+        }
+        canvas.text(x0, y0, &label, 1, [0, 0, 0]);
         let ty = y0 + LABEL_H;
         for y in 0..th {
             for x in 0..tw {
+                if let Some(v) = &inside {
+                    if v[y * tw + x].0 == 0 {
+                        canvas.put(x0 + x, ty + y, [225, 228, 240]);
+                        continue;
+                    }
+                    if outline(x, y, v) {
+                        canvas.put(x0 + x, ty + y, [215, 40, 40]);
+                        continue;
+                    }
+                }
                 let (mut shadowed, mut total) = (0usize, 0usize);
                 for r in y * factor..((y + 1) * factor).min(height) {
                     for c in x * factor..((x + 1) * factor).min(width) {
@@ -347,6 +437,9 @@ pub fn shadow_montage(maps: &[Vec<bool>], width: usize, height: usize) -> Canvas
                 canvas.put(x0 + x, ty + y, [g, g, g]);
             }
         }
+    }
+    if mask.is_some() {
+        canvas.text(GAP, rows * cell_h + GAP, LEGEND, 1, [0, 0, 0]);
     }
     canvas
 }
