@@ -3,9 +3,9 @@
 //! `compare.json` and one figure in the manner of its Figs. 7–12.
 
 use crate::common::{print_json, OutputOpts};
-use crate::run::capture_files;
 use anyhow::{bail, Result};
 use clap::Args;
+use photostereo::capture::CaptureFiles;
 use photostereo::compare::{compare, CompareOptions, FIGURE};
 use photostereo::detect::DetectionParams;
 use photostereo::engine::{Method, Params};
@@ -150,7 +150,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
             methods.push(*m);
         }
     }
-    let files = capture_files(
+    let files = CaptureFiles::from_inputs(
         &a.input,
         a.lights.as_deref(),
         a.intensities.as_deref(),
