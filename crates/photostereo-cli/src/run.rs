@@ -100,10 +100,34 @@ pub fn capture_files(
     intensities: Option<&Path>,
     mask: Option<&Path>,
 ) -> Result<CaptureFiles> {
+    for p in input {
+        if std::fs::metadata(p).is_err() {
+            bail!("{}: no such file or folder", p.display());
+        }
+    }
+    for (flag, p) in [
+        ("--lights", lights),
+        ("--intensities", intensities),
+        ("--mask", mask),
+    ] {
+        if let Some(p) = p {
+            if !p.is_file() {
+                bail!(
+                    "{}: {} (given as {flag})",
+                    p.display(),
+                    if p.exists() {
+                        "not a file"
+                    } else {
+                        "no such file"
+                    }
+                );
+            }
+        }
+    }
     let mut files = if input.len() == 1 && input[0].is_dir() {
         let mut f = CaptureFiles::diligent_with_lights(&input[0], lights)?;
         if let Some(p) = intensities {
-            f.lights = f.lights.read_intensities(p)?;
+            f = f.with_intensities_file(p)?;
         }
         f
     } else if input.len() == 1
@@ -120,17 +144,18 @@ pub fn capture_files(
         };
         let mut f = CaptureFiles::list_file(&input[0], l)?;
         if let Some(p) = intensities {
-            f.lights = f.lights.read_intensities(p)?;
+            f = f.with_intensities_file(p)?;
         }
         f
     } else {
         let Some(l) = lights else {
             bail!("image files given explicitly need --lights FILE with one direction per image");
         };
-        for p in input {
-            if !p.is_file() {
-                bail!("{}: no such image file", p.display());
-            }
+        if let Some(dir) = input.iter().find(|p| p.is_dir()) {
+            bail!(
+                "{}: a folder among several inputs; give one DiLiGenT-layout folder, one list file, or image files",
+                dir.display()
+            );
         }
         CaptureFiles::explicit(input.to_vec(), l, intensities, None)?
     };
@@ -140,13 +165,48 @@ pub fn capture_files(
     Ok(files)
 }
 
+/// Checks the numeric options, naming them by their flags.
+fn check_options(a: &RunArgs) -> Result<()> {
+    if !(a.change_tolerance >= 0.0 && a.change_tolerance < 1.0) {
+        bail!(
+            "--change-tolerance {}: expected a share of pixels in [0, 1)",
+            a.change_tolerance
+        );
+    }
+    if !(0.0..=1.0).contains(&a.unreliable_weight) {
+        bail!(
+            "--unreliable-weight {}: expected a value in [0, 1]",
+            a.unreliable_weight
+        );
+    }
+    if !(a.error_map_max > 0.0 && a.error_map_max <= 180.0) {
+        bail!(
+            "--error-map-max {}: expected an angle in (0, 180] degrees",
+            a.error_map_max
+        );
+    }
+    if a.max_iterations == 0 {
+        bail!("--max-iterations 0: the recursive method needs at least one iteration");
+    }
+    Ok(())
+}
+
 pub fn main(a: RunArgs) -> Result<()> {
+    check_options(&a)?;
     let files = capture_files(
         &a.input,
         a.lights.as_deref(),
         a.intensities.as_deref(),
         a.mask.as_deref(),
     )?;
+    // --force never replaces an input or a folder holding one.
+    let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
+    inputs.extend(files.images.iter().map(PathBuf::as_path));
+    inputs.extend(files.mask.as_deref());
+    inputs.extend(a.lights.as_deref());
+    inputs.extend(a.intensities.as_deref());
+    inputs.extend(a.gt.as_deref());
+    photostereo::export::check_output(&a.output, a.out.force, &inputs)?;
     let options = RunOptions {
         method: a.method,
         ground_truth: a.gt.clone(),

@@ -496,6 +496,12 @@ pub fn run(
         _ => None,
     };
     let mut rec = reconstruct(&capture, options, truth_normals, progress, &mut report)?;
+    rec.report
+        .notes
+        .extend(crate::plausibility::unestimated_note(
+            &rec.normals,
+            &rec.mask,
+        ));
     drop(capture);
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();
