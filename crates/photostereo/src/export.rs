@@ -48,7 +48,10 @@ pub fn abandon_pending() -> usize {
     let mut removed = 0;
     for p in guard.iter() {
         // A writer may still be creating files inside: try a few times.
-        for _ in 0..5 {
+        for attempt in 0..20 {
+            if attempt > 0 {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
             let r = if p.is_dir() {
                 std::fs::remove_dir_all(p)
             } else {

@@ -46,6 +46,16 @@ pub struct NpyHeader {
     pub data_offset: usize,
 }
 
+/// A shape as numpy writes it: `(2, 3)`, `(5,)`.
+fn shape_text(shape: &[u64]) -> String {
+    let parts: Vec<String> = shape.iter().map(u64::to_string).collect();
+    if parts.len() == 1 {
+        format!("({},)", parts[0])
+    } else {
+        format!("({})", parts.join(", "))
+    }
+}
+
 impl NpyHeader {
     /// Bytes per element from `descr` (the digits after the type letter).
     pub fn item_size(&self) -> Option<u64> {
@@ -125,8 +135,8 @@ pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
         .filter(|&n| n <= crate::limits::MAX_ARRAY_ELEMENTS)
         .ok_or_else(|| {
             format!(
-                "declares shape {:?}: more than {} elements",
-                header.shape,
+                "declares shape {}: more than {} elements",
+                shape_text(&header.shape),
                 crate::limits::MAX_ARRAY_ELEMENTS
             )
         })?;
@@ -137,8 +147,8 @@ pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
     let held = (bytes.len() - end) as u64;
     if data > held {
         return Err(format!(
-            "declares shape {:?} of '{}' ({}) but holds only {}: truncated or forged",
-            header.shape,
+            "declares shape {} of '{}' ({}) but holds only {}: truncated or forged",
+            shape_text(&header.shape),
             header.descr,
             crate::limits::human_bytes(data),
             crate::limits::human_bytes(held)
@@ -151,7 +161,10 @@ pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
 pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
     let header = parse_npy_header(bytes)?;
     if header.shape.len() != 3 || header.shape[2] != 3 {
-        return Err(format!("shape {:?}: expected (H, W, 3)", header.shape));
+        return Err(format!(
+            "shape {}: expected (H, W, 3)",
+            shape_text(&header.shape)
+        ));
     }
     let (h, w) = (header.shape[0], header.shape[1]);
     let pixels = h.saturating_mul(w);
