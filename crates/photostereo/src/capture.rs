@@ -343,7 +343,12 @@ pub struct ListFile {
 /// list file's folder and, failing that, to its parent (the shared `psmImages` lists name
 /// `psmImages/<object>/<file>`); a note says when the parent was used.
 pub fn read_list_file(list: &Path) -> Result<ListFile> {
-    let text = crate::limits::read_text(list)?;
+    parse_list_file(&crate::limits::read_text(list)?, list)
+}
+
+/// [`read_list_file`] on text already read from `list` (paths still resolve against its
+/// folder and that folder's parent).
+pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
     let lines: Vec<(usize, &str)> = text
         .lines()
         .enumerate()

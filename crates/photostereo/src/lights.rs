@@ -78,7 +78,13 @@ impl Lights {
     /// list layout (a first line with the count N, then N rows). Blank lines and lines starting
     /// with `#` are skipped. Directions are normalised; a zero direction is an error.
     pub fn read_directions(path: &Path) -> Result<Self> {
-        let rows = read_rows(path, &[3], None)?;
+        Self::parse_directions(&crate::limits::read_text(path)?, path)
+    }
+
+    /// [`read_directions`](Lights::read_directions) on text already read; `path` names the
+    /// source in messages.
+    pub fn parse_directions(text: &str, path: &Path) -> Result<Self> {
+        let rows = parse_rows(text, path, &[3], None)?;
         let mut dirs = Vec::with_capacity(rows.len());
         let mut renormalised = 0;
         for (line, row) in &rows {
@@ -186,7 +192,16 @@ impl Lights {
 /// `lights` (the light count, when known) decides whether an ambiguous first line holding one
 /// whole number is a count line.
 pub fn read_intensity_rows(path: &Path, lights: Option<usize>) -> Result<Vec<[f64; 3]>> {
-    let rows = read_rows(path, &[1, 3], lights)?;
+    parse_intensity_rows(&crate::limits::read_text(path)?, path, lights)
+}
+
+/// [`read_intensity_rows`] on text already read; `path` names the source in messages.
+pub fn parse_intensity_rows(
+    text: &str,
+    path: &Path,
+    lights: Option<usize>,
+) -> Result<Vec<[f64; 3]>> {
+    let rows = parse_rows(text, path, &[1, 3], lights)?;
     let mut values = Vec::with_capacity(rows.len());
     for (line, row) in &rows {
         let v = if row.len() == 1 {
@@ -266,17 +281,7 @@ fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3]
 /// when the rows after it are wider, or, where one-number rows are data too, when it equals the
 /// number of rows after it and `expected` (the light count, when known) says so; a count line
 /// that disagrees with the rows is an error naming both numbers. A leading UTF-8 byte-order
-/// mark is ignored. Returns (1-based line, values) pairs.
-pub(crate) fn read_rows(
-    path: &Path,
-    widths: &[usize],
-    expected: Option<usize>,
-) -> Result<Vec<(usize, Vec<f64>)>> {
-    let text = crate::limits::read_text(path)?;
-    parse_rows(&text, path, widths, expected)
-}
-
-/// [`read_rows`] on text already read; `path` names the source in messages.
+/// mark is ignored. Returns (1-based line, values) pairs; `path` names the source in messages.
 pub(crate) fn parse_rows(
     text: &str,
     path: &Path,

@@ -240,8 +240,8 @@ pub(crate) fn read_text(path: &std::path::Path) -> crate::Result<String> {
     text_from_bytes(&bytes).map_err(|m| Error::file(path, m))
 }
 
-/// UTF-8 text with a leading byte-order mark removed.
-pub(crate) fn text_from_bytes(bytes: &[u8]) -> Result<String, String> {
+/// UTF-8 text with a leading byte-order mark removed (what [`read_text`] does after reading).
+pub fn text_from_bytes(bytes: &[u8]) -> Result<String, String> {
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     if bytes.starts_with(b"\xFF\xFE") || bytes.starts_with(b"\xFE\xFF") {
         return Err("is UTF-16 text: save it as UTF-8 (or plain ASCII)".into());
