@@ -206,27 +206,6 @@ impl CaptureFiles {
         progress.begin("loading", n as u64);
         let first = read_image(&self.images[0])?;
         progress.advance(1);
-        // The samples of the mask pixels, plus their transient second copy while loading.
-        let frame = (first.width as u64).saturating_mul(first.height as u64);
-        let needed = frame
-            .saturating_mul(n as u64)
-            .saturating_mul(first.channels as u64)
-            .saturating_mul(8);
-        if let Err(m) = crate::limits::check_memory(
-            needed,
-            &format!(
-                "{n} images of {}×{}×{} (up to {} samples, twice while loading)",
-                first.width,
-                first.height,
-                first.channels,
-                crate::limits::human_bytes(needed / 2)
-            ),
-        ) {
-            return Err(Error::invalid(format!(
-                "{m}: use a mask or fewer images (or set {})",
-                crate::limits::MEMORY_LIMIT_VAR
-            )));
-        }
         let mask = match &self.mask {
             Some(path) => {
                 let (h, w, m) = read_mask(path)?;
@@ -253,6 +232,24 @@ impl CaptureFiles {
             .map(|(i, _)| i as u32)
             .collect();
         let (w, h, c) = (first.width, first.height, first.channels);
+        // The samples of the mask pixels, plus their transient second copy while loading.
+        let needed = (pixels.len() as u64)
+            .saturating_mul(n as u64)
+            .saturating_mul(c as u64)
+            .saturating_mul(8);
+        if let Err(m) = crate::limits::check_memory(
+            needed,
+            &format!(
+                "{n} images of {} mask pixels × {c} channel(s) ({} of samples, twice while loading)",
+                pixels.len(),
+                crate::limits::human_bytes(needed / 2)
+            ),
+        ) {
+            return Err(Error::invalid(format!(
+                "{m}: use a smaller mask or fewer images (or set {})",
+                crate::limits::MEMORY_LIMIT_VAR
+            )));
+        }
         let gather = |k: usize, img: &Image| -> Vec<f32> {
             let scale = light_scale(&self.lights.intensities[k], c);
             let mut out = Vec::with_capacity(pixels.len() * c);
@@ -365,7 +362,7 @@ pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
             format!("'{first}': expected the image count"),
         )
     })?;
-    if lines.len() < count + 1 {
+    if lines.len() - 1 < count {
         return Err(Error::file(
             list,
             format!(
@@ -374,7 +371,7 @@ pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
             ),
         ));
     }
-    if lines.len() > count + 2 {
+    if lines.len() - 1 > count.saturating_add(1) {
         return Err(Error::file(
             list,
             format!(

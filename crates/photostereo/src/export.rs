@@ -124,9 +124,7 @@ pub fn check_output(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> 
     for input in inputs {
         let i = resolved(input);
         if i == t {
-            return why(format!(
-                "it is an input of this command; choose another output (-o)"
-            ));
+            return why("it is an input of this command; choose another output (-o)".into());
         }
         if i.starts_with(&t) {
             return why(format!(
@@ -226,7 +224,20 @@ pub fn remove_stale(parent: &Path) -> Vec<PathBuf> {
             continue;
         };
         let ours = if meta.is_dir() {
-            has_marker(&path) || std::fs::read_dir(&path).is_ok_and(|mut d| d.next().is_none())
+            if has_marker(&path) {
+                // A process id means nothing on another machine sharing this folder.
+                std::fs::read_to_string(path.join(MARKER))
+                    .map_or(true, |t| marker_host(&t).is_none_or(|h| h == host_name()))
+            } else {
+                // Empty, and not just made by a process (maybe on another machine) that is
+                // about to write its marker.
+                std::fs::read_dir(&path).is_ok_and(|mut d| d.next().is_none())
+                    && meta
+                        .modified()
+                        .ok()
+                        .and_then(|m| m.elapsed().ok())
+                        .is_some_and(|age| age.as_secs() >= 60)
+            }
         } else {
             meta.is_file() && written_by_photostereo(&path)
         };
@@ -246,6 +257,26 @@ pub fn remove_stale(parent: &Path) -> Vec<PathBuf> {
         }
     }
     done
+}
+
+/// This machine's name, as the marker records it ("" where unknown).
+fn host_name() -> String {
+    #[cfg(unix)]
+    {
+        let mut buf = [0u8; 256];
+        // SAFETY: the buffer is valid for its length; the result is NUL-terminated or cut.
+        if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0 {
+            let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+            return String::from_utf8_lossy(&buf[..end]).into_owned();
+        }
+    }
+    std::env::var("COMPUTERNAME").unwrap_or_default()
+}
+
+/// The host a marker's text names ("… on host NAME (process …)").
+fn marker_host(text: &str) -> Option<&str> {
+    let rest = text.split_once(" on host ")?.1;
+    Some(rest.split(" (process").next().unwrap_or(rest).trim())
 }
 
 /// A staging folder that becomes the output folder on [`commit`](OutputFolder::commit).
@@ -299,8 +330,10 @@ impl OutputFolder {
         std::fs::write(
             folder.file(MARKER),
             format!(
-                "written by photostereo {}; `--force` may replace this folder\n",
-                env!("CARGO_PKG_VERSION")
+                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n",
+                env!("CARGO_PKG_VERSION"),
+                host_name(),
+                std::process::id()
             ),
         )
         .map_err(|e| Error::io(folder.file(MARKER), e))?;
@@ -576,6 +609,39 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn leftover_names_and_marker_hosts() {
+        assert_eq!(leftover_name(".out.tmp-123"), Some(("out", "tmp", 123)));
+        assert_eq!(leftover_name(".my.out.old-7"), Some(("my.out", "old", 7)));
+        assert_eq!(leftover_name(".out.tmp-x"), None);
+        assert_eq!(leftover_name("out.tmp-1"), None);
+        assert_eq!(leftover_name(".out.bak-1"), None);
+        let text = "written by photostereo 0.1.0 on host lab-3 (process 42); …";
+        assert_eq!(marker_host(text), Some("lab-3"));
+        assert_eq!(marker_host("written by photostereo demo"), None);
+    }
+
+    #[test]
+    fn stale_folders_of_other_hosts_are_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut dead = std::process::Command::new("true").spawn().unwrap();
+        let pid = dead.id();
+        dead.wait().unwrap();
+        let mine = dir.path().join(format!(".a.tmp-{pid}"));
+        let theirs = dir.path().join(format!(".b.tmp-{pid}"));
+        for (d, host) in [(&mine, host_name()), (&theirs, "elsewhere".to_string())] {
+            std::fs::create_dir(d).unwrap();
+            std::fs::write(
+                d.join(MARKER),
+                format!("written by photostereo on host {host} (process {pid})"),
+            )
+            .unwrap();
+        }
+        let removed = remove_stale(dir.path());
+        assert_eq!(removed, vec![mine.clone()]);
+        assert!(!mine.exists() && theirs.exists());
+    }
 
     #[test]
     fn staging_is_removed_unless_committed_and_force_is_required() {

@@ -260,7 +260,9 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
             .saturating_mul(data.height() as u64)
             .saturating_mul(stored_per_pixel);
         declared.check(stored, bytes.len() as u64, MAX_EXR_RATIO)?;
-        // The decoded picture covers the display window (RGBA floats, then RGB floats).
+        // The decoded picture covers the display window (RGBA floats, then RGB floats), which
+        // the file must fill at half a float (2 bytes) per pixel at least: a forged display
+        // window around a tiny data window would otherwise cost gigabytes.
         let display = header.shared_attributes.display_window.size;
         let shown = DeclaredImage {
             width: display.width() as u64,
@@ -269,7 +271,8 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
             bytes_per_sample: 4,
             kept_channels: 3,
         };
-        shown.check(0, u64::MAX, 1)?;
+        let shown_stored = shown.width.saturating_mul(shown.height).saturating_mul(2);
+        shown.check(shown_stored, bytes.len() as u64, MAX_EXR_RATIO)?;
         budget = budget
             .max(declared.decode_bytes())
             .max(shown.decode_bytes());

@@ -21,8 +21,9 @@ pub const MAX_TEXT_BYTES: u64 = 256 << 20;
 pub const MAX_DEFLATE_RATIO: u64 = 1100;
 /// The most a TIFF's compressions (LZW, Deflate, PackBits) can expand data.
 pub const MAX_TIFF_RATIO: u64 = 4096;
-/// A generous bound on what OpenEXR's lossless compressions (RLE, ZIP, PIZ, PXR24, B44) expand.
-pub const MAX_EXR_RATIO: u64 = 1 << 14;
+/// A generous bound on what OpenEXR's compressions expand (ZIP at most 1032-fold, RLE 64,
+/// PIZ's Huffman runs a few hundred, B44 about 10).
+pub const MAX_EXR_RATIO: u64 = 4096;
 /// Environment variable that caps the memory the readers may plan for (e.g. `8G`).
 pub const MEMORY_LIMIT_VAR: &str = "PHOTOSTEREO_MAX_MEMORY";
 

@@ -10,28 +10,36 @@
 
 use photostereo::rng::Pcg32;
 use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
 use std::io::Cursor;
 use std::path::Path;
-use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::{Duration, Instant};
 
 /// No reader may ask for more than this at once while reading inputs of a few kilobytes.
 const MAX_ALLOCATION: usize = 256 << 20;
 
 struct Counting;
-static LARGEST: AtomicUsize = AtomicUsize::new(0);
+
+thread_local! {
+    /// The largest single allocation of this thread since the last reset.
+    static LARGEST: Cell<usize> = const { Cell::new(0) };
+}
+
+fn note_size(size: usize) {
+    let _ = LARGEST.try_with(|l| l.set(l.get().max(size)));
+}
 
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        LARGEST.fetch_max(layout.size(), Ordering::Relaxed);
+        note_size(layout.size());
         unsafe { System.alloc(layout) }
     }
     unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
-        LARGEST.fetch_max(layout.size(), Ordering::Relaxed);
+        note_size(layout.size());
         unsafe { System.alloc_zeroed(layout) }
     }
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        LARGEST.fetch_max(new_size, Ordering::Relaxed);
+        note_size(new_size);
         unsafe { System.realloc(ptr, layout, new_size) }
     }
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
@@ -158,11 +166,12 @@ impl Mutator {
 
     /// Text-level mutations: odd numbers, odd lines, byte-order marks, CRLF, non-UTF-8.
     fn text(&mut self, seed: &str) -> Vec<u8> {
-        const TOKENS: [&str; 20] = [
+        const TOKENS: [&str; 21] = [
             "nan",
             "inf",
             "-inf",
             "1e309",
+            "18446744073709551615",
             "-0",
             "0",
             "-1",
@@ -310,11 +319,11 @@ where
         let seed = &seeds[m.below(seeds.len())];
         let other = &seeds[m.below(seeds.len())];
         let input = mutate(&mut m, seed, other);
-        LARGEST.store(0, Ordering::Relaxed);
+        LARGEST.with(|l| l.set(0));
         let t = Instant::now();
         let outcome = std::panic::catch_unwind(|| read(&input));
         slowest = slowest.max(t.elapsed());
-        let largest = LARGEST.load(Ordering::Relaxed);
+        let largest = LARGEST.with(Cell::get);
         let problem = match outcome {
             Err(e) => Some(format!(
                 "panic: {}",
