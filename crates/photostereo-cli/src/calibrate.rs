@@ -52,12 +52,22 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
     if a.min_blob_pixels == 0 {
         anyhow::bail!("--min-blob-pixels 0: expected at least 1");
     }
-    let folder = OutputFolder::create(&a.output, a.out.force)?;
-    let progress = a.out.progress();
     let mut files = SphereFiles::resolve(&a.input)?;
     if let Some(m) = &a.mask {
         files.mask = Some(m.clone());
     }
+    // --force never replaces an input or a folder holding one.
+    let inputs: Vec<&std::path::Path> = a
+        .input
+        .iter()
+        .chain(&files.images)
+        .chain(&files.mask)
+        .chain(&a.matte)
+        .chain(&a.matte_mask)
+        .map(PathBuf::as_path)
+        .collect();
+    let folder = OutputFolder::create_for(&a.output, a.out.force, &inputs)?;
+    let progress = a.out.progress();
     let loaded = files.load(&progress)?;
     let options = CalibrationOptions {
         highlight: HighlightOptions {

@@ -92,3 +92,35 @@ pub fn flag_error(e: photostereo::Error) -> anyhow::Error {
         other => other.into(),
     }
 }
+
+/// Checks that the capture arguments name existing files before anything is read, naming the
+/// flag that gave each path.
+pub fn check_input_paths(
+    input: &[std::path::PathBuf],
+    lights: Option<&std::path::Path>,
+    intensities: Option<&std::path::Path>,
+    mask: Option<&std::path::Path>,
+) -> anyhow::Result<()> {
+    for p in input {
+        if std::fs::metadata(p).is_err() {
+            anyhow::bail!("{}: no such file or folder", p.display());
+        }
+    }
+    for (flag, p) in [
+        ("--lights", lights),
+        ("--intensities", intensities),
+        ("--mask", mask),
+    ] {
+        if let Some(p) = p {
+            if !p.is_file() {
+                let what = if p.exists() {
+                    "not a file"
+                } else {
+                    "no such file"
+                };
+                anyhow::bail!("{}: {what} (given as {flag})", p.display());
+            }
+        }
+    }
+    Ok(())
+}

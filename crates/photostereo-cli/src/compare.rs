@@ -150,6 +150,12 @@ pub fn main(a: CompareArgs) -> Result<()> {
             methods.push(*m);
         }
     }
+    crate::common::check_input_paths(
+        &a.input,
+        a.lights.as_deref(),
+        a.intensities.as_deref(),
+        a.mask.as_deref(),
+    )?;
     let files = CaptureFiles::from_inputs(
         &a.input,
         a.lights.as_deref(),

@@ -136,6 +136,20 @@ pub fn main(a: DemoArgs) -> Result<()> {
     Ok(())
 }
 
+/// Creates `dir` and its missing parents below `root`, which must exist: unlike
+/// `create_dir_all`, a staging folder removed on an interrupt is never created again.
+fn make_dirs(root: &std::path::Path, dir: &std::path::Path) -> Result<()> {
+    let rel = dir.strip_prefix(root).unwrap_or(dir);
+    let mut path = root.to_path_buf();
+    for part in rel.components() {
+        path.push(part);
+        if !path.is_dir() {
+            std::fs::create_dir(&path).with_context(|| path.display().to_string())?;
+        }
+    }
+    Ok(())
+}
+
 /// Renders the six scenes under one rig, runs every method, writes captures, outputs and one
 /// figure per scene under `root`.
 fn run_rig(
@@ -154,7 +168,7 @@ fn run_rig(
         let rendered = synthesize(&spec)?;
         let scene_dir = root.join(rig.name()).join(kind.name());
         let capture_dir = scene_dir.join("capture");
-        std::fs::create_dir_all(&capture_dir).with_context(|| capture_dir.display().to_string())?;
+        make_dirs(root, &capture_dir)?;
         write_capture(&capture_dir, &rendered, Some(&spec))?;
         let capture = rendered.capture()?;
         let truth = &rendered.truth;
@@ -224,7 +238,7 @@ fn run_rig(
                 ..RunOptions::default()
             };
             let dir = scene_dir.join(method.name());
-            std::fs::create_dir_all(&dir).with_context(|| dir.display().to_string())?;
+            make_dirs(root, &dir)?;
             write_reconstruction(&rec, &dir, &options)?;
             write_json(&dir.join("report.json"), &rec.report)?;
             rows.push(Row {

@@ -3,11 +3,12 @@
 use crate::common::print_json;
 use anyhow::{bail, Result};
 use clap::Args;
+use photostereo::export::OutputFile;
 use photostereo::figure::write_error_map;
 use photostereo::groundtruth::read_normal_map;
 use photostereo::imageio::read_mask;
 use photostereo::metrics::evaluate;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
 pub struct EvalArgs {
@@ -27,20 +28,41 @@ pub struct EvalArgs {
     /// Upper end of the error map's scale, degrees.
     #[arg(long, default_value_t = 45.0)]
     pub error_map_max: f32,
-    /// Replace an existing error-map file.
+    /// Replace an existing error-map file (only one photostereo wrote, never an input).
     #[arg(long)]
     pub force: bool,
 }
 
 pub fn main(a: EvalArgs) -> Result<()> {
-    if let Some(p) = &a.error_map {
-        if p.exists() && !a.force {
+    if !(a.error_map_max > 0.0 && a.error_map_max <= 180.0) {
+        bail!(
+            "--error-map-max {}: expected an angle in (0, 180] degrees",
+            a.error_map_max
+        );
+    }
+    for p in [&a.pred, &a.gt].into_iter().chain(a.mask.as_ref()) {
+        if !p.is_file() {
             bail!(
-                "{}: already exists (pass --force to replace it)",
-                p.display()
+                "{}: {}",
+                p.display(),
+                if p.exists() {
+                    "not a file"
+                } else {
+                    "no such file"
+                }
             );
         }
     }
+    let inputs: Vec<&Path> = [a.pred.as_path(), a.gt.as_path()]
+        .into_iter()
+        .chain(a.mask.as_deref())
+        .collect();
+    // Refuse a bad --error-map before any work; the file is written under a temporary name
+    // and renamed into place at the end.
+    let out = match &a.error_map {
+        Some(p) => Some(OutputFile::create(p, a.force, &inputs)?),
+        None => None,
+    };
     let pred = read_normal_map(&a.pred)?;
     let truth = read_normal_map(&a.gt)?;
     if (pred.width, pred.height) != (truth.width, truth.height) {
@@ -72,14 +94,31 @@ pub fn main(a: EvalArgs) -> Result<()> {
         None => None,
     };
     let (map, s) = evaluate(&pred.normals, &truth.normals, mask.as_deref())?;
-    if let Some(p) = &a.error_map {
-        let tmp = p.with_extension("png.tmp");
-        write_error_map(&tmp, &map, pred.width, pred.height, a.error_map_max)?;
-        std::fs::rename(&tmp, p)?;
+    if let (Some(out), Some(p)) = (out, &a.error_map) {
+        write_error_map(out.path(), &map, pred.width, pred.height, a.error_map_max)
+            .map_err(|e| anyhow::anyhow!("{}: writing the error map failed: {}", p.display(), e))?;
+        out.commit()?;
+    }
+    let mut notes = Vec::new();
+    for (path, m) in [(&a.pred, &pred), (&a.gt, &truth)] {
+        if m.non_finite > 0 {
+            notes.push(format!(
+                "{}: {} vector(s) with NaN or infinite components, read as missing",
+                path.display(),
+                m.non_finite
+            ));
+        }
     }
     if a.json {
-        print_json(&serde_json::to_value(&s)?);
+        let mut v = serde_json::to_value(&s)?;
+        v["pred_non_finite"] = pred.non_finite.into();
+        v["gt_non_finite"] = truth.non_finite.into();
+        v["notes"] = notes.clone().into();
+        print_json(&v);
     } else {
+        for n in &notes {
+            eprintln!("note: {n}");
+        }
         println!("pixels      {}", s.pixels);
         println!("mean        {:.3}°", s.mean_deg);
         println!("median      {:.3}°", s.median_deg);
@@ -92,7 +131,7 @@ pub fn main(a: EvalArgs) -> Result<()> {
         );
         if s.missing > 0 {
             println!(
-                "missing     {} (zero predictions, counted as 90°)",
+                "missing     {} (no prediction: zero, NaN or infinite vectors; counted as 90°)",
                 s.missing
             );
         }

@@ -11,7 +11,7 @@ use photostereo::integrate::{
 };
 use photostereo::report::Report;
 use photostereo::surface::write_surface;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 #[derive(Args, Debug)]
@@ -48,7 +48,29 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     if !(a.tolerance > 0.0 && a.tolerance < 1.0) {
         bail!("--tolerance {}: expected a number in (0, 1)", a.tolerance);
     }
-    let folder = OutputFolder::create(&a.output, a.out.force)?;
+    if !(a.max_slope > 0.0 && a.max_slope.is_finite()) {
+        bail!(
+            "--max-slope {}: expected a positive finite number (pixels per pixel)",
+            a.max_slope
+        );
+    }
+    for p in std::iter::once(&a.normals).chain(a.mask.as_ref()) {
+        if !p.is_file() {
+            bail!(
+                "{}: {}",
+                p.display(),
+                if p.exists() {
+                    "not a file"
+                } else {
+                    "no such file"
+                }
+            );
+        }
+    }
+    let inputs: Vec<&Path> = std::iter::once(a.normals.as_path())
+        .chain(a.mask.as_deref())
+        .collect();
+    let folder = OutputFolder::create_for(&a.output, a.out.force, &inputs)?;
     let start = Instant::now();
     let mut report = Report::new(a.method.name());
     let t = Instant::now();
@@ -107,7 +129,34 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
         .iter()
         .filter(|v| v.is_finite())
         .count();
-    report.extra.insert("integration".into(), surface.summary());
+    // NaN/infinite vectors of the file were read as "no data": count them as invalid (with a
+    // mask they already are, as zero vectors inside it).
+    let invalid = surface.rejected_invalid + if mask.is_none() { map.non_finite } else { 0 };
+    if report.input.mask_pixels == 0 {
+        bail!(
+            "{}: no pixel with a valid normal to integrate ({} invalid — zero, NaN or infinite — and {} facing away from the camera{})",
+            a.normals.display(),
+            invalid,
+            surface.rejected_backfacing,
+            if a.mask.is_some() { ", inside the mask" } else { "" }
+        );
+    }
+    if map.non_finite > 0 {
+        report.notes.push(format!(
+            "{} normal(s) with NaN or infinite components were dropped",
+            map.non_finite
+        ));
+    }
+    if surface.rejected_backfacing > 0 {
+        report.notes.push(format!(
+            "{} normal(s) facing away from the camera (n_z ≤ 0) were dropped",
+            surface.rejected_backfacing
+        ));
+    }
+    let mut summary = surface.summary();
+    summary["rejected_invalid_normals"] = invalid.into();
+    summary["non_finite_normals"] = map.non_finite.into();
+    report.extra.insert("integration".into(), summary);
     let t = Instant::now();
     write_surface(folder.path(), &surface, &map.normals, !a.no_mesh)
         .with_context(|| format!("writing {}", a.output.display()))?;
@@ -121,7 +170,7 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
         v["output"] = serde_json::Value::from(a.output.display().to_string());
         print_json(&v);
     } else if !a.out.quiet {
-        for n in &s.notes {
+        for n in s.notes.iter().chain(&report.notes) {
             eprintln!("note: {n}");
         }
         println!(
@@ -135,9 +184,9 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
             s.iterations
         );
         println!(
-            "mean |curl| {:.4}; masked out: {} invalid, {} facing away; {} slopes capped at {}",
+            "mean |curl| {:.4}; masked out: {} invalid (zero, NaN or infinite), {} facing away; {} slopes capped at {}",
             surface.mean_abs_curl,
-            surface.rejected_invalid,
+            invalid,
             surface.rejected_backfacing,
             surface.capped,
             a.max_slope

@@ -1,7 +1,9 @@
 //! `photostereo`: the command-line front end of the photostereo library. Each subcommand parses
 //! its arguments, calls the library, and prints a summary (or JSON with `--json`).
 //!
-//! Exit codes: 0 success, 2 any error (bad input, unreadable file, refused overwrite).
+//! Exit codes: 0 success, 2 any error (bad input, unreadable file, refused overwrite). On
+//! SIGINT, SIGTERM or SIGHUP the output in progress (a `.NAME.tmp-PID` staging folder) is removed
+//! and the process ends by that signal.
 
 mod calibrate;
 mod common;
@@ -42,8 +44,46 @@ enum Command {
     Synth(synth::SynthArgs),
 }
 
+/// Removes the output in progress when the process is interrupted, then ends it by the same
+/// signal (so a shell sees "interrupted", exit status 128 + signal).
+#[cfg(unix)]
+fn remove_output_on_signals() {
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    let Ok(mut signals) = signal_hook::iterator::Signals::new([SIGINT, SIGTERM, SIGHUP]) else {
+        return;
+    };
+    std::thread::spawn(move || {
+        if let Some(sig) = signals.forever().next() {
+            photostereo::export::abandon_pending();
+            let _ = signal_hook::low_level::emulate_default_handler(sig);
+            std::process::exit(128 + sig);
+        }
+    });
+}
+
+#[cfg(not(unix))]
+fn remove_output_on_signals() {}
+
+/// The error and its causes, each cause once: a cause already part of the message before it
+/// (the library's I/O errors print their OS error themselves) is not repeated.
+fn message(e: &anyhow::Error) -> String {
+    let mut out = String::new();
+    for cause in e.chain() {
+        let text = cause.to_string();
+        if out.contains(&text) {
+            continue;
+        }
+        if !out.is_empty() {
+            out.push_str(": ");
+        }
+        out.push_str(&text);
+    }
+    out
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    remove_output_on_signals();
     let result = match cli.command {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
@@ -56,7 +96,7 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("error: {e:#}");
+            eprintln!("error: {}", message(&e));
             ExitCode::from(2)
         }
     }

@@ -1,7 +1,7 @@
 //! `photostereo run`: reconstruct a capture.
 
 use crate::common::{print_json, OutputOpts};
-use anyhow::Result;
+use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::capture::CaptureFiles;
 use photostereo::detect::DetectionParams;
@@ -9,7 +9,7 @@ use photostereo::engine::{Method, Params};
 use photostereo::integrate::{IntegrationParams, IntegratorKind};
 use photostereo::pipeline::{run, LightSubset, RunOptions, DEFAULT_ERROR_MAP_MAX_DEG};
 use photostereo::recursive::{Fallback, RecursiveParams};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// The library's defaults, the one source of the flags' defaults.
 fn defaults() -> Params {
@@ -132,13 +132,40 @@ pub fn params(a: &RunArgs) -> Params {
     }
 }
 
+/// Checks the options the library does not see (it checks its own parameters, and
+/// [`crate::common::flag_error`] names them by their flags).
+fn check_options(a: &RunArgs) -> Result<()> {
+    if !(a.error_map_max > 0.0 && a.error_map_max <= 180.0) {
+        bail!(
+            "--error-map-max {}: expected an angle in (0, 180] degrees",
+            a.error_map_max
+        );
+    }
+    Ok(())
+}
+
 pub fn main(a: RunArgs) -> Result<()> {
+    check_options(&a)?;
+    crate::common::check_input_paths(
+        &a.input,
+        a.lights.as_deref(),
+        a.intensities.as_deref(),
+        a.mask.as_deref(),
+    )?;
     let files = CaptureFiles::from_inputs(
         &a.input,
         a.lights.as_deref(),
         a.intensities.as_deref(),
         a.mask.as_deref(),
     )?;
+    // --force never replaces an input or a folder holding one.
+    let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
+    inputs.extend(files.images.iter().map(PathBuf::as_path));
+    inputs.extend(files.mask.as_deref());
+    inputs.extend(a.lights.as_deref());
+    inputs.extend(a.intensities.as_deref());
+    inputs.extend(a.gt.as_deref());
+    photostereo::export::check_output(&a.output, a.out.force, &inputs)?;
     let options = RunOptions {
         params: params(&a),
         ground_truth: a.gt.clone(),

@@ -81,6 +81,11 @@ pub fn main(a: SynthArgs) -> Result<()> {
         .output
         .clone()
         .unwrap_or_else(|| PathBuf::from(format!("synth-{}", scene.name())));
+    // A rig given as a light file is an input: --force never replaces it or its folder.
+    let rig_file = std::path::Path::new(&a.rig);
+    if rig_file.exists() {
+        photostereo::export::check_output(&output, a.out.force, &[rig_file])?;
+    }
     let (rendered, target) = synth_to_folder(&spec, &output, a.out.force)?;
     let s = &rendered.stats;
     if a.out.json {

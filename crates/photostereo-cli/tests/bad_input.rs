@@ -172,7 +172,13 @@ fn light_and_image_counts() {
         "light_directions.txt",
         "0.3 0.3 0.9\n-0.3 0.3 0.9\n-0.3 -0.3 0.9\n",
     );
-    f.fails(&[], &["4 images but 3 light directions"]);
+    f.fails(
+        &[],
+        &[
+            "light_directions.txt",
+            "3 light direction(s) for 4 image(s)",
+        ],
+    );
     let f = Fixture::new();
     f.write("light_directions.txt", "0.3 0.3 0.9\n-0.3 0.3 0.9\n");
     f.write("filenames.txt", "001.png\n002.png\n");
@@ -225,7 +231,10 @@ fn bad_intensities() {
         ("1\n1\n0\n1\n", "line 3"),
         ("1\n-2\n1\n1\n", "line 2"),
         ("1\n1\n1\nnan\n", "line 4"),
-        ("1 1 1\n1 1 1\n", "2 intensity rows for 4"),
+        (
+            "1 1 1\n1 1 1\n",
+            "2 intensity row(s) for 4 light direction(s)",
+        ),
     ] {
         let f = Fixture::new();
         f.write("light_intensities.txt", text);
@@ -248,23 +257,35 @@ fn ground_truth_of_another_shape() {
 #[test]
 fn existing_output_needs_force() {
     let f = Fixture::new();
+    let run = |force: bool| {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("run")
+            .arg(f.dir.path())
+            .arg("-o")
+            .arg(f.out())
+            .arg("--quiet");
+        if force {
+            cmd.arg("--force");
+        }
+        cmd
+    };
+    // A folder photostereo did not write is never replaced, even with --force.
     std::fs::create_dir(f.out()).unwrap();
     std::fs::write(f.out().join("keep.txt"), "mine").unwrap();
-    let mut cmd = Command::new(BIN);
-    cmd.arg("run").arg(f.dir.path()).arg("-o").arg(f.out());
-    expect_failure(cmd, &["already exists", "--force"]);
+    expect_failure(run(false), &["already exists", "--force"]);
+    expect_failure(
+        run(true),
+        &["--force refused", "not written by photostereo"],
+    );
     assert!(f.out().join("keep.txt").exists());
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(f.dir.path())
-        .arg("-o")
-        .arg(f.out())
-        .arg("--force")
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(out.status.success());
-    assert!(!f.out().join("keep.txt").exists() && f.out().join("normals.npy").exists());
+    // An empty folder, and then a folder photostereo wrote, are replaced with --force.
+    std::fs::remove_file(f.out().join("keep.txt")).unwrap();
+    assert!(run(true).output().unwrap().status.success());
+    assert!(f.out().join("normals.npy").exists() && f.out().join(".photostereo").exists());
+    expect_failure(run(false), &["already exists", "--force"]);
+    std::fs::write(f.out().join("extra.txt"), "old").unwrap();
+    assert!(run(true).output().unwrap().status.success());
+    assert!(!f.out().join("extra.txt").exists() && f.out().join("normals.npy").exists());
 }
 
 #[test]

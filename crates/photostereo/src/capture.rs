@@ -76,11 +76,11 @@ impl CaptureFiles {
                 ))
             }
             [dir] if dir.is_dir() => {
-                let mut f = CaptureFiles::diligent_with_lights(dir, lights)?;
-                if let Some(p) = intensities {
-                    f.lights = f.lights.read_intensities(p)?;
+                let f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                match intensities {
+                    Some(p) => f.with_intensities_file(p)?,
+                    None => f,
                 }
-                f
             }
             [list] if is_list(list) => {
                 if !list.is_file() {
@@ -92,11 +92,11 @@ impl CaptureFiles {
                         "a list file needs the light directions (--lights FILE)",
                     ));
                 };
-                let mut f = CaptureFiles::list_file(list, l)?;
-                if let Some(p) = intensities {
-                    f.lights = f.lights.read_intensities(p)?;
+                let f = CaptureFiles::list_file(list, l)?;
+                match intensities {
+                    Some(p) => f.with_intensities_file(p)?,
+                    None => f,
                 }
-                f
             }
             [single] if !single.exists() => {
                 return Err(Error::file(
@@ -105,6 +105,12 @@ impl CaptureFiles {
                 ));
             }
             images => {
+                if let Some(dir) = images.iter().find(|p| p.is_dir()) {
+                    return Err(Error::file(
+                        dir,
+                        "a folder among several inputs; give one DiLiGenT-layout folder, one list file, or image files",
+                    ));
+                }
                 for p in images {
                     if !p.is_file() {
                         return Err(Error::file(p, "no such image file"));
@@ -148,14 +154,10 @@ impl CaptureFiles {
                 "missing: the DiLiGenT layout needs light_directions.txt (or pass --lights)",
             ));
         }
-        let mut lights = Lights::read_directions(&lights_path)?;
-        let intens = dir.join("light_intensities.txt");
-        if intens.exists() {
-            lights = lights.read_intensities(&intens)?;
-        }
+        let lights = Lights::read_directions(&lights_path)?;
         let names = dir.join("filenames.txt");
         let images: Vec<PathBuf> = if names.exists() {
-            let text = std::fs::read_to_string(&names).map_err(|e| Error::io(&names, e))?;
+            let text = crate::limits::read_text(&names)?;
             text.lines()
                 .map(str::trim)
                 .filter(|l| !l.is_empty())
@@ -180,6 +182,18 @@ impl CaptureFiles {
             v.sort();
             v
         };
+        let source = if names.exists() {
+            format!("listed in {}", names.display())
+        } else {
+            format!("in {}", dir.display())
+        };
+        check_light_count(images.len(), &source, &lights, &lights_path)?;
+        let intens = dir.join("light_intensities.txt");
+        let lights = if intens.exists() {
+            attach_intensities(lights, &intens, images.len(), &source)?
+        } else {
+            lights
+        };
         let mask = dir.join("mask.png");
         let mut files = CaptureFiles {
             images,
@@ -196,6 +210,12 @@ impl CaptureFiles {
     pub fn list_file(list: &Path, lights_path: &Path) -> Result<Self> {
         let listed = read_list_file(list)?;
         let lights = Lights::read_directions(lights_path)?;
+        check_light_count(
+            listed.images.len(),
+            &format!("listed in {}", list.display()),
+            &lights,
+            lights_path,
+        )?;
         let mut files = CaptureFiles {
             images: listed.images,
             lights,
@@ -214,8 +234,10 @@ impl CaptureFiles {
         mask: Option<PathBuf>,
     ) -> Result<Self> {
         let mut lights = Lights::read_directions(lights_path)?;
+        let source = "given on the command line";
+        check_light_count(images.len(), source, &lights, lights_path)?;
         if let Some(p) = intensities {
-            lights = lights.read_intensities(p)?;
+            lights = attach_intensities(lights, p, images.len(), source)?;
         }
         let mut files = CaptureFiles {
             images,
@@ -225,6 +247,13 @@ impl CaptureFiles {
         };
         files.note_renormalised();
         Ok(files)
+    }
+
+    /// Replaces the lights' intensities with those of `path` (e.g. `--intensities`); the row
+    /// count must match the images and lights, and a mismatch names the file and both counts.
+    pub fn with_intensities_file(mut self, path: &Path) -> Result<Self> {
+        self.lights = attach_intensities(self.lights, path, self.images.len(), "in the capture")?;
+        Ok(self)
     }
 
     fn note_renormalised(&mut self) {
@@ -281,6 +310,24 @@ impl CaptureFiles {
             .map(|(i, _)| i as u32)
             .collect();
         let (w, h, c) = (first.width, first.height, first.channels);
+        // The samples of the mask pixels, plus their transient second copy while loading.
+        let needed = (pixels.len() as u64)
+            .saturating_mul(n as u64)
+            .saturating_mul(c as u64)
+            .saturating_mul(8);
+        if let Err(m) = crate::limits::check_memory(
+            needed,
+            &format!(
+                "{n} images of {} mask pixels × {c} channel(s) ({} of samples, twice while loading)",
+                pixels.len(),
+                crate::limits::human_bytes(needed / 2)
+            ),
+        ) {
+            return Err(Error::invalid(format!(
+                "{m}: use a smaller mask or fewer images (or set {})",
+                crate::limits::MEMORY_LIMIT_VAR
+            )));
+        }
         let gather = |k: usize, img: &Image| -> Vec<f32> {
             let scale = light_scale(&self.lights.intensities[k], c);
             let mut out = Vec::with_capacity(pixels.len() * c);
@@ -339,7 +386,7 @@ impl CaptureFiles {
         }
         progress.end();
         let samples = interleave(&planes, pixels.len(), c);
-        Ok(Capture {
+        let mut capture = Capture {
             width: w,
             height: h,
             channels: c,
@@ -350,7 +397,10 @@ impl CaptureFiles {
             samples,
             sources: self.images.clone(),
             notes: self.notes.clone(),
-        })
+        };
+        let notes = crate::plausibility::check_capture(&capture)?;
+        capture.notes.extend(notes);
+        Ok(capture)
     }
 }
 
@@ -368,7 +418,12 @@ pub struct ListFile {
 /// list file's folder and, failing that, to its parent (the shared `psmImages` lists name
 /// `psmImages/<object>/<file>`); a note says when the parent was used.
 pub fn read_list_file(list: &Path) -> Result<ListFile> {
-    let text = std::fs::read_to_string(list).map_err(|e| Error::io(list, e))?;
+    parse_list_file(&crate::limits::read_text(list)?, list)
+}
+
+/// [`read_list_file`] on text already read from `list` (paths still resolve against its
+/// folder and that folder's parent).
+pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
     let lines: Vec<(usize, &str)> = text
         .lines()
         .enumerate()
@@ -385,10 +440,23 @@ pub fn read_list_file(list: &Path) -> Result<ListFile> {
             format!("'{first}': expected the image count"),
         )
     })?;
-    if lines.len() < count + 1 {
+    if lines.len() - 1 < count {
         return Err(Error::file(
             list,
-            format!("announces {count} images but lists {}", lines.len() - 1),
+            format!(
+                "the count line (line {first_line}) announces {count} images but {} path(s) follow",
+                lines.len() - 1
+            ),
+        ));
+    }
+    if lines.len() - 1 > count.saturating_add(1) {
+        return Err(Error::file(
+            list,
+            format!(
+                "the count line (line {first_line}) announces {count} images but {} path(s) follow \
+                 (expected the {count} images and at most a mask)",
+                lines.len() - 1
+            ),
         ));
     }
     let base = match list.parent() {
@@ -435,6 +503,37 @@ pub fn read_list_file(list: &Path) -> Result<ListFile> {
         mask,
         notes,
     })
+}
+
+/// Refuses a light file whose row count differs from the image count, naming the file, where
+/// the images come from (`source`) and both numbers.
+fn check_light_count(images: usize, source: &str, lights: &Lights, path: &Path) -> Result<()> {
+    if images != lights.len() {
+        return Err(Error::file(
+            path,
+            format!(
+                "{} light direction(s) for {images} image(s) {source}: expected one light per image",
+                lights.len()
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// Reads an intensity file and attaches it, naming the file and the counts on a mismatch.
+fn attach_intensities(lights: Lights, path: &Path, images: usize, source: &str) -> Result<Lights> {
+    let rows = crate::lights::read_intensity_rows(path, Some(lights.len()))?;
+    if rows.len() != lights.len() {
+        return Err(Error::file(
+            path,
+            format!(
+                "{} intensity row(s) for {} light direction(s) and {images} image(s) {source}: expected one row per light",
+                rows.len(),
+                lights.len()
+            ),
+        ));
+    }
+    lights.with_intensities(rows)
 }
 
 /// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities).

@@ -2,10 +2,282 @@
 //! written into a staging folder beside the target, which is renamed into place by
 //! [`OutputFolder::commit`]; dropping an uncommitted folder removes the staging folder, so an
 //! interrupted or failed run never leaves half-written output behind.
+//!
+//! Safety of `--force`: an existing target is replaced only when it is a folder that photostereo
+//! wrote (it holds the [`MARKER`] file, which every output folder gets) or an empty folder, and
+//! never when it is, or holds, one of the command's inputs ([`check_output`]). Anything else is
+//! refused with a message saying why.
+//!
+//! Interruptions: staging folders (and [`OutputFile`] temporaries) in progress are registered,
+//! so that a front end's SIGINT/SIGTERM handler can remove them with [`abandon_pending`]. A
+//! process killed outright (SIGKILL, power loss) leaves its `.NAME.tmp-PID` behind; the next
+//! output created in the same parent folder removes such leftovers of processes that no longer
+//! run ([`remove_stale`]).
 
 use crate::error::{Error, Result};
 use crate::imageio::{write_exr_rgb, write_png16};
 use std::path::{Path, PathBuf};
+use std::sync::{Mutex, MutexGuard};
+
+/// The marker file in every folder photostereo writes: `--force` replaces only such folders
+/// (or empty ones).
+pub const MARKER: &str = ".photostereo";
+/// Markers of earlier versions (`demo` wrote its own).
+const LEGACY_MARKERS: [&str; 1] = [".photostereo-demo"];
+
+/// Staging folders and temporary files of this process not yet committed.
+static PENDING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
+
+fn pending() -> MutexGuard<'static, Vec<PathBuf>> {
+    PENDING.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+fn register(path: &Path) {
+    pending().push(path.to_path_buf());
+}
+
+fn deregister(path: &Path) {
+    pending().retain(|p| p != path);
+}
+
+/// Removes every staging folder and temporary file in progress and keeps them from being
+/// written again: the registry stays locked, so a thread that would commit or clean up blocks.
+/// For a signal handler that ends the process right after. Returns how many were removed.
+pub fn abandon_pending() -> usize {
+    let guard = pending();
+    let mut removed = 0;
+    for p in guard.iter() {
+        // A writer may still be creating files inside: try a few times.
+        for attempt in 0..20 {
+            if attempt > 0 {
+                std::thread::sleep(std::time::Duration::from_millis(5));
+            }
+            let r = if p.is_dir() {
+                std::fs::remove_dir_all(p)
+            } else {
+                std::fs::remove_file(p)
+            };
+            if r.is_ok() || !p.exists() {
+                removed += 1;
+                break;
+            }
+        }
+    }
+    std::mem::forget(guard);
+    removed
+}
+
+/// Whether `dir` holds the marker of a folder photostereo wrote.
+pub fn has_marker(dir: &Path) -> bool {
+    std::iter::once(MARKER)
+        .chain(LEGACY_MARKERS)
+        .any(|m| dir.join(m).is_file())
+}
+
+/// `path` made absolute and, where it exists, with symbolic links resolved.
+fn resolved(path: &Path) -> PathBuf {
+    if let Ok(p) = std::fs::canonicalize(path) {
+        return p;
+    }
+    let abs = if path.is_absolute() {
+        path.to_path_buf()
+    } else {
+        std::env::current_dir()
+            .map(|d| d.join(path))
+            .unwrap_or_else(|_| path.to_path_buf())
+    };
+    // Resolve the longest existing ancestor, keep the rest as written.
+    let mut tail = Vec::new();
+    let mut head = abs.as_path();
+    while let Some(parent) = head.parent() {
+        if let Ok(p) = std::fs::canonicalize(head) {
+            let mut out = p;
+            for t in tail.iter().rev() {
+                out.push(t);
+            }
+            return out;
+        }
+        if let Some(name) = head.file_name() {
+            tail.push(name.to_os_string());
+        }
+        head = parent;
+    }
+    abs
+}
+
+/// Checks that `target` may be written: refused when it exists and `force` is off; with
+/// `force`, refused unless it is a folder photostereo wrote (with [`MARKER`]) or an empty
+/// folder, and refused whenever it is one of `inputs` or holds one. Errors say why.
+pub fn check_output(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+    let meta = match std::fs::symlink_metadata(target) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(Error::io(target, e)),
+    };
+    if !force {
+        return Err(Error::OutputExists {
+            path: target.to_path_buf(),
+        });
+    }
+    let why = |m: String| Err(Error::file(target, format!("--force refused: {m}")));
+    let t = resolved(target);
+    for input in inputs {
+        let i = resolved(input);
+        if i == t {
+            return why("it is an input of this command; choose another output (-o)".into());
+        }
+        if i.starts_with(&t) {
+            return why(format!(
+                "it holds an input of this command ({}); choose another output (-o)",
+                input.display()
+            ));
+        }
+    }
+    if meta.file_type().is_symlink() {
+        return why(
+            "it is a symbolic link; --force replaces only a folder that photostereo wrote or an empty folder"
+                .into(),
+        );
+    }
+    if !meta.is_dir() {
+        return why(
+            "it is a file, not a folder; --force replaces only a folder that photostereo wrote or an empty folder"
+                .into(),
+        );
+    }
+    if has_marker(target) {
+        return Ok(());
+    }
+    let empty = std::fs::read_dir(target)
+        .map_err(|e| Error::io(target, e))?
+        .next()
+        .is_none();
+    if empty {
+        return Ok(());
+    }
+    why(format!(
+        "the folder was not written by photostereo (it has no {MARKER} marker) and is not empty; \
+         remove it yourself or choose another output (-o)"
+    ))
+}
+
+/// The parent folder of `target` ("." for a bare name).
+fn parent_of(target: &Path) -> PathBuf {
+    match target.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    }
+}
+
+/// Whether a process with this id is running (conservatively true where it cannot be told).
+fn process_alive(pid: u32) -> bool {
+    if pid == std::process::id() {
+        return true;
+    }
+    #[cfg(unix)]
+    {
+        let Ok(p) = libc::pid_t::try_from(pid) else {
+            return false;
+        };
+        if p <= 0 {
+            return false;
+        }
+        // SAFETY: kill with signal 0 only checks whether the process exists.
+        let r = unsafe { libc::kill(p, 0) };
+        r == 0 || std::io::Error::last_os_error().raw_os_error() != Some(libc::ESRCH)
+    }
+    #[cfg(not(unix))]
+    {
+        true
+    }
+}
+
+/// Splits `.NAME.tmp-PID` / `.NAME.old-PID` into (NAME, kind, PID).
+fn leftover_name(file_name: &str) -> Option<(&str, &str, u32)> {
+    let rest = file_name.strip_prefix('.')?;
+    let (head, pid) = rest.rsplit_once('-')?;
+    let pid: u32 = pid.parse().ok()?;
+    let (name, kind) = head.rsplit_once('.')?;
+    (matches!(kind, "tmp" | "old") && !name.is_empty()).then_some((name, kind, pid))
+}
+
+/// Removes, in `parent`, the staging folders (`.NAME.tmp-PID`) and temporary files of
+/// photostereo processes that no longer run, and puts back a `.NAME.old-PID` folder whose
+/// replacement was cut short (when NAME is missing). Only entries photostereo made are touched
+/// (folders with the marker or empty; files that are PNGs photostereo wrote). Returns what was
+/// removed or restored.
+pub fn remove_stale(parent: &Path) -> Vec<PathBuf> {
+    let mut done = Vec::new();
+    let Ok(entries) = std::fs::read_dir(parent) else {
+        return done;
+    };
+    for e in entries.flatten() {
+        let file_name = e.file_name();
+        let Some((name, kind, pid)) = file_name.to_str().and_then(leftover_name) else {
+            continue;
+        };
+        if process_alive(pid) {
+            continue;
+        }
+        let path = e.path();
+        let Ok(meta) = std::fs::symlink_metadata(&path) else {
+            continue;
+        };
+        let ours = if meta.is_dir() {
+            if has_marker(&path) {
+                // A process id means nothing on another machine sharing this folder.
+                std::fs::read_to_string(path.join(MARKER))
+                    .map_or(true, |t| marker_host(&t).is_none_or(|h| h == host_name()))
+            } else {
+                // Empty, and not just made by a process (maybe on another machine) that is
+                // about to write its marker.
+                std::fs::read_dir(&path).is_ok_and(|mut d| d.next().is_none())
+                    && meta
+                        .modified()
+                        .ok()
+                        .and_then(|m| m.elapsed().ok())
+                        .is_some_and(|age| age.as_secs() >= 60)
+            }
+        } else {
+            meta.is_file() && written_by_photostereo(&path)
+        };
+        if !ours {
+            continue;
+        }
+        let original = parent.join(name);
+        let ok = if kind == "old" && std::fs::symlink_metadata(&original).is_err() {
+            std::fs::rename(&path, &original).is_ok()
+        } else if meta.is_dir() {
+            std::fs::remove_dir_all(&path).is_ok()
+        } else {
+            std::fs::remove_file(&path).is_ok()
+        };
+        if ok {
+            done.push(path);
+        }
+    }
+    done
+}
+
+/// This machine's name, as the marker records it ("" where unknown).
+fn host_name() -> String {
+    #[cfg(unix)]
+    {
+        let mut buf = [0u8; 256];
+        // SAFETY: the buffer is valid for its length; the result is NUL-terminated or cut.
+        if unsafe { libc::gethostname(buf.as_mut_ptr().cast(), buf.len()) } == 0 {
+            let end = buf.iter().position(|&b| b == 0).unwrap_or(buf.len());
+            return String::from_utf8_lossy(&buf[..end]).into_owned();
+        }
+    }
+    std::env::var("COMPUTERNAME").unwrap_or_default()
+}
+
+/// The host a marker's text names ("… on host NAME (process …)").
+fn marker_host(text: &str) -> Option<&str> {
+    let rest = text.split_once(" on host ")?.1;
+    Some(rest.split(" (process").next().unwrap_or(rest).trim())
+}
 
 /// A staging folder that becomes the output folder on [`commit`](OutputFolder::commit).
 #[derive(Debug)]
@@ -14,42 +286,58 @@ pub struct OutputFolder {
     staging: PathBuf,
     force: bool,
     committed: bool,
+    /// Leftovers of interrupted runs removed when this folder was created.
+    pub removed_stale: Vec<PathBuf>,
 }
 
 impl OutputFolder {
-    /// Prepares writing to `target`. Refuses an existing target unless `force`.
+    /// Prepares writing to `target` (see [`check_output`] for what `force` may replace).
     pub fn create(target: &Path, force: bool) -> Result<Self> {
-        if target.exists() && !force {
-            return Err(Error::OutputExists {
-                path: target.to_path_buf(),
-            });
-        }
+        Self::create_for(target, force, &[])
+    }
+
+    /// Prepares writing to `target`, refusing to replace any of `inputs` or a folder holding
+    /// one (see [`check_output`]).
+    pub fn create_for(target: &Path, force: bool, inputs: &[&Path]) -> Result<Self> {
+        check_output(target, force, inputs)?;
         let name = target
             .file_name()
+            .filter(|n| *n != "." && *n != "..")
             .ok_or_else(|| Error::file(target, "not a valid output folder name"))?
             .to_string_lossy()
             .to_string();
-        let parent = match target.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
+        let parent = parent_of(target);
         if !parent.is_dir() {
             return Err(Error::file(
                 &parent,
                 "the output folder's parent does not exist",
             ));
         }
+        let removed_stale = remove_stale(&parent);
         let staging = parent.join(format!(".{name}.tmp-{}", std::process::id()));
         if staging.exists() {
             std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         }
         std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
-        Ok(OutputFolder {
+        register(&staging);
+        let folder = OutputFolder {
             target: target.to_path_buf(),
             staging,
             force,
             committed: false,
-        })
+            removed_stale,
+        };
+        std::fs::write(
+            folder.file(MARKER),
+            format!(
+                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n",
+                env!("CARGO_PKG_VERSION"),
+                host_name(),
+                std::process::id()
+            ),
+        )
+        .map_err(|e| Error::io(folder.file(MARKER), e))?;
+        Ok(folder)
     }
 
     /// Where files are written until commit.
@@ -69,12 +357,11 @@ impl OutputFolder {
 
     /// Moves the staging folder into place, replacing an existing target when allowed.
     pub fn commit(mut self) -> Result<PathBuf> {
-        if self.target.exists() {
-            if !self.force {
-                return Err(Error::OutputExists {
-                    path: self.target.clone(),
-                });
-            }
+        // Hold the registry while renaming, so that a signal handler waits until the folders
+        // are in a consistent state.
+        let mut guard = pending();
+        if std::fs::symlink_metadata(&self.target).is_ok() {
+            check_output(&self.target, self.force, &[])?;
             let old = self.staging.with_file_name(format!(
                 ".{}.old-{}",
                 self.target
@@ -84,7 +371,10 @@ impl OutputFolder {
                 std::process::id()
             ));
             std::fs::rename(&self.target, &old).map_err(|e| Error::io(&self.target, e))?;
-            std::fs::rename(&self.staging, &self.target).map_err(|e| Error::io(&self.target, e))?;
+            if let Err(e) = std::fs::rename(&self.staging, &self.target) {
+                let _ = std::fs::rename(&old, &self.target);
+                return Err(Error::io(&self.target, e));
+            }
             let _ = if old.is_dir() {
                 std::fs::remove_dir_all(&old)
             } else {
@@ -93,6 +383,8 @@ impl OutputFolder {
         } else {
             std::fs::rename(&self.staging, &self.target).map_err(|e| Error::io(&self.target, e))?;
         }
+        guard.retain(|p| *p != self.staging);
+        drop(guard);
         self.committed = true;
         Ok(self.target.clone())
     }
@@ -102,8 +394,129 @@ impl Drop for OutputFolder {
     fn drop(&mut self) {
         if !self.committed {
             let _ = std::fs::remove_dir_all(&self.staging);
+            deregister(&self.staging);
         }
     }
+}
+
+/// One output file written under a temporary name beside it (`.NAME.tmp-PID`) and renamed into
+/// place by [`commit`](OutputFile::commit); removed when dropped uncommitted or on a signal.
+/// `--force` replaces an existing file only when it is a PNG photostereo wrote (or empty), and
+/// never one of the inputs.
+#[derive(Debug)]
+pub struct OutputFile {
+    target: PathBuf,
+    temp: PathBuf,
+    force: bool,
+    committed: bool,
+}
+
+impl OutputFile {
+    /// Prepares writing `target`.
+    pub fn create(target: &Path, force: bool, inputs: &[&Path]) -> Result<Self> {
+        check_output_file(target, force, inputs)?;
+        let name = target
+            .file_name()
+            .ok_or_else(|| Error::file(target, "not a valid output file name"))?
+            .to_string_lossy()
+            .to_string();
+        let parent = parent_of(target);
+        if !parent.is_dir() {
+            return Err(Error::file(
+                &parent,
+                "the output file's folder does not exist",
+            ));
+        }
+        remove_stale(&parent);
+        let temp = parent.join(format!(".{name}.tmp-{}", std::process::id()));
+        register(&temp);
+        Ok(OutputFile {
+            target: target.to_path_buf(),
+            temp,
+            force,
+            committed: false,
+        })
+    }
+
+    /// Where to write until commit.
+    pub fn path(&self) -> &Path {
+        &self.temp
+    }
+
+    /// Renames the file into place.
+    pub fn commit(mut self) -> Result<PathBuf> {
+        let mut guard = pending();
+        check_output_file(&self.target, self.force, &[])?;
+        std::fs::rename(&self.temp, &self.target).map_err(|e| Error::io(&self.target, e))?;
+        guard.retain(|p| *p != self.temp);
+        drop(guard);
+        self.committed = true;
+        Ok(self.target.clone())
+    }
+}
+
+impl Drop for OutputFile {
+    fn drop(&mut self) {
+        if !self.committed {
+            let _ = std::fs::remove_file(&self.temp);
+            deregister(&self.temp);
+        }
+    }
+}
+
+fn check_output_file(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+    let meta = match std::fs::symlink_metadata(target) {
+        Ok(m) => m,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(Error::io(target, e)),
+    };
+    if !force {
+        return Err(Error::OutputExists {
+            path: target.to_path_buf(),
+        });
+    }
+    let why = |m: &str| Err(Error::file(target, format!("--force refused: {m}")));
+    let t = resolved(target);
+    if inputs.iter().any(|i| resolved(i) == t) {
+        return why("it is an input of this command; choose another output file");
+    }
+    if !meta.is_file() {
+        return why("it is not a regular file");
+    }
+    if meta.len() == 0 || written_by_photostereo(target) {
+        return Ok(());
+    }
+    why("photostereo did not write it; --force replaces only a file that photostereo wrote; remove it yourself or choose another name")
+}
+
+/// Whether `path` is a PNG photostereo wrote (a `Software` text chunk naming it, before the
+/// image data).
+pub fn written_by_photostereo(path: &Path) -> bool {
+    use std::io::Read;
+    let mut head = Vec::new();
+    let Ok(f) = std::fs::File::open(path) else {
+        return false;
+    };
+    if f.take(1 << 16).read_to_end(&mut head).is_err() || !head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return false;
+    }
+    let mut pos = 8;
+    while pos + 8 <= head.len() {
+        let len =
+            u32::from_be_bytes([head[pos], head[pos + 1], head[pos + 2], head[pos + 3]]) as usize;
+        let kind = &head[pos + 4..pos + 8];
+        let Some(body) = head.get(pos + 8..(pos + 8).saturating_add(len)) else {
+            return false;
+        };
+        if kind == b"tEXt" && body.starts_with(crate::imageio::PNG_SOFTWARE_TEXT) {
+            return true;
+        }
+        if kind == b"IDAT" {
+            return false;
+        }
+        pos += 12 + len;
+    }
+    false
 }
 
 /// Writes `normals.npy` (float32 (H, W, 3)), `normals.png` (16-bit RGB, (n + 1) / 2 · 65535,
@@ -196,6 +609,39 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn leftover_names_and_marker_hosts() {
+        assert_eq!(leftover_name(".out.tmp-123"), Some(("out", "tmp", 123)));
+        assert_eq!(leftover_name(".my.out.old-7"), Some(("my.out", "old", 7)));
+        assert_eq!(leftover_name(".out.tmp-x"), None);
+        assert_eq!(leftover_name("out.tmp-1"), None);
+        assert_eq!(leftover_name(".out.bak-1"), None);
+        let text = "written by photostereo 0.1.0 on host lab-3 (process 42); …";
+        assert_eq!(marker_host(text), Some("lab-3"));
+        assert_eq!(marker_host("written by photostereo demo"), None);
+    }
+
+    #[test]
+    fn stale_folders_of_other_hosts_are_kept() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut dead = std::process::Command::new("true").spawn().unwrap();
+        let pid = dead.id();
+        dead.wait().unwrap();
+        let mine = dir.path().join(format!(".a.tmp-{pid}"));
+        let theirs = dir.path().join(format!(".b.tmp-{pid}"));
+        for (d, host) in [(&mine, host_name()), (&theirs, "elsewhere".to_string())] {
+            std::fs::create_dir(d).unwrap();
+            std::fs::write(
+                d.join(MARKER),
+                format!("written by photostereo on host {host} (process {pid})"),
+            )
+            .unwrap();
+        }
+        let removed = remove_stale(dir.path());
+        assert_eq!(removed, vec![mine.clone()]);
+        assert!(!mine.exists() && theirs.exists());
+    }
 
     #[test]
     fn staging_is_removed_unless_committed_and_force_is_required() {

@@ -145,6 +145,7 @@ pub fn heat_map(values: &[f32], width: usize, height: usize, max: f32, unit: &st
         let t = 1.0 - (y - top) as f32 / (span - 1).max(1) as f32;
         c.fill_rect(bar_x, y, bar_w, 1, colormap(t));
     }
+    // Ticks on the bar's left edge: a tick right before a label would read as a minus sign.
     let tx = bar_x + bar_w + 4 * scale;
     for (frac, value) in [(0.0f32, max), (0.5, max / 2.0), (1.0, 0.0)] {
         let y = top + (frac * (span - 1) as f32) as usize;
@@ -301,5 +302,18 @@ mod tests {
             .filter(|&(x, y)| px(x, y) == [0, 0, 0])
             .count();
         assert!(dark > 20);
+    }
+
+    #[test]
+    fn scale_labels_have_no_dash_before_them() {
+        // Nothing black between the bar and its labels: a tick there reads as "-45°".
+        let c = heat_map(&[0.0; 100], 10, 10, 45.0, "°");
+        let (bar_x, bar_w) = (10 + 6, 10);
+        for y in 0..c.height {
+            for x in bar_x + bar_w..bar_x + bar_w + 4 {
+                let i = (y * c.width + x) * 3;
+                assert_ne!(&c.data[i..i + 3], &[0, 0, 0], "black at ({x}, {y})");
+            }
+        }
     }
 }

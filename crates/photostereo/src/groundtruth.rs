@@ -12,6 +12,8 @@ pub struct NormalMap {
     pub width: usize,
     pub height: usize,
     pub normals: Vec<[f32; 3]>,
+    /// Vectors of the file with a NaN or infinite component, read as (0, 0, 0) ("no data").
+    pub non_finite: usize,
 }
 
 /// Reads a normal map by its extension (`.npy`, `.mat`, or an image).
@@ -29,37 +31,193 @@ pub fn read_normal_map(path: &Path) -> Result<NormalMap> {
 }
 
 fn read_npy(path: &Path) -> Result<NormalMap> {
-    let arr: ndarray::Array3<f32> = match ndarray_npy::read_npy::<_, ndarray::Array3<f32>>(path) {
+    let bytes = crate::limits::read_file(path)?;
+    decode_npy(&bytes).map_err(|m| Error::file(path, m))
+}
+
+/// What a `.npy` header declares.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NpyHeader {
+    /// The `descr` field, e.g. `<f4`.
+    pub descr: String,
+    pub fortran_order: bool,
+    pub shape: Vec<u64>,
+    /// Offset of the data.
+    pub data_offset: usize,
+}
+
+/// A shape as numpy writes it: `(2, 3)`, `(5,)`.
+fn shape_text(shape: &[u64]) -> String {
+    let parts: Vec<String> = shape.iter().map(u64::to_string).collect();
+    if parts.len() == 1 {
+        format!("({},)", parts[0])
+    } else {
+        format!("({})", parts.join(", "))
+    }
+}
+
+impl NpyHeader {
+    /// Bytes per element from `descr` (the digits after the type letter).
+    pub fn item_size(&self) -> Option<u64> {
+        let digits: String = self
+            .descr
+            .chars()
+            .skip_while(|c| !c.is_ascii_digit())
+            .take_while(|c| c.is_ascii_digit())
+            .collect();
+        digits.parse().ok().filter(|&n| n > 0)
+    }
+}
+
+/// Parses a `.npy` header (format versions 1 to 3) without trusting it: the declared shape is
+/// checked against [`crate::limits::MAX_ARRAY_ELEMENTS`] and against the bytes that follow.
+pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
+    if !bytes.starts_with(b"\x93NUMPY") || bytes.len() < 10 {
+        return Err("not a .npy file (no \\x93NUMPY magic)".into());
+    }
+    let (len, start): (usize, usize) = match bytes[6] {
+        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
+        2 | 3 if bytes.len() >= 12 => (
+            u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize,
+            12,
+        ),
+        v => return Err(format!(".npy format version {v} is not supported")),
+    };
+    let end = start
+        .checked_add(len)
+        .filter(|&e| e <= bytes.len())
+        .ok_or("truncated .npy header")?;
+    let text = std::str::from_utf8(&bytes[start..end]).map_err(|_| "malformed .npy header")?;
+    let field = |name: &str| -> Result<&str, String> {
+        let key = text
+            .find(&format!("'{name}'"))
+            .or_else(|| text.find(&format!("\"{name}\"")))
+            .ok_or_else(|| format!("malformed .npy header: no '{name}'"))?;
+        let rest = &text[key + name.len() + 2..];
+        let colon = rest
+            .find(':')
+            .ok_or_else(|| format!("malformed .npy header after '{name}'"))?;
+        Ok(rest[colon + 1..].trim_start())
+    };
+    let d = field("descr")?;
+    let quote = d.chars().next().filter(|c| *c == '\'' || *c == '"');
+    let descr = match quote {
+        Some(q) => d[1..]
+            .split(q)
+            .next()
+            .ok_or("malformed .npy header: descr")?
+            .to_string(),
+        None => return Err("unsupported .npy dtype (a structured array?)".into()),
+    };
+    let fortran_order = field("fortran_order")?.starts_with("True");
+    let s = field("shape")?;
+    let inner = s
+        .strip_prefix('(')
+        .and_then(|r| r.split(')').next())
+        .ok_or("malformed .npy header: shape")?;
+    let shape = inner
+        .split(',')
+        .map(str::trim)
+        .filter(|t| !t.is_empty())
+        .map(|t| t.trim_end_matches('L').parse::<u64>())
+        .collect::<Result<Vec<u64>, _>>()
+        .map_err(|_| format!("malformed .npy shape ({inner})"))?;
+    let header = NpyHeader {
+        descr,
+        fortran_order,
+        shape,
+        data_offset: end,
+    };
+    let elements = header
+        .shape
+        .iter()
+        .try_fold(1u64, |a, &d| a.checked_mul(d))
+        .filter(|&n| n <= crate::limits::MAX_ARRAY_ELEMENTS)
+        .ok_or_else(|| {
+            format!(
+                "declares shape {}: more than {} elements",
+                shape_text(&header.shape),
+                crate::limits::MAX_ARRAY_ELEMENTS
+            )
+        })?;
+    let item = header
+        .item_size()
+        .ok_or_else(|| format!("unsupported .npy dtype '{}'", header.descr))?;
+    let data = elements.saturating_mul(item);
+    let held = (bytes.len() - end) as u64;
+    if data > held {
+        return Err(format!(
+            "declares shape {} of '{}' ({}) but holds only {}: truncated or forged",
+            shape_text(&header.shape),
+            header.descr,
+            crate::limits::human_bytes(data),
+            crate::limits::human_bytes(held)
+        ));
+    }
+    Ok(header)
+}
+
+/// Decodes a normal map from the bytes of a `.npy` file: float32 or float64, shape (H, W, 3).
+pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
+    let header = parse_npy_header(bytes)?;
+    if header.shape.len() != 3 || header.shape[2] != 3 {
+        return Err(format!(
+            "shape {}: expected (H, W, 3)",
+            shape_text(&header.shape)
+        ));
+    }
+    let (h, w) = (header.shape[0], header.shape[1]);
+    let pixels = h.saturating_mul(w);
+    if pixels > crate::limits::MAX_IMAGE_PIXELS
+        || h > crate::limits::MAX_IMAGE_SIDE
+        || w > crate::limits::MAX_IMAGE_SIDE
+    {
+        return Err(format!(
+            "declares {w}×{h} normals: more than the limits of {} pixels a side and {} pixels",
+            crate::limits::MAX_IMAGE_SIDE,
+            crate::limits::MAX_IMAGE_PIXELS
+        ));
+    }
+    crate::limits::check_memory(
+        pixels.saturating_mul(3 * 8 + 12),
+        &format!("declares {w}×{h} normals: reading them"),
+    )?;
+    use ndarray_npy::ReadNpyExt;
+    let arr: ndarray::Array3<f32> = match ndarray::Array3::<f32>::read_npy(bytes) {
         Ok(a) => a,
-        Err(_) => {
-            let a: ndarray::Array3<f64> = ndarray_npy::read_npy(path).map_err(|e| {
-                Error::file(
-                    path,
-                    format!("expected a float32 or float64 array of shape (H, W, 3): {e}"),
-                )
-            })?;
-            a.mapv(|v| v as f32)
-        }
+        Err(_) => ndarray::Array3::<f64>::read_npy(bytes)
+            .map_err(|e| format!("expected a float32 or float64 array of shape (H, W, 3): {e}"))?
+            .mapv(|v| v as f32),
     };
     let (h, w, c) = arr.dim();
     if c != 3 {
-        return Err(Error::file(
-            path,
-            format!("shape ({h}, {w}, {c}): expected (H, W, 3)"),
-        ));
+        return Err(format!("shape ({h}, {w}, {c}): expected (H, W, 3)"));
     }
-    let normals = arr
-        .as_standard_layout()
-        .as_slice()
-        .expect("standard layout")
-        .chunks_exact(3)
-        .map(|v| clean([v[0], v[1], v[2]]))
+    let standard = arr.as_standard_layout();
+    let flat = standard.as_slice().ok_or("the array is not contiguous")?;
+    Ok(from_vectors(
+        w,
+        h,
+        flat.chunks_exact(3).map(|v| [v[0], v[1], v[2]]),
+    ))
+}
+
+/// A normal map from raw vectors, non-finite ones counted and read as "no data".
+fn from_vectors(width: usize, height: usize, v: impl Iterator<Item = [f32; 3]>) -> NormalMap {
+    let mut non_finite = 0;
+    let normals = v
+        .map(|n| {
+            let c = clean(n);
+            non_finite += usize::from(c != n);
+            c
+        })
         .collect();
-    Ok(NormalMap {
-        width: w,
-        height: h,
+    NormalMap {
+        width,
+        height,
         normals,
-    })
+        non_finite,
+    }
 }
 
 fn read_mat_normals(path: &Path) -> Result<NormalMap> {
@@ -75,18 +233,18 @@ fn read_mat_normals(path: &Path) -> Result<NormalMap> {
         ));
     }
     let (h, w) = (a.dims[0], a.dims[1]);
-    let mut normals = vec![[0f32; 3]; h * w];
-    for r in 0..h {
-        for c in 0..w {
-            let at = |k: usize| a.data[r + h * (c + w * k)] as f32;
-            normals[r * w + c] = clean([at(0), at(1), at(2)]);
-        }
+    if h.checked_mul(w).and_then(|n| n.checked_mul(3)) != Some(a.data.len()) {
+        return Err(Error::file(path, "inconsistent array dimensions"));
     }
-    Ok(NormalMap {
-        width: w,
-        height: h,
-        normals,
-    })
+    let at = |r: usize, c: usize, k: usize| a.data[r + h * (c + w * k)] as f32;
+    Ok(from_vectors(
+        w,
+        h,
+        (0..h * w).map(|i| {
+            let (r, c) = (i / w, i % w);
+            [at(r, c, 0), at(r, c, 1), at(r, c, 2)]
+        }),
+    ))
 }
 
 fn read_image_normals(path: &Path) -> Result<NormalMap> {
@@ -95,24 +253,19 @@ fn read_image_normals(path: &Path) -> Result<NormalMap> {
         return Err(Error::file(path, "a normal-map image must be RGB"));
     }
     let float = img.bit_depth == 32;
-    let normals = img
-        .data
-        .chunks_exact(3)
-        .map(|v| {
+    Ok(from_vectors(
+        img.width,
+        img.height,
+        img.data.chunks_exact(3).map(|v| {
             if float {
-                clean([v[0], v[1], v[2]])
+                [v[0], v[1], v[2]]
             } else if v.iter().all(|&x| x == 0.0) {
                 [0.0; 3]
             } else {
-                clean([v[0] * 2.0 - 1.0, v[1] * 2.0 - 1.0, v[2] * 2.0 - 1.0])
+                [v[0] * 2.0 - 1.0, v[1] * 2.0 - 1.0, v[2] * 2.0 - 1.0]
             }
-        })
-        .collect();
-    Ok(NormalMap {
-        width: img.width,
-        height: img.height,
-        normals,
-    })
+        }),
+    ))
 }
 
 /// Non-finite vectors become (0, 0, 0), i.e. "no data".

@@ -3,6 +3,9 @@
 //! 16-bit data is never reduced to 8 bits. Alpha channels are dropped.
 
 use crate::error::{Error, Result};
+use crate::limits::{
+    DeclaredImage, MAX_DEFLATE_RATIO, MAX_EXR_RATIO, MAX_IMAGE_SIDE, MAX_TIFF_RATIO,
+};
 use std::io::Cursor;
 use std::path::Path;
 
@@ -62,13 +65,18 @@ pub fn sniff(bytes: &[u8]) -> Option<Format> {
     }
 }
 
-/// Reads and decodes an image file. Errors name the file.
+/// Reads and decodes an image file. Errors name the file. The size the header declares is
+/// checked against [`crate::limits`] (and the memory available) before decoding.
 pub fn read_image(path: &Path) -> Result<Image> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    if path.is_dir() {
+        return Err(Error::file(path, "is a folder, expected an image file"));
+    }
+    let bytes = crate::limits::read_file(path)?;
     decode_image(&bytes).map_err(|m| Error::file(path, m))
 }
 
-/// Decodes an in-memory image (PNG, TIFF or OpenEXR).
+/// Decodes an in-memory image (PNG, TIFF or OpenEXR). The declared size is checked against
+/// [`crate::limits`], against what `bytes` can hold and against the available memory first.
 pub fn decode_image(bytes: &[u8]) -> Result<Image, String> {
     match sniff(bytes) {
         Some(Format::Png) => decode_png(bytes),
@@ -84,6 +92,33 @@ fn decode_png(bytes: &[u8]) -> Result<Image, String> {
     let mut reader = decoder
         .read_info()
         .map_err(|e| format!("corrupt PNG: {e}"))?;
+    let (color, depth) = reader.output_color_type();
+    let (stored_bytes, declared) = {
+        let info = reader.info();
+        let (w, h) = (info.width as u64, info.height as u64);
+        let bits = info.color_type.samples() as u64 * info.bit_depth as u8 as u64;
+        let stored = w
+            .saturating_mul(bits)
+            .div_ceil(8)
+            .saturating_add(1)
+            .saturating_mul(h);
+        let channels = color.samples() as u64;
+        (
+            stored,
+            DeclaredImage {
+                width: w,
+                height: h,
+                channels,
+                bytes_per_sample: if depth == png::BitDepth::Sixteen {
+                    2
+                } else {
+                    1
+                },
+                kept_channels: if channels >= 3 { 3 } else { 1 },
+            },
+        )
+    };
+    declared.check(stored_bytes, bytes.len() as u64, MAX_DEFLATE_RATIO)?;
     let size = reader
         .output_buffer_size()
         .ok_or_else(|| "PNG too large".to_string())?;
@@ -138,11 +173,11 @@ fn decode_tiff(bytes: &[u8]) -> Result<Image, String> {
     let mut dec = Decoder::new(Cursor::new(bytes)).map_err(|e| format!("corrupt TIFF: {e}"))?;
     let (w, h) = dec.dimensions().map_err(|e| format!("corrupt TIFF: {e}"))?;
     let color = dec.colortype().map_err(|e| format!("corrupt TIFF: {e}"))?;
-    let src_channels = match color {
-        ColorType::Gray(_) => 1,
-        ColorType::GrayA(_) => 2,
-        ColorType::RGB(_) => 3,
-        ColorType::RGBA(_) => 4,
+    let (src_channels, bits) = match color {
+        ColorType::Gray(b) => (1, b),
+        ColorType::GrayA(b) => (2, b),
+        ColorType::RGB(b) => (3, b),
+        ColorType::RGBA(b) => (4, b),
         other => {
             return Err(format!(
                 "unsupported TIFF colour type {other:?} (expected grey or RGB)"
@@ -150,6 +185,23 @@ fn decode_tiff(bytes: &[u8]) -> Result<Image, String> {
         }
     };
     let channels = if src_channels >= 3 { 3 } else { 1 };
+    // The decoder's buffer holds at least a byte per sample (8 for 64-bit floats).
+    let declared = DeclaredImage {
+        width: w as u64,
+        height: h as u64,
+        channels: src_channels as u64,
+        bytes_per_sample: (bits as u64).div_ceil(8).max(1),
+        kept_channels: channels as u64,
+    };
+    declared.check(declared.raw_bytes(), bytes.len() as u64, MAX_TIFF_RATIO)?;
+    // The crate's own limits (256 MiB by default) would refuse large valid images; ours above
+    // already bound what this file may allocate.
+    let budget =
+        usize::try_from(declared.raw_bytes().saturating_add(1 << 20)).unwrap_or(usize::MAX);
+    let mut limits = tiff::decoder::Limits::default();
+    limits.decoding_buffer_size = budget;
+    limits.intermediate_buffer_size = budget.max(bytes.len());
+    let mut dec = dec.with_limits(limits);
     let (width, height) = (w as usize, h as usize);
     let img = dec
         .read_image()
@@ -186,7 +238,54 @@ fn decode_tiff(bytes: &[u8]) -> Result<Image, String> {
 }
 
 fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
-    let img = image::load_from_memory_with_format(bytes, image::ImageFormat::OpenExr)
+    let meta = exr::meta::MetaData::read_from_buffered(Cursor::new(bytes), false)
+        .map_err(|e| format!("corrupt or unsupported OpenEXR: {e}"))?;
+    let mut budget = 0u64;
+    for header in &meta.headers {
+        let data = header.layer_size;
+        let stored_per_pixel: u64 = header
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample() as u64)
+            .sum();
+        let declared = DeclaredImage {
+            width: data.width() as u64,
+            height: data.height() as u64,
+            channels: header.channels.list.len() as u64,
+            bytes_per_sample: 4,
+            kept_channels: 3,
+        };
+        let stored = (data.width() as u64)
+            .saturating_mul(data.height() as u64)
+            .saturating_mul(stored_per_pixel);
+        declared.check(stored, bytes.len() as u64, MAX_EXR_RATIO)?;
+        // The decoded picture covers the display window (RGBA floats, then RGB floats), which
+        // the file must fill at half a float (2 bytes) per pixel at least: a forged display
+        // window around a tiny data window would otherwise cost gigabytes.
+        let display = header.shared_attributes.display_window.size;
+        let shown = DeclaredImage {
+            width: display.width() as u64,
+            height: display.height() as u64,
+            channels: 4,
+            bytes_per_sample: 4,
+            kept_channels: 3,
+        };
+        let shown_stored = shown.width.saturating_mul(shown.height).saturating_mul(2);
+        shown.check(shown_stored, bytes.len() as u64, MAX_EXR_RATIO)?;
+        budget = budget
+            .max(declared.decode_bytes())
+            .max(shown.decode_bytes());
+    }
+    let mut reader =
+        image::ImageReader::with_format(Cursor::new(bytes), image::ImageFormat::OpenExr);
+    let mut limits = image::Limits::no_limits();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE as u32);
+    limits.max_alloc = Some(budget.saturating_add(1 << 20));
+    reader.limits(limits);
+    let img = reader
+        .decode()
         .map_err(|e| format!("corrupt or unsupported OpenEXR: {e}"))?;
     let rgb = img.to_rgb32f();
     let (width, height) = (rgb.width() as usize, rgb.height() as usize);
@@ -198,6 +297,10 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
         data: rgb.into_raw(),
     })
 }
+
+/// The start of the `tEXt` chunk every PNG written here carries (keyword `Software`, NUL, then
+/// `photostereo VERSION`): how `--force` recognises a file photostereo wrote.
+pub const PNG_SOFTWARE_TEXT: &[u8] = b"Software\0photostereo";
 
 /// Writes a 16-bit PNG with 1 (grey) or 3 (RGB) interleaved channels.
 pub fn write_png16(
@@ -256,6 +359,11 @@ fn write_png(
         enc.set_color(color);
         enc.set_depth(depth);
         enc.set_compression(png::Compression::Fast);
+        enc.add_text_chunk(
+            "Software".into(),
+            format!("photostereo {}", env!("CARGO_PKG_VERSION")),
+        )
+        .map_err(|e| Error::file(path, format!("PNG encoding failed: {e}")))?;
         let mut writer = enc
             .write_header()
             .map_err(|e| Error::file(path, format!("PNG encoding failed: {e}")))?;

@@ -78,7 +78,13 @@ impl Lights {
     /// list layout (a first line with the count N, then N rows). Blank lines and lines starting
     /// with `#` are skipped. Directions are normalised; a zero direction is an error.
     pub fn read_directions(path: &Path) -> Result<Self> {
-        let rows = read_rows(path, &[3])?;
+        Self::parse_directions(&crate::limits::read_text(path)?, path)
+    }
+
+    /// [`read_directions`](Lights::read_directions) on text already read; `path` names the
+    /// source in messages.
+    pub fn parse_directions(text: &str, path: &Path) -> Result<Self> {
+        let rows = parse_rows(text, path, &[3], None)?;
         let mut dirs = Vec::with_capacity(rows.len());
         let mut renormalised = 0;
         for (line, row) in &rows {
@@ -98,32 +104,16 @@ impl Lights {
     /// Reads per-light intensities (rows of 3 values R G B, or 1 value for all channels) and
     /// attaches them. The row count must equal the light count.
     pub fn read_intensities(self, path: &Path) -> Result<Self> {
-        let rows = read_rows(path, &[1, 3])?;
-        if rows.len() != self.len() {
+        let values = read_intensity_rows(path, Some(self.len()))?;
+        if values.len() != self.len() {
             return Err(Error::file(
                 path,
                 format!(
                     "{} intensity rows for {} light directions",
-                    rows.len(),
+                    values.len(),
                     self.len()
                 ),
             ));
-        }
-        let mut values = Vec::with_capacity(rows.len());
-        for (line, row) in &rows {
-            let v = if row.len() == 1 {
-                [row[0]; 3]
-            } else {
-                [row[0], row[1], row[2]]
-            };
-            if v.iter().any(|x| *x <= 0.0) {
-                return Err(Error::parse(
-                    path,
-                    *line,
-                    format!("intensity {:?}: expected positive values", row),
-                ));
-            }
-            values.push(v);
         }
         self.with_intensities(values)
     }
@@ -198,6 +188,39 @@ impl Lights {
     }
 }
 
+/// Reads an intensity file: rows of 3 values R G B or 1 value for all channels, each positive.
+/// `lights` (the light count, when known) decides whether an ambiguous first line holding one
+/// whole number is a count line.
+pub fn read_intensity_rows(path: &Path, lights: Option<usize>) -> Result<Vec<[f64; 3]>> {
+    parse_intensity_rows(&crate::limits::read_text(path)?, path, lights)
+}
+
+/// [`read_intensity_rows`] on text already read; `path` names the source in messages.
+pub fn parse_intensity_rows(
+    text: &str,
+    path: &Path,
+    lights: Option<usize>,
+) -> Result<Vec<[f64; 3]>> {
+    let rows = parse_rows(text, path, &[1, 3], lights)?;
+    let mut values = Vec::with_capacity(rows.len());
+    for (line, row) in &rows {
+        let v = if row.len() == 1 {
+            [row[0]; 3]
+        } else {
+            [row[0], row[1], row[2]]
+        };
+        if v.iter().any(|x| *x <= 0.0) {
+            return Err(Error::parse(
+                path,
+                *line,
+                format!("intensity {:?}: expected positive values", row),
+            ));
+        }
+        values.push(v);
+    }
+    Ok(values)
+}
+
 /// The four lights of a rig closest to a square rig — slant `slant_deg`, tilts 90° apart at any
 /// common rotation — as indices in tilt order. For every light taken as the first corner, each
 /// of the four target directions gets its nearest light; the rotation with the smallest sum of
@@ -254,13 +277,20 @@ fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3]
 }
 
 /// Reads a whitespace-separated numeric table. Each data row must have one of `widths` numbers,
-/// all finite. A first line holding a single integer equal to the number of remaining rows is a
-/// count line (the list layout) and is skipped. Returns (1-based line, values) pairs.
-pub(crate) fn read_rows(path: &Path, widths: &[usize]) -> Result<Vec<(usize, Vec<f64>)>> {
-    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+/// all finite. A first line holding a single whole number is a count line (the list layout)
+/// when the rows after it are wider, or, where one-number rows are data too, when it equals the
+/// number of rows after it and `expected` (the light count, when known) says so; a count line
+/// that disagrees with the rows is an error naming both numbers. A leading UTF-8 byte-order
+/// mark is ignored. Returns (1-based line, values) pairs; `path` names the source in messages.
+pub(crate) fn parse_rows(
+    text: &str,
+    path: &Path,
+    widths: &[usize],
+    expected: Option<usize>,
+) -> Result<Vec<(usize, Vec<f64>)>> {
     let mut rows: Vec<(usize, Vec<f64>)> = Vec::new();
     for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim();
+        let line = raw.trim().trim_start_matches('\u{feff}');
         if line.is_empty() || line.starts_with('#') {
             continue;
         }
@@ -269,9 +299,13 @@ pub(crate) fn read_rows(path: &Path, widths: &[usize]) -> Result<Vec<(usize, Vec
             if tok.is_empty() {
                 continue;
             }
-            let v: f64 = tok
-                .parse()
-                .map_err(|_| Error::parse(path, i + 1, format!("'{tok}' is not a number")))?;
+            let v: f64 = tok.parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    i + 1,
+                    format!("'{}' is not a number", tok.escape_debug()),
+                )
+            })?;
             if !v.is_finite() {
                 return Err(Error::parse(path, i + 1, format!("'{tok}' is not finite")));
             }
@@ -279,13 +313,29 @@ pub(crate) fn read_rows(path: &Path, widths: &[usize]) -> Result<Vec<(usize, Vec
         }
         rows.push((i + 1, vals));
     }
-    // A count line: one integer equal to the number of following rows. When one-number rows are
-    // valid data too, it is a count line only if the rows after it are wider.
-    if let Some((_, first)) = rows.first() {
-        let is_count =
-            first.len() == 1 && first[0].fract() == 0.0 && first[0] as usize == rows.len() - 1;
-        let ambiguous = widths.contains(&1) && rows.get(1).is_none_or(|(_, r)| r.len() == 1);
-        if is_count && !ambiguous {
+    if let Some((line, first)) = rows.first() {
+        let line = *line;
+        let whole = first.len() == 1 && first[0] >= 0.0 && first[0].fract() == 0.0;
+        let following = rows.len() - 1;
+        let wider_after = rows.get(1).is_some_and(|(_, r)| r.len() > 1);
+        let count_line = if !whole {
+            false
+        } else if !widths.contains(&1) || wider_after {
+            true
+        } else {
+            // One-number rows are data too: a count line only when it is consistent.
+            first[0] as usize == following && expected.is_none_or(|n| n == following)
+        };
+        if count_line {
+            let announced = first[0];
+            if announced != following as f64 {
+                return Err(Error::file(
+                    path,
+                    format!(
+                        "the count line (line {line}) announces {announced} rows but {following} follow"
+                    ),
+                ));
+            }
             rows.remove(0);
         }
     }

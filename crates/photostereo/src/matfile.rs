@@ -31,8 +31,15 @@ const MI_COMPRESSED: u32 = 15;
 
 /// Reads the variable `name` (or the first numeric array when `name` is `None`).
 pub fn read_mat(path: &Path, name: Option<&str>) -> Result<MatArray> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::limits::read_file(path)?;
     parse(&bytes, name).map_err(|m| Error::file(path, m))
+}
+
+/// Parses the bytes of a MAT-file (see [`read_mat`]). Compressed elements are inflated to at
+/// most [`crate::limits::MAX_DEFLATE_RATIO`] times their size and within the available memory;
+/// declared dimensions are checked against the values actually present.
+pub fn parse_mat(bytes: &[u8], name: Option<&str>) -> Result<MatArray, String> {
+    parse(bytes, name)
 }
 
 fn parse(bytes: &[u8], name: Option<&str>) -> Result<MatArray, String> {
@@ -58,14 +65,24 @@ fn parse(bytes: &[u8], name: Option<&str>) -> Result<MatArray, String> {
         let body = &bytes[start..end];
         match ty {
             MI_COMPRESSED => {
+                let most = (body.len() as u64).saturating_mul(crate::limits::MAX_DEFLATE_RATIO);
+                crate::limits::check_memory(most.min(1 << 30), "inflating a compressed element")?;
                 let mut inflated = Vec::new();
                 flate2::read::ZlibDecoder::new(body)
+                    .take(most.saturating_add(1))
                     .read_to_end(&mut inflated)
                     .map_err(|e| format!("corrupt compressed element: {e}"))?;
+                if inflated.len() as u64 > most {
+                    return Err(
+                        "corrupt compressed element: it inflates beyond what zlib can produce"
+                            .into(),
+                    );
+                }
                 if inflated.len() >= 8 && rd.u32(&inflated) == MI_MATRIX {
                     let l = rd.u32(&inflated[4..]) as usize;
-                    let inner = inflated
-                        .get(8..8 + l)
+                    let inner = 8usize
+                        .checked_add(l)
+                        .and_then(|e| inflated.get(8..e))
                         .ok_or("truncated compressed matrix")?;
                     if let Some(a) = rd.matrix(inner)? {
                         found.push(a);
@@ -177,18 +194,24 @@ impl Reader {
         let mut pos = used;
         let (dty, dims_b, used) = self.element(&b[pos..])?;
         pos += used;
-        let dims: Vec<usize> = self
-            .numbers(dty, dims_b)?
-            .into_iter()
-            .map(|d| d as usize)
+        let dims_f = self.numbers(dty, dims_b)?;
+        if dims_f.len() < 2 || dims_f.iter().any(|&d| !(d >= 0.0 && d.fract() == 0.0)) {
+            return Err(format!("bad array dimensions {dims_f:?}"));
+        }
+        let dims: Vec<usize> = dims_f
+            .iter()
+            .map(|&d| d.min(crate::limits::MAX_ARRAY_ELEMENTS as f64) as usize)
             .collect();
         let (_, name_b, used) = self.element(&b[pos..])?;
         pos += used;
         let name = String::from_utf8_lossy(name_b).to_string();
         let (rty, real_b, _) = self.element(&b[pos..])?;
         let data = self.numbers(rty, real_b)?;
-        let count: usize = dims.iter().product();
-        if data.len() != count {
+        let count = dims
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .filter(|&n| n as u64 <= crate::limits::MAX_ARRAY_ELEMENTS);
+        if count != Some(data.len()) {
             return Err(format!(
                 "array '{name}' holds {} values for dimensions {:?}",
                 data.len(),

@@ -45,7 +45,7 @@ pub struct ErrorStats {
     pub mean_eq14_deg: f64,
     /// Pixels evaluated.
     pub pixels: usize,
-    /// Pixels of the evaluated set where the prediction was zero (counted as 90°).
+    /// Pixels of the evaluated set without a prediction: zero, NaN or infinite (counted as 90°).
     pub missing: usize,
 }
 

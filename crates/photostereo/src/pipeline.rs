@@ -200,6 +200,12 @@ pub fn run(
     let truth_normals = truth.as_ref().map(|t| t.normals.as_slice());
     let mut rec = reconstruct_with_truth(&capture, &options.params, truth_normals, progress)?;
     drop(capture);
+    rec.report
+        .notes
+        .extend(crate::plausibility::unestimated_note(
+            &rec.normals,
+            &rec.mask,
+        ));
     let report = &mut rec.report;
     report
         .timings_s

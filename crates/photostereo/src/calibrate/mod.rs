@@ -83,7 +83,7 @@ impl SphereFiles {
         let names = dir.join("filenames.txt");
         let mut mask = None;
         let images: Vec<PathBuf> = if names.exists() {
-            let text = std::fs::read_to_string(&names).map_err(|e| Error::io(&names, e))?;
+            let text = crate::limits::read_text(&names)?;
             text.lines()
                 .map(str::trim)
                 .filter(|l| !l.is_empty())

@@ -459,7 +459,10 @@ pub fn write_capture(dir: &Path, rendered: &Rendered, spec: Option<&SynthSpec>) 
         .collect();
     write_png8(&dir.join("mask.png"), w, h, 1, &mask)?;
     let gt = dir.join("gt");
-    std::fs::create_dir_all(&gt).map_err(|e| Error::io(&gt, e))?;
+    // Not create_dir_all: an interrupted run's removed staging folder must not come back.
+    if !gt.is_dir() {
+        std::fs::create_dir(&gt).map_err(|e| Error::io(&gt, e))?;
+    }
     let t = &rendered.truth;
     let flat3 = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
     write_npy_f32(&gt.join("normal.npy"), &[h, w, 3], &flat3(&t.normals))?;

@@ -1,0 +1,7 @@
+//! PNG, TIFF and OpenEXR decoding (the format is sniffed from the first bytes).
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    let _ = photostereo::imageio::decode_image(data);
+});

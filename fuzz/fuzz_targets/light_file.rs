@@ -1,0 +1,12 @@
+//! Light-direction files (N rows `x y z`, optional count line), then the rank check.
+#![no_main]
+use libfuzzer_sys::fuzz_target;
+
+fuzz_target!(|data: &[u8]| {
+    if let Ok(text) = photostereo::limits::text_from_bytes(data) {
+        let path = std::path::Path::new("light_directions.txt");
+        if let Ok(lights) = photostereo::Lights::parse_directions(&text, path) {
+            let _ = lights.check_rank();
+        }
+    }
+});
