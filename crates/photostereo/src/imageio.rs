@@ -92,6 +92,27 @@ fn decode_png(bytes: &[u8]) -> Result<Image, String> {
     let mut reader = decoder
         .read_info()
         .map_err(|e| format!("corrupt PNG: {e}"))?;
+    {
+        // The decoder's palette expansion assumes a well-formed PLTE (and tRNS no longer than
+        // it) and panics otherwise: check first.
+        let info = reader.info();
+        if info.color_type == png::ColorType::Indexed {
+            let plte = info.palette.as_deref().unwrap_or(&[]);
+            if plte.is_empty() || plte.len() % 3 != 0 || plte.len() > 3 * 256 {
+                return Err(format!(
+                    "corrupt PNG: the palette holds {} bytes (expected 1 to 256 entries of 3 bytes)",
+                    plte.len()
+                ));
+            }
+            let trns = info.trns.as_deref().map_or(0, <[u8]>::len);
+            if trns > plte.len() / 3 {
+                return Err(format!(
+                    "corrupt PNG: {trns} transparency entries for {} palette entries",
+                    plte.len() / 3
+                ));
+            }
+        }
+    }
     let (color, depth) = reader.output_color_type();
     let (stored_bytes, declared) = {
         let info = reader.info();
@@ -260,6 +281,20 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
             .saturating_mul(data.height() as u64)
             .saturating_mul(stored_per_pixel);
         declared.check(stored, bytes.len() as u64, MAX_EXR_RATIO)?;
+        // A tile is decoded whole: its declared size must fit in the file too.
+        if let exr::meta::BlockDescription::Tiles(t) = header.blocks {
+            let tile = DeclaredImage {
+                width: t.tile_size.width() as u64,
+                height: t.tile_size.height() as u64,
+                ..declared
+            };
+            let tile_stored = tile
+                .width
+                .saturating_mul(tile.height)
+                .saturating_mul(stored_per_pixel);
+            tile.check(tile_stored, bytes.len() as u64, MAX_EXR_RATIO)
+                .map_err(|m| format!("tile size: {m}"))?;
+        }
         // The decoded picture covers the display window (RGBA floats, then RGB floats), which
         // the file must fill at half a float (2 bytes) per pixel at least: a forged display
         // window around a tiny data window would otherwise cost gigabytes.

@@ -83,7 +83,7 @@ fn check_sources(sources: &[PathBuf]) -> Result<()> {
 fn check_lights(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
     let dirs = &capture.lights.directions;
     let n = dirs.len();
-    let below: Vec<usize> = (0..n).filter(|&k| !(dirs[k][2] > 0.0)).collect();
+    let below: Vec<usize> = (0..n).filter(|&k| dirs[k][2] <= 0.0).collect();
     if !below.is_empty() && below.len() == n {
         return Err(Error::invalid(format!(
             "all {n} lights are at or below the horizon (z ≤ 0): no light reaches a surface that faces \

@@ -97,7 +97,7 @@ impl Mutator {
         if n == 0 {
             0
         } else {
-            (self.rng.next_u32() as u64 * n as u64 >> 32) as usize
+            ((self.rng.next_u32() as u64 * n as u64) >> 32) as usize
         }
     }
 
@@ -351,11 +351,17 @@ where
         slowest.as_secs_f64() * 1e3,
         failures.len()
     );
+    if !failures.is_empty() {
+        // Printed here: the panic hook keeps this thread's panics quiet.
+        eprintln!(
+            "fuzz {name} failures:\n{}",
+            failures[..failures.len().min(20)].join("\n")
+        );
+    }
     assert!(
         failures.is_empty(),
-        "fuzz {name}: {} failure(s):\n{}",
-        failures.len(),
-        failures[..failures.len().min(20)].join("\n")
+        "fuzz {name}: {} failure(s)",
+        failures.len()
     );
 }
 
@@ -608,6 +614,31 @@ fn text(bytes: &[u8]) -> Option<String> {
 
 // ---------------------------------------------------------------------------------------------
 // One test per reader.
+
+/// Inputs the long runs found (saved under tests/fuzz_regressions): each must give an error,
+/// without a panic and without a large allocation.
+#[test]
+fn fuzz_regressions() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fuzz_regressions");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    files.sort();
+    assert!(!files.is_empty());
+    for f in files {
+        let bytes = std::fs::read(&f).unwrap();
+        LARGEST.with(|l| l.set(0));
+        let r = std::panic::catch_unwind(|| photostereo::imageio::decode_image(&bytes).is_ok());
+        assert!(matches!(r, Ok(false)), "{}: {r:?}", f.display());
+        let largest = LARGEST.with(Cell::get);
+        assert!(
+            largest < 16 << 20,
+            "{}: allocated {largest} bytes",
+            f.display()
+        );
+    }
+}
 
 fn decode(bytes: &[u8]) -> bool {
     photostereo::imageio::decode_image(bytes).is_ok()
