@@ -339,7 +339,7 @@ fn a_matte_sphere_is_refused() {
         &[
             "error: no confident highlight",
             "not the highlights of a mirror sphere",
-            "in 12 of 12 images the brightest region, at half its peak, covers",
+            "in 12 of 12 images the brightest region covers",
             "(a matte sphere?)",
         ],
     );

@@ -24,17 +24,17 @@ pub struct HighlightOptions {
     /// A saturated area larger than this share of the sphere's disc makes the highlight
     /// "clipped".
     pub max_saturated_share: f64,
-    /// A highlight whose core (its pixels at least half-way from the sphere's median to the
-    /// peak: the full width at half maximum, which glow and bloom tails below half the peak do
-    /// not widen) covers more than this share of the sphere's disc is not a mirror's highlight
-    /// (0.05 by default). A mirror sphere shows a distant light of angular radius α as a spot
-    /// covering sin²(α/2) of the disc (near its centre): 5% is a light 52° across, far beyond
-    /// the small lights of photometric stereo, and leaves room for a clipped core (a saturated
-    /// core of radius 9 px on a 70 px sphere covers 1.7%). A matte (Lambertian) sphere's
-    /// brightest region is the broad cosine lobe, whose half-maximum core covers 20–28% of the
-    /// disc for any light slant from 0° to 90° (gain, ambient light and the median's level
-    /// cancel) and 28–36% with a 1/2.2 gamma; 5% sits a factor 4 or more below.
-    pub max_core_share: f64,
+    /// A highlight blob covering more than this share of the sphere's disc is not a mirror's
+    /// highlight (0.1 by default). A mirror sphere shows a distant light of angular radius α as
+    /// a spot covering sin²(α/2) of the disc (near its centre): 10% is a light 74° across, far
+    /// beyond the small lights of photometric stereo, which leaves room for the camera's glow
+    /// and bloom and a clipped core (on the rendered 70 px spheres: 0.5% with the default glow
+    /// and bloom, 1.8% with a saturated core of radius 9 px, 4–5% with a bloom of σ 15 px). A
+    /// matte (Lambertian) sphere's brightest region, the pixels a fifth of the way from its
+    /// median to its peak, is the broad cosine lobe: 37–42% of the disc for any light slant
+    /// from 0° to 90° (gain, ambient light and the median's level cancel), 42–48% with a 1/2.2
+    /// gamma; `psmImages/gray` measures 27–41%. 10% sits a factor 2.7 below the least of these.
+    pub max_disc_share: f64,
     /// Least height of the highlight's peak above the sphere's median, in units of the image
     /// noise σ (5 by default). σ is estimated from the differences of adjacent pixels inside
     /// the disc (1.4826 · median |a − b| / √2: insensitive to the smooth environment a mirror
@@ -53,7 +53,7 @@ impl Default for HighlightOptions {
             level: 0.2,
             doubled_mass_share: 0.25,
             max_saturated_share: 0.005,
-            max_core_share: 0.05,
+            max_disc_share: 0.1,
             min_significance: 5.0,
         }
     }
@@ -80,9 +80,8 @@ pub struct Highlight {
     pub second_blob_share: f64,
     /// Centroid of the next brightest blob (column, row), when there is one.
     pub second_blob: Option<[f64; 2]>,
-    /// Pixels of the blob at least half-way from the sphere's median to the peak (its core at
-    /// half maximum) over the pixels of the sphere's disc, 0..1.
-    pub core_share: f64,
+    /// Pixels of the blob over the pixels of the sphere's disc, 0..1.
+    pub disc_share: f64,
     /// Noise σ of the image inside the disc, image units: 1.4826 · median |a − b| / √2 over
     /// horizontally and vertically adjacent pixels, at least one quantisation step / √12.
     pub noise: f32,
@@ -234,10 +233,6 @@ pub fn find_highlight(image: &Image, circle: &Circle, opts: &HighlightOptions) -
         }
     }
     let reach = far2.sqrt() + 0.5;
-    let half = background + 0.5 * (peak - background);
-    let core = (0..bw * bh)
-        .filter(|&i| labels.labels[i] as usize == order[0] && grey[i] >= half)
-        .count();
     let compactness = (best.pixels as f64 / (std::f64::consts::PI * reach * reach)).min(1.0);
     let (second_blob_share, second_blob) = match order.get(1) {
         Some(&l) => (
@@ -256,7 +251,7 @@ pub fn find_highlight(image: &Image, circle: &Circle, opts: &HighlightOptions) -
         compactness,
         second_blob_share,
         second_blob,
-        core_share: core as f64 / disc_pixels as f64,
+        disc_share: best.pixels as f64 / disc_pixels as f64,
         noise,
         significance: ((peak - background) / noise) as f64,
     })

@@ -262,7 +262,7 @@ pub enum WarningKind {
     /// The automatically detected outline is irregular (a side never lit, clutter).
     RoughOutline,
     /// The brightest blob covers more of the sphere than a mirror's highlight can
-    /// ([`HighlightOptions::max_core_share`]): a matte sphere's shading, or a grossly
+    /// ([`HighlightOptions::max_disc_share`]): a matte sphere's shading, or a grossly
     /// overexposed highlight. Its confidence is 0.
     NotMirror,
     /// The highlight does not stand [`HighlightOptions::min_significance`] noise σ above the
@@ -328,7 +328,7 @@ pub struct ConfidenceParts {
     /// 1 − (mass of the second blob / mass of the first).
     pub uniqueness: f64,
     /// 1 when the blob passes the mirror tests (it covers at most
-    /// [`HighlightOptions::max_core_share`] of the disc and stands at least
+    /// [`HighlightOptions::max_disc_share`] of the disc and stands at least
     /// [`HighlightOptions::min_significance`] noise σ above the median), else 0.
     pub mirror: f64,
 }
@@ -518,17 +518,17 @@ pub fn calibrate(
                 ),
             });
         }
-        let broad = hl.core_share > options.highlight.max_core_share;
+        let broad = hl.disc_share > options.highlight.max_disc_share;
         if broad {
             warnings.push(CalibrationWarning {
                 image: Some(k),
                 kind: WarningKind::NotMirror,
                 message: format!(
-                    "not a mirror sphere's highlight: the brightest region, at half its peak, \
-                     covers {:.1}% of the sphere's disc, a mirror's highlight of a small light at most {:.0}% (a matte \
+                    "not a mirror sphere's highlight: the brightest region covers {:.1}% of the \
+                     sphere's disc, a mirror's highlight of a small light at most {:.0}% (a matte \
                      sphere's shading, or a grossly overexposed highlight?); confidence 0",
-                    100.0 * hl.core_share,
-                    100.0 * options.highlight.max_core_share
+                    100.0 * hl.disc_share,
+                    100.0 * options.highlight.max_disc_share
                 ),
             });
         }
@@ -640,17 +640,17 @@ fn refusal(
     let broad = of_kind(WarningKind::NotMirror);
     if !broad.is_empty() {
         why.push(format!(
-            "in {} of {n} images the brightest region, at half its peak, covers {}% of the \
+            "in {} of {n} images the brightest region covers {}% of the \
              sphere's disc, where a mirror sphere's highlight of a small light covers at most {:.0}% (a matte sphere?)",
             broad.len(),
             range(
                 highlights(&broad)
                     .iter()
-                    .map(|h| 100.0 * h.core_share)
+                    .map(|h| 100.0 * h.disc_share)
                     .collect(),
                 1
             ),
-            100.0 * options.highlight.max_core_share
+            100.0 * options.highlight.max_disc_share
         ));
     }
     let faint = of_kind(WarningKind::Faint);
