@@ -297,8 +297,9 @@ pub struct CalibrationOptions {
     /// mirror test); 0.25 is all five at 3/4 (0.75⁵ ≈ 0.24), or one of them at a quarter: a
     /// highlight at 97% of the radius (n_z 0.25, where a pixel of error turns the direction
     /// four times as much as at the centre), or a second blob with three quarters of the
-    /// first's weight. Mirror spheres measure 0.60–0.71 (`psmImages/chrome`) and 0.66–0.78
-    /// (the rendered spheres); a matte sphere and noise fail the mirror test (0).
+    /// first's weight. Mirror spheres measure 0.60–0.71 (`psmImages/chrome`) and 0.38–0.80
+    /// (the rendered spheres with bloom, saturation, dust, noise, a faint highlight; 0.69–0.77
+    /// by default); a matte sphere and noise fail the mirror tests (0).
     pub min_confidence: f64,
 }
 
