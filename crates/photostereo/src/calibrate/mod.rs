@@ -533,7 +533,8 @@ pub fn calibrate(
                 ),
             });
         }
-        let faint = !(hl.significance >= options.highlight.min_significance);
+        let faint =
+            hl.significance.is_nan() || hl.significance < options.highlight.min_significance;
         if faint {
             warnings.push(CalibrationWarning {
                 image: Some(k),
