@@ -34,6 +34,10 @@ pub struct CalibrateArgs {
     /// Bright blobs with fewer pixels are ignored as dust or hot pixels.
     #[arg(long, default_value_t = 3)]
     pub min_blob_pixels: usize,
+    /// Least confidence (0..1) of a light's highlight: each light below it is warned of, and a
+    /// capture with no light reaching it (a matte sphere, noise) is refused. 0 accepts all.
+    #[arg(long, default_value_t = 0.25)]
+    pub min_confidence: f64,
     /// Output folder (light_directions.txt, light_intensities.txt with --matte,
     /// calibration.json, calibration.png).
     #[arg(short, long, default_value = "photostereo-calibration")]
@@ -47,6 +51,12 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
         anyhow::bail!(
             "--min-contrast {}: expected a value in (0, 1)",
             a.min_contrast
+        );
+    }
+    if !(0.0..=1.0).contains(&a.min_confidence) {
+        anyhow::bail!(
+            "--min-confidence {}: expected a value in [0, 1]",
+            a.min_confidence
         );
     }
     if a.min_blob_pixels == 0 {
@@ -75,6 +85,7 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
             min_blob_pixels: a.min_blob_pixels,
             ..HighlightOptions::default()
         },
+        min_confidence: a.min_confidence,
         ..CalibrationOptions::default()
     };
     let cal = calibrate(

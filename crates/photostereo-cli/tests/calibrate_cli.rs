@@ -316,3 +316,132 @@ fn tuning_options_take_effect() {
     assert_eq!(o.status.code(), Some(2));
     assert!(text(&o.stderr).contains("dust"), "{}", text(&o.stderr));
 }
+
+/// Runs `calibrate` on `capture` and expects a refusal (exit 2, no output folder) whose message
+/// contains each of `words`; returns stderr.
+fn refused_capture(capture: &Path, words: &[&str]) -> String {
+    let tmp = tempfile::tempdir().unwrap();
+    let out = tmp.path().join("cal");
+    let o = run!("calibrate", capture, "-o", out);
+    let err = text(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    for w in words {
+        assert!(err.contains(w), "{w:?} not in {err}");
+    }
+    assert!(!out.exists());
+    err
+}
+
+#[test]
+fn a_matte_sphere_is_refused() {
+    let err = refused_capture(
+        &psm("gray.txt"),
+        &[
+            "error: no confident highlight",
+            "not the highlights of a mirror sphere",
+            "in 12 of 12 images the brightest region covers",
+            "(a matte sphere?)",
+        ],
+    );
+    println!("{err}");
+}
+
+#[test]
+fn pure_noise_is_refused() {
+    let tmp = tempfile::tempdir().unwrap();
+    // Uniform 8-bit noise, then Gaussian noise about mid-grey, with the chrome mask.
+    for (kind, words) in [
+        (0, vec!["no confident highlight"]),
+        (1, vec!["no confident highlight", "(noise?)"]),
+    ] {
+        let cap = tmp.path().join(format!("noise{kind}"));
+        std::fs::create_dir(&cap).unwrap();
+        let mut state = 0x2545_F491_4F6C_DD1Du64 + kind;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for k in 0..12 {
+            let px: Vec<u8> = (0..512 * 340 * 3)
+                .map(|_| {
+                    let v = if kind == 0 {
+                        next()
+                    } else {
+                        // Sum of 12 uniforms: near-Gaussian, σ 1 → σ 0.1 about 0.5.
+                        0.5 + 0.1 * ((0..12).map(|_| next()).sum::<f64>() - 6.0)
+                    };
+                    (v.clamp(0.0, 1.0) * 255.0).round() as u8
+                })
+                .collect();
+            photostereo::imageio::write_png8(&cap.join(format!("n.{k}.png")), 512, 340, 3, &px)
+                .unwrap();
+        }
+        std::os::unix::fs::symlink(psm("chrome/chrome.mask.png"), cap.join("mask.png")).unwrap();
+        let err = refused_capture(&cap, &words);
+        println!("noise {kind}: {err}");
+    }
+}
+
+#[test]
+fn a_weak_light_is_warned_of() {
+    let tmp = tempfile::tempdir().unwrap();
+    let cap = tmp.path().join("cap");
+    std::fs::create_dir(&cap).unwrap();
+    chrome_without_highlight(&cap);
+    // Image 3: the brighter of images 3 and 6 at each pixel, two highlights of equal strength.
+    let a = photostereo::imageio::read_image(&psm("chrome/chrome.2.png")).unwrap();
+    let b = photostereo::imageio::read_image(&psm("chrome/chrome.5.png")).unwrap();
+    let px: Vec<u8> = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| (x.max(*y) * 255.0).round() as u8)
+        .collect();
+    let p = cap.join("chrome.2.png");
+    std::fs::remove_file(&p).unwrap();
+    photostereo::imageio::write_png8(&p, a.width, a.height, 3, &px).unwrap();
+    let out = tmp.path().join("cal");
+    let o = run!("calibrate", cap, "-o", out);
+    let err = text(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(
+        err.contains("warning: image 3") && err.contains("low confidence"),
+        "{err}"
+    );
+    let json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("calibration.json")).unwrap())
+            .unwrap();
+    let low: Vec<&serde_json::Value> = json["warnings"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|w| w["kind"] == "low_confidence")
+        .collect();
+    assert_eq!(low.len(), 1, "{low:?}");
+    assert_eq!(low[0]["image"], 2);
+    assert!(json["lights"][2]["confidence"].as_f64().unwrap() < 0.25);
+    assert_eq!(json["options"]["min_confidence"], 0.25);
+    // A lower floor silences it; a floor outside [0, 1] is refused.
+    let o = run!(
+        "calibrate",
+        cap,
+        "--min-confidence",
+        "0",
+        "-o",
+        tmp.path().join("b")
+    );
+    assert!(o.status.success());
+    assert!(!text(&o.stderr).contains("low confidence"));
+    let o = run!(
+        "calibrate",
+        cap,
+        "--min-confidence",
+        "2",
+        "-o",
+        tmp.path().join("c")
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o.stderr).contains("--min-confidence"));
+}

@@ -156,3 +156,49 @@ fn difference_to_the_reference_is_a_larger_sphere_outline() {
     // orthographic leaves the mean difference at 2.9° or more (checked while writing this test;
     // see docs/calibration.md).
 }
+
+/// The mirror tests on real spheres: every `chrome` highlight is a small blob far out of the
+/// noise (confident), every `gray` "highlight" is the broad lobe of a matte sphere, which is
+/// refused; the figures are those of docs/calibration.md.
+#[test]
+fn chrome_passes_the_mirror_tests_and_gray_is_refused() {
+    let cal = chrome();
+    for l in &cal.lights {
+        let h = l.highlight.unwrap();
+        assert!(h.disc_share < 0.01 && h.significance > 100.0, "{h:?}");
+        assert!((0.59..0.72).contains(&l.confidence), "{}", l.confidence);
+    }
+    let loaded = SphereFiles::resolve(&[psm("gray.txt")])
+        .unwrap()
+        .load(&Silent)
+        .unwrap();
+    let run = |options: &CalibrationOptions| {
+        calibrate(
+            &loaded.images,
+            loaded.mask.as_deref(),
+            Some("gray.mask.png"),
+            options,
+        )
+    };
+    let e = run(&CalibrationOptions::default()).unwrap_err().to_string();
+    assert!(
+        e.contains("no confident highlight") && e.contains("(a matte sphere?)"),
+        "{e}"
+    );
+    let accepted = run(&CalibrationOptions {
+        min_confidence: 0.0,
+        ..CalibrationOptions::default()
+    })
+    .unwrap();
+    let shares: Vec<f64> = accepted
+        .lights
+        .iter()
+        .map(|l| l.highlight.unwrap().disc_share)
+        .collect();
+    println!("gray: blob shares of the disc {shares:.3?}");
+    assert!(
+        shares.iter().all(|&s| (0.25..0.45).contains(&s)),
+        "{shares:?}"
+    );
+    assert!(accepted.lights.iter().all(|l| l.confidence == 0.0));
+}

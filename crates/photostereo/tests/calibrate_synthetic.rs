@@ -274,21 +274,36 @@ fn a_doubled_highlight_is_a_warning() {
         Render::default(),
         5,
     );
+    // With a good image beside it (alone, the capture has no confident light and is refused).
+    let good = render_mirror(&c, &[highlight_point(&c, l)], Render::default(), 4);
     let cal = calibrate(
-        &[img],
+        &[good, img.clone()],
         Some(&disc_mask(&c)),
         None,
         &CalibrationOptions::default(),
     )
     .unwrap();
     assert!(
-        cal.warnings.iter().any(|w| w.image == Some(0)
+        cal.warnings.iter().any(|w| w.image == Some(1)
             && w.kind == WarningKind::Doubled
             && w.message.contains("two highlights")),
         "{:?}",
         cal.warnings
     );
-    assert!(cal.lights[0].confidence < 0.5);
+    assert!(cal.lights[1].confidence < 0.5);
+    let e = calibrate(
+        &[img],
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("no confident highlight")
+            && e.contains("in 1 of 1 images the confidence is only"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -478,4 +493,300 @@ fn matte_sphere_gives_relative_intensities() {
     }
     // Wrong count: an error.
     assert!(matte_intensities(&images[..5], &c, &lights).is_err());
+}
+
+/// The mirror tests and the confidence floor across renderings of good mirror spheres: none
+/// is refused, none fails the mirror tests, every light is confident.
+#[test]
+fn good_mirror_spheres_pass_the_mirror_tests() {
+    let c = sphere();
+    let lights = rig();
+    let d = Render::default();
+    let variants: [(&str, Render); 7] = [
+        ("default (saturated core, glow, bloom, dust)", d),
+        (
+            "heavy bloom",
+            Render {
+                glow: (0.8, 5.0),
+                bloom: (0.3, 15.0),
+                ..d
+            },
+        ),
+        ("large saturated core", Render { core_r: 9.0, ..d }),
+        (
+            "unsaturated",
+            Render {
+                core_peak: 0.5,
+                glow: (0.2, 3.0),
+                bloom: (0.03, 9.0),
+                ..d
+            },
+        ),
+        (
+            "sharp (no glow, no bloom)",
+            Render {
+                glow: (0.0, 1.0),
+                bloom: (0.0, 1.0),
+                ..d
+            },
+        ),
+        ("noisy (σ 0.03)", Render { noise: 0.03, ..d }),
+        (
+            "faint (peak 0.25 over the environment, noisy)",
+            Render {
+                core_peak: 0.15,
+                glow: (0.1, 3.0),
+                bloom: (0.0, 1.0),
+                noise: 0.02,
+                ..d
+            },
+        ),
+    ];
+    let opts = CalibrationOptions::default();
+    for (name, opt) in variants {
+        let images = render_rig(&c, &lights, opt);
+        // The heavy bloom defeats the automatic sphere detection (a circle fitted to the
+        // halos; 25° errors), a question apart from the mirror tests: with the mask only.
+        let masks = if name == "heavy bloom" {
+            vec![Some(disc_mask(&c))]
+        } else {
+            vec![Some(disc_mask(&c)), None]
+        };
+        for mask in masks {
+            let cal = calibrate(&images, mask.as_deref(), None, &opts)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            let hl: Vec<_> = cal.lights.iter().map(|l| l.highlight.unwrap()).collect();
+            let conf: Vec<f64> = cal.lights.iter().map(|l| l.confidence).collect();
+            let fold = |v: &[f64]| {
+                (
+                    v.iter().cloned().fold(f64::INFINITY, f64::min),
+                    v.iter().cloned().fold(f64::NEG_INFINITY, f64::max),
+                )
+            };
+            let share = fold(&hl.iter().map(|h| 100.0 * h.disc_share).collect::<Vec<_>>());
+            let sig = fold(&hl.iter().map(|h| h.significance).collect::<Vec<_>>());
+            let cf = fold(&conf);
+            let (mean, _) = mean_error(&cal.to_lights().unwrap().directions, &lights);
+            println!(
+                "{name}, {}: disc share {:.2}–{:.2}%, significance {:.0}–{:.0}σ, confidence \
+                 {:.2}–{:.2}, mean error {mean:.3}°",
+                if mask.is_some() { "mask" } else { "detected" },
+                share.0,
+                share.1,
+                sig.0,
+                sig.1,
+                cf.0,
+                cf.1
+            );
+            assert!(
+                !cal.warnings.iter().any(|w| matches!(
+                    w.kind,
+                    WarningKind::NotMirror | WarningKind::Faint | WarningKind::LowConfidence
+                )),
+                "{name}: {:?}",
+                cal.warnings
+            );
+            assert!(mean < 0.5, "{name}: mean {mean:.3}°");
+        }
+    }
+}
+
+/// An 8-bit image of a matte (Lambertian) sphere under light `l`, on a dark background, with
+/// ambient light and noise.
+fn render_matte(c: &Circle, l: [f64; 3], seed: u64) -> Image {
+    let mut rng = Rng(seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1);
+    let data = (0..W * H)
+        .map(|i| {
+            let (row, col) = ((i / W) as f64, (i % W) as f64);
+            let v = match c.normal_at(col, row) {
+                Some(n) => 0.05 + 0.85 * (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]).max(0.0),
+                None => 0.03,
+            } + 0.01 * rng.gauss();
+            ((v.clamp(0.0, 1.0) * 255.0).round() / 255.0) as f32
+        })
+        .collect();
+    Image {
+        width: W,
+        height: H,
+        channels: 1,
+        bit_depth: 8,
+        data,
+    }
+}
+
+#[test]
+fn a_matte_sphere_is_refused() {
+    let c = sphere();
+    let lights = rig();
+    let images: Vec<Image> = lights
+        .iter()
+        .enumerate()
+        .map(|(k, &l)| render_matte(&c, l, k as u64 + 1))
+        .collect();
+    for mask in [Some(disc_mask(&c)), None] {
+        let e = calibrate(
+            &images,
+            mask.as_deref(),
+            None,
+            &CalibrationOptions::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        println!("{e}");
+        assert!(
+            e.contains("no confident highlight")
+                && e.contains("not the highlights of a mirror sphere")
+                && e.contains("in 12 of 12 images the brightest region covers"),
+            "{e}"
+        );
+    }
+    // With the floor at 0 it is accepted, every light warned of as not a mirror's highlight.
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions {
+            min_confidence: 0.0,
+            ..CalibrationOptions::default()
+        },
+    )
+    .unwrap();
+    for (k, l) in cal.lights.iter().enumerate() {
+        let h = l.highlight.unwrap();
+        println!(
+            "matte light {}: disc share {:.1}%, {:.0}σ",
+            k + 1,
+            100.0 * h.disc_share,
+            h.significance
+        );
+        assert_eq!(l.confidence, 0.0);
+        assert!(h.disc_share > 0.3, "{}", h.disc_share);
+        assert!(cal
+            .warnings
+            .iter()
+            .any(|w| w.image == Some(k) && w.kind == WarningKind::NotMirror));
+    }
+}
+
+/// Images of pure noise: uniform over [0, 1], and Gaussian about mid-grey with σ 0.1 and 0.2.
+fn noise_images(kind: usize) -> Vec<Image> {
+    let mut rng = Rng(41 + kind as u64);
+    (0..12)
+        .map(|_| {
+            let data = (0..W * H)
+                .map(|_| {
+                    let v = match kind {
+                        0 => rng.uniform(),
+                        1 => 0.5 + 0.1 * rng.gauss(),
+                        _ => 0.5 + 0.2 * rng.gauss(),
+                    };
+                    ((v.clamp(0.0, 1.0) * 255.0).round() / 255.0) as f32
+                })
+                .collect();
+            Image {
+                width: W,
+                height: H,
+                channels: 1,
+                bit_depth: 8,
+                data,
+            }
+        })
+        .collect()
+}
+
+#[test]
+fn pure_noise_is_refused() {
+    let c = sphere();
+    for kind in 0..3 {
+        let images = noise_images(kind);
+        let e = calibrate(
+            &images,
+            Some(&disc_mask(&c)),
+            None,
+            &CalibrationOptions::default(),
+        )
+        .unwrap_err()
+        .to_string();
+        println!("noise {kind}: {e}");
+        assert!(e.contains("no confident highlight"), "{e}");
+        // Without a mask the noise holds no sphere, or none with a highlight.
+        let e = calibrate(&images, None, None, &CalibrationOptions::default())
+            .unwrap_err()
+            .to_string();
+        println!("noise {kind}, no mask: {e}");
+        let cal = calibrate(
+            &images,
+            Some(&disc_mask(&c)),
+            None,
+            &CalibrationOptions {
+                min_confidence: 0.0,
+                ..CalibrationOptions::default()
+            },
+        )
+        .unwrap();
+        for l in &cal.lights {
+            if let Some(h) = l.highlight {
+                println!(
+                    "noise {kind}: disc share {:.2}%, {:.1}σ (σ {:.3}), confidence {:.2}",
+                    100.0 * h.disc_share,
+                    h.significance,
+                    h.noise,
+                    l.confidence
+                );
+                assert!(h.significance < 5.0 || h.disc_share > 0.1);
+            }
+            assert_eq!(l.confidence, 0.0);
+        }
+    }
+}
+
+#[test]
+fn a_weak_light_is_warned_of_and_a_bad_floor_is_a_parameter_error() {
+    let c = sphere();
+    let lights = rig();
+    let mut images = render_rig(&c, &lights, Render::default());
+    // Image 3 with a second highlight as strong as the first: uniqueness near 0.
+    images[2] = render_mirror(
+        &c,
+        &[
+            highlight_point(&c, lights[2]),
+            highlight_point(&c, light(30.0, 200.0)),
+        ],
+        Render::default(),
+        3,
+    );
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&c)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    println!("{:?}", cal.warnings);
+    let low: Vec<_> = cal
+        .warnings
+        .iter()
+        .filter(|w| w.kind == WarningKind::LowConfidence)
+        .collect();
+    assert_eq!(low.len(), 1, "{low:?}");
+    assert_eq!(low[0].image, Some(2));
+    assert!(
+        low[0].message.contains("low confidence") && low[0].message.contains("uniqueness"),
+        "{}",
+        low[0].message
+    );
+    assert!(cal.lights[2].confidence < 0.25);
+    assert!(cal.to_lights().is_ok());
+    let e = calibrate(
+        &images,
+        None,
+        None,
+        &CalibrationOptions {
+            min_confidence: 1.5,
+            ..CalibrationOptions::default()
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("min_confidence"), "{e}");
 }

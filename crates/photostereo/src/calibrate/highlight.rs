@@ -24,6 +24,26 @@ pub struct HighlightOptions {
     /// A saturated area larger than this share of the sphere's disc makes the highlight
     /// "clipped".
     pub max_saturated_share: f64,
+    /// A highlight blob covering more than this share of the sphere's disc is not a mirror's
+    /// highlight (0.1 by default). A mirror sphere shows a distant light of angular radius α as
+    /// a spot covering sin²(α/2) of the disc (near its centre): 10% is a light 74° across, far
+    /// beyond the small lights of photometric stereo, which leaves room for the camera's glow
+    /// and bloom and a clipped core (on the rendered 70 px spheres: 0.5% with the default glow
+    /// and bloom, 1.8% with a saturated core of radius 9 px, 4–5% with a bloom of σ 15 px). A
+    /// matte (Lambertian) sphere's brightest region, the pixels a fifth of the way from its
+    /// median to its peak, is the broad cosine lobe: 37–42% of the disc for any light slant
+    /// from 0° to 90° (gain, ambient light and the median's level cancel), 42–48% with a 1/2.2
+    /// gamma; `psmImages/gray` measures 27–41%. 10% sits a factor 2.7 below the least of these.
+    pub max_disc_share: f64,
+    /// Least height of the highlight's peak above the sphere's median, in units of the image
+    /// noise σ (5 by default). σ is estimated from the differences of adjacent pixels inside
+    /// the disc (1.4826 · median |a − b| / √2: insensitive to the smooth environment a mirror
+    /// reflects), at least the quantisation noise (one step / √12). The peak is reached by two
+    /// adjacent pixels; in pure Gaussian noise both exceed the median by 5σ with probability
+    /// about 4 · Φ(−5)² ≈ 3·10⁻¹³ per pixel, so no disc of noise passes (uniform and Gaussian
+    /// noise measure 1.6–3.4σ), while highlights stand tens to hundreds of σ out (12σ for a
+    /// faint rendered one, 883σ on `psmImages/chrome`).
+    pub min_significance: f64,
 }
 
 impl Default for HighlightOptions {
@@ -34,6 +54,8 @@ impl Default for HighlightOptions {
             level: 0.2,
             doubled_mass_share: 0.25,
             max_saturated_share: 0.005,
+            max_disc_share: 0.1,
+            min_significance: 5.0,
         }
     }
 }
@@ -59,6 +81,13 @@ pub struct Highlight {
     pub second_blob_share: f64,
     /// Centroid of the next brightest blob (column, row), when there is one.
     pub second_blob: Option<[f64; 2]>,
+    /// Pixels of the blob over the pixels of the sphere's disc, 0..1.
+    pub disc_share: f64,
+    /// Noise σ of the image inside the disc, image units: 1.4826 · median |a − b| / √2 over
+    /// horizontally and vertically adjacent pixels, at least one quantisation step / √12.
+    pub noise: f32,
+    /// (peak − background) / noise: how many σ the highlight stands above the sphere's median.
+    pub significance: f64,
 }
 
 /// The outcome of the search in one image.
@@ -116,7 +145,9 @@ pub fn find_highlight(image: &Image, circle: &Circle, opts: &HighlightOptions) -
     if inside.is_empty() {
         return HighlightSearch::Missing("the sphere's disc holds no pixel".into());
     }
+    let disc_pixels = inside.len();
     let background = median(&mut inside);
+    let noise = noise_sigma(&grey, bw, bh, image.bit_depth);
     // Robust peak: max over pixels of min(value, brightest 8-neighbour).
     let mut peak = f32::NEG_INFINITY;
     for r in 0..bh {
@@ -221,7 +252,41 @@ pub fn find_highlight(image: &Image, circle: &Circle, opts: &HighlightOptions) -
         compactness,
         second_blob_share,
         second_blob,
+        disc_share: best.pixels as f64 / disc_pixels as f64,
+        noise,
+        significance: ((peak - background) / noise) as f64,
     })
+}
+
+/// Noise σ of the grey values `grey` (a `bw` × `bh` box, NaN outside the disc): the robust σ
+/// of the differences of horizontally and vertically adjacent pixels inside the disc divided
+/// by √2 (1.4826 · median |a − b| / √2), which a smooth image hardly raises; at least the
+/// quantisation noise of `bit_depth` (one step / √12; 10⁻⁶ for float images).
+pub fn noise_sigma(grey: &[f32], bw: usize, bh: usize, bit_depth: u8) -> f32 {
+    let mut diffs = Vec::with_capacity(2 * grey.len());
+    for r in 0..bh {
+        for c in 0..bw {
+            let v = grey[r * bw + c];
+            if v.is_nan() {
+                continue;
+            }
+            if c + 1 < bw && !grey[r * bw + c + 1].is_nan() {
+                diffs.push((v - grey[r * bw + c + 1]).abs());
+            }
+            if r + 1 < bh && !grey[(r + 1) * bw + c].is_nan() {
+                diffs.push((v - grey[(r + 1) * bw + c]).abs());
+            }
+        }
+    }
+    let floor = match bit_depth {
+        8 => 1.0 / (255.0 * 12f32.sqrt()),
+        16 => 1.0 / (65535.0 * 12f32.sqrt()),
+        _ => 1e-6,
+    };
+    if diffs.is_empty() {
+        return floor;
+    }
+    (1.4826 * median(&mut diffs) / std::f32::consts::SQRT_2).max(floor)
 }
 
 const NEIGHBOURS: [(isize, isize); 8] = [

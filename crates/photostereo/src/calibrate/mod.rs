@@ -8,7 +8,9 @@
 //! n: l = 2 (n·v) n − v.
 //!
 //! The library returns problems with individual images as [`CalibrationWarning`] values; it never
-//! prints.
+//! prints. A capture in which no light's highlight is confident (confidence below
+//! [`CalibrationOptions::min_confidence`] in every image: a matte sphere, noise, no highlights)
+//! is refused with an error that says why.
 
 pub mod circle;
 pub mod highlight;
@@ -259,6 +261,16 @@ pub enum WarningKind {
     SphereCut,
     /// The automatically detected outline is irregular (a side never lit, clutter).
     RoughOutline,
+    /// The brightest blob covers more of the sphere than a mirror's highlight can
+    /// ([`HighlightOptions::max_disc_share`]): a matte sphere's shading, or a grossly
+    /// overexposed highlight. Its confidence is 0.
+    NotMirror,
+    /// The highlight does not stand [`HighlightOptions::min_significance`] noise σ above the
+    /// sphere's median: noise, not a highlight. Its confidence is 0.
+    Faint,
+    /// The light's confidence is below [`CalibrationOptions::min_confidence`] (for a reason
+    /// not already warned of as `missing`, `not_mirror` or `faint`).
+    LowConfidence,
 }
 
 /// A problem found during calibration.
@@ -279,6 +291,16 @@ pub struct CalibrationOptions {
     pub highlight: HighlightOptions,
     /// Highlights farther than this share of the radius from the centre are "near the rim".
     pub near_rim: f64,
+    /// A light is confident when its [`LightEstimate::confidence`] reaches this value (0.25 by
+    /// default); each light below it is warned of, and a capture without any confident light
+    /// is refused. The confidence is the product of five quality factors (and the 0-or-1
+    /// mirror test); 0.25 is all five at 3/4 (0.75⁵ ≈ 0.24), or one of them at a quarter: a
+    /// highlight at 97% of the radius (n_z 0.25, where a pixel of error turns the direction
+    /// four times as much as at the centre), or a second blob with three quarters of the
+    /// first's weight. Mirror spheres measure 0.60–0.71 (`psmImages/chrome`) and 0.38–0.80
+    /// (the rendered spheres with bloom, saturation, dust, noise, a faint highlight; 0.69–0.77
+    /// by default); a matte sphere and noise fail the mirror tests (0).
+    pub min_confidence: f64,
 }
 
 impl Default for CalibrationOptions {
@@ -286,6 +308,7 @@ impl Default for CalibrationOptions {
         CalibrationOptions {
             highlight: HighlightOptions::default(),
             near_rim: 0.95,
+            min_confidence: 0.25,
         }
     }
 }
@@ -305,6 +328,10 @@ pub struct ConfidenceParts {
     pub rim: f64,
     /// 1 − (mass of the second blob / mass of the first).
     pub uniqueness: f64,
+    /// 1 when the blob passes the mirror tests (it covers at most
+    /// [`HighlightOptions::max_disc_share`] of the disc and stands at least
+    /// [`HighlightOptions::min_significance`] noise σ above the median), else 0.
+    pub mirror: f64,
 }
 
 /// One image's calibrated light.
@@ -316,9 +343,10 @@ pub struct LightEstimate {
     pub normal: Option<[f64; 3]>,
     /// Unit light direction (camera frame, toward the light), when found.
     pub direction: Option<[f64; 3]>,
-    /// Confidence in [0, 1] (0 when missing): the product of [`ConfidenceParts`]. A relative
-    /// figure for comparing the lights of one capture (1 = a round, unsaturated, unique
-    /// highlight at the sphere's centre), not a probability.
+    /// Confidence in [0, 1] (0 when missing, or when the blob fails the mirror tests): the
+    /// product of [`ConfidenceParts`]. A relative figure for comparing the lights of one
+    /// capture (1 = a round, unsaturated, unique highlight at the sphere's centre), not a
+    /// probability; below [`CalibrationOptions::min_confidence`] the light is warned of.
     pub confidence: f64,
     /// The factors of the confidence, when found.
     pub confidence_parts: Option<ConfidenceParts>,
@@ -352,7 +380,11 @@ pub fn reflect_view(n: [f64; 3]) -> [f64; 3] {
 
 /// Calibrates light directions from images of a mirror sphere. The sphere's outline is fitted
 /// to `mask` when given, else detected from the images. Errors concern the sphere as a whole
-/// (no images, mismatched sizes, no usable outline); problems with single images are warnings.
+/// (no images, mismatched sizes, no usable outline, `min_confidence` outside [0, 1]) or the
+/// capture as a whole: when no image has a highlight with confidence at least
+/// [`CalibrationOptions::min_confidence`] (a matte sphere, noise, no highlights), the error
+/// says why. Problems with single images are warnings, among them every light below that
+/// confidence.
 pub fn calibrate(
     images: &[Image],
     mask: Option<&[bool]>,
@@ -362,6 +394,12 @@ pub fn calibrate(
     let first = images
         .first()
         .ok_or_else(|| Error::invalid("no sphere image given"))?;
+    if !(0.0..=1.0).contains(&options.min_confidence) {
+        return Err(Error::parameter(
+            "min_confidence",
+            format!("{}: expected a value in [0, 1]", options.min_confidence),
+        ));
+    }
     let (w, h) = (first.width, first.height);
     for (k, img) in images.iter().enumerate() {
         if (img.width, img.height) != (w, h) {
@@ -481,15 +519,74 @@ pub fn calibrate(
                 ),
             });
         }
+        let broad = hl.disc_share > options.highlight.max_disc_share;
+        if broad {
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::NotMirror,
+                message: format!(
+                    "not a mirror sphere's highlight: the brightest region covers {:.1}% of the \
+                     sphere's disc, a mirror's highlight of a small light at most {:.0}% (a matte \
+                     sphere's shading, or a grossly overexposed highlight?); confidence 0",
+                    100.0 * hl.disc_share,
+                    100.0 * options.highlight.max_disc_share
+                ),
+            });
+        }
+        let faint =
+            hl.significance.is_nan() || hl.significance < options.highlight.min_significance;
+        if faint {
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::Faint,
+                message: format!(
+                    "no highlight stands out of the noise: the brightest spot is {:.1}σ above the \
+                     sphere's median (σ = {:.4}), at least {:.0}σ expected; confidence 0",
+                    hl.significance, hl.noise, options.highlight.min_significance
+                ),
+            });
+        }
         let parts = ConfidenceParts {
             contrast: (((hl.peak - hl.background) / hl.peak.max(1e-6)) as f64).clamp(0.0, 1.0),
             compactness: hl.compactness.clamp(0.0, 1.0).sqrt(),
             saturation: 1.0 - 0.25 * hl.saturated as f64 / hl.pixels.max(1) as f64,
             rim: nz,
             uniqueness: (1.0 - hl.second_blob_share).clamp(0.0, 1.0),
+            mirror: if broad || faint { 0.0 } else { 1.0 },
         };
-        let confidence =
-            parts.contrast * parts.compactness * parts.saturation * parts.rim * parts.uniqueness;
+        let confidence = parts.contrast
+            * parts.compactness
+            * parts.saturation
+            * parts.rim
+            * parts.uniqueness
+            * parts.mirror;
+        if confidence < options.min_confidence && !broad && !faint {
+            let factors = [
+                ("contrast", parts.contrast),
+                ("compactness", parts.compactness),
+                ("saturation", parts.saturation),
+                ("rim", parts.rim),
+                ("uniqueness", parts.uniqueness),
+            ];
+            let weak: Vec<String> = factors
+                .iter()
+                .filter(|(_, v)| *v < 0.75)
+                .map(|(n, v)| format!("{n} {v:.2}"))
+                .collect();
+            warnings.push(CalibrationWarning {
+                image: Some(k),
+                kind: WarningKind::LowConfidence,
+                message: format!(
+                    "low confidence {confidence:.2} (below {:.2}){}: check this light's direction",
+                    options.min_confidence,
+                    if weak.is_empty() {
+                        String::new()
+                    } else {
+                        format!("; weak factors: {}", weak.join(", "))
+                    }
+                ),
+            });
+        }
         lights.push(LightEstimate {
             highlight: Some(hl),
             normal: Some(normal),
@@ -497,6 +594,12 @@ pub fn calibrate(
             confidence,
             confidence_parts: Some(parts),
         });
+    }
+    if !lights
+        .iter()
+        .any(|l| l.direction.is_some() && l.confidence >= options.min_confidence)
+    {
+        return Err(Error::invalid(refusal(&lights, &warnings, options)));
     }
     Ok(Calibration {
         width: w,
@@ -506,6 +609,88 @@ pub fn calibrate(
         lights,
         warnings,
     })
+}
+
+/// Why no light of a capture is confident: the image counts and figures of each kind of
+/// failure, for the error that refuses the capture.
+fn refusal(
+    lights: &[LightEstimate],
+    warnings: &[CalibrationWarning],
+    options: &CalibrationOptions,
+) -> String {
+    let n = lights.len();
+    let of_kind = |kind: WarningKind| -> Vec<usize> {
+        warnings
+            .iter()
+            .filter(|w| w.kind == kind)
+            .filter_map(|w| w.image)
+            .collect()
+    };
+    let range = |v: Vec<f64>, digits: usize| -> String {
+        let lo = v.iter().cloned().fold(f64::INFINITY, f64::min);
+        let hi = v.iter().cloned().fold(f64::NEG_INFINITY, f64::max);
+        if format!("{lo:.digits$}") == format!("{hi:.digits$}") {
+            format!("{lo:.digits$}")
+        } else {
+            format!("{lo:.digits$}–{hi:.digits$}")
+        }
+    };
+    let highlights = |images: &[usize]| -> Vec<Highlight> {
+        images.iter().filter_map(|&k| lights[k].highlight).collect()
+    };
+    let mut why = Vec::new();
+    let broad = of_kind(WarningKind::NotMirror);
+    if !broad.is_empty() {
+        why.push(format!(
+            "in {} of {n} images the brightest region covers {}% of the \
+             sphere's disc, where a mirror sphere's highlight of a small light covers at most {:.0}% (a matte sphere?)",
+            broad.len(),
+            range(
+                highlights(&broad)
+                    .iter()
+                    .map(|h| 100.0 * h.disc_share)
+                    .collect(),
+                1
+            ),
+            100.0 * options.highlight.max_disc_share
+        ));
+    }
+    let faint = of_kind(WarningKind::Faint);
+    if !faint.is_empty() {
+        why.push(format!(
+            "in {} of {n} images the brightest spot stands only {}σ above the sphere's median, at \
+             least {:.0}σ expected (noise?)",
+            faint.len(),
+            range(
+                highlights(&faint).iter().map(|h| h.significance).collect(),
+                1
+            ),
+            options.highlight.min_significance
+        ));
+    }
+    let missing = of_kind(WarningKind::Missing);
+    if let Some(first) = warnings.iter().find(|w| w.kind == WarningKind::Missing) {
+        why.push(format!(
+            "in {} of {n} images no highlight was found (image {}: {})",
+            missing.len(),
+            first.image.map_or(0, |k| k + 1),
+            first.message
+        ));
+    }
+    let low = of_kind(WarningKind::LowConfidence);
+    if !low.is_empty() {
+        why.push(format!(
+            "in {} of {n} images the confidence is only {}",
+            low.len(),
+            range(low.iter().map(|&k| lights[k].confidence).collect(), 2)
+        ));
+    }
+    format!(
+        "no confident highlight: no sphere image has a highlight with confidence at least {:.2}, \
+         so these are not the highlights of a mirror sphere under small lights; {}",
+        options.min_confidence,
+        why.join("; ")
+    )
 }
 
 impl Calibration {

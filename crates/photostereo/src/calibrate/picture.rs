@@ -91,6 +91,9 @@ pub fn calibration_figure(images: &[Image], cal: &Calibration) -> Canvas {
                 WarningKind::NearRim => "RIM",
                 WarningKind::SphereCut => "CUT",
                 WarningKind::RoughOutline => "ROUGH",
+                WarningKind::NotMirror => "BROAD",
+                WarningKind::Faint => "FAINT",
+                WarningKind::LowConfidence => "LOW",
             })
             .collect();
         if !flags.is_empty() {
