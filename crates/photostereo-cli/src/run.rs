@@ -45,9 +45,11 @@ pub struct RunArgs {
     /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
     #[arg(long)]
     pub sigma: Option<f64>,
-    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²).
-    #[arg(long, default_value_t = photostereo::detect::DEFAULT_RELATIVE_NOISE)]
-    pub relative_noise: f64,
+    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
+    /// share, or `measured` to measure it on the capture (report.json: detection.noise.kappa,
+    /// and detection.kappa_measured in every run).
+    #[arg(long, default_value = "0.01", value_parser = parse_relative_noise)]
+    pub relative_noise: RelativeNoise,
     /// Confidence of the χ² test for non-Lambertian pixels.
     #[arg(long, default_value_t = defaults().detection.confidence)]
     pub confidence: f64,
@@ -159,7 +161,7 @@ pub fn params(a: &RunArgs) -> Params {
         method: a.method,
         detection: DetectionParams {
             sigma: a.sigma,
-            relative_noise: Some(a.relative_noise),
+            relative_noise: a.relative_noise.0,
             confidence: a.confidence,
             ..d.detection
         },
@@ -242,4 +244,17 @@ pub fn main(a: RunArgs) -> Result<()> {
         println!("wrote {} in {:.2} s", a.output.display(), total);
     }
     Ok(())
+}
+
+/// `--relative-noise`: a share, or `measured` (None).
+#[derive(Clone, Copy, Debug)]
+pub struct RelativeNoise(pub Option<f64>);
+
+fn parse_relative_noise(s: &str) -> std::result::Result<RelativeNoise, String> {
+    if s == "measured" {
+        return Ok(RelativeNoise(None));
+    }
+    s.parse::<f64>()
+        .map(|v| RelativeNoise(Some(v)))
+        .map_err(|_| format!("{s}: expected a share such as 0.01, or `measured`"))
 }
