@@ -232,7 +232,7 @@ impl Detection {
                 kappa: params.relative_noise.unwrap_or(0.0),
                 estimated: params.sigma.is_none(),
                 kappa_estimated: false,
-                floor: dark_floor(capture),
+                floor: dark_floor(capture).min(params.shadow_sigmas * sigma0),
             },
             threshold: f64::INFINITY,
             params: params.clone(),
@@ -653,7 +653,6 @@ pub fn noise_model(
 ) -> Result<NoiseModel> {
     params.validate()?;
     let c = capture.channels;
-    let floor = dark_floor(capture);
     let sigma0 = match params.sigma {
         Some(s) => Some(s / (c as f64).sqrt()),
         None if params.noise_estimate == NoiseEstimate::Images => {
@@ -663,13 +662,16 @@ pub fn noise_model(
     };
     let Some(sigma0) = sigma0 else {
         let mut noise = residual_noise_model(capture, params)?;
-        noise.floor = floor;
+        noise.floor = dark_floor(capture).min(params.shadow_sigmas * noise.sigma0);
         if let Some(k) = params.relative_noise {
             noise.kappa = k;
             noise.kappa_estimated = false;
         }
         return Ok(noise);
     };
+    // The quantile measures lit readings when no image leaves part of the object in shadow:
+    // the floor never exceeds what the sensor noise alone puts on a black reading.
+    let floor = dark_floor(capture).min(params.shadow_sigmas * sigma0);
     let (kappa, kappa_estimated) = match params.relative_noise {
         Some(k) => (k, false),
         None => (estimate_kappa(capture, sigma0, floor, params), true),
@@ -690,7 +692,8 @@ pub const DEFAULT_RELATIVE_NOISE: f64 = 0.01;
 /// (a regular sample of at most 4096) mask pixels — the level of its shadowed pixels — and the
 /// smallest of these over the images (an image whose light leaves no part of the object in
 /// shadow has a higher quantile; the smallest is the conservative choice: fewer readings count
-/// as shadow). Never negative.
+/// as shadow). Never negative. The noise model caps it at `shadow_sigmas · σ₀`: on a capture
+/// where no image leaves any part of the object in shadow the quantile is a lit reading.
 pub fn dark_floor(capture: &Capture) -> f64 {
     let np = capture.n_pixels();
     if np == 0 {
