@@ -45,9 +45,11 @@ pub struct RunArgs {
     /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
     #[arg(long)]
     pub sigma: Option<f64>,
-    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²).
-    #[arg(long, default_value_t = photostereo::detect::DEFAULT_RELATIVE_NOISE)]
-    pub relative_noise: f64,
+    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
+    /// share, or `measured` to measure it on the capture (report.json: detection.noise.kappa,
+    /// and detection.kappa_measured in every run).
+    #[arg(long, default_value = "0.01", value_parser = parse_relative_noise)]
+    pub relative_noise: RelativeNoise,
     /// Confidence of the χ² test for non-Lambertian pixels.
     #[arg(long, default_value_t = defaults().detection.confidence)]
     pub confidence: f64,
@@ -112,7 +114,7 @@ pub fn params(a: &RunArgs) -> Params {
         method: a.method,
         detection: DetectionParams {
             sigma: a.sigma,
-            relative_noise: Some(a.relative_noise),
+            relative_noise: a.relative_noise.0,
             confidence: a.confidence,
             ..d.detection
         },
@@ -178,6 +180,17 @@ pub fn main(a: RunArgs) -> Result<()> {
         .map_err(crate::common::flag_error)?;
     let r = &rec.report;
     if a.out.json {
+        // The JSON on stdout holds every note; a recursion that did not settle is also said
+        // on stderr.
+        if r.extra.get("recursive").and_then(|v| v.get("converged")) == Some(&false.into()) {
+            for n in r
+                .notes
+                .iter()
+                .filter(|n| n.starts_with("recursive: not converged"))
+            {
+                eprintln!("note: {n}");
+            }
+        }
         let mut v = serde_json::to_value(r)?;
         v["output"] = serde_json::Value::from(a.output.display().to_string());
         print_json(&v);
@@ -222,4 +235,17 @@ pub fn main(a: RunArgs) -> Result<()> {
         println!("wrote {} in {:.2} s", a.output.display(), total);
     }
     Ok(())
+}
+
+/// `--relative-noise`: a share, or `measured` (None).
+#[derive(Clone, Copy, Debug)]
+pub struct RelativeNoise(pub Option<f64>);
+
+fn parse_relative_noise(s: &str) -> std::result::Result<RelativeNoise, String> {
+    if s == "measured" {
+        return Ok(RelativeNoise(None));
+    }
+    s.parse::<f64>()
+        .map(|v| RelativeNoise(Some(v)))
+        .map_err(|_| format!("{s}: expected a share such as 0.01, or `measured`"))
 }

@@ -105,6 +105,12 @@ fn diligent_recursive_beats_the_bounds() {
         assert_eq!(v["method"], "recursive");
         let mean = v["error"]["mean_deg"].as_f64().unwrap();
         assert!(mean <= bound, "{object}: {mean} > {bound}");
+        // Shadow labels mean shadow (issue 19): few of them read lit.
+        let lit = v["detection"]["shadow_labels"]["lit"].as_f64().unwrap();
+        assert!(lit < 0.2, "{object}: {lit} of the shadow pairs read lit");
+        // The recursion says whether it settled, and why it stopped (issue 17).
+        assert!(v["recursive"]["converged"].is_boolean());
+        assert!(!v["recursive"]["stop_reason"].as_str().unwrap().is_empty());
         let iterations = v["recursive"]["iterations"].as_array().unwrap();
         assert!(!iterations.is_empty() && iterations[0]["mean_error_deg"].as_f64().is_some());
         let status: ndarray::Array3<u8> =

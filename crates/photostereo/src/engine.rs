@@ -262,6 +262,12 @@ pub fn reconstruct_with_truth(
                 "threshold_chi2": d.threshold,
                 "confidence": d.params.confidence,
                 "unreliable_share": d.unreliable_share(),
+                "kappa_measured": crate::detect::estimate_kappa(
+                    capture, d.noise.sigma0, d.noise.floor, &d.params
+                ),
+                "shadow_labels": estimate.light_status.as_ref().map(|s| {
+                    crate::lambert::shadow_labels(capture, &estimate, s)
+                }),
             }),
         );
     }
@@ -312,8 +318,14 @@ pub fn reconstruct_with_truth(
                 "iterations": d.iterations,
                 "fewer_than_three_pixels": few,
                 "fallback": d.fallback,
+                "converged": d.converged,
+                "final_change": d.final_change,
+                "stop_reason": d.stop_reason,
             }),
         );
+        if !d.converged {
+            report.notes.push(format!("recursive: {}", d.stop_reason));
+        }
         report
             .extra
             .insert("fewer_than_three_pixels".into(), few.into());

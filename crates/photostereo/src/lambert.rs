@@ -269,3 +269,62 @@ impl<'a> SubsetCache<'a> {
 pub fn usable(light_status: &[u8]) -> Vec<bool> {
     light_status.iter().map(|&s| s == status::USED).collect()
 }
+
+/// What a method's "shadow" labels mean, measured against its own Lambertian fit: of the
+/// (pixel, light) pairs labelled [`status::SHADOW`], the share that face away from the light
+/// (n · l ≤ 0 with the final normal) and the share that read more than half of the prediction
+/// ρ · n · l (grey albedo and normal of the estimate) — lit readings a shadow label should not
+/// have taken.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct ShadowLabels {
+    /// Pairs labelled shadow.
+    pub pairs: usize,
+    /// Share of all (pixel, light) pairs labelled shadow.
+    pub share_of_all: f64,
+    /// Share of the shadow pairs with n · l ≤ 0.
+    pub facing_away: f64,
+    /// Share of the shadow pairs reading more than half of the Lambertian prediction.
+    pub lit: f64,
+}
+
+/// [`ShadowLabels`] of an estimate with per-light statuses (`light_status`, per mask pixel).
+pub fn shadow_labels(capture: &Capture, est: &Estimate, light_status: &[u8]) -> ShadowLabels {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let (pairs, away, lit) = (0..capture.n_pixels())
+        .into_par_iter()
+        .map_init(
+            || vec![0f64; n],
+            |grey, p| {
+                let st = &light_status[p * n..(p + 1) * n];
+                if !st.contains(&status::SHADOW) {
+                    return (0usize, 0usize, 0usize);
+                }
+                channel_mean(capture.pixel_samples(p), c, grey);
+                let nrm = est.normals[p];
+                let rho = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() as f64 / c as f64;
+                let (mut pairs, mut away, mut lit) = (0, 0, 0);
+                for (k, l) in capture.lights.directions.iter().enumerate() {
+                    if st[k] != status::SHADOW {
+                        continue;
+                    }
+                    pairs += 1;
+                    let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                    if s <= 0.0 {
+                        away += 1;
+                    } else if grey[k] > 0.5 * rho * s {
+                        lit += 1;
+                    }
+                }
+                (pairs, away, lit)
+            },
+        )
+        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+    let d = pairs.max(1) as f64;
+    ShadowLabels {
+        pairs,
+        share_of_all: pairs as f64 / (n * capture.n_pixels()).max(1) as f64,
+        facing_away: away as f64 / d,
+        lit: lit as f64 / d,
+    }
+}

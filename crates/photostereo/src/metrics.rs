@@ -129,6 +129,121 @@ pub fn median(v: &mut [f64]) -> f64 {
     }
 }
 
+/// `mask` (`width * height`, row-major) eroded by a square of radius `r`: a pixel stays when
+/// every pixel within `r` rows and columns is inside the mask (and inside the frame).
+pub fn erode(mask: &[bool], width: usize, height: usize, r: usize) -> Vec<bool> {
+    let mut out = vec![false; mask.len()];
+    for row in r..height.saturating_sub(r) {
+        for col in r..width.saturating_sub(r) {
+            out[row * width + col] = (row - r..=row + r).all(|rr| {
+                mask[rr * width + col - r..=rr * width + col + r]
+                    .iter()
+                    .all(|&m| m)
+            });
+        }
+    }
+    out
+}
+
+/// Roughness of a normal map: the mean angle (degrees) between each normal and the normalised
+/// average of the normals in its 5×5 window, over the pixels of `mask` eroded by 3 px (so that
+/// the outline does not count) whose normal is defined. A smooth surface scores near zero;
+/// speckle (isolated pixels with a different normal) raises it.
+pub fn roughness_deg(normals: &[[f32; 3]], mask: &[bool], width: usize, height: usize) -> f64 {
+    let inner = erode(mask, width, height, 3);
+    let (mut sum, mut count) = (0.0, 0usize);
+    for row in 2..height.saturating_sub(2) {
+        for col in 2..width.saturating_sub(2) {
+            let i = row * width + col;
+            if !inner[i] || normals[i] == [0.0; 3] {
+                continue;
+            }
+            let mut avg = [0f64; 3];
+            for rr in row - 2..=row + 2 {
+                for cc in col - 2..=col + 2 {
+                    let j = rr * width + cc;
+                    if mask[j] {
+                        for (a, v) in avg.iter_mut().zip(normals[j]) {
+                            *a += v as f64;
+                        }
+                    }
+                }
+            }
+            let a = [avg[0] as f32, avg[1] as f32, avg[2] as f32];
+            sum += angular_error_deg(normals[i], a);
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
+
+/// The sphere whose outline best fits the mask's (least-squares circle through the mask's
+/// boundary pixels): (centre column, centre row, radius), pixel units.
+pub fn circle_from_mask(mask: &[bool], width: usize, height: usize) -> Option<(f64, f64, f64)> {
+    // Kåsa fit: x² + y² = 2a x + 2b y + c, linear in (a, b, c).
+    let mut ata = nalgebra::Matrix3::<f64>::zeros();
+    let mut atb = nalgebra::Vector3::<f64>::zeros();
+    let inside = |r: isize, c: isize| {
+        r >= 0
+            && c >= 0
+            && (r as usize) < height
+            && (c as usize) < width
+            && mask[r as usize * width + c as usize]
+    };
+    for row in 0..height as isize {
+        for col in 0..width as isize {
+            if !inside(row, col) {
+                continue;
+            }
+            let edge = !inside(row - 1, col)
+                || !inside(row + 1, col)
+                || !inside(row, col - 1)
+                || !inside(row, col + 1);
+            if edge {
+                let (x, y) = (col as f64, row as f64);
+                let v = nalgebra::Vector3::new(2.0 * x, 2.0 * y, 1.0);
+                ata += v * v.transpose();
+                atb += v * (x * x + y * y);
+            }
+        }
+    }
+    let s = ata.try_inverse()? * atb;
+    let r2 = s.z + s.x * s.x + s.y * s.y;
+    // The boundary pixels lie half a pixel inside the true outline.
+    (r2 > 0.0).then(|| (s.x, s.y, r2.sqrt() + 0.5))
+}
+
+/// Angular errors (degrees) of `normals` against the sphere (centre column `cx`, row `cy`,
+/// radius `radius`) over the pixels within `inner · radius` of the centre with a defined normal.
+pub fn sphere_errors(
+    normals: &[[f32; 3]],
+    width: usize,
+    (cx, cy, radius): (f64, f64, f64),
+    inner: f64,
+) -> Vec<f64> {
+    let mut out = Vec::new();
+    for (i, n) in normals.iter().enumerate() {
+        let (x, y) = ((i % width) as f64 - cx, (i / width) as f64 - cy);
+        let (u, v) = (x / radius, -y / radius);
+        if (u * u + v * v).sqrt() > inner || *n == [0.0; 3] {
+            continue;
+        }
+        let g = [
+            u as f32,
+            v as f32,
+            (1.0 - u * u - v * v).max(0.0).sqrt() as f32,
+        ];
+        out.push(angular_error_deg(*n, g));
+    }
+    out
+}
+
+/// The q-quantile (nearest rank) of a non-empty slice (reorders it).
+pub fn quantile(v: &mut [f64], q: f64) -> f64 {
+    let k = ((v.len() as f64 * q) as usize).min(v.len() - 1);
+    *v.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -145,6 +145,13 @@ pub struct RecursiveDiagnostics {
     pub trust: Vec<f32>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,
+    /// Whether the usable-light sets settled: changed at fewer than `change_tolerance` of the
+    /// pixels before the iteration limit.
+    pub converged: bool,
+    /// The share of pixels whose usable-light set changed in the last iteration.
+    pub final_change: f64,
+    /// Why the recursion stopped, in words.
+    pub stop_reason: String,
 }
 
 /// The normals, albedo and light statuses of a recursive run, and its diagnostics.
@@ -250,6 +257,7 @@ pub fn recursive(
     };
     let detect_seconds = detect_start.elapsed().as_secs_f64();
     let unreliable = detection.unreliable.clone();
+    let noise = detection.noise;
     let mut light_status = detection.light_status.clone();
     let mut est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
     // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
@@ -264,6 +272,12 @@ pub fn recursive(
     let truth_masked: Option<Vec<[f32; 3]>> =
         truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
     progress.begin("recursive", params.max_iterations as u64);
+    // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
+    // iteration that reached the smallest change so far (stall detection).
+    let mut seen: Vec<u64> = vec![fingerprint(&light_status)];
+    let mut best_change = (f64::INFINITY, 0usize);
+    let mut converged = false;
+    let mut stop_reason = String::new();
     for iteration in 1..=params.max_iterations {
         crate::progress::check_cancelled(progress)?;
         let start = Instant::now();
@@ -318,14 +332,19 @@ pub fn recursive(
                         let p = chunk * CHUNK + dp;
                         let pix = capture.pixels[p] as usize;
                         let s = &mut st[dp * n..(dp + 1) * n];
+                        channel_mean(capture.pixel_samples(p), c, grey);
+                        // A light in the surface's shadow is dropped when its reading agrees
+                        // (at the shadow level); a clearly lit reading says the surface is off
+                        // there, and the light stays for the test to judge.
+                        let level = grey.iter().sum::<f64>() / n as f64;
+                        let dark = noise.shadow_level(detection_params, level);
                         let mut shadowed = 0;
                         for (k, sk) in s.iter_mut().enumerate() {
-                            if maps.is_shadowed(k, pix) {
+                            if maps.is_shadowed(k, pix) && grey[k] <= dark {
                                 *sk = status::SHADOW;
                                 shadowed += 1;
                             }
                         }
-                        channel_mean(capture.pixel_samples(p), c, grey);
                         let count = if let (true, Some(att), Some(scratch)) =
                             (unreliable[p], &attributor, scratch.as_mut())
                         {
@@ -382,12 +401,59 @@ pub fn recursive(
         };
         on_iteration(&record);
         progress.advance(1);
-        let done = record.changed_share < params.change_tolerance;
+        let change = record.changed_share;
+        let done = change < params.change_tolerance;
         records.push(record);
         last_maps = Some(maps);
         last_depth = depth.values;
         if done {
+            converged = true;
+            stop_reason = format!(
+                "converged after {iteration} iterations: {:.2}% of the pixels changed their usable lights (tolerance {:.2}%)",
+                100.0 * change,
+                100.0 * params.change_tolerance
+            );
             break;
+        }
+        // The same usable-light sets as an earlier iteration (not the last one: that would be
+        // no change): the recursion cycles and would never settle.
+        let print = fingerprint(&light_status);
+        if seen.last() == Some(&print) {
+            // Only labels changed: the usable sets, hence the estimate, are settled.
+            converged = true;
+            stop_reason = format!(
+                "converged after {iteration} iterations: the usable-light sets did not change"
+            );
+            break;
+        }
+        if let Some(at) = seen.iter().rposition(|&f| f == print) {
+            stop_reason = format!(
+                "not converged: iteration {iteration} repeats the usable-light sets of iteration {at} (a cycle of period {}); {:.2}% of the pixels change per iteration against a tolerance of {:.2}%",
+                iteration - at,
+                100.0 * change,
+                100.0 * params.change_tolerance
+            );
+            break;
+        }
+        seen.push(print);
+        if change < best_change.0 {
+            best_change = (change, iteration);
+        } else if iteration - best_change.1 >= STALL_ITERATIONS {
+            stop_reason = format!(
+                "not converged: the change has not fallen below its smallest value ({:.2}% at iteration {}) for {STALL_ITERATIONS} iterations; {:.2}% of the pixels change per iteration against a tolerance of {:.2}%",
+                100.0 * best_change.0,
+                best_change.1,
+                100.0 * change,
+                100.0 * params.change_tolerance
+            );
+            break;
+        }
+        if iteration == params.max_iterations {
+            stop_reason = format!(
+                "not converged: stopped at the iteration limit ({iteration}) with {:.2}% of the pixels changing their usable lights (tolerance {:.2}%)",
+                100.0 * change,
+                100.0 * params.change_tolerance
+            );
         }
     }
     progress.end();
@@ -405,8 +471,11 @@ pub fn recursive(
         fewer_than_three: capture.scatter(&few, 1, false),
         depth: last_depth,
         reliable: capture.scatter(&consistent, 1, false),
+        final_change: records.last().map_or(0.0, |r| r.changed_share),
         iterations: records,
         fallback: params.fallback,
+        converged,
+        stop_reason,
     };
     est.light_status = Some(light_status);
     Ok(RecursiveResult {
@@ -415,6 +484,24 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// Iterations without a new smallest change after which the recursion is declared stalled
+/// (it wanders between nearly the same sets without settling).
+pub const STALL_ITERATIONS: usize = 10;
+
+/// A fingerprint of per-pixel light statuses (usable or not), for cycle detection.
+fn fingerprint(light_status: &[u8]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for chunk in light_status.chunks(64) {
+        let mut bits = 0u64;
+        for (i, &s) in chunk.iter().enumerate() {
+            bits |= u64::from(s == status::USED) << i;
+        }
+        bits.hash(&mut h);
+    }
+    h.finish()
 }
 
 /// The recursion's integration trust per mask pixel: 1 where the usable lights pass the test

@@ -42,6 +42,7 @@ impl Default for ColemanJain {
 
 /// Least-squares state over a set of kept lights, with O(N) leave-one-out albedos
 /// (m₋ₖ = m − G⁻¹ lₖ eₖ / (1 − hₖ), the standard deletion formula).
+#[derive(Clone)]
 struct Fit<'a> {
     directions: &'a [[f64; 3]],
     gram: Matrix3<f64>,
@@ -204,18 +205,42 @@ impl Estimator for ColemanJain {
                         kept.fill(true);
                         let mut fit = Fit::new(dirs, kept, grey);
                         let mut count = n;
+                        let level = grey.iter().sum::<f64>() / n as f64;
+                        let dark = noise.shadow_level(&self.params, level);
                         while count > min_kept {
                             let Some(f) = fit.as_mut() else { break };
                             match f.spread(kept, grey) {
                                 Some((sp, k)) if sp > threshold => {
-                                    st[dp * n + k] = status::HIGHLIGHT;
-                                    count -= 1;
-                                    if f.remove(k, kept, grey).is_none() {
-                                        fit = None;
+                                    // A removal that would leave the lights unable to
+                                    // determine a normal is not made: the pixel keeps the
+                                    // last determined subset (at worst a triplet).
+                                    let before = f.clone();
+                                    if f.remove(k, kept, grey).is_none() || f.m.norm() <= 1e-12 {
+                                        kept[k] = true;
+                                        *f = before;
+                                        break;
                                     }
+                                    // The method knows highlights only, but a reading at the
+                                    // shadow level (also where the fit predicts a negative
+                                    // value: an attached shadow) is labelled a shadow.
+                                    st[dp * n + k] = if grey[k] <= dark {
+                                        status::SHADOW
+                                    } else {
+                                        status::HIGHLIGHT
+                                    };
+                                    count -= 1;
                                 }
                                 _ => break,
                             }
+                        }
+                        if fit.as_ref().is_some_and(|f| f.m.norm() <= 1e-12) {
+                            fit = None;
+                        }
+                        if fit.is_none() {
+                            // Fall back to all lights.
+                            kept.fill(true);
+                            st[dp * n..(dp + 1) * n].fill(status::USED);
+                            fit = Fit::new(dirs, kept, grey);
                         }
                         let out_a = &mut alb[dp * c..(dp + 1) * c];
                         match &fit {

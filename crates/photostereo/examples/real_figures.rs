@@ -1,0 +1,157 @@
+//! The figures of the real captures in `../shared/data` (issue 19): per capture and method the
+//! mean error against ground truth (DiLiGenT), the roughness (psmImages) and the `gray`
+//! sphere's error against the sphere fitted to its outline, the noise model, the unreliable
+//! share, what the shadow labels mean, and the recursion's convergence.
+//!
+//! `cargo run --release -p photostereo --example real_figures [-- OBJECT... [--method M]...]`
+//! with objects among ball bear cat buddha cat-psm gray horse owl rock (default: all) and
+//! methods among l2 coleman-jain barsky-petrou recursive (default: all).
+
+use photostereo::capture::CaptureFiles;
+use photostereo::engine::{reconstruct, Method, Params};
+use photostereo::groundtruth::read_normal_map;
+use photostereo::lambert::{shadow_labels, Estimate};
+use photostereo::metrics::{circle_from_mask, evaluate, quantile, roughness_deg, sphere_errors};
+use photostereo::progress::Silent;
+use std::path::PathBuf;
+use std::time::Instant;
+
+fn data() -> PathBuf {
+    PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data"))
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut objects = Vec::new();
+    let mut methods = Vec::new();
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        if a == "--method" {
+            methods.push(it.next().unwrap().parse::<Method>().unwrap());
+        } else {
+            objects.push(a.clone());
+        }
+    }
+    if objects.is_empty() {
+        objects = [
+            "ball", "bear", "cat", "buddha", "cat-psm", "gray", "horse", "owl", "rock",
+        ]
+        .map(String::from)
+        .to_vec();
+    }
+    if methods.is_empty() {
+        methods = Method::ALL.to_vec();
+    }
+    for object in &objects {
+        let (files, truth) = if ["ball", "bear", "cat"].contains(&object.as_str()) {
+            let dir = data().join(format!("diligent/{object}PNG"));
+            (
+                CaptureFiles::diligent(&dir).unwrap(),
+                Some(read_normal_map(&dir.join("Normal_gt.mat")).unwrap()),
+            )
+        } else {
+            let name = object.trim_end_matches("-psm");
+            (
+                CaptureFiles::list_file(
+                    &data().join(format!("psmImages/{name}.txt")),
+                    &data().join("psmImages/lights.reference.txt"),
+                )
+                .unwrap(),
+                None,
+            )
+        };
+        let capture = files.load(&Silent).unwrap();
+        for &method in &methods {
+            let mut params = Params {
+                method,
+                integrate: false,
+                ..Params::default()
+            };
+            // PS_KAPPA=0.01 fixes κ instead of measuring it.
+            if let Ok(k) = std::env::var("PS_KAPPA") {
+                params.detection.relative_noise = Some(k.parse().unwrap());
+            }
+            let t = Instant::now();
+            let rec = reconstruct(&capture, &params, &Silent).unwrap();
+            let secs = t.elapsed().as_secs_f64();
+            let (w, h) = (rec.width, rec.height);
+            let mut line = format!("{object:8} {:14}", method.name());
+            if let Some(t) = &truth {
+                let (_, s) = evaluate(&rec.normals, &t.normals, Some(&rec.mask)).unwrap();
+                line += &format!(" mean {:6.3} median {:6.3}", s.mean_deg, s.median_deg);
+            } else {
+                line += &format!(
+                    " rough {:6.3}",
+                    roughness_deg(&rec.normals, &rec.mask, w, h)
+                );
+                if object == "gray" {
+                    let circle = circle_from_mask(&rec.mask, w, h).unwrap();
+                    let mut e = sphere_errors(&rec.normals, w, circle, 0.9);
+                    let mean = e.iter().sum::<f64>() / e.len() as f64;
+                    line += &format!(" sphere mean {mean:6.3} p90 {:6.3}", quantile(&mut e, 0.9));
+                }
+            }
+            let missing = rec
+                .normals
+                .iter()
+                .zip(&rec.mask)
+                .filter(|(n, &m)| m && **n == [0.0; 3])
+                .count();
+            line += &format!(" missing {missing}");
+            if let Some(d) = rec.report.extra.get("detection") {
+                line += &format!(
+                    " unrel {:.3} kappa {:.4} s0 {:.5}",
+                    d["unreliable_share"].as_f64().unwrap_or(f64::NAN),
+                    d["noise"]["kappa"].as_f64().unwrap_or(f64::NAN),
+                    d["noise"]["sigma0"].as_f64().unwrap_or(f64::NAN),
+                );
+            }
+            if rec.statuses_decided && method != Method::L2 {
+                // Per mask pixel estimate and statuses from the full-frame outputs.
+                let np = capture.n_pixels();
+                let n = capture.n_lights();
+                let hw = w * h;
+                let c = capture.channels;
+                let est = Estimate {
+                    normals: capture
+                        .pixels
+                        .iter()
+                        .map(|&i| rec.normals[i as usize])
+                        .collect(),
+                    albedo: capture
+                        .pixels
+                        .iter()
+                        .flat_map(|&i| rec.albedo[i as usize * c..(i as usize + 1) * c].to_vec())
+                        .collect(),
+                    light_status: None,
+                };
+                let mut st = vec![0u8; np * n];
+                for (p, &i) in capture.pixels.iter().enumerate() {
+                    for k in 0..n {
+                        st[p * n + k] = rec.light_status[k * hw + i as usize];
+                    }
+                }
+                let sl = shadow_labels(&capture, &est, &st);
+                let kept = st.iter().filter(|&&s| s == 0).count() as f64 / np as f64;
+                line += &format!(
+                    " shadow {:.3} lit {:.3} away {:.3} kept {:.1}/{n}",
+                    sl.share_of_all, sl.lit, sl.facing_away, kept
+                );
+            }
+            if let Some(r) = rec.report.extra.get("recursive") {
+                let its = r["iterations"].as_array().unwrap();
+                let last = its.last().unwrap();
+                line += &format!(
+                    " iters {} change {:.4} conv {}",
+                    its.len(),
+                    last["changed_share"].as_f64().unwrap(),
+                    r.get("converged")
+                        .map(|v| v.to_string())
+                        .unwrap_or("-".into())
+                );
+            }
+            line += &format!(" {secs:.1}s");
+            println!("{line}");
+        }
+    }
+}
