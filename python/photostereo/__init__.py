@@ -297,7 +297,8 @@ def reconstruct(
         and ``mask`` (H, W).
     method: ``l2``, ``coleman-jain``, ``barsky-petrou`` or ``recursive``.
     sigma: image noise per channel, full scale 1 (None: estimated from the images).
-    relative_noise: model error as a share of a pixel's mean intensity (kappa).
+    relative_noise: model error as a share of a pixel's mean intensity (kappa); None: measured
+        from the capture (reported as ``detection.kappa_measured``).
     confidence: confidence of the chi-square test of non-Lambertian pixels.
     min_kept_share: the attribution keeps at least this share of the lights (and three).
     batch_alpha: family-wise error rate for removing several dark readings in one step.
@@ -438,7 +439,8 @@ def calibrate(images: np.ndarray, mask: Any = None) -> Dict[str, Any]:
     """Light directions from images of a mirror sphere: (N, H, W) or (N, H, W, C) images
     (integers scaled by their full scale) and an optional (H, W) mask of the sphere. Returns
     ``lights`` (N, 3) (NaN where no highlight was found), ``confidence`` (N,) in 0..1, and the
-    full calibration (``sphere``, ``per_light`` highlights, ``warnings``)."""
+    full calibration (``sphere``, ``per_light`` highlights, ``warnings``). Raises
+    PhotostereoError when no light's highlight is confident (a matte sphere, noise)."""
     stack = _as_stack(images)
     if stack.dtype == np.uint8:
         stack = stack.astype(np.float32) / 255.0
