@@ -70,6 +70,9 @@ pub struct RunArgs {
     /// Integration method for depth: poisson (any mask), dct, fft (full rectangle), paths.
     #[arg(long, default_value = "poisson", value_parser = parse_integrator)]
     pub integrator: IntegratorKind,
+    /// Also write the browser viewer (index.html and view/) into the output folder.
+    #[arg(long)]
+    pub view: bool,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -215,6 +218,9 @@ pub fn main(a: RunArgs) -> Result<()> {
             .and_then(|v| v.as_f64())
             .unwrap_or(0.0);
         println!("wrote {} in {:.2} s", a.output.display(), total);
+    }
+    if a.view {
+        crate::view::after_run(&a.output, &files, a.gt.as_deref(), r, a.out.text())?;
     }
     Ok(())
 }

@@ -41,6 +41,7 @@ pub mod scene;
 pub mod shadows;
 pub mod stats;
 pub mod surface;
+pub mod viewer;
 
 pub use capture::{Capture, CaptureFiles};
 pub use error::{Error, Result};
