@@ -338,6 +338,8 @@
   }
   function draw() {
     resize();
+    // Until the user pans or zooms, the view follows the window (headless screenshots resize it).
+    if (!userMovedView) fitView(S.fit);
     gl.viewport(0, 0, canvas.width, canvas.height);
     gl.clearColor(0, 0, 0, 1);
     gl.clear(gl.COLOR_BUFFER_BIT | gl.DEPTH_BUFFER_BIT);
@@ -651,6 +653,8 @@
       probe: probeInfo,
       mesh: mesh.state,
       bench: benchResult,
+      resources: performance.getEntriesByType('resource').map((r) => r.name.split('/').slice(0, 3).join('/'))
+        .filter((v, i, a) => a.indexOf(v) === i),
     };
     $('ps-state').textContent = JSON.stringify(st);
   }
@@ -936,7 +940,7 @@
   });
   canvas.addEventListener('dblclick', () => {
     if (S.layer === 'mesh') { mesh.yaw = 0; mesh.pitch = 0; mesh.pan = [0, 0, 0]; if (mesh.radius) mesh.dist = mesh.radius * 2.6; }
-    else { fitView('all'); userMovedView = false; writeHash(); }
+    else { S.fit = 'all'; userMovedView = false; writeHash(); }
     requestDraw();
   });
   canvas.addEventListener('wheel', (e) => {
@@ -963,8 +967,8 @@
     else if (e.key === 'ArrowRight') az -= step;
     else if (e.key === 'ArrowUp') el = Math.min(Math.PI / 2, el + step);
     else if (e.key === 'ArrowDown') el = Math.max(0, el - step);
-    else if (e.key === 'f') { fitView('all'); userMovedView = false; handled = false; requestDraw(); }
-    else if (e.key === '0') { fitView('1:1'); userMovedView = true; handled = false; requestDraw(); }
+    else if (e.key === 'f') { S.fit = 'all'; userMovedView = false; handled = false; requestDraw(); }
+    else if (e.key === '0') { S.fit = '1:1'; userMovedView = false; handled = false; requestDraw(); }
     else if (/^[1-9]$/.test(e.key)) {
       const names = Object.keys(LAYER_INFO).filter((n) => M.layers.includes(n));
       if (names[+e.key - 1]) setLayer(names[+e.key - 1]);
