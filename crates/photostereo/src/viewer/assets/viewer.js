@@ -43,6 +43,7 @@
     zoom: null,
     center: null,
     bench: 0,
+    orbit: null,
   };
   const view = { zoom: 1, cx: M.width / 2, cy: M.height / 2 };
   const status = { ready: false, error: null, firstDrawMs: null, readyMs: null, level: 0, drawn: 0 };
@@ -74,6 +75,7 @@
         case 'fit': S.fit = val === '1:1' ? '1:1' : 'all'; break;
         case 'zoom': if (+val > 0) S.zoom = +val; break;
         case 'center': if ((v = nums(val, 2))) S.center = v; break;
+        case 'orbit': if ((v = nums(val, 2))) S.orbit = v; break;
         case 'bench': S.bench = Math.max(0, Math.round(+val) || 0); break;
       }
     }
@@ -96,6 +98,7 @@
       if (S.probe) p.push('probe=' + S.probe.join(','));
       if (S.plain) p.push('plain=1');
       if (S.fit === '1:1') p.push('fit=1:1');
+      if (S.layer === 'mesh') p.push('orbit=' + (mesh.yaw * 180 / Math.PI).toFixed(1) + ',' + (mesh.pitch * 180 / Math.PI).toFixed(1));
       if (S.layer !== 'mesh' && userMovedView) {
         p.push('zoom=' + r4(view.zoom), 'center=' + view.cx.toFixed(1) + ',' + view.cy.toFixed(1));
       }
@@ -366,8 +369,10 @@
     status.level = target;
     let complete = true;
     let drawn = 0;
-    // Coarse to fine: the top level (always asked for) under whatever finer tiles are ready.
-    for (let l = TOP; l >= target; l--) {
+    // Coarse to fine: the top level (always asked for) under whatever finer tiles are ready;
+    // once every tile of the target level is ready, that level alone.
+    const targetReady = visibleTiles(target).every(([r, c]) => groups.every((g) => ready(target, r, c, g)));
+    for (let l = targetReady ? target : TOP; l >= target; l--) {
       const tiles = visibleTiles(l);
       for (const [r, c] of tiles) {
         const ok = groups.every((g) => ready(l, r, c, g));
@@ -410,6 +415,7 @@
     if (done && !status.ready) {
       status.ready = true;
       status.readyMs = performance.now() - T0;
+      status.readyAt = performance.now();
       if (S.bench) setTimeout(bench, 0);
     } else if (!done) status.ready = false;
     placeMarker();
@@ -418,6 +424,7 @@
 
   // ---------------------------------------------------------------- 3D view
   const mesh = { state: 'none', yaw: 0, pitch: 0, dist: 1, pan: [0, 0, 0] };
+  if (S.orbit) { mesh.yaw = S.orbit[0] * Math.PI / 180; mesh.pitch = Math.max(-1.5, Math.min(1.5, S.orbit[1] * Math.PI / 180)); }
   function loadMesh() {
     if (mesh.state !== 'none' || !M.mesh) return;
     mesh.state = 'loading';
@@ -451,7 +458,7 @@
       }
       mesh.center = [0, 1, 2].map((k) => (lo[k] + hi[k]) / 2);
       mesh.radius = Math.max(1, Math.hypot(hi[0] - lo[0], hi[1] - lo[1], hi[2] - lo[2]) / 2);
-      mesh.dist = mesh.radius * 2.6;
+      mesh.dist = mesh.radius * 4.2;
       mesh.state = 'ready';
     }).catch((err) => { mesh.state = 'failed'; status.error = String(err.message || err); })
       .finally(requestDraw);
@@ -650,6 +657,7 @@
       tiles_cached: cache.size,
       first_draw_ms: status.firstDrawMs,
       ready_ms: status.readyMs,
+      ready_at_ms: status.readyAt,
       probe: probeInfo,
       mesh: mesh.state,
       bench: benchResult,
@@ -687,6 +695,16 @@
     draw();
   }
 
+  // For tools driving the page (DevTools protocol): timed redraws and view changes.
+  PSV.bench = (n) => { S.bench = n; bench(); publish(); return benchResult; };
+  PSV.setView = (zoom, cx, cy) => {
+    view.zoom = zoom; view.cx = cx; view.cy = cy; userMovedView = true;
+    status.ready = false; status.readyMs = null; status.readyAt = null;
+    publish();
+    requestDraw();
+  };
+  PSV.state = () => JSON.parse($('ps-state').textContent);
+
   // ---------------------------------------------------------------- UI
   function setLayer(name) {
     if (!M.layers.includes(name)) return;
@@ -706,7 +724,6 @@
     const el = Math.asin(Math.min(1, Math.max(-1, l[2]))) * 180 / Math.PI;
     const az = Math.atan2(l[1], l[0]) * 180 / Math.PI;
     $('light-readout').textContent = 'l = (' + l.map((v) => v.toFixed(3)).join(', ') + ')\nelevation ' + el.toFixed(1) + '°, azimuth ' + az.toFixed(1) + '°';
-    $('light-readout').style.whiteSpace = 'pre';
     $('status-section').hidden = !NL;
     if (NL) {
       $('k').max = NL; $('k').value = S.k; $('k-v').textContent = S.k + ' / ' + NL;
@@ -923,6 +940,7 @@
     } else if (drag.mode === 'orbit') {
       mesh.yaw -= dx * 0.01;
       mesh.pitch = Math.max(-1.5, Math.min(1.5, mesh.pitch + dy * 0.01));
+      writeHash();
       requestDraw();
     } else if (drag.mode === 'mesh-pan') {
       const cam = meshCamera(), k = mesh.dist * 0.0015;
@@ -939,7 +957,7 @@
     drag = null;
   });
   canvas.addEventListener('dblclick', () => {
-    if (S.layer === 'mesh') { mesh.yaw = 0; mesh.pitch = 0; mesh.pan = [0, 0, 0]; if (mesh.radius) mesh.dist = mesh.radius * 2.6; }
+    if (S.layer === 'mesh') { mesh.yaw = 0; mesh.pitch = 0; mesh.pan = [0, 0, 0]; if (mesh.radius) mesh.dist = mesh.radius * 4.2; }
     else { S.fit = 'all'; userMovedView = false; writeHash(); }
     requestDraw();
   });
