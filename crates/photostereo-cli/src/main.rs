@@ -13,6 +13,7 @@ mod eval;
 mod integrate;
 mod run;
 mod synth;
+mod view;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -42,6 +43,10 @@ enum Command {
     Demo(demo::DemoArgs),
     /// Render a built-in scene under a light rig, with ground truth (DiLiGenT layout + gt/).
     Synth(synth::SynthArgs),
+    /// Write FOLDER/index.html, a browser viewer of an output folder: relighting, layers, 3D, probe.
+    View(view::ViewArgs),
+    /// Write what OpenLIME's BRDF layer reads (kd, normals, layer configuration, a page).
+    ExportOpenlime(view::ExportOpenLimeArgs),
 }
 
 /// Removes the output in progress when the process is interrupted, then ends it by the same
@@ -92,6 +97,8 @@ fn main() -> ExitCode {
         Command::Calibrate(a) => calibrate::main(a),
         Command::Integrate(a) => integrate::main(a),
         Command::Synth(a) => synth::main(a),
+        Command::View(a) => view::main(a),
+        Command::ExportOpenlime(a) => view::export_main(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

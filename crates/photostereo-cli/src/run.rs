@@ -84,6 +84,9 @@ pub struct RunArgs {
     /// Cap on the depth gradient |∂z/∂x|, |∂z/∂y| (pixel units per pixel) when integrating.
     #[arg(long, default_value_t = defaults().integration.max_slope)]
     pub max_slope: f32,
+    /// Also write the browser viewer (index.html and view/) into the output folder.
+    #[arg(long)]
+    pub view: bool,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -233,6 +236,9 @@ pub fn main(a: RunArgs) -> Result<()> {
             .and_then(|v| v.as_f64())
             .unwrap_or(0.0);
         println!("wrote {} in {:.2} s", a.output.display(), total);
+    }
+    if a.view {
+        crate::view::after_run(&a.output, &files, a.gt.as_deref(), r, a.out.text())?;
     }
     Ok(())
 }

@@ -69,6 +69,7 @@ pub mod scene;
 pub mod shadows;
 pub mod stats;
 pub mod surface;
+pub mod viewer;
 
 pub use capture::{Capture, CaptureFiles};
 pub use engine::{reconstruct, Method, Params, Reconstruction};
