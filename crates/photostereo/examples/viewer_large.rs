@@ -12,6 +12,9 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
+/// Normal, albedo, depth, residual and the statuses of the 8 lights at one pixel.
+type Pixel = ([f32; 3], [f32; 3], f32, f32, [u8; 8]);
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let w: usize = args.first().map_or(Ok(8000), |s| s.parse())?;
@@ -46,7 +49,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             [a.cos() * s.sin(), a.sin() * s.sin(), s.cos()]
         })
         .collect();
-    let px: Vec<([f32; 3], [f32; 3], f32, f32, [u8; 8])> = (0..w * h)
+    let px: Vec<Pixel> = (0..w * h)
         .into_par_iter()
         .map(|i| {
             let (r, c) = ((i / w) as f64, (i % w) as f64);
