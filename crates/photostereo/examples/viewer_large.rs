@@ -12,7 +12,7 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// One synthetic pixel: normal, albedo, depth, residual, light statuses.
+/// Normal, albedo, depth, residual and the statuses of the 8 lights at one pixel.
 type Pixel = ([f32; 3], [f32; 3], f32, f32, [u8; 8]);
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -31,9 +31,6 @@ use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-/// What writing the layers produced: layer descriptions, layer codes, the mesh, tile counts.
-type WrittenLayers = (Vec<Value>, Vec<char>, Option<mesh::MeshInfo>, usize, u64);
-
 /// Options of [`write_view`].
 #[derive(Clone, Debug)]
 pub struct ViewOptions {
@@ -71,6 +68,15 @@ pub struct ViewSummary {
     pub layers: Vec<String>,
     pub seconds: f64,
     pub notes: Vec<String>,
+}
+
+/// What the staging step wrote: pyramid levels, tile groups, mesh, file count and bytes.
+struct Written {
+    levels: Vec<Value>,
+    groups: Vec<char>,
+    mesh: Option<mesh::MeshInfo>,
+    files: usize,
+    bytes: u64,
 }
 
 /// The manifest's layers, in the page's order.
@@ -153,7 +159,7 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
     }
     let tiles_dir = staging.join("tiles");
     std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::io(&tiles_dir, e))?;
-    let result = (|| -> Result<WrittenLayers> {
+    let result = (|| -> Result<Written> {
         let mut level = tiles::Level::base(f, depth_range);
         let mut groups = vec!['n', 'a', 'q'];
         if level.depth_rgb.is_some() {
@@ -188,9 +194,21 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
             }
             None => None,
         };
-        Ok((levels, groups, mesh, files, bytes))
+        Ok(Written {
+            levels,
+            groups,
+            mesh,
+            files,
+            bytes,
+        })
     })();
-    let (levels, groups, mesh, files, bytes) = match result {
+    let Written {
+        levels,
+        groups,
+        mesh,
+        files,
+        bytes,
+    } = match result {
         Ok(v) => v,
         Err(e) => {
             let _ = std::fs::remove_dir_all(&staging);
