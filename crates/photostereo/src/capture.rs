@@ -400,7 +400,19 @@ impl CaptureFiles {
         };
         let notes = crate::plausibility::check_capture(&capture)?;
         capture.notes.extend(notes);
+        capture.notes.extend(self.whole_frame_note(w, h));
         Ok(capture)
+    }
+
+    /// The note a capture without a mask gets: its whole frame is taken as the object, which is
+    /// rarely meant (background pixels get normals and join the integration).
+    pub fn whole_frame_note(&self, width: usize, height: usize) -> Option<String> {
+        self.mask.is_none().then(|| {
+            format!(
+                "no mask: the whole {width}×{height} frame is used as the object \
+                 (no mask.png in the capture folder, no mask line in a list file, no --mask)"
+            )
+        })
     }
 }
 
