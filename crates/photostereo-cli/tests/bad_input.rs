@@ -1,65 +1,24 @@
 //! Bad input: every case gives a clear message naming the file, line or parameter, exit code 2,
 //! and writes nothing.
 
+mod common;
+
+use common::BIN;
 use photostereo::imageio::{write_png16, write_png8};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-const BIN: &str = env!("CARGO_BIN_EXE_photostereo");
-
-/// A valid small capture: 4 grey 16-bit images of a Lambertian sphere, lights and a mask.
+/// A valid small capture ([`common::write_sphere_capture`]) at the root of a temporary folder.
 struct Fixture {
     dir: tempfile::TempDir,
 }
 
-const DIRS: [[f64; 3]; 4] = [
-    [0.3, 0.3, 0.9],
-    [-0.3, 0.3, 0.9],
-    [-0.3, -0.3, 0.9],
-    [0.3, -0.3, 0.9],
-];
-
 impl Fixture {
     fn new() -> Self {
-        let dir = tempfile::tempdir().unwrap();
-        let f = Fixture { dir };
-        let size = 24;
-        for (k, l) in DIRS.iter().enumerate() {
-            let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-            let mut data = vec![0u16; size * size];
-            for r in 0..size {
-                for c in 0..size {
-                    let x = (c as f64 - 11.5) / 10.0;
-                    let y = (11.5 - r as f64) / 10.0;
-                    let rr = x * x + y * y;
-                    if rr < 1.0 {
-                        let n = [x, y, (1.0 - rr).sqrt()];
-                        let s = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / norm;
-                        data[r * size + c] = (s.max(0.0) * 50000.0) as u16;
-                    }
-                }
-            }
-            write_png16(&f.path(&format!("{:03}.png", k + 1)), size, size, 1, &data).unwrap();
-        }
-        f.write(
-            "light_directions.txt",
-            &DIRS
-                .iter()
-                .map(|d| format!("{} {} {}\n", d[0], d[1], d[2]))
-                .collect::<String>(),
-        );
-        let mask: Vec<u8> = (0..size * size)
-            .map(|i| {
-                let (r, c) = (i / size, i % size);
-                let (x, y) = (c as f64 - 11.5, r as f64 - 11.5);
-                if x * x + y * y < 81.0 {
-                    255
-                } else {
-                    0
-                }
-            })
-            .collect();
-        write_png8(&f.path("mask.png"), size, size, 1, &mask).unwrap();
+        let f = Fixture {
+            dir: tempfile::tempdir().unwrap(),
+        };
+        common::write_sphere_capture(f.dir.path());
         f
     }
     fn path(&self, name: &str) -> PathBuf {
@@ -112,20 +71,9 @@ fn expect_failure(mut cmd: Command, needles: &[&str]) {
 #[test]
 fn valid_fixture_runs() {
     let f = Fixture::new();
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(f.dir.path())
-        .arg("-o")
-        .arg(f.out())
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(f.out().join("normals.npy").exists() && f.out().join("report.json").exists());
+    let (report, _) = run_json(&f, &["--quiet"]);
+    assert_eq!(report["input"]["lights"], 4);
+    assert!(f.out().join("normals.npy").exists());
 }
 
 #[test]
