@@ -113,49 +113,48 @@ pub fn gradients_from_normals(
     let cap = max_slope as f64;
     let w = width.max(1);
     // Rows in parallel; each returns its counts (invalid, back-facing, capped).
-    let counts = g
-        .p
-        .par_chunks_mut(w)
-        .zip(g.q.par_chunks_mut(w))
-        .zip(g.mask.par_chunks_mut(w))
-        .enumerate()
-        .map(|(r, ((p_row, q_row), m_row))| {
-            let mut counts = [0usize; 3];
-            for c in 0..p_row.len() {
-                let i = r * w + c;
-                let v = normals[i];
-                let zero = v == [0.0; 3];
-                let wanted = match mask {
-                    Some(m) => m[i],
-                    None => !zero,
-                };
-                if !wanted {
-                    continue;
+    let counts =
+        g.p.par_chunks_mut(w)
+            .zip(g.q.par_chunks_mut(w))
+            .zip(g.mask.par_chunks_mut(w))
+            .enumerate()
+            .map(|(r, ((p_row, q_row), m_row))| {
+                let mut counts = [0usize; 3];
+                for c in 0..p_row.len() {
+                    let i = r * w + c;
+                    let v = normals[i];
+                    let zero = v == [0.0; 3];
+                    let wanted = match mask {
+                        Some(m) => m[i],
+                        None => !zero,
+                    };
+                    if !wanted {
+                        continue;
+                    }
+                    let finite = v.iter().all(|x| x.is_finite());
+                    let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+                    // f32 components cannot overflow a sum of squares in f64.
+                    let norm = (x * x + y * y + z * z).sqrt();
+                    if !finite || zero || norm < 1e-12 {
+                        counts[0] += 1;
+                        continue;
+                    }
+                    if z <= 0.0 {
+                        counts[1] += 1;
+                        continue;
+                    }
+                    let p = -x / z;
+                    let q = y / z;
+                    if p.abs() > cap || q.abs() > cap {
+                        counts[2] += 1;
+                    }
+                    p_row[c] = p.clamp(-cap, cap) as f32;
+                    q_row[c] = q.clamp(-cap, cap) as f32;
+                    m_row[c] = true;
                 }
-                let finite = v.iter().all(|x| x.is_finite());
-                let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
-                // f32 components cannot overflow a sum of squares in f64.
-                let norm = (x * x + y * y + z * z).sqrt();
-                if !finite || zero || norm < 1e-12 {
-                    counts[0] += 1;
-                    continue;
-                }
-                if z <= 0.0 {
-                    counts[1] += 1;
-                    continue;
-                }
-                let p = -x / z;
-                let q = y / z;
-                if p.abs() > cap || q.abs() > cap {
-                    counts[2] += 1;
-                }
-                p_row[c] = p.clamp(-cap, cap) as f32;
-                q_row[c] = q.clamp(-cap, cap) as f32;
-                m_row[c] = true;
-            }
-            counts
-        })
-        .reduce(|| [0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
+                counts
+            })
+            .reduce(|| [0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
     g.rejected_invalid = counts[0];
     g.rejected_backfacing = counts[1];
     g.capped = counts[2];
