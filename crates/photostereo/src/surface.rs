@@ -22,8 +22,21 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
             depth.len()
         )));
     }
-    write_npy_f32(&dir.join("depth.npy"), &[height, width], depth)?;
-    write_exr_grey(&dir.join("depth.exr"), width, height, depth)?;
+    // The three files are independent: written side by side.
+    let (npy, (exr, png)) = rayon::join(
+        || write_npy_f32(&dir.join("depth.npy"), &[height, width], depth),
+        || {
+            rayon::join(
+                || write_exr_grey(&dir.join("depth.exr"), width, height, depth),
+                || write_depth_png(&dir.join("depth.png"), width, height, depth),
+            )
+        },
+    );
+    npy.and(exr).and(png)
+}
+
+/// `depth.png`: 16-bit grey, the finite depths' min..max mapped to 0..65535, 0 elsewhere.
+fn write_depth_png(path: &Path, width: usize, height: usize, depth: &[f32]) -> Result<()> {
     let (lo, hi) = depth
         .iter()
         .filter(|v| v.is_finite())
@@ -41,7 +54,7 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
             }
         })
         .collect();
-    write_png16(&dir.join("depth.png"), width, height, 1, &png)
+    write_png16(path, width, height, 1, &png)
 }
 
 /// Vertex numbering and triangles of a depth map's mesh.
@@ -313,8 +326,11 @@ pub fn write_surface(
     meshes: bool,
 ) -> Result<()> {
     let d = &surface.depth;
-    write_depth(dir, d.width, d.height, &d.values)?;
-    write_npy_f32(&dir.join("curl.npy"), &[d.height, d.width], &surface.curl)?;
+    let (depth, curl) = rayon::join(
+        || write_depth(dir, d.width, d.height, &d.values),
+        || write_npy_f32(&dir.join("curl.npy"), &[d.height, d.width], &surface.curl),
+    );
+    depth.and(curl)?;
     if meshes {
         write_mesh_ply(&dir.join("mesh.ply"), d.width, d.height, &d.values, normals)?;
         write_mesh_obj(&dir.join("mesh.obj"), d.width, d.height, &d.values, normals)?;
