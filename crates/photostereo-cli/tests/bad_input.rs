@@ -416,3 +416,44 @@ fn eval_messages_name_files_and_expectations() {
     );
     assert!(!err.contains("map.png.") && !err.contains("tmp-"), "{err}");
 }
+
+/// Issue 17.1: a list file whose count line counts the mask as a photograph (4 announced, 3
+/// photographs and the mask follow) is refused, naming the file and both numbers; with the
+/// right count the same list runs with the mask.
+#[test]
+fn list_count_that_swallows_the_mask_is_refused() {
+    let f = Fixture::new();
+    let lights = f.path("light_directions.txt");
+    let run = |list: &str| {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("run")
+            .arg(f.path(list))
+            .arg("--lights")
+            .arg(&lights)
+            .arg("-o")
+            .arg(f.out())
+            .arg("--quiet");
+        cmd
+    };
+    f.write("bad.txt", "4\n001.png\n002.png\n003.png\nmask.png\n");
+    expect_failure(
+        run("bad.txt"),
+        &[
+            "bad.txt",
+            "announces 4 images",
+            "'mask.png' (line 5), names a mask",
+            "3 photograph(s) and a mask",
+        ],
+    );
+    assert!(!f.out().exists());
+    f.write(
+        "good.txt",
+        "4\n001.png\n002.png\n003.png\n004.png\nmask.png\n",
+    );
+    let out = run("good.txt").output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}

@@ -471,6 +471,27 @@ pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
             ),
         ));
     }
+    if lines.len() - 1 == count {
+        // No mask line: a last "image" named like a mask means the count line counts the mask
+        // as a photograph (or a photograph is missing).
+        let (line, last) = lines[count];
+        let name = Path::new(last)
+            .file_name()
+            .map(|n| n.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if name.contains("mask") {
+            return Err(Error::file(
+                list,
+                format!(
+                    "the count line (line {first_line}) announces {count} images, but image path \
+                     {count}, '{last}' (line {line}), names a mask: {} photograph(s) and a mask \
+                     follow; write {} on the count line, or add the missing photograph",
+                    count - 1,
+                    count - 1
+                ),
+            ));
+        }
+    }
     let base = match list.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
