@@ -178,7 +178,12 @@ pub fn run(
         None => None,
     };
     let t = Instant::now();
-    let mut capture = files.load(progress)?;
+    let load_options = crate::capture::LoadOptions {
+        budget: options.params.memory_limit,
+        spill_dir: Some(folder.path().to_path_buf()),
+        ..Default::default()
+    };
+    let mut capture = files.load_with(progress, &load_options)?;
     let mut subset = None;
     if let Some(s) = &options.light_subset {
         let keep = s.resolve(&capture.lights)?;
@@ -226,6 +231,11 @@ pub fn run(
     write_reconstruction(&rec, folder.path(), options)?;
     rec.report.time("write", t);
     rec.report.time("total", start);
+    if let (Some(serde_json::Value::Object(m)), Some(peak)) =
+        (rec.report.extra.get_mut("memory"), crate::store::peak_rss())
+    {
+        m.insert("peak_rss".into(), peak.into());
+    }
     write_json(&folder.file("report.json"), &rec.report)?;
     folder.commit()?;
     Ok(rec)
