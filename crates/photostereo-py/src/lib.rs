@@ -369,18 +369,22 @@ impl NativeCapture {
         let c = &self.inner;
         let (n, ch, w) = (c.n_lights(), c.channels, c.width);
         let mut out = Array4::<f32>::zeros((n, c.height, w, ch));
-        for (p, &i) in c.pixels.iter().enumerate() {
-            let (row, col) = (i as usize / w, i as usize % w);
-            let s = c.pixel_samples(p);
-            for k in 0..n {
-                let e = c.lights.intensities[k];
-                let mean = ((e[0] + e[1] + e[2]) / 3.0) as f32;
-                for j in 0..ch {
-                    let scale = if ch == 1 { mean } else { e[j] as f32 };
-                    out[[k, row, col, j]] = s[k * ch + j] * scale;
+        // Tile by tile when the capture was loaded in tiles (one tile otherwise).
+        let _ = c.for_each_tile(|_, tile| {
+            for (p, &i) in tile.pixels.iter().enumerate() {
+                let (row, col) = (i as usize / w, i as usize % w);
+                let s = tile.pixel_samples(p);
+                for k in 0..n {
+                    let e = c.lights.intensities[k];
+                    let mean = ((e[0] + e[1] + e[2]) / 3.0) as f32;
+                    for j in 0..ch {
+                        let scale = if ch == 1 { mean } else { e[j] as f32 };
+                        out[[k, row, col, j]] = s[k * ch + j] * scale;
+                    }
                 }
             }
-        }
+            Ok(())
+        });
         out.into_pyarray(py)
     }
 }

@@ -234,3 +234,40 @@ fn a_budget_below_the_full_frame_stages_is_refused_with_the_minimum() {
         .load_with(&Silent, &options((minimum - 1) << 20))
         .is_err());
 }
+
+#[test]
+fn synth_one_light_at_a_time_writes_the_images_of_synth_whole() {
+    let out = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::new(SceneKind::Cavities, Rig::parse("ring8").unwrap());
+    spec.size = 40;
+    let (_, whole) = synth_to_folder(&spec, &out.path().join("whole"), false).unwrap();
+    let (_, _, streamed) =
+        photostereo::scene::render::synth_streamed(&spec, &out.path().join("s"), false, &Silent)
+            .unwrap();
+    for name in [
+        "001.png",
+        "005.png",
+        "008.png",
+        "mask.png",
+        "light_directions.txt",
+    ] {
+        assert!(
+            std::fs::read(whole.join(name)).unwrap() == std::fs::read(streamed.join(name)).unwrap(),
+            "{name} differs"
+        );
+    }
+    // The streamed boolean stacks hold the same bytes after their headers.
+    for name in ["gt/shadow.npy", "gt/highlight.npy"] {
+        let (a, b) = (
+            std::fs::read(whole.join(name)).unwrap(),
+            std::fs::read(streamed.join(name)).unwrap(),
+        );
+        let n = 8 * 40 * 40;
+        assert_eq!(a[a.len() - n..], b[b.len() - n..], "{name}");
+        assert_eq!(
+            b.len() % 64,
+            n % 64,
+            "{name}: header not padded to 64 bytes"
+        );
+    }
+}
