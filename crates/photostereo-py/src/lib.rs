@@ -221,6 +221,19 @@ fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
             "unreliable_weight" => p.integration.unreliable_weight = f64_of(v)? as f32,
             "detect" => p.detect = bool_of(v)?,
             "integrate" => p.integrate = bool_of(v)?,
+            "memory_limit" => {
+                p.memory_limit = optional(v, |x| {
+                    if let Ok(b) = x.extract::<u64>() {
+                        return Ok(b);
+                    }
+                    let s = str_of(x)?;
+                    photostereo::limits::parse_bytes(&s).ok_or_else(|| {
+                        bad(format!(
+                            "memory_limit '{s}': expected bytes or a size such as '4G' or '500M'"
+                        ))
+                    })
+                })?
+            }
             other => return Err(bad(format!("unknown parameter '{other}'"))),
         }
     }
@@ -292,6 +305,7 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     )?;
     d.set_item("detect", p.detect)?;
     d.set_item("integrate", p.integrate)?;
+    d.set_item("memory_limit", p.memory_limit)?;
     Ok(d)
 }
 
