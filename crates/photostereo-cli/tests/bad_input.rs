@@ -350,7 +350,7 @@ fn memory_limits() {
     assert!(report["memory"]["peak_rss"].as_u64().unwrap() > 0);
     // No spill file is left in the output.
     assert!(!listing(&f.out()).iter().any(|n| n.contains("spill")));
-    for bad in ["0", "lots", "-3G"] {
+    for bad in ["0", "lots", "3Q"] {
         f.fails(
             &["--memory-limit", bad],
             &["--memory-limit", "expected a size in bytes"],
