@@ -560,7 +560,10 @@ fn integrate(
     integration.method.integrator().integrate(&problem, &Silent)
 }
 
-/// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights.
+/// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights;
+/// `samples_of` answers `pixel_samples` for those pixels (the capture itself, or a sampled view
+/// of a tiled one).
+#[allow(clippy::too_many_arguments)]
 fn fill_from_neighbours(
     capture: &Capture,
     samples_of: &Capture,

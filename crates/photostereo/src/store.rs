@@ -254,7 +254,7 @@ impl SampleStore {
 
     fn io_error(&self, e: std::io::Error) -> Error {
         let dir = self.spill_dir.clone().unwrap_or_default();
-        Error::io(&dir.join("(spill file)"), e)
+        Error::io(dir.join("(spill file)"), e)
     }
 
     /// Writes tile `t` from its raw bytes (native-endian stored values, pixel-major).
@@ -317,10 +317,10 @@ impl SampleStore {
                         for k in 0..self.n_lights {
                             let dec = self.decode[k];
                             let sc = &self.scale[k];
-                            for ch in 0..c {
+                            for (ch, f) in sc.iter().enumerate().take(c) {
                                 let i = k * c + ch;
                                 let u = u16::from_ne_bytes([s[2 * i], s[2 * i + 1]]);
-                                d[i] = dec.apply_u16(u) * sc[ch];
+                                d[i] = dec.apply_u16(u) * f;
                             }
                         }
                     }
@@ -329,7 +329,7 @@ impl SampleStore {
                     for (d, s) in dst.chunks_exact_mut(stride).zip(src.chunks_exact(pb)) {
                         for k in 0..self.n_lights {
                             let sc = &self.scale[k];
-                            for ch in 0..c {
+                            for (ch, f) in sc.iter().enumerate().take(c) {
                                 let i = k * c + ch;
                                 let v = f32::from_ne_bytes([
                                     s[4 * i],
@@ -337,7 +337,7 @@ impl SampleStore {
                                     s[4 * i + 2],
                                     s[4 * i + 3],
                                 ]);
-                                d[i] = v * sc[ch];
+                                d[i] = v * f;
                             }
                         }
                     }

@@ -585,7 +585,7 @@ pub fn synth_streamed(
     let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
     let mut stats = CaptureStats::default();
     progress.begin("rendering", n as u64);
-    for k in 0..n {
+    for (k, name) in names.iter().enumerate() {
         crate::progress::check_cancelled(progress)?;
         let r = render_light(
             &scene,
@@ -604,10 +604,10 @@ pub fn synth_streamed(
         let bytes = |v: &[bool]| v.iter().map(|&b| b as u8).collect::<Vec<u8>>();
         shadow_file
             .write_all(&bytes(&r.shadow))
-            .map_err(|e| Error::io(&gt.join("shadow.npy"), e))?;
+            .map_err(|e| Error::io(gt.join("shadow.npy"), e))?;
         highlight_file
             .write_all(&bytes(&r.highlight))
-            .map_err(|e| Error::io(&gt.join("highlight.npy"), e))?;
+            .map_err(|e| Error::io(gt.join("highlight.npy"), e))?;
         drop((r.shadow, r.cast, r.highlight));
         let data: Vec<u16> = r
             .image
@@ -615,7 +615,7 @@ pub fn synth_streamed(
             .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
             .collect();
         drop(r.image);
-        write_png16(&dir.join(&names[k]), w, h, 3, &data)?;
+        write_png16(&dir.join(name), w, h, 3, &data)?;
         progress.advance(1);
     }
     progress.end();
@@ -624,7 +624,7 @@ pub fn synth_streamed(
         (highlight_file, "highlight.npy"),
     ] {
         f.into_inner()
-            .map_err(|e| Error::io(&gt.join(name), e.into_error()))?;
+            .map_err(|e| Error::io(gt.join(name), e.into_error()))?;
     }
     stats.shadow_fraction /= n as f64;
     stats.cast_shadow_fraction /= n as f64;
