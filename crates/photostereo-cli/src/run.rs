@@ -91,6 +91,10 @@ pub struct RunArgs {
     /// with the smallest budget that works.
     #[arg(long, value_parser = crate::common::parse_memory_limit)]
     pub memory_limit: Option<u64>,
+    /// Write mesh.obj at any size (by default it is skipped, with a note, above 10 million
+    /// vertices; mesh.ply is always written).
+    #[arg(long)]
+    pub obj: bool,
     /// Also write the browser viewer (index.html and view/) into the output folder.
     #[arg(long)]
     pub view: bool,
@@ -185,6 +189,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         error_map: a.error_map,
         error_map_max_deg: Some(a.error_map_max),
         light_subset: a.light_subset.clone(),
+        obj_any_size: a.obj,
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)

@@ -659,6 +659,7 @@ fn run(
         error_map,
         error_map_max_deg: None,
         light_subset,
+        obj_any_size: false,
     };
     let files = InputFiles {
         inputs,

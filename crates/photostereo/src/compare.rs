@@ -184,6 +184,7 @@ pub fn compare(
                     error_map: truth.is_some(),
                     error_map_max_deg: None,
                     light_subset: options.light_subset.clone(),
+                    obj_any_size: false,
                 };
                 write_reconstruction(rec, &dir, &run_options)?;
                 write_json(&dir.join("report.json"), &rec.report)?;

@@ -254,7 +254,7 @@ mod tests {
         assert_eq!(l, Layout::InMemory);
         assert_eq!(p.tiles, 1);
         // Room for the u16 store (144 MB) but not for f32 twice (576 MB).
-        let (l, p) = plan(&s, full_frame_bytes(&s) + (200 << 20), Force::default()).unwrap();
+        let (l, p) = plan(&s, full_frame_bytes(&s) + (400 << 20), Force::default()).unwrap();
         assert_eq!(l, Layout::Tiles);
         assert_eq!(p.sample_bytes, 144_000_000);
         assert!(p.tiles > 1);
