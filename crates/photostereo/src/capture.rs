@@ -303,11 +303,32 @@ impl CaptureFiles {
             },
             threads: rayon::current_num_threads(),
         };
+        // Without --memory-limit the budget is the machine's: a refusal names the images and
+        // the memory available, as the readers' own checks do.
+        let refusal = |e: Error| match (e, options.budget) {
+            (Error::Parameter { message, .. }, None) => Error::file(
+                &self.images[0],
+                format!(
+                    "declares {}×{} pixels × {} images: {} (the default budget is half of the \
+                     memory available{}; --memory-limit sets it)",
+                    info.width,
+                    info.height,
+                    self.images.len(),
+                    message.split_once(": ").map_or(message.as_str(), |m| m.1),
+                    if std::env::var_os(crate::limits::MEMORY_LIMIT_VAR).is_some() {
+                        format!(", with {} set", crate::limits::MEMORY_LIMIT_VAR)
+                    } else {
+                        String::new()
+                    }
+                ),
+            ),
+            (e, _) => e,
+        };
         // The frame alone (no mask pixel) already decides whether the budget can work.
-        crate::memory::plan(&size, budget, Force::default())?;
+        crate::memory::plan(&size, budget, Force::default()).map_err(refusal)?;
         let mask = self.read_mask_for(info.width, info.height)?;
         size.pixels = mask.iter().filter(|&&m| m).count();
-        let (layout, plan) = crate::memory::plan(&size, budget, options.force)?;
+        let (layout, plan) = crate::memory::plan(&size, budget, options.force).map_err(refusal)?;
         let mut capture = if layout == Layout::InMemory {
             self.load_in_memory(progress, mask)?
         } else {

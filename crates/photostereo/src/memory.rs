@@ -164,12 +164,16 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         return Err(Error::parameter(
             "memory_limit",
             format!(
-                "{}: too small for this capture ({}×{} pixels, {} mask pixels, {} lights × {} channel(s)); \
+                "{}: too small for this capture ({}×{} pixels{}, {} lights × {} channel(s)); \
                  its full-frame stages alone need {}: the smallest budget that works is {}",
                 size_flag(budget),
                 s.width,
                 s.height,
-                s.pixels,
+                if s.pixels > 0 {
+                    format!(", {} mask pixels", s.pixels)
+                } else {
+                    String::new()
+                },
                 s.lights,
                 s.channels,
                 human_bytes(full_frame_bytes(s)),

@@ -27,7 +27,7 @@ use crate::integrate::{
     gradients_from_normals, normals_from_depth, weighted_normals, IntegrationParams,
     IntegrationProblem,
 };
-use crate::lambert::{channel_mean, status, usable, write_normal_albedo, Estimate, CHUNK};
+use crate::lambert::{channel_mean, status, write_normal_albedo, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
 use crate::progress::{Progress, Silent};
 use crate::shadows::{shadow_maps, ShadowMaps, ShadowParams};
@@ -260,7 +260,7 @@ pub fn recursive(
     let unreliable = detection.unreliable.clone();
     let noise = detection.noise;
     let mut light_status = detection.light_status.clone();
-    let mut est = crate::tiles::solve_tiles(capture, Some(&usable(&light_status)), &Silent)?;
+    let mut est = crate::tiles::solve_statuses(capture, &light_status)?;
     // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
     let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
     let mut few = vec![false; np];
@@ -293,6 +293,8 @@ pub fn recursive(
         let trust = capture.scatter(&masked_trust, 1, 0.0);
         let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
+        // Full-frame maps are dropped as soon as they have served (large captures).
+        drop((trust, est_full, masked_trust));
         let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
         let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
         // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
@@ -305,6 +307,7 @@ pub fn recursive(
                 }
             })
             .collect();
+        drop((normals_full, weights));
         // 3. Shadows of every light.
         let maps = shadow_maps(
             &depth.values,
@@ -382,7 +385,7 @@ pub fn recursive(
         few = new_few;
         highlight = new_highlight;
         // 6. Re-estimate.
-        est = crate::tiles::solve_tiles(capture, Some(&usable(&light_status)), &Silent)?;
+        est = crate::tiles::solve_statuses(capture, &light_status)?;
         if params.fallback == Fallback::Neighbours {
             solved_two.fill(false);
             let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();

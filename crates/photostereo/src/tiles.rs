@@ -145,6 +145,23 @@ pub fn solve_tiles(
     })
 }
 
+/// [`solve_subsets`] over the lights each pixel's status (`n_pixels * n_lights`, values of
+/// [`crate::lambert::status`]) marks USED, tile by tile: the usable flags are made per tile.
+pub fn solve_statuses(capture: &Capture, light_status: &[u8]) -> Result<Estimate> {
+    if !capture.is_tiled() {
+        return Ok(solve_subsets(
+            capture,
+            Some(&crate::lambert::usable(light_status)),
+            &Silent,
+        ));
+    }
+    let n = capture.n_lights();
+    estimate_tiles(capture, &Silent, |off, tile| {
+        let flags = crate::lambert::usable(&light_status[off * n..(off + tile.n_pixels()) * n]);
+        Ok(solve_subsets(tile, Some(&flags), &Silent))
+    })
+}
+
 /// Runs a per-pixel estimator on every tile and joins the tiles' estimates in mask-pixel
 /// order. `f` gets the tile's first mask pixel and the tile view.
 pub fn estimate_tiles(
