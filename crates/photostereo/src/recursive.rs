@@ -282,6 +282,8 @@ pub fn recursive(
     for iteration in 1..=params.max_iterations {
         crate::progress::check_cancelled(progress)?;
         let start = Instant::now();
+        // The last iteration's shadow maps are replaced below: not kept beside the new ones.
+        drop(last_maps.take());
         // 2. The surface.
         let masked_trust = pixel_trust(
             &est,
