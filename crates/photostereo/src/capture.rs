@@ -324,8 +324,20 @@ impl CaptureFiles {
             ),
             (e, _) => e,
         };
-        // The frame alone (no mask pixel) already decides whether the budget can work.
-        crate::memory::plan(&size, budget, Force::default()).map_err(refusal)?;
+        // The frame alone (no mask pixel) already tells a budget that cannot work, before any
+        // image is decoded; the smallest budget that works is then named with the mask's
+        // pixels counted.
+        if let Err(e) = crate::memory::plan(&size, budget, Force::default()) {
+            let Ok(mask) = self.read_mask_for(info.width, info.height) else {
+                return Err(refusal(e));
+            };
+            size.pixels = mask.iter().filter(|&&m| m).count();
+            return Err(refusal(
+                crate::memory::plan(&size, budget, Force::default())
+                    .err()
+                    .unwrap_or(e),
+            ));
+        }
         let mask = self.read_mask_for(info.width, info.height)?;
         size.pixels = mask.iter().filter(|&&m| m).count();
         let (layout, plan) = crate::memory::plan(&size, budget, options.force).map_err(refusal)?;

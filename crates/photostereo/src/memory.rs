@@ -20,13 +20,13 @@ use crate::store::SampleType;
 /// Bytes per frame pixel of the full-frame stages, independent of the light count: the
 /// recursive method's maps (estimate scattered to the frame, weights, trust, shading and surface
 /// normals, depth), the integrator's work arrays (about 47), the outputs and the exported maps.
-pub const FRAME_BYTES_PER_PIXEL: u64 = 200;
+pub const FRAME_BYTES_PER_PIXEL: u64 = 160;
 /// Bytes per frame pixel and light: the full-frame light statuses of the result (1) and the
 /// shadow maps of one surface (1).
 pub const FRAME_BYTES_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel and light held for the whole capture: the recursive method's light
 /// statuses (current, new, usable flags, the detector's own).
-pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 4;
+pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel, per light and channel, of one tile in use: its `f32` view (4), its
 /// stored bytes while read and while loaded (2 × stored size, at most 8).
 pub const TILE_BYTES_PER_SAMPLE: u64 = 12;
