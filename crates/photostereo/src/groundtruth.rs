@@ -160,6 +160,16 @@ pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
 /// Decodes a normal map from the bytes of a `.npy` file: float32 or float64, shape (H, W, 3).
 pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
     let header = parse_npy_header(bytes)?;
+    if !matches!(
+        header.descr.as_str(),
+        "<f4" | "<f8" | "=f4" | "=f8" | "|f4" | "|f8"
+    ) {
+        return Err(format!(
+            "holds {} samples ('{}'): expected a little-endian float32 or float64 array of shape (H, W, 3)",
+            npy_type_name(&header.descr),
+            header.descr
+        ));
+    }
     if header.shape.len() != 3 || header.shape[2] != 3 {
         return Err(format!(
             "shape {}: expected (H, W, 3)",
@@ -200,6 +210,26 @@ pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
         h,
         flat.chunks_exact(3).map(|v| [v[0], v[1], v[2]]),
     ))
+}
+
+/// A readable name for a `.npy` `descr` such as `<i4` (int32) or `>f8` (big-endian float64).
+fn npy_type_name(descr: &str) -> String {
+    let body = descr.trim_start_matches(['<', '>', '=', '|']);
+    let (kind, bytes) = body.split_at(body.len().min(1));
+    let bits = bytes.parse::<u32>().map(|b| b * 8).ok();
+    let name = match (kind, bits) {
+        ("f", Some(b)) => format!("float{b}"),
+        ("i", Some(b)) => format!("int{b}"),
+        ("u", Some(b)) => format!("uint{b}"),
+        ("b", _) => "bool".to_string(),
+        ("c", Some(b)) => format!("complex{b}"),
+        _ => return format!("'{descr}'"),
+    };
+    if descr.starts_with('>') && bits.is_some_and(|b| b > 8) {
+        format!("big-endian {name}")
+    } else {
+        name
+    }
 }
 
 /// A normal map from raw vectors, non-finite ones counted and read as "no data".
