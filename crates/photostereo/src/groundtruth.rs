@@ -215,7 +215,8 @@ pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
 /// A readable name for a `.npy` `descr` such as `<i4` (int32) or `>f8` (big-endian float64).
 fn npy_type_name(descr: &str) -> String {
     let body = descr.trim_start_matches(['<', '>', '=', '|']);
-    let (kind, bytes) = body.split_at(body.len().min(1));
+    // The first character, whatever its width (a forged header may hold any UTF-8).
+    let (kind, bytes) = body.split_at(body.chars().next().map_or(0, char::len_utf8));
     let bits = bytes.parse::<u32>().map(|b| b * 8).ok();
     let name = match (kind, bits) {
         ("f", Some(b)) => format!("float{b}"),
