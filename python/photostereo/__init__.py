@@ -370,8 +370,12 @@ def run(
     """The command line's ``run``: reads the capture at ``path`` (any layout, as
     :func:`load_capture`), reconstructs it, scores it against ``gt`` when given, and writes the
     output folder ``output`` atomically (normals, albedo, maps, depth, meshes, report.json).
-    ``params`` are :func:`reconstruct`'s keywords (``method=``, ``confidence=``...). Returns
-    the report. ``force`` replaces an existing output folder."""
+    ``params`` are :func:`reconstruct`'s keywords (``method=``, ``confidence=``...) and
+    ``memory_limit=`` (bytes, or a size such as ``"4G"`` or ``"500M"``; default: half of the
+    memory available): a capture whose samples do not fit as float32 is held in tiles at the
+    images' precision, in memory or in a spill file, with the same results (``report["memory"]``
+    gives the plan and the peak). Returns the report. ``force`` replaces an existing output
+    folder."""
     full = defaults()
     unknown = sorted(set(params) - set(full))
     if unknown:

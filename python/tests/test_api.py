@@ -182,6 +182,21 @@ def test_run_writes_the_output_folder_like_the_command_line(cli, diligent, tmp_p
         ps.run(folder, tmp_path / "x", metod="l2")
 
 
+def test_run_within_a_memory_limit_gives_the_same_normals(diligent, tmp_path):
+    folder = diligent / "ballPNG"
+    whole = ps.run(folder, tmp_path / "whole", method="l2")
+    tiled = ps.run(folder, tmp_path / "tiled", method="l2", memory_limit="200M")
+    assert whole["memory"]["layout"] == "in memory"
+    assert tiled["memory"]["layout"] != "in memory" and tiled["memory"]["tiles"] > 1
+    assert tiled["memory"]["budget"] == 200 << 20
+    assert np.array_equal(np.load(tmp_path / "whole" / "normals.npy"),
+                          np.load(tmp_path / "tiled" / "normals.npy"))
+    with pytest.raises(ps.PhotostereoError, match="smallest budget that works"):
+        ps.run(folder, tmp_path / "small", method="l2", memory_limit="1M")
+    with pytest.raises(ps.PhotostereoError, match="memory_limit"):
+        ps.run(folder, tmp_path / "bad", method="l2", memory_limit="lots")
+
+
 # --- calibration and scenes ----------------------------------------------------------------
 
 

@@ -49,7 +49,7 @@ impl Progress for Bar {
         }
         let bar = ProgressBar::new(total);
         if let Ok(style) =
-            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed}")
+            ProgressStyle::with_template("{msg:>12} [{bar:30}] {pos}/{len} {elapsed} (ETA {eta})")
         {
             bar.set_style(style.progress_chars("=> "));
         }
@@ -123,4 +123,14 @@ pub fn check_input_paths(
         }
     }
     Ok(())
+}
+
+/// `--memory-limit SIZE`: bytes, or with a `K`, `M`, `G` or `T` suffix (powers of 1024).
+pub fn parse_memory_limit(s: &str) -> Result<u64, String> {
+    match photostereo::limits::parse_bytes(s) {
+        Some(b) if b > 0 => Ok(b),
+        _ => Err(format!(
+            "'{s}': expected a size in bytes such as 4G, 500M or 1.5G (powers of 1024)"
+        )),
+    }
 }

@@ -124,6 +124,7 @@ fn params(a: &CompareArgs) -> Params {
         },
         detect: true,
         integrate: true,
+        memory_limit: None,
     }
 }
 

@@ -84,6 +84,17 @@ pub struct RunArgs {
     /// Cap on the depth gradient |∂z/∂x|, |∂z/∂y| (pixel units per pixel) when integrating.
     #[arg(long, default_value_t = defaults().integration.max_slope)]
     pub max_slope: f32,
+    /// Memory budget (e.g. `4G`, `500M`; powers of 1024): captures whose samples do not fit
+    /// as 32-bit floats are held in tiles at the images' precision, in memory or in a
+    /// temporary spill file in the output's staging folder, with the same results. Default:
+    /// half of the memory available. Too small for the capture's full-frame stages: refused
+    /// with the smallest budget that works.
+    #[arg(long, value_parser = crate::common::parse_memory_limit)]
+    pub memory_limit: Option<u64>,
+    /// Write mesh.obj at any size (by default it is skipped, with a note, above 10 million
+    /// vertices; mesh.ply is always written).
+    #[arg(long)]
+    pub obj: bool,
     /// Also write the browser viewer (index.html and view/) into the output folder.
     #[arg(long)]
     pub view: bool,
@@ -134,6 +145,7 @@ pub fn params(a: &RunArgs) -> Params {
         },
         detect: !a.no_detect,
         integrate: !a.no_depth,
+        memory_limit: a.memory_limit,
     }
 }
 
@@ -177,6 +189,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         error_map: a.error_map,
         error_map_max_deg: Some(a.error_map_max),
         light_subset: a.light_subset.clone(),
+        obj_any_size: a.obj,
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)

@@ -17,9 +17,14 @@ pub struct SynthArgs {
     /// Light rig: square4, ring8, ring-N, dome-N, or a light-direction file.
     #[arg(long, default_value = "square4")]
     pub rig: String,
-    /// Image width and height, pixels.
-    #[arg(long, default_value_t = 128)]
-    pub size: usize,
+    /// Image size, pixels: `N` (N×N) or `WxH` (e.g. `8000x6000`; the scene at the centre of
+    /// the frame, its side the smaller of the two).
+    #[arg(long, default_value = "128", value_parser = parse_size)]
+    pub size: (usize, usize),
+    /// Memory budget (e.g. `3G`; default: half of the memory available). Captures whose
+    /// images do not fit whole are rendered one light at a time and written as they come.
+    #[arg(long, value_parser = crate::common::parse_memory_limit)]
+    pub memory_limit: Option<u64>,
     /// Reflectance model: lambert, blinn-phong or torrance-sparrow.
     #[arg(long, default_value = "blinn-phong")]
     pub brdf: String,
@@ -65,11 +70,10 @@ pub fn main(a: SynthArgs) -> Result<()> {
         "constant" => false,
         other => bail!("--albedo {other}: expected texture or constant"),
     };
-    if !(8..=8192).contains(&a.size) {
-        bail!("--size {}: expected 8..=8192 pixels", a.size);
-    }
+    let (width, height) = a.size;
     let mut spec = SynthSpec::new(scene, Rig::parse(&a.rig)?);
-    spec.size = a.size;
+    spec.size = width;
+    spec.height = (height != width).then_some(height);
     spec.mask = mask;
     spec.textured_albedo = textured_albedo;
     spec.intensities = LightIntensities::parse(&a.intensities)?;
@@ -85,6 +89,53 @@ pub fn main(a: SynthArgs) -> Result<()> {
     let rig_file = std::path::Path::new(&a.rig);
     if rig_file.exists() {
         photostereo::export::check_output(&output, a.out.force, &[rig_file])?;
+    }
+    let budget = a
+        .memory_limit
+        .unwrap_or_else(photostereo::memory::default_budget);
+    let n_lights = spec.rig.lights()?.len();
+    if photostereo::scene::render::in_memory_bytes(width, height, n_lights) > budget
+        || width != height
+    {
+        let need = photostereo::scene::render::streamed_bytes(width, height);
+        if need > budget {
+            bail!(
+                "--memory-limit {}: rendering {width}×{height} needs about {} (the scene and one light); \
+                 the smallest budget that works is {}",
+                photostereo::memory::size_flag(budget),
+                photostereo::memory::size_flag(need),
+                photostereo::memory::size_flag(need)
+            );
+        }
+        let bar = a.out.progress();
+        let (s, lights, target) =
+            photostereo::scene::render::synth_streamed(&spec, &output, a.out.force, &bar)?;
+        if a.out.json {
+            print_json(&serde_json::json!({
+                "output": target.display().to_string(),
+                "scene": scene.name(),
+                "rig": spec.rig.name(),
+                "lights": lights.len(),
+                "width": width,
+                "height": height,
+                "streamed": true,
+                "stats": s,
+            }));
+        } else if a.out.text() {
+            println!(
+                "{} under {} ({} lights), {width}×{height}, rendered one light at a time; shadowed {:.1}%, highlighted {:.1}%",
+                scene.name(),
+                spec.rig.name(),
+                lights.len(),
+                100.0 * s.shadow_fraction,
+                100.0 * s.highlight_fraction
+            );
+            println!("wrote {}", target.display());
+        }
+        return Ok(());
+    }
+    if !(8..=8192).contains(&width) {
+        bail!("--size {width}: expected 8..=8192 pixels for a square capture rendered whole");
     }
     let (rendered, target) = synth_to_folder(&spec, &output, a.out.force)?;
     let s = &rendered.stats;
@@ -151,4 +202,21 @@ fn list(out: &OutputOpts) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// `--size N` or `--size WxH`.
+fn parse_size(s: &str) -> std::result::Result<(usize, usize), String> {
+    let bad = || format!("'{s}': expected N or WxH pixels, e.g. 128 or 8000x6000");
+    let parse = |t: &str| t.trim().parse::<usize>().map_err(|_| bad());
+    let (w, h) = match s.split_once(['x', 'X', '×']) {
+        Some((w, h)) => (parse(w)?, parse(h)?),
+        None => {
+            let n = parse(s)?;
+            (n, n)
+        }
+    };
+    if w < 8 || h < 8 {
+        return Err(format!("'{s}': expected at least 8 pixels a side"));
+    }
+    Ok((w, h))
 }

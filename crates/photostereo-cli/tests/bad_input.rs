@@ -457,3 +457,54 @@ fn list_count_that_swallows_the_mask_is_refused() {
         String::from_utf8_lossy(&out.stderr)
     );
 }
+
+#[test]
+fn memory_limits() {
+    let f = Fixture::new();
+    // Below the full-frame stages: refused with the smallest budget that works, which works.
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run")
+        .arg(f.dir.path())
+        .arg("-o")
+        .arg(f.out())
+        .args(["--memory-limit", "1M"]);
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(err.contains("--memory-limit 1M: too small"), "{err}");
+    assert!(!f.out().exists());
+    let minimum = err
+        .rsplit("smallest budget that works is ")
+        .next()
+        .unwrap()
+        .trim();
+    let out = Command::new(BIN)
+        .arg("run")
+        .arg(f.dir.path())
+        .args(["-o"])
+        .arg(f.out())
+        .args(["--quiet", "--memory-limit", minimum])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
+            .unwrap();
+    assert!(
+        report["memory"]["minimum_budget"].as_u64().unwrap()
+            <= report["memory"]["budget"].as_u64().unwrap()
+    );
+    assert!(report["memory"]["peak_rss"].as_u64().unwrap() > 0);
+    // No spill file is left in the output.
+    assert!(!listing(&f.out()).iter().any(|n| n.contains("spill")));
+    for bad in ["0", "lots", "3Q"] {
+        f.fails(
+            &["--memory-limit", bad],
+            &["--memory-limit", "expected a size in bytes"],
+        );
+    }
+}

@@ -243,3 +243,50 @@ fn demo_scores_every_method_on_six_scenes_and_replaces_its_own_folder() {
     let o = photostereo(&["demo", "-o", "mine"], dir.path());
     assert_eq!(o.status.code(), Some(2));
 }
+
+#[test]
+fn any_width_and_height_rendered_one_light_at_a_time() {
+    let dir = tempfile::tempdir().unwrap();
+    let o = photostereo(
+        &[
+            "synth", "sphere", "--rig", "ring8", "--size", "40x24", "-o", "wh", "--json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let summary: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
+    assert_eq!(
+        (summary["width"].as_u64(), summary["height"].as_u64()),
+        (Some(40), Some(24))
+    );
+    assert_eq!(summary["streamed"], true);
+    let img = photostereo::imageio::read_image(&dir.path().join("wh/001.png")).unwrap();
+    assert_eq!((img.width, img.height, img.bit_depth), (40, 24, 16));
+    // The capture runs, and its normals match the ground truth of the W×H scene.
+    let o = photostereo(
+        &[
+            "run",
+            "wh",
+            "--gt",
+            "wh/gt/normal.npy",
+            "--method",
+            "l2",
+            "-o",
+            "r",
+            "--json",
+        ],
+        dir.path(),
+    );
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.path().join("r/report.json")).unwrap())
+            .unwrap();
+    let mean = report["error"]["mean_deg"].as_f64().unwrap();
+    assert!(mean < 10.0, "mean error {mean}°");
+    let o = photostereo(
+        &["synth", "sphere", "--size", "40x4", "-o", "bad"],
+        dir.path(),
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("at least 8 pixels"));
+}

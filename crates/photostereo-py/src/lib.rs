@@ -221,6 +221,19 @@ fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
             "unreliable_weight" => p.integration.unreliable_weight = f64_of(v)? as f32,
             "detect" => p.detect = bool_of(v)?,
             "integrate" => p.integrate = bool_of(v)?,
+            "memory_limit" => {
+                p.memory_limit = optional(v, |x| {
+                    if let Ok(b) = x.extract::<u64>() {
+                        return Ok(b);
+                    }
+                    let s = str_of(x)?;
+                    photostereo::limits::parse_bytes(&s).ok_or_else(|| {
+                        bad(format!(
+                            "memory_limit '{s}': expected bytes or a size such as '4G' or '500M'"
+                        ))
+                    })
+                })?
+            }
             other => return Err(bad(format!("unknown parameter '{other}'"))),
         }
     }
@@ -292,6 +305,7 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     )?;
     d.set_item("detect", p.detect)?;
     d.set_item("integrate", p.integrate)?;
+    d.set_item("memory_limit", p.memory_limit)?;
     Ok(d)
 }
 
@@ -369,18 +383,22 @@ impl NativeCapture {
         let c = &self.inner;
         let (n, ch, w) = (c.n_lights(), c.channels, c.width);
         let mut out = Array4::<f32>::zeros((n, c.height, w, ch));
-        for (p, &i) in c.pixels.iter().enumerate() {
-            let (row, col) = (i as usize / w, i as usize % w);
-            let s = c.pixel_samples(p);
-            for k in 0..n {
-                let e = c.lights.intensities[k];
-                let mean = ((e[0] + e[1] + e[2]) / 3.0) as f32;
-                for j in 0..ch {
-                    let scale = if ch == 1 { mean } else { e[j] as f32 };
-                    out[[k, row, col, j]] = s[k * ch + j] * scale;
+        // Tile by tile when the capture was loaded in tiles (one tile otherwise).
+        let _ = c.for_each_tile(|_, tile| {
+            for (p, &i) in tile.pixels.iter().enumerate() {
+                let (row, col) = (i as usize / w, i as usize % w);
+                let s = tile.pixel_samples(p);
+                for k in 0..n {
+                    let e = c.lights.intensities[k];
+                    let mean = ((e[0] + e[1] + e[2]) / 3.0) as f32;
+                    for j in 0..ch {
+                        let scale = if ch == 1 { mean } else { e[j] as f32 };
+                        out[[k, row, col, j]] = s[k * ch + j] * scale;
+                    }
                 }
             }
-        }
+            Ok(())
+        });
         out.into_pyarray(py)
     }
 }
@@ -641,6 +659,7 @@ fn run(
         error_map,
         error_map_max_deg: None,
         light_subset,
+        obj_any_size: false,
     };
     let files = InputFiles {
         inputs,

@@ -10,10 +10,13 @@
 use crate::error::{Error, Result};
 use crate::imageio::{read_image, read_mask, Image};
 use crate::lights::Lights;
+use crate::memory::{CaptureSize, Force, Layout, MemoryPlan};
 use crate::progress::Progress;
+use crate::store::{Decode, SampleStore, SampleType, Tiling};
 use ndarray::{ArrayView2, ArrayView4, Axis};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 /// Images, lights and mask of one capture, intensity-normalised, restricted to the mask.
 #[derive(Clone, Debug)]
@@ -32,8 +35,16 @@ pub struct Capture {
     pub mask: Vec<bool>,
     /// Row-major flat index (`row * width + col`) of each mask pixel, ascending.
     pub pixels: Vec<u32>,
-    /// Intensity-normalised samples, `[pixel][light][channel]`.
+    /// Intensity-normalised samples, `[pixel][light][channel]`; empty when the samples are in
+    /// a tiled [`SampleStore`] (`store`), which [`Capture::for_each_tile`] reads tile by tile.
     pub samples: Vec<f32>,
+    /// The tiled store, when the samples did not fit the memory budget as `f32`.
+    pub store: Option<Arc<SampleStore>>,
+    /// The plan the capture was loaded with (`None` for captures built in memory).
+    pub memory: Option<MemoryPlan>,
+    /// For a sampled view ([`Capture::sampled`]): the mask pixels whose samples `samples`
+    /// holds, ascending.
+    sparse: Option<Arc<Vec<u32>>>,
     /// The image files, when loaded from files.
     pub sources: Vec<PathBuf>,
     /// Remarks made while loading (path resolution, renormalised lights…).
@@ -265,8 +276,91 @@ impl CaptureFiles {
         }
     }
 
-    /// Decodes the images in parallel and builds the capture.
+    /// Decodes the images in parallel and builds the capture, within the default memory
+    /// budget ([`crate::memory::default_budget`]).
     pub fn load(&self, progress: &dyn Progress) -> Result<Capture> {
+        self.load_with(progress, &LoadOptions::default())
+    }
+
+    /// Decodes the images and builds the capture within `options.budget`: whole in memory as
+    /// `f32` when that fits, else in tiles (see [`crate::memory`]); the plan is in the
+    /// capture's `memory`. A budget too small for the capture's full-frame stages is refused
+    /// (naming `memory_limit` and the smallest budget that works) before the samples are read.
+    pub fn load_with(&self, progress: &dyn Progress, options: &LoadOptions) -> Result<Capture> {
+        self.check_counts()?;
+        let budget = options.budget.unwrap_or_else(crate::memory::default_budget);
+        let info = crate::imageio::probe(&self.images[0])?;
+        let mut size = CaptureSize {
+            width: info.width,
+            height: info.height,
+            pixels: 0,
+            lights: self.images.len(),
+            channels: info.channels,
+            sample_type: if info.bit_depth == 32 {
+                SampleType::F32
+            } else {
+                SampleType::U16
+            },
+            threads: rayon::current_num_threads(),
+        };
+        // Without --memory-limit the budget is the machine's: a refusal names the images and
+        // the memory available, as the readers' own checks do.
+        let refusal = |e: Error| match (e, options.budget) {
+            (Error::Parameter { message, .. }, None) => Error::file(
+                &self.images[0],
+                format!(
+                    "declares {}×{} pixels × {} images: {} (the default budget is half of the \
+                     memory available{}; --memory-limit sets it)",
+                    info.width,
+                    info.height,
+                    self.images.len(),
+                    message.split_once(": ").map_or(message.as_str(), |m| m.1),
+                    if std::env::var_os(crate::limits::MEMORY_LIMIT_VAR).is_some() {
+                        format!(", with {} set", crate::limits::MEMORY_LIMIT_VAR)
+                    } else {
+                        String::new()
+                    }
+                ),
+            ),
+            (e, _) => e,
+        };
+        // The frame alone (no mask pixel) already tells a budget that cannot work, before any
+        // image is decoded; the smallest budget that works is then named with the mask's
+        // pixels counted.
+        if let Err(e) = crate::memory::plan(&size, budget, Force::default()) {
+            let Ok(mask) = self.read_mask_for(info.width, info.height) else {
+                return Err(refusal(e));
+            };
+            size.pixels = mask.iter().filter(|&&m| m).count();
+            return Err(refusal(
+                crate::memory::plan(&size, budget, Force::default())
+                    .err()
+                    .unwrap_or(e),
+            ));
+        }
+        let mask = self.read_mask_for(info.width, info.height)?;
+        size.pixels = mask.iter().filter(|&&m| m).count();
+        let (layout, plan) = crate::memory::plan(&size, budget, options.force).map_err(refusal)?;
+        let mut capture = if layout == Layout::InMemory {
+            self.load_in_memory(progress, mask)?
+        } else {
+            let dir = options.spill_dir.clone().unwrap_or_else(std::env::temp_dir);
+            self.load_tiled(
+                progress,
+                mask,
+                &plan,
+                (layout == Layout::Spill).then_some(&*dir),
+            )?
+        };
+        capture.memory = Some(plan);
+        let notes = crate::plausibility::check_capture(&capture)?;
+        capture.notes.extend(notes);
+        let (w, h) = (capture.width, capture.height);
+        capture.notes.extend(self.whole_frame_note(w, h));
+        Ok(capture)
+    }
+
+    fn check_counts(&self) -> Result<()> {
         let n = self.images.len();
         if n != self.lights.len() {
             return Err(Error::invalid(format!(
@@ -280,19 +374,20 @@ impl CaptureFiles {
                 "{n} image(s): photometric stereo needs at least three"
             )));
         }
-        self.lights.check_rank()?;
-        progress.begin("loading", n as u64);
-        let first = read_image(&self.images[0])?;
-        progress.advance(1);
-        let mask = match &self.mask {
+        self.lights.check_rank().map(|_| ())
+    }
+
+    /// The mask (all true without a mask file), checked against the images' size.
+    fn read_mask_for(&self, w: usize, h: usize) -> Result<Vec<bool>> {
+        Ok(match &self.mask {
             Some(path) => {
-                let (h, w, m) = read_mask(path)?;
-                if (h, w) != (first.height, first.width) {
+                let (mh, mw, m) = read_mask(path)?;
+                if (mh, mw) != (h, w) {
                     return Err(Error::file(
                         path,
                         format!(
                             "mask is {}×{} (width×height) but the images are {}×{}",
-                            w, h, first.width, first.height
+                            mw, mh, w, h
                         ),
                     ));
                 }
@@ -301,8 +396,227 @@ impl CaptureFiles {
                 }
                 m
             }
-            None => vec![true; first.width * first.height],
+            None => vec![true; w * h],
+        })
+    }
+
+    /// The error for image `k` whose size or channels differ from the first image's.
+    fn mismatch(
+        &self,
+        k: usize,
+        (w, h, c): (usize, usize, usize),
+        (iw, ih, ic): (usize, usize, usize),
+    ) -> Option<Error> {
+        let path = &self.images[k];
+        if (iw, ih) != (w, h) {
+            return Some(Error::file(
+                path,
+                format!(
+                    "image is {}×{} but {} is {}×{}: all images of a capture must share size",
+                    iw,
+                    ih,
+                    self.images[0].display(),
+                    w,
+                    h
+                ),
+            ));
+        }
+        if ic != c {
+            return Some(Error::file(
+                path,
+                format!(
+                    "image has {} channel(s) but {} has {}: all images must share the channel count",
+                    ic,
+                    self.images[0].display(),
+                    c
+                ),
+            ));
+        }
+        None
+    }
+
+    /// The tiled loader: every image decoded once, row band by row band (PNG, streamed; other
+    /// formats decoded whole, a few at a time), scattered into the tiles of `plan`.
+    fn load_tiled(
+        &self,
+        progress: &dyn Progress,
+        mask: Vec<bool>,
+        plan: &MemoryPlan,
+        spill_dir: Option<&Path>,
+    ) -> Result<Capture> {
+        let n = self.images.len();
+        let infos: Vec<crate::imageio::ImageInfo> = self
+            .images
+            .par_iter()
+            .map(|p| crate::imageio::probe(p))
+            .collect::<Result<_>>()?;
+        let (w, h, c) = (infos[0].width, infos[0].height, infos[0].channels);
+        for (k, i) in infos.iter().enumerate() {
+            if let Some(e) = self.mismatch(k, (w, h, c), (i.width, i.height, i.channels)) {
+                return Err(e);
+            }
+        }
+        let kind = if infos.iter().any(|i| i.bit_depth == 32) {
+            SampleType::F32
+        } else {
+            SampleType::U16
         };
+        let decode: Vec<Decode> = infos
+            .iter()
+            .map(|i| match (kind, i.format, i.bit_depth) {
+                (SampleType::F32, _, _) => Decode::Float,
+                (_, crate::imageio::Format::Png, 8) => Decode::MulRecip(1.0f32 / 255.0),
+                (_, crate::imageio::Format::Png, _) => Decode::MulRecip(1.0f32 / 65535.0),
+                (_, _, 8) => Decode::Div(255.0),
+                _ => Decode::Div(65535.0),
+            })
+            .collect();
+        let scale: Vec<[f32; 3]> = self
+            .lights
+            .intensities
+            .iter()
+            .map(|i| light_scale(i, c))
+            .collect();
+        let pixels: Vec<u32> = mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i as u32)
+            .collect();
+        let tiling = Tiling::new(&mask, w, h, plan.tile_pixels);
+        let mut store =
+            SampleStore::new(kind, c, tiling.clone(), decode.clone(), scale, spill_dir)?;
+        let e = kind.bytes();
+        let sb = c * e; // bytes of one light's sample of one pixel
+        let pb = n * sb;
+        let streamed = infos.iter().all(|i| i.streamable);
+        progress.begin("loading", (n * h) as u64);
+        let mut raw: Vec<u8> = Vec::new();
+        // The bytes of light k for the pixels of a tile, from integer or decoded values.
+        let put_u16 = |dec: Decode, u: u16, out: &mut Vec<u8>| match kind {
+            SampleType::U16 => out.extend_from_slice(&u.to_ne_bytes()),
+            SampleType::F32 => {
+                let v = match dec {
+                    Decode::Div(f) => u as f32 / f,
+                    Decode::MulRecip(r) => u as f32 * r,
+                    Decode::Float => u as f32,
+                };
+                out.extend_from_slice(&v.to_ne_bytes())
+            }
+        };
+        if streamed {
+            let mut readers: Vec<crate::imageio::PngRows> = self
+                .images
+                .iter()
+                .map(|p| crate::imageio::PngRows::open(p))
+                .collect::<Result<_>>()?;
+            let mut planes: Vec<Vec<u8>> = vec![Vec::new(); n];
+            for t in 0..tiling.len() {
+                crate::progress::check_cancelled(progress)?;
+                let (r0, r1) = (tiling.rows[t], tiling.rows[t + 1]);
+                let tile_pixels = &pixels[tiling.pixels(t)];
+                readers
+                    .par_iter_mut()
+                    .zip(planes.par_iter_mut())
+                    .enumerate()
+                    .map(|(k, (reader, plane))| -> Result<()> {
+                        plane.clear();
+                        let mut row = Vec::with_capacity(w * c);
+                        let mut next = 0;
+                        for r in r0..r1 {
+                            reader.next_row(c, &mut row)?;
+                            while next < tile_pixels.len() && tile_pixels[next] as usize / w == r {
+                                let col = tile_pixels[next] as usize % w;
+                                for &u in &row[col * c..(col + 1) * c] {
+                                    put_u16(decode[k], u, plane);
+                                }
+                                next += 1;
+                            }
+                        }
+                        progress.advance((r1 - r0) as u64);
+                        Ok(())
+                    })
+                    .collect::<Result<()>>()?;
+                interleave_bytes(&planes, tile_pixels.len(), sb, &mut raw);
+                store.write_raw(t, &raw)?;
+            }
+        } else {
+            // Decoded whole, as many at a time as there are threads; each group patched into
+            // every tile.
+            let group = rayon::current_num_threads().max(1);
+            for k0 in (0..n).step_by(group) {
+                crate::progress::check_cancelled(progress)?;
+                let ks: Vec<usize> = (k0..(k0 + group).min(n)).collect();
+                let images: Vec<Image> = ks
+                    .par_iter()
+                    .map(|&k| {
+                        let img = read_image(&self.images[k])?;
+                        if let Some(e) =
+                            self.mismatch(k, (w, h, c), (img.width, img.height, img.channels))
+                        {
+                            return Err(e);
+                        }
+                        progress.advance(h as u64);
+                        Ok(img)
+                    })
+                    .collect::<Result<_>>()?;
+                for t in 0..tiling.len() {
+                    let tile_pixels = &pixels[tiling.pixels(t)];
+                    store.read_raw(t, &mut raw)?;
+                    raw.par_chunks_mut(pb)
+                        .zip(tile_pixels.par_iter())
+                        .for_each(|(px, &i)| {
+                            let mut bytes = Vec::with_capacity(sb);
+                            for (&k, img) in ks.iter().zip(&images) {
+                                bytes.clear();
+                                let src = &img.data[i as usize * c..(i as usize + 1) * c];
+                                for &v in src {
+                                    match kind {
+                                        SampleType::U16 => bytes
+                                            .extend_from_slice(&decode[k].to_u16(v).to_ne_bytes()),
+                                        SampleType::F32 => {
+                                            bytes.extend_from_slice(&v.to_ne_bytes())
+                                        }
+                                    }
+                                }
+                                px[k * sb..(k + 1) * sb].copy_from_slice(&bytes);
+                            }
+                        });
+                    store.write_raw(t, &raw)?;
+                }
+            }
+        }
+        progress.end();
+        let _ = pb;
+        Ok(Capture {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth: infos[0].bit_depth,
+            lights: self.lights.clone(),
+            mask,
+            pixels,
+            samples: Vec::new(),
+            store: Some(Arc::new(store)),
+            memory: None,
+            sparse: None,
+            sources: self.images.clone(),
+            notes: self.notes.clone(),
+        })
+    }
+
+    /// The loader of captures held whole as `f32`.
+    fn load_in_memory(&self, progress: &dyn Progress, mask: Vec<bool>) -> Result<Capture> {
+        let n = self.images.len();
+        progress.begin("loading", n as u64);
+        let first = read_image(&self.images[0])?;
+        progress.advance(1);
+        if mask.len() != first.width * first.height {
+            return Err(Error::file(
+                &self.images[0],
+                "the image's size changed while the capture was read",
+            ));
+        }
         let pixels: Vec<u32> = mask
             .iter()
             .enumerate()
@@ -386,7 +700,7 @@ impl CaptureFiles {
         }
         progress.end();
         let samples = interleave(&planes, pixels.len(), c);
-        let mut capture = Capture {
+        let capture = Capture {
             width: w,
             height: h,
             channels: c,
@@ -395,12 +709,12 @@ impl CaptureFiles {
             mask,
             pixels,
             samples,
+            store: None,
+            memory: None,
+            sparse: None,
             sources: self.images.clone(),
             notes: self.notes.clone(),
         };
-        let notes = crate::plausibility::check_capture(&capture)?;
-        capture.notes.extend(notes);
-        capture.notes.extend(self.whole_frame_note(w, h));
         Ok(capture)
     }
 
@@ -583,6 +897,30 @@ fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {
     }
 }
 
+/// Options of [`CaptureFiles::load_with`].
+#[derive(Clone, Debug, Default)]
+pub struct LoadOptions {
+    /// The memory budget, bytes (default: [`crate::memory::default_budget`]).
+    pub budget: Option<u64>,
+    /// Where a spill file goes (default: the system's temporary folder); `run` gives the
+    /// output's staging folder.
+    pub spill_dir: Option<PathBuf>,
+    /// A forced layout or tile size (tests, experiments).
+    pub force: Force,
+}
+
+/// Light-major byte planes (`planes[k][p * sb..]`, `sb` bytes per pixel) into the pixel-major
+/// raw tile `out` (`[pixel][light]`).
+fn interleave_bytes(planes: &[Vec<u8>], n_pixels: usize, sb: usize, out: &mut Vec<u8>) {
+    let pb = planes.len() * sb;
+    out.resize(n_pixels * pb, 0);
+    out.par_chunks_mut(pb).enumerate().for_each(|(p, px)| {
+        for (k, plane) in planes.iter().enumerate() {
+            px[k * sb..(k + 1) * sb].copy_from_slice(&plane[p * sb..(p + 1) * sb]);
+        }
+    });
+}
+
 /// Turns light-major planes (`planes[k][p * C + c]`) into the pixel-major sample store.
 fn interleave(planes: &[Vec<f32>], n_pixels: usize, channels: usize) -> Vec<f32> {
     let n = planes.len();
@@ -692,6 +1030,9 @@ impl Capture {
             mask,
             pixels,
             samples,
+            store: None,
+            memory: None,
+            sparse: None,
             sources: Vec::new(),
             notes: Vec::new(),
         }
@@ -802,7 +1143,13 @@ impl Capture {
     #[inline]
     pub fn pixel_samples(&self, p: usize) -> &[f32] {
         let stride = self.n_lights() * self.channels;
-        &self.samples[p * stride..(p + 1) * stride]
+        let j = match &self.sparse {
+            None => p,
+            Some(ids) => ids
+                .binary_search(&(p as u32))
+                .unwrap_or_else(|_| panic!("mask pixel {p} is not in this sampled view")),
+        };
+        &self.samples[j * stride..(j + 1) * stride]
     }
 
     /// (row, col) of mask pixel `p`.
@@ -823,6 +1170,18 @@ impl Capture {
         }
         let lights = self.lights.permuted(keep);
         lights.check_rank()?;
+        let sources = keep
+            .iter()
+            .filter_map(|&k| self.sources.get(k).cloned())
+            .collect();
+        if let Some(store) = &self.store {
+            return Ok(Capture {
+                lights,
+                store: Some(Arc::new(store.select_lights(keep)?)),
+                sources,
+                ..self.clone_without_samples()
+            });
+        }
         let c = self.channels;
         let stride_in = n * c;
         let stride_out = keep.len() * c;
@@ -838,12 +1197,104 @@ impl Capture {
         Ok(Capture {
             lights,
             samples,
-            sources: keep
-                .iter()
-                .filter_map(|&k| self.sources.get(k).cloned())
-                .collect(),
+            sources,
             ..self.clone_without_samples()
         })
+    }
+
+    /// Whether the samples are in a tiled store rather than whole in memory.
+    pub fn is_tiled(&self) -> bool {
+        self.store.is_some()
+    }
+
+    /// Runs `f` on every tile of the capture in turn, in mask-pixel order, with the index of
+    /// the tile's first mask pixel and a view of the tile: a capture of the tile's pixels only
+    /// (local indices `0..view.n_pixels()`, the same lights, channels and frame size, no mask),
+    /// whose `pixel_samples` are the `f32` values a capture held whole gives. A capture held
+    /// whole is its own single tile (no copy). Per-pixel stages run on the views; what needs
+    /// the whole frame does not belong in `f`.
+    pub fn for_each_tile(&self, mut f: impl FnMut(usize, &Capture) -> Result<()>) -> Result<()> {
+        let Some(store) = &self.store else {
+            return f(0, self);
+        };
+        let tiling = store.tiling();
+        let mut raw = Vec::new();
+        let mut view = Capture {
+            mask: Vec::new(),
+            pixels: Vec::new(),
+            sources: Vec::new(),
+            notes: Vec::new(),
+            memory: None,
+            ..self.clone_without_samples_and_mask()
+        };
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            if range.is_empty() {
+                continue;
+            }
+            store.read_tile(t, &mut raw, &mut view.samples)?;
+            view.pixels.clear();
+            view.pixels.extend_from_slice(&self.pixels[range.clone()]);
+            f(range.start, &view)?;
+        }
+        Ok(())
+    }
+
+    /// A view holding the samples of the mask pixels `ids` only (any order, duplicates
+    /// allowed), for statistics over a regular sample of pixels: `pixel_samples(p)` answers for
+    /// those `p` (global indices) and panics for others; `n_pixels`, `pixels` and the mask are
+    /// the whole capture's. A capture held whole is returned as it is (cloned).
+    pub fn sampled(&self, ids: &[usize]) -> Result<Capture> {
+        let Some(store) = &self.store else {
+            return Ok(self.clone());
+        };
+        let mut ids: Vec<u32> = ids.iter().map(|&p| p as u32).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let stride = self.n_lights() * self.channels;
+        let mut samples = vec![0f32; ids.len() * stride];
+        let tiling = store.tiling();
+        let (mut raw, mut tile) = (Vec::new(), Vec::new());
+        let mut j = 0;
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            let first = j;
+            while j < ids.len() && (ids[j] as usize) < range.end {
+                j += 1;
+            }
+            if j == first {
+                continue;
+            }
+            store.read_tile(t, &mut raw, &mut tile)?;
+            for (i, &p) in ids[first..j].iter().enumerate() {
+                let local = p as usize - range.start;
+                samples[(first + i) * stride..(first + i + 1) * stride]
+                    .copy_from_slice(&tile[local * stride..(local + 1) * stride]);
+            }
+        }
+        Ok(Capture {
+            samples,
+            sparse: Some(Arc::new(ids)),
+            ..self.clone_without_samples()
+        })
+    }
+
+    fn clone_without_samples_and_mask(&self) -> Capture {
+        Capture {
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            bit_depth: self.bit_depth,
+            lights: self.lights.clone(),
+            mask: Vec::new(),
+            pixels: Vec::new(),
+            samples: Vec::new(),
+            store: None,
+            memory: None,
+            sparse: None,
+            sources: Vec::new(),
+            notes: Vec::new(),
+        }
     }
 
     fn clone_without_samples(&self) -> Capture {
@@ -856,6 +1307,9 @@ impl Capture {
             mask: self.mask.clone(),
             pixels: self.pixels.clone(),
             samples: Vec::new(),
+            store: None,
+            memory: self.memory.clone(),
+            sparse: None,
             sources: Vec::new(),
             notes: self.notes.clone(),
         }

@@ -184,6 +184,7 @@ pub fn compare(
                     error_map: truth.is_some(),
                     error_map_max_deg: None,
                     light_subset: options.light_subset.clone(),
+                    obj_any_size: false,
                 };
                 write_reconstruction(rec, &dir, &run_options)?;
                 write_json(&dir.join("report.json"), &rec.report)?;
@@ -365,18 +366,21 @@ fn input_panel(view: &View, capture: &Capture, k: usize) -> (Canvas, f32) {
     let (n, c) = (capture.n_lights(), capture.channels);
     let scale = raw_scale(capture, k);
     let mut raw = vec![[0f32; 3]; capture.width * capture.height];
-    for (p, &pix) in capture.pixels.iter().enumerate() {
-        let s = &capture.samples[(p * n + k) * c..(p * n + k + 1) * c];
-        raw[pix as usize] = if c == 1 {
-            [s[0] * scale[0] as f32; 3]
-        } else {
-            [
-                s[0] * scale[0] as f32,
-                s[1] * scale[1] as f32,
-                s[2] * scale[2] as f32,
-            ]
-        };
-    }
+    let _ = capture.for_each_tile(|_, tile| {
+        for (p, &pix) in tile.pixels.iter().enumerate() {
+            let s = &tile.samples[(p * n + k) * c..(p * n + k + 1) * c];
+            raw[pix as usize] = if c == 1 {
+                [s[0] * scale[0] as f32; 3]
+            } else {
+                [
+                    s[0] * scale[0] as f32,
+                    s[1] * scale[1] as f32,
+                    s[2] * scale[2] as f32,
+                ]
+            };
+        }
+        Ok(())
+    });
     let white = percentile(
         capture
             .pixels

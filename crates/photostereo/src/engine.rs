@@ -17,13 +17,13 @@
 //! | `trust` | (H, W), integration weight of each pixel in 0..1 | 0 |
 
 use crate::capture::Capture;
-use crate::detect::{detect, Detection, DetectionParams};
+use crate::detect::{Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
 use crate::integrate::{surface_from_normals, weighted_normals, IntegrationParams, Surface};
 use crate::lambert::{status, Estimate};
 use crate::metrics::{evaluate, ErrorStats};
-use crate::progress::{check_cancelled, Progress};
+use crate::progress::{check_cancelled, Progress, Silent};
 use crate::recursive::{Recursive, RecursiveDiagnostics, RecursiveParams};
 use crate::report::{InputSummary, Report};
 use std::str::FromStr;
@@ -96,6 +96,11 @@ pub struct Params {
     pub detect: bool,
     /// Integrate the final normals into depth and curl (default true).
     pub integrate: bool,
+    /// The memory budget of a run from files, bytes (default `None`: half of the memory
+    /// available, see [`crate::memory`]). Captures whose samples do not fit as `f32` are held
+    /// in tiles at the input's precision, in memory or in a spill file; the results are the
+    /// same. A capture already in memory ([`Capture::from_stack`]) is used as it is.
+    pub memory_limit: Option<u64>,
 }
 
 impl Default for Params {
@@ -107,6 +112,7 @@ impl Default for Params {
             integration: IntegrationParams::default(),
             detect: true,
             integrate: true,
+            memory_limit: None,
         }
     }
 }
@@ -114,6 +120,12 @@ impl Default for Params {
 impl Params {
     /// Checks every parameter's domain; errors name the parameter ([`Error::Parameter`]).
     pub fn validate(&self) -> Result<()> {
+        if self.memory_limit == Some(0) {
+            return Err(Error::parameter(
+                "memory_limit",
+                "0: expected a size in bytes such as 4G or 500M",
+            ));
+        }
         self.detection.validate()?;
         self.recursive.validate()?;
         self.integration.validate()
@@ -129,6 +141,7 @@ impl Params {
             "detection": self.detection,
             "recursive": self.recursive,
             "integration": self.integration,
+            "memory_limit": self.memory_limit,
         })
     }
 }
@@ -245,6 +258,12 @@ pub fn reconstruct_with_truth(
     {
         report.param(name, value.clone());
     }
+    if let Some(plan) = &capture.memory {
+        report.extra.insert(
+            "memory".into(),
+            serde_json::to_value(plan).unwrap_or_default(),
+        );
+    }
     let can_detect = capture.n_lights() >= 4;
     if params.detect && !can_detect {
         report
@@ -263,11 +282,12 @@ pub fn reconstruct_with_truth(
                 "confidence": d.params.confidence,
                 "unreliable_share": d.unreliable_share(),
                 "kappa_measured": crate::detect::estimate_kappa(
-                    capture, d.noise.sigma0, d.noise.floor, &d.params
+                    &*crate::tiles::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params
                 ),
-                "shadow_labels": estimate.light_status.as_ref().map(|s| {
-                    crate::lambert::shadow_labels(capture, &estimate, s)
-                }),
+                "shadow_labels": match estimate.light_status.as_ref() {
+                    Some(s) => Some(tiled_shadow_labels(capture, &estimate, s)?),
+                    None => None,
+                },
             }),
         );
     }
@@ -382,7 +402,7 @@ fn estimate(
             attribute: method.attributes(),
             ..params.detection.clone()
         };
-        let d = detect(capture, &detection_params, progress)?;
+        let d = crate::tiles::detect_tiles(capture, &detection_params, progress)?;
         report.time("detect", t);
         check_cancelled(progress)?;
         Some(d)
@@ -391,23 +411,40 @@ fn estimate(
     };
     let t = Instant::now();
     let result = match method {
+        Method::L2 if capture.is_tiled() => (
+            crate::tiles::solve_tiles(capture, None, progress)?,
+            detection,
+            None,
+        ),
         Method::L2 => (LeastSquares.estimate(capture, progress)?, detection, None),
         Method::ColemanJain => {
             let cj = ColemanJain {
                 params: params.detection.clone(),
                 ..ColemanJain::default()
             };
-            (cj.estimate(capture, progress)?, detection, None)
+            if capture.is_tiled() && capture.n_lights() >= 4 {
+                let (noise, threshold) =
+                    cj.calibration(&*crate::tiles::statistics_view(capture)?, progress)?;
+                let est = crate::tiles::estimate_tiles(capture, progress, |_, tile| {
+                    cj.estimate_calibrated(tile, &noise, threshold, &Silent)
+                })?;
+                (est, detection, None)
+            } else {
+                (cj.estimate(capture, progress)?, detection, None)
+            }
         }
         Method::BarskyPetrou => {
             let d = detection.ok_or_else(|| {
                 Error::invalid("barsky-petrou needs the detector, which needs four lights")
             })?;
-            (
-                BarskyPetrou::from_detection(capture, &d, progress),
-                Some(d),
-                None,
-            )
+            let est = if capture.is_tiled() {
+                let mut est = crate::tiles::solve_tiles(capture, Some(&d.usable()), progress)?;
+                est.light_status = Some(d.light_status.clone());
+                est
+            } else {
+                BarskyPetrou::from_detection(capture, &d, progress)
+            };
+            (est, Some(d), None)
         }
         Method::Recursive => {
             let recursive = Recursive {
@@ -440,4 +477,37 @@ fn full_frame_statuses(capture: &Capture, light_status: Option<&[u8]>) -> Vec<u8
         }
     }
     full
+}
+
+/// [`crate::lambert::shadow_labels`] summed over the tiles.
+fn tiled_shadow_labels(
+    capture: &Capture,
+    est: &Estimate,
+    light_status: &[u8],
+) -> Result<crate::lambert::ShadowLabels> {
+    if !capture.is_tiled() {
+        return Ok(crate::lambert::shadow_labels(capture, est, light_status));
+    }
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let mut counts = (0usize, 0usize, 0usize);
+    capture.for_each_tile(|off, tile| {
+        let np = tile.n_pixels();
+        let part = Estimate {
+            normals: est.normals[off..off + np].to_vec(),
+            albedo: est.albedo[off * c..(off + np) * c].to_vec(),
+            light_status: None,
+        };
+        let (a, b, d) = crate::lambert::shadow_label_counts(
+            tile,
+            &part,
+            &light_status[off * n..(off + np) * n],
+        );
+        counts = (counts.0 + a, counts.1 + b, counts.2 + d);
+        Ok(())
+    })?;
+    Ok(crate::lambert::ShadowLabels::from_counts(
+        counts,
+        n,
+        capture.n_pixels(),
+    ))
 }

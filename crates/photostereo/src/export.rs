@@ -523,8 +523,8 @@ pub fn written_by_photostereo(path: &Path) -> bool {
 /// black outside the mask) and `normals.exr` into `dir`. `normals` is `height * width` row-major;
 /// zero vectors mark pixels outside the mask.
 pub fn write_normals(dir: &Path, width: usize, height: usize, normals: &[[f32; 3]]) -> Result<()> {
-    let flat: Vec<f32> = normals.iter().flatten().copied().collect();
-    write_npy_f32(&dir.join("normals.npy"), &[height, width, 3], &flat)?;
+    let flat: &[f32] = normals.as_flattened();
+    write_npy_f32(&dir.join("normals.npy"), &[height, width, 3], flat)?;
     let png: Vec<u16> = normals
         .iter()
         .flat_map(|n| {
@@ -536,7 +536,8 @@ pub fn write_normals(dir: &Path, width: usize, height: usize, normals: &[[f32; 3
         })
         .collect();
     write_png16(&dir.join("normals.png"), width, height, 3, &png)?;
-    write_exr_rgb(&dir.join("normals.exr"), width, height, &flat)
+    drop(png);
+    write_exr_rgb(&dir.join("normals.exr"), width, height, flat)
 }
 
 /// Writes `albedo.npy` (float32 (H, W, C)) and `albedo.png` (16-bit, scaled so that the 99.5th
@@ -577,7 +578,8 @@ pub fn write_albedo(
 
 /// Writes a float32 `.npy` array of the given shape (C order).
 pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
-    let arr = ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), data.to_vec())
+    // A view of the caller's data: no second copy of the array.
+    let arr = ndarray::ArrayViewD::from_shape(ndarray::IxDyn(shape), data)
         .map_err(|e| Error::invalid(format!("array shape {shape:?}: {e}")))?;
     ndarray_npy::write_npy(path, &arr)
         .map_err(|e| Error::file(path, format!("writing .npy failed: {e}")))
@@ -585,7 +587,8 @@ pub fn write_npy_f32(path: &Path, shape: &[usize], data: &[f32]) -> Result<()> {
 
 /// Writes a uint8 `.npy` array of the given shape (C order).
 pub fn write_npy_u8(path: &Path, shape: &[usize], data: &[u8]) -> Result<()> {
-    let arr = ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), data.to_vec())
+    // A view of the caller's data: no second copy of the array.
+    let arr = ndarray::ArrayViewD::from_shape(ndarray::IxDyn(shape), data)
         .map_err(|e| Error::invalid(format!("array shape {shape:?}: {e}")))?;
     ndarray_npy::write_npy(path, &arr)
         .map_err(|e| Error::file(path, format!("writing .npy failed: {e}")))
@@ -593,7 +596,8 @@ pub fn write_npy_u8(path: &Path, shape: &[usize], data: &[u8]) -> Result<()> {
 
 /// Writes a bool `.npy` array of the given shape (C order).
 pub fn write_npy_bool(path: &Path, shape: &[usize], data: &[bool]) -> Result<()> {
-    let arr = ndarray::ArrayD::from_shape_vec(ndarray::IxDyn(shape), data.to_vec())
+    // A view of the caller's data: no second copy of the array.
+    let arr = ndarray::ArrayViewD::from_shape(ndarray::IxDyn(shape), data)
         .map_err(|e| Error::invalid(format!("array shape {shape:?}: {e}")))?;
     ndarray_npy::write_npy(path, &arr)
         .map_err(|e| Error::file(path, format!("writing .npy failed: {e}")))

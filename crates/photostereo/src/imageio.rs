@@ -188,6 +188,154 @@ fn decode_png(bytes: &[u8]) -> Result<Image, String> {
     })
 }
 
+/// What an image file declares, read without decoding its pixels (PNG) or by decoding it
+/// (other formats).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ImageInfo {
+    pub width: usize,
+    pub height: usize,
+    /// Channels kept (1 or 3).
+    pub channels: usize,
+    /// 8, 16 or 32.
+    pub bit_depth: u8,
+    pub format: Format,
+    /// Whether the file can be read row by row ([`PngRows`]): a PNG without interlacing.
+    pub streamable: bool,
+}
+
+fn open_png(path: &Path) -> Result<png::Reader<std::io::BufReader<std::fs::File>>> {
+    let file = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+    let len = file.metadata().map(|m| m.len()).unwrap_or(0);
+    let mut decoder = png::Decoder::new(std::io::BufReader::with_capacity(64 << 10, file));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let reader = decoder
+        .read_info()
+        .map_err(|e| Error::file(path, format!("corrupt PNG: {e}")))?;
+    let info = reader.info();
+    if info.color_type == png::ColorType::Indexed {
+        return Err(Error::file(
+            path,
+            "a palette PNG cannot be read row by row (decode it whole)",
+        ));
+    }
+    let (w, h) = (info.width as u64, info.height as u64);
+    let bits = info.color_type.samples() as u64 * info.bit_depth as u8 as u64;
+    let stored = w
+        .saturating_mul(bits)
+        .div_ceil(8)
+        .saturating_add(1)
+        .saturating_mul(h);
+    // Only one row is decoded at a time: the declared size is checked against the fixed limits
+    // and the file's size, not against a whole decoded image.
+    let declared = DeclaredImage {
+        width: w,
+        height: h,
+        channels: info.color_type.samples() as u64,
+        bytes_per_sample: 0,
+        kept_channels: 0,
+    };
+    declared
+        .check(stored, len, MAX_DEFLATE_RATIO)
+        .map_err(|m| Error::file(path, m))?;
+    Ok(reader)
+}
+
+/// Reads an image file's size, channels and depth. PNG headers are read alone; other formats
+/// are decoded (their readers cannot do less).
+pub fn probe(path: &Path) -> Result<ImageInfo> {
+    if path.is_dir() {
+        return Err(Error::file(path, "is a folder, expected an image file"));
+    }
+    let mut head = [0u8; 8];
+    {
+        use std::io::Read;
+        let mut f = std::fs::File::open(path).map_err(|e| Error::io(path, e))?;
+        let mut got = 0;
+        while got < 8 {
+            match f.read(&mut head[got..]) {
+                Ok(0) => break,
+                Ok(k) => got += k,
+                Err(e) => return Err(Error::io(path, e)),
+            }
+        }
+    }
+    let is_png = sniff(&head) == Some(Format::Png);
+    if is_png {
+        if let Ok(reader) = open_png(path) {
+            let info = reader.info();
+            let (color, depth) = reader.output_color_type();
+            return Ok(ImageInfo {
+                width: info.width as usize,
+                height: info.height as usize,
+                channels: if color.samples() >= 3 { 3 } else { 1 },
+                bit_depth: if depth == png::BitDepth::Sixteen {
+                    16
+                } else {
+                    8
+                },
+                format: Format::Png,
+                streamable: !info.interlaced,
+            });
+        }
+    }
+    let img = read_image(path)?;
+    Ok(ImageInfo {
+        width: img.width,
+        height: img.height,
+        channels: img.channels,
+        bit_depth: img.bit_depth,
+        format: sniff(&head).unwrap_or(Format::Png),
+        streamable: false,
+    })
+}
+
+/// A PNG read row by row (see [`ImageInfo::streamable`]): only one row is held at a time.
+pub struct PngRows {
+    reader: png::Reader<std::io::BufReader<std::fs::File>>,
+    path: std::path::PathBuf,
+    src_channels: usize,
+    sixteen: bool,
+}
+
+impl PngRows {
+    /// Opens a non-interlaced PNG.
+    pub fn open(path: &Path) -> Result<PngRows> {
+        let reader = open_png(path)?;
+        let (color, depth) = reader.output_color_type();
+        Ok(PngRows {
+            src_channels: color.samples(),
+            sixteen: depth == png::BitDepth::Sixteen,
+            reader,
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// The next row's samples as integers (`channels` kept per pixel, alpha dropped), into
+    /// `out` (`width * channels` values).
+    pub fn next_row(&mut self, channels: usize, out: &mut Vec<u16>) -> Result<()> {
+        let (sc, sixteen) = (self.src_channels, self.sixteen);
+        let row = self
+            .reader
+            .next_row()
+            .map_err(|e| Error::file(&self.path, format!("corrupt or truncated PNG: {e}")))?
+            .ok_or_else(|| Error::file(&self.path, "truncated PNG: fewer rows than declared"))?;
+        let data = row.data();
+        out.clear();
+        if sixteen {
+            for px in data.chunks_exact(2 * sc) {
+                for c in 0..channels {
+                    out.push(u16::from_be_bytes([px[2 * c], px[2 * c + 1]]));
+                }
+            }
+        } else {
+            for px in data.chunks_exact(sc) {
+                out.extend(px[..channels].iter().map(|&v| v as u16));
+            }
+        }
+        Ok(())
+    }
+}
+
 fn decode_tiff(bytes: &[u8]) -> Result<Image, String> {
     use tiff::decoder::{Decoder, DecodingResult};
     use tiff::ColorType;

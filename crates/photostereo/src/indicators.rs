@@ -140,35 +140,38 @@ pub fn status_intensities(capture: &Capture, light_status: &[u8]) -> StatusInten
     assert_eq!(light_status.len(), n * hw, "light_status must be (N, H, W)");
     let scales: Vec<[f64; 3]> = (0..n).map(|k| raw_scale(capture, k)).collect();
     let (mut hl, mut sh, mut all) = (Sums::new(), Sums::new(), Sums::new());
-    for (p, &pix) in capture.pixels.iter().enumerate() {
-        let samples = capture.pixel_samples(p);
-        let (mut any_h, mut any_s) = (false, false);
-        for k in 0..n {
-            let st = light_status[k * hw + pix as usize];
-            let class = match st {
-                status::HIGHLIGHT => {
-                    any_h = true;
-                    Some(&mut hl)
-                }
-                status::SHADOW => {
-                    any_s = true;
-                    Some(&mut sh)
-                }
-                _ => None,
-            };
-            let px = &samples[k * c..(k + 1) * c];
-            for target in [Some(&mut all), class].into_iter().flatten() {
-                target.pairs += 1;
-                for (ch, &v) in px.iter().enumerate() {
-                    target.normalised[ch] += v as f64;
-                    target.raw[ch] += v as f64 * scales[k][ch];
+    let _ = capture.for_each_tile(|_, tile| {
+        for (p, &pix) in tile.pixels.iter().enumerate() {
+            let samples = tile.pixel_samples(p);
+            let (mut any_h, mut any_s) = (false, false);
+            for k in 0..n {
+                let st = light_status[k * hw + pix as usize];
+                let class = match st {
+                    status::HIGHLIGHT => {
+                        any_h = true;
+                        Some(&mut hl)
+                    }
+                    status::SHADOW => {
+                        any_s = true;
+                        Some(&mut sh)
+                    }
+                    _ => None,
+                };
+                let px = &samples[k * c..(k + 1) * c];
+                for target in [Some(&mut all), class].into_iter().flatten() {
+                    target.pairs += 1;
+                    for (ch, &v) in px.iter().enumerate() {
+                        target.normalised[ch] += v as f64;
+                        target.raw[ch] += v as f64 * scales[k][ch];
+                    }
                 }
             }
+            all.pixels += 1;
+            hl.pixels += any_h as u64;
+            sh.pixels += any_s as u64;
         }
-        all.pixels += 1;
-        hl.pixels += any_h as u64;
-        sh.pixels += any_s as u64;
-    }
+        Ok(())
+    });
     let total = all.pairs;
     StatusIntensities {
         highlights: hl.finish(c, total),

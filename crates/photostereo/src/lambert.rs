@@ -289,9 +289,37 @@ pub struct ShadowLabels {
 
 /// [`ShadowLabels`] of an estimate with per-light statuses (`light_status`, per mask pixel).
 pub fn shadow_labels(capture: &Capture, est: &Estimate, light_status: &[u8]) -> ShadowLabels {
+    let counts = shadow_label_counts(capture, est, light_status);
+    ShadowLabels::from_counts(counts, capture.n_lights(), capture.n_pixels())
+}
+
+impl ShadowLabels {
+    /// From the counts of [`shadow_label_counts`] over `n_pixels` pixels and `n` lights.
+    pub fn from_counts(
+        (pairs, away, lit): (usize, usize, usize),
+        n: usize,
+        n_pixels: usize,
+    ) -> Self {
+        let d = pairs.max(1) as f64;
+        ShadowLabels {
+            pairs,
+            share_of_all: pairs as f64 / (n * n_pixels).max(1) as f64,
+            facing_away: away as f64 / d,
+            lit: lit as f64 / d,
+        }
+    }
+}
+
+/// The counts behind [`shadow_labels`]: shadow pairs, those facing away from the light, those
+/// reading more than half of the Lambertian prediction.
+pub fn shadow_label_counts(
+    capture: &Capture,
+    est: &Estimate,
+    light_status: &[u8],
+) -> (usize, usize, usize) {
     let n = capture.n_lights();
     let c = capture.channels;
-    let (pairs, away, lit) = (0..capture.n_pixels())
+    (0..capture.n_pixels())
         .into_par_iter()
         .map_init(
             || vec![0f64; n],
@@ -319,12 +347,5 @@ pub fn shadow_labels(capture: &Capture, est: &Estimate, light_status: &[u8]) -> 
                 (pairs, away, lit)
             },
         )
-        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
-    let d = pairs.max(1) as f64;
-    ShadowLabels {
-        pairs,
-        share_of_all: pairs as f64 / (n * capture.n_pixels()).max(1) as f64,
-        facing_away: away as f64 / d,
-        lit: lit as f64 / d,
-    }
+        .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2))
 }

@@ -58,6 +58,7 @@ pub mod lights;
 pub mod limits;
 pub mod maps;
 pub mod matfile;
+pub mod memory;
 pub mod metrics;
 pub mod pipeline;
 pub mod plausibility;
@@ -68,7 +69,9 @@ pub mod rng;
 pub mod scene;
 pub mod shadows;
 pub mod stats;
+pub mod store;
 pub mod surface;
+pub mod tiles;
 pub mod viewer;
 
 pub use capture::{Capture, CaptureFiles};

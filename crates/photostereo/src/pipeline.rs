@@ -83,7 +83,14 @@ pub struct RunOptions {
     pub error_map_max_deg: Option<f32>,
     /// Use only these lights.
     pub light_subset: Option<LightSubset>,
+    /// Write `mesh.obj` at any size; by default it is skipped, with a note, above
+    /// [`OBJ_MAX_VERTICES`] (the text format is about 10 times the binary PLY, which is written
+    /// at every size).
+    pub obj_any_size: bool,
 }
+
+/// Above this many vertices `mesh.obj` is skipped unless asked for.
+pub const OBJ_MAX_VERTICES: usize = 10_000_000;
 
 /// Upper end of the error map's colour scale when none is given, degrees.
 pub const DEFAULT_ERROR_MAP_MAX_DEG: f32 = 45.0;
@@ -139,7 +146,20 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         )?;
     }
     if let Some(surface) = &rec.surface {
-        crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+        let d = &surface.depth;
+        let vertices = d.values.iter().filter(|v| v.is_finite()).count();
+        if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
+            crate::surface::write_surface(dir, surface, &rec.normals, false)?;
+            crate::surface::write_mesh_ply(
+                &dir.join("mesh.ply"),
+                d.width,
+                d.height,
+                &d.values,
+                &rec.normals,
+            )?;
+        } else {
+            crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+        }
     }
     if options.error_map {
         if let Some(map) = &rec.error_map {
@@ -178,7 +198,12 @@ pub fn run(
         None => None,
     };
     let t = Instant::now();
-    let mut capture = files.load(progress)?;
+    let load_options = crate::capture::LoadOptions {
+        budget: options.params.memory_limit,
+        spill_dir: Some(folder.path().to_path_buf()),
+        ..Default::default()
+    };
+    let mut capture = files.load_with(progress, &load_options)?;
     let mut subset = None;
     if let Some(s) = &options.light_subset {
         let keep = s.resolve(&capture.lights)?;
@@ -224,9 +249,22 @@ pub fn run(
         rec.report.time("evaluate", t);
     }
     let t = Instant::now();
+    if let Some(s) = &rec.surface {
+        let vertices = s.depth.values.iter().filter(|v| v.is_finite()).count();
+        if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
+            rec.report.notes.push(format!(
+                "mesh.obj skipped: {vertices} vertices, more than {OBJ_MAX_VERTICES} (mesh.ply holds the mesh; --obj writes mesh.obj too)"
+            ));
+        }
+    }
     write_reconstruction(&rec, folder.path(), options)?;
     rec.report.time("write", t);
     rec.report.time("total", start);
+    if let (Some(serde_json::Value::Object(m)), Some(peak)) =
+        (rec.report.extra.get_mut("memory"), crate::store::peak_rss())
+    {
+        m.insert("peak_rss".into(), peak.into());
+    }
     write_json(&folder.file("report.json"), &rec.report)?;
     folder.commit()?;
     Ok(rec)

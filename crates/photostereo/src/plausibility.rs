@@ -138,7 +138,7 @@ struct ImageStats {
 
 fn check_images(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
     let (n, c, p) = (capture.n_lights(), capture.channels, capture.n_pixels());
-    if p == 0 || n == 0 || capture.samples.len() != p * n * c {
+    if p == 0 || n == 0 || (!capture.is_tiled() && capture.samples.len() != p * n * c) {
         return Ok(());
     }
     // Back to the image values: the samples were divided by each light's intensity.
@@ -171,26 +171,29 @@ fn check_images(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
         n
     ];
     let mut usable_pixels = 0usize;
-    for px in capture.samples.chunks_exact(n * c) {
-        let mut usable = 0;
-        for (k, s) in stats.iter_mut().enumerate() {
-            let v = &px[k * c..(k + 1) * c];
-            let mut all_black = true;
-            let mut any_saturated = false;
-            for (ch, &x) in v.iter().enumerate() {
-                let raw = x * scale[k][ch];
-                all_black &= raw <= black_at;
-                any_saturated |= raw >= saturated_at;
-                s.min = s.min.min(raw);
-                s.max = s.max.max(raw);
-                s.hash = (s.hash ^ raw.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+    capture.for_each_tile(|_, tile| {
+        for px in tile.samples.chunks_exact(n * c) {
+            let mut usable = 0;
+            for (k, s) in stats.iter_mut().enumerate() {
+                let v = &px[k * c..(k + 1) * c];
+                let mut all_black = true;
+                let mut any_saturated = false;
+                for (ch, &x) in v.iter().enumerate() {
+                    let raw = x * scale[k][ch];
+                    all_black &= raw <= black_at;
+                    any_saturated |= raw >= saturated_at;
+                    s.min = s.min.min(raw);
+                    s.max = s.max.max(raw);
+                    s.hash = (s.hash ^ raw.to_bits() as u64).wrapping_mul(0x0100_0000_01b3);
+                }
+                s.black += usize::from(all_black);
+                s.saturated += usize::from(any_saturated);
+                usable += usize::from(!all_black && !any_saturated);
             }
-            s.black += usize::from(all_black);
-            s.saturated += usize::from(any_saturated);
-            usable += usize::from(!all_black && !any_saturated);
+            usable_pixels += usize::from(usable >= 3);
         }
-        usable_pixels += usize::from(usable >= 3);
-    }
+        Ok(())
+    })?;
     let name = |k: usize| match capture.sources.get(k) {
         Some(p) => format!("image {} ({})", k + 1, p.display()),
         None => format!("image {}", k + 1),

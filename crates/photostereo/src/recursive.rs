@@ -20,16 +20,14 @@
 //! completed by [`Fallback`].
 
 use crate::capture::Capture;
-use crate::detect::{detect, Attributor, Detection, DetectionParams};
+use crate::detect::{Attributor, Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::integrate::{
     gradients_from_normals, normals_from_depth, weighted_normals, IntegrationParams,
     IntegrationProblem,
 };
-use crate::lambert::{
-    channel_mean, solve_subsets, status, usable, write_normal_albedo, Estimate, CHUNK,
-};
+use crate::lambert::{channel_mean, status, write_normal_albedo, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
 use crate::progress::{Progress, Silent};
 use crate::shadows::{shadow_maps, ShadowMaps, ShadowParams};
@@ -249,17 +247,20 @@ pub fn recursive(
     // starts reliable and only the geometric shadows of the surface prune lights.
     let detect_start = Instant::now();
     let (detection, attributor) = if n >= 4 {
-        let detection = detect(capture, detection_params, progress)?;
+        let detection = crate::tiles::detect_tiles(capture, detection_params, progress)?;
         let attributor = Attributor::new(capture, detection_params, detection.noise)?;
         (detection, Some(attributor))
     } else {
-        (Detection::untested(capture, detection_params), None)
+        (
+            Detection::untested(&*crate::tiles::statistics_view(capture)?, detection_params),
+            None,
+        )
     };
     let detect_seconds = detect_start.elapsed().as_secs_f64();
     let unreliable = detection.unreliable.clone();
     let noise = detection.noise;
     let mut light_status = detection.light_status.clone();
-    let mut est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
+    let mut est = crate::tiles::solve_statuses(capture, &light_status)?;
     // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
     let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
     let mut few = vec![false; np];
@@ -281,6 +282,8 @@ pub fn recursive(
     for iteration in 1..=params.max_iterations {
         crate::progress::check_cancelled(progress)?;
         let start = Instant::now();
+        // The last iteration's shadow maps are replaced below: not kept beside the new ones.
+        drop(last_maps.take());
         // 2. The surface.
         let masked_trust = pixel_trust(
             &est,
@@ -292,6 +295,8 @@ pub fn recursive(
         let trust = capture.scatter(&masked_trust, 1, 0.0);
         let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
+        // Full-frame maps are dropped as soon as they have served (large captures).
+        drop((trust, est_full, masked_trust));
         let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
         let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
         // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
@@ -304,6 +309,7 @@ pub fn recursive(
                 }
             })
             .collect();
+        drop((normals_full, weights));
         // 3. Shadows of every light.
         let maps = shadow_maps(
             &depth.values,
@@ -319,53 +325,60 @@ pub fn recursive(
         let mut new_consistent = vec![false; np];
         let mut new_few = vec![false; np];
         let mut new_highlight = vec![false; np];
-        new_status
-            .par_chunks_mut(CHUNK * n)
-            .zip(new_consistent.par_chunks_mut(CHUNK))
-            .zip(new_few.par_chunks_mut(CHUNK))
-            .zip(new_highlight.par_chunks_mut(CHUNK))
-            .enumerate()
-            .for_each_init(
-                || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
-                |(grey, scratch), (chunk, (((st, cons), fw), hl))| {
-                    for dp in 0..cons.len() {
-                        let p = chunk * CHUNK + dp;
-                        let pix = capture.pixels[p] as usize;
-                        let s = &mut st[dp * n..(dp + 1) * n];
-                        channel_mean(capture.pixel_samples(p), c, grey);
-                        // A light in the surface's shadow is dropped when its reading agrees
-                        // (at the shadow level); a clearly lit reading says the surface is off
-                        // there, and the light stays for the test to judge.
-                        let level = grey.iter().sum::<f64>() / n as f64;
-                        let dark = noise.shadow_level(detection_params, level);
-                        let mut shadowed = 0;
-                        for (k, sk) in s.iter_mut().enumerate() {
-                            if maps.is_shadowed(k, pix) && grey[k] <= dark {
-                                *sk = status::SHADOW;
-                                shadowed += 1;
+        // Tile by tile (the whole capture at once when it is held whole): `off` is the tile's
+        // first mask pixel, `tile` its view (local indices).
+        capture.for_each_tile(|off, tile| {
+            let tn = tile.n_pixels();
+            new_status[off * n..(off + tn) * n]
+                .par_chunks_mut(CHUNK * n)
+                .zip(new_consistent[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(new_few[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(new_highlight[off..off + tn].par_chunks_mut(CHUNK))
+                .enumerate()
+                .for_each_init(
+                    || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
+                    |(grey, scratch), (chunk, (((st, cons), fw), hl))| {
+                        for dp in 0..cons.len() {
+                            let lp = chunk * CHUNK + dp;
+                            let p = off + lp;
+                            let pix = capture.pixels[p] as usize;
+                            let s = &mut st[dp * n..(dp + 1) * n];
+                            channel_mean(tile.pixel_samples(lp), c, grey);
+                            // A light in the surface's shadow is dropped when its reading agrees
+                            // (at the shadow level); a clearly lit reading says the surface is off
+                            // there, and the light stays for the test to judge.
+                            let level = grey.iter().sum::<f64>() / n as f64;
+                            let dark = noise.shadow_level(detection_params, level);
+                            let mut shadowed = 0;
+                            for (k, sk) in s.iter_mut().enumerate() {
+                                if maps.is_shadowed(k, pix) && grey[k] <= dark {
+                                    *sk = status::SHADOW;
+                                    shadowed += 1;
+                                }
+                            }
+                            let count = if let (true, Some(att), Some(scratch)) =
+                                (unreliable[p], &attributor, scratch.as_mut())
+                            {
+                                hl[dp] = shadowed == 0;
+                                let (stat, count) = att.run(grey, s, scratch);
+                                cons[dp] = count > 3 && stat <= att.threshold(count);
+                                count
+                            } else {
+                                cons[dp] = true;
+                                n - shadowed
+                            };
+                            if count < 3 {
+                                fw[dp] = true;
+                                cons[dp] = false;
+                                if params.fallback == Fallback::BrightestLights {
+                                    complete_with_brightest(s, grey, count);
+                                }
                             }
                         }
-                        let count = if let (true, Some(att), Some(scratch)) =
-                            (unreliable[p], &attributor, scratch.as_mut())
-                        {
-                            hl[dp] = shadowed == 0;
-                            let (stat, count) = att.run(grey, s, scratch);
-                            cons[dp] = count > 3 && stat <= att.threshold(count);
-                            count
-                        } else {
-                            cons[dp] = true;
-                            n - shadowed
-                        };
-                        if count < 3 {
-                            fw[dp] = true;
-                            cons[dp] = false;
-                            if params.fallback == Fallback::BrightestLights {
-                                complete_with_brightest(s, grey, count);
-                            }
-                        }
-                    }
-                },
-            );
+                    },
+                );
+            Ok(())
+        })?;
         let changed_pixels = (0..np)
             .filter(|&p| new_status[p * n..(p + 1) * n] != light_status[p * n..(p + 1) * n])
             .count();
@@ -374,11 +387,18 @@ pub fn recursive(
         few = new_few;
         highlight = new_highlight;
         // 6. Re-estimate.
-        est = solve_subsets(capture, Some(&usable(&light_status)), &Silent);
+        est = crate::tiles::solve_statuses(capture, &light_status)?;
         if params.fallback == Fallback::Neighbours {
             solved_two.fill(false);
+            let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();
+            let view = if capture.is_tiled() {
+                std::borrow::Cow::Owned(capture.sampled(&few_ids)?)
+            } else {
+                std::borrow::Cow::Borrowed(capture)
+            };
             fill_from_neighbours(
                 capture,
+                &view,
                 &mut est,
                 &light_status,
                 &few,
@@ -545,9 +565,13 @@ fn integrate(
     integration.method.integrator().integrate(&problem, &Silent)
 }
 
-/// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights.
+/// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights;
+/// `samples_of` answers `pixel_samples` for those pixels (the capture itself, or a sampled view
+/// of a tiled one).
+#[allow(clippy::too_many_arguments)]
 fn fill_from_neighbours(
     capture: &Capture,
+    samples_of: &Capture,
     est: &mut Estimate,
     light_status: &[u8],
     few: &[bool],
@@ -592,7 +616,7 @@ fn fill_from_neighbours(
         let used: Vec<usize> = (0..n)
             .filter(|&k| light_status[p * n + k] == status::USED)
             .collect();
-        channel_mean(capture.pixel_samples(p), c, &mut grey);
+        channel_mean(samples_of.pixel_samples(p), c, &mut grey);
         let two = if used.len() == 2 && rho.is_finite() {
             two_source_normal(
                 dirs[used[0]],
@@ -615,7 +639,7 @@ fn fill_from_neighbours(
         let mut out_n = [0f32; 3];
         write_normal_albedo(
             capture,
-            capture.pixel_samples(p),
+            samples_of.pixel_samples(p),
             &m,
             Some(&flags),
             &mut out_n,

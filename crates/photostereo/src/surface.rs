@@ -251,6 +251,7 @@ pub fn write_mesh_ply(
 
 /// Writes a Wavefront OBJ mesh of `depth` with `vn` normals (faces `v//vn`, 1-based). Numbers
 /// are written as the shortest decimals that read back as the same f32 values.
+#[allow(clippy::needless_range_loop)] // the flat index gives the vertex's column and row too
 pub fn write_mesh_obj(
     path: &Path,
     width: usize,

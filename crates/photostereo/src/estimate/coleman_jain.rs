@@ -181,6 +181,33 @@ impl Estimator for ColemanJain {
         }
         let noise = noise_model(capture, &self.params, progress)?;
         let threshold = self.calibrate(capture, &noise);
+        self.estimate_calibrated(capture, &noise, threshold, progress)
+    }
+}
+
+impl ColemanJain {
+    /// The noise model and the spread threshold of a capture (or of a view holding the pixels
+    /// the statistics read, see [`crate::tiles::statistics_view`]).
+    pub fn calibration(
+        &self,
+        capture: &Capture,
+        progress: &dyn Progress,
+    ) -> Result<(NoiseModel, f64)> {
+        let noise = noise_model(capture, &self.params, progress)?;
+        let threshold = self.calibrate(capture, &noise);
+        Ok((noise, threshold))
+    }
+
+    /// The per-pixel estimate with a given noise model and threshold ([`Self::calibration`]):
+    /// what [`Estimator::estimate`] does after calibrating, for any set of pixels (a tile).
+    pub fn estimate_calibrated(
+        &self,
+        capture: &Capture,
+        noise: &NoiseModel,
+        threshold: f64,
+        progress: &dyn Progress,
+    ) -> Result<Estimate> {
+        let n = capture.n_lights();
         let c = capture.channels;
         let np = capture.n_pixels();
         // The same floor on kept lights as the detector (never fewer than three).

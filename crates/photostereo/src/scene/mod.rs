@@ -74,50 +74,95 @@ impl Scene {
                 "scene size {width}×{height}: expected at least one pixel"
             )));
         }
-        let rows: Vec<Vec<Sample>> = (0..height)
-            .into_par_iter()
-            .map(|row| {
-                (0..width)
-                    .map(|col| {
-                        let (c, r) = (col as f64, row as f64);
-                        let [h, h_col, h_row] = surface(c, r);
-                        let n = [-h_col, h_row, 1.0];
-                        let norm = (n[0] * n[0] + n[1] * n[1] + 1.0).sqrt();
-                        let a = albedo(c, r);
-                        (
-                            h as f32,
-                            [
-                                (n[0] / norm) as f32,
-                                (n[1] / norm) as f32,
-                                (1.0 / norm) as f32,
-                            ],
-                            [a[0] as f32, a[1] as f32, a[2] as f32],
-                            inside(c, r),
-                        )
-                    })
-                    .collect()
-            })
-            .collect();
         let n = width * height;
         let mut scene = Scene {
             name: name.to_string(),
             width,
             height,
-            depth: Vec::with_capacity(n),
-            normals: Vec::with_capacity(n),
-            albedo: Vec::with_capacity(n),
-            mask: Vec::with_capacity(n),
+            depth: vec![0.0; n],
+            normals: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+            mask: vec![false; n],
         };
-        for (h, nrm, a, m) in rows.into_iter().flatten() {
-            scene.depth.push(h);
-            scene.normals.push(nrm);
-            scene.albedo.push(a);
-            scene.mask.push(m);
-        }
+        // Filled in place, row by row in parallel: no second copy of the frame.
+        scene
+            .depth
+            .par_chunks_mut(width)
+            .zip(scene.normals.par_chunks_mut(width))
+            .zip(scene.albedo.par_chunks_mut(width))
+            .zip(scene.mask.par_chunks_mut(width))
+            .enumerate()
+            .for_each(|(row, (((d, nr), al), m))| {
+                for col in 0..width {
+                    let (c, r) = (col as f64, row as f64);
+                    let [h, h_col, h_row] = surface(c, r);
+                    let v = [-h_col, h_row, 1.0];
+                    let norm = (v[0] * v[0] + v[1] * v[1] + 1.0).sqrt();
+                    let a = albedo(c, r);
+                    let sample: Sample = (
+                        h as f32,
+                        [
+                            (v[0] / norm) as f32,
+                            (v[1] / norm) as f32,
+                            (1.0 / norm) as f32,
+                        ],
+                        [a[0] as f32, a[1] as f32, a[2] as f32],
+                        inside(c, r),
+                    );
+                    d[col] = sample.0;
+                    nr[col] = sample.1;
+                    al[col] = sample.2;
+                    m[col] = sample.3;
+                }
+            });
         if !scene.mask.iter().any(|&m| m) {
             return Err(Error::invalid(format!("scene '{name}': the mask is empty")));
         }
         Ok(scene)
+    }
+
+    /// A built-in scene of `width`×`height` pixels: the square scene of side min(W, H) at the
+    /// centre of the frame (pixel units scaled alike), the surface's surroundings beyond it.
+    /// `builtin_wh(k, s, s, …)` is `builtin(k, s, …)`.
+    pub fn builtin_wh(
+        kind: SceneKind,
+        width: usize,
+        height: usize,
+        mask: Option<MaskShape>,
+        textured: bool,
+    ) -> Result<Scene> {
+        let side = crate::limits::MAX_IMAGE_SIDE as usize;
+        if !(8..=side).contains(&width)
+            || !(8..=side).contains(&height)
+            || (width * height) as u64 > crate::limits::MAX_IMAGE_PIXELS
+        {
+            return Err(Error::invalid(format!(
+                "scene size {width}×{height}: expected 8 to {side} pixels a side and at most {} pixels",
+                crate::limits::MAX_IMAGE_PIXELS
+            )));
+        }
+        let mask = mask.unwrap_or(kind.default_mask());
+        let s = width.min(height) as f64 / 2.0;
+        let (cx, cy) = ((width as f64 - 1.0) / 2.0, (height as f64 - 1.0) / 2.0);
+        let uv = move |col: f64, row: f64| ((col - cx) / s, (cy - row) / s);
+        Scene::from_height_fn(
+            kind.name(),
+            width,
+            height,
+            |col, row| {
+                let (u, v) = uv(col, row);
+                let [g, gu, gv] = kind.surface(u, v, 1.0 / s);
+                [s * g, gu, -gv]
+            },
+            |col, row| {
+                let (u, v) = uv(col, row);
+                kind.albedo(u, v, textured)
+            },
+            |col, row| {
+                let (u, v) = uv(col, row);
+                mask.contains(u, v)
+            },
+        )
     }
 
     /// A built-in scene of `size`×`size` pixels with its default mask unless `mask` is given;

@@ -121,8 +121,10 @@ impl Default for RenderOptions {
 pub struct SynthSpec {
     pub scene: SceneKind,
     pub rig: Rig,
-    /// Image width and height, pixels.
+    /// Image width (and height unless `height` is given), pixels.
     pub size: usize,
+    /// Image height when it differs from the width (see [`Scene::builtin_wh`]).
+    pub height: Option<usize>,
     /// Mask override (`None` = the scene's default).
     pub mask: Option<MaskShape>,
     /// Smooth colour texture on the albedo (else the scene's constant colour).
@@ -139,6 +141,7 @@ impl SynthSpec {
             scene,
             rig,
             size: 128,
+            height: None,
             mask: None,
             textured_albedo: true,
             intensities: LightIntensities::Uniform,
@@ -214,7 +217,10 @@ impl Rendered {
 
 /// Builds the spec's scene and renders it.
 pub fn synthesize(spec: &SynthSpec) -> Result<Rendered> {
-    let scene = Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?;
+    let scene = match spec.height {
+        None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,
+        Some(h) => Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo)?,
+    };
     let mut lights = spec.rig.lights()?;
     let intensities = (0..lights.len())
         .map(|k| spec.intensities.of_light(k))
@@ -504,4 +510,171 @@ pub fn synth_to_folder(
     write_capture(folder.path(), &rendered, Some(spec))?;
     let target = folder.commit()?;
     Ok((rendered, target))
+}
+
+/// Bytes [`synthesize`] holds for a spec (every image as `f32`, the per-light maps, the scene
+/// and its ground truth), to choose between it and [`synth_streamed`].
+pub fn in_memory_bytes(width: usize, height: usize, lights: usize) -> u64 {
+    let px = (width * height) as u64;
+    px * (lights as u64 * (12 + 3) + 64)
+}
+
+/// Bytes [`synth_streamed`] holds at most: the scene (29 bytes per pixel), its ground truth
+/// written from it, and one light's image and maps at a time (about 30 bytes per pixel).
+pub fn streamed_bytes(width: usize, height: usize) -> u64 {
+    (width * height) as u64 * 64
+}
+
+/// Writes the header of a `.npy` file of booleans of `shape`; the data follows.
+fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::Result<()> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let mut dict = format!(
+        "{{'descr': '|b1', 'fortran_order': False, 'shape': ({}{}), }}",
+        dims.join(", "),
+        if shape.len() == 1 { "," } else { "" }
+    );
+    let unpadded = 10 + dict.len() + 1;
+    dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
+    dict.push('\n');
+    file.write_all(b"\x93NUMPY\x01\x00")?;
+    file.write_all(&(dict.len() as u16).to_le_bytes())?;
+    file.write_all(dict.as_bytes())
+}
+
+/// [`synth_to_folder`] for captures too large to render whole: the scene is built once, each
+/// light is rendered and written at once (its image, and its rows of `gt/shadow.npy` and
+/// `gt/highlight.npy`, which are streamed), so memory holds the scene and one light
+/// ([`streamed_bytes`]) whatever the light count. The files are those of [`synth_to_folder`],
+/// pixel for pixel (the same renderer per light). `progress` sees one unit per light.
+pub fn synth_streamed(
+    spec: &SynthSpec,
+    output: &Path,
+    force: bool,
+    progress: &dyn crate::progress::Progress,
+) -> Result<(CaptureStats, Lights, PathBuf)> {
+    use std::io::Write;
+    let folder = OutputFolder::create(output, force)?;
+    let dir = folder.path();
+    let scene = match spec.height {
+        None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,
+        Some(h) => Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo)?,
+    };
+    let mut lights = spec.rig.lights()?;
+    let intensities = (0..lights.len())
+        .map(|k| spec.intensities.of_light(k))
+        .collect();
+    lights = lights.with_intensities(intensities)?;
+    let options = &spec.render;
+    let (w, h) = (scene.width, scene.height);
+    let n = lights.len();
+    let threshold = HIGHLIGHT_MIN_FULL_SCALE.max(HIGHLIGHT_MIN_SIGMAS * options.noise_sigma);
+    let seed = splitmix64(options.seed);
+    let digits = n.to_string().len().max(3);
+    let names: Vec<String> = (1..=n).map(|k| format!("{k:0digits$}.png")).collect();
+    let gt = dir.join("gt");
+    std::fs::create_dir(&gt).map_err(|e| Error::io(&gt, e))?;
+    let open = |name: &str| -> Result<std::io::BufWriter<std::fs::File>> {
+        let p = gt.join(name);
+        let mut f =
+            std::io::BufWriter::new(std::fs::File::create(&p).map_err(|e| Error::io(&p, e))?);
+        npy_bool_header(&mut f, &[n, h, w]).map_err(|e| Error::io(&p, e))?;
+        Ok(f)
+    };
+    let mut shadow_file = open("shadow.npy")?;
+    let mut highlight_file = open("highlight.npy")?;
+    let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
+    let mut stats = CaptureStats::default();
+    progress.begin("rendering", n as u64);
+    for (k, name) in names.iter().enumerate() {
+        crate::progress::check_cancelled(progress)?;
+        let r = render_light(
+            &scene,
+            k,
+            lights.directions[k],
+            lights.intensities[k],
+            options,
+            seed,
+            threshold,
+        );
+        let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
+        stats.shadow_fraction += count(&r.shadow);
+        stats.cast_shadow_fraction += count(&r.cast);
+        stats.highlight_fraction += count(&r.highlight);
+        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
+        let bytes = |v: &[bool]| v.iter().map(|&b| b as u8).collect::<Vec<u8>>();
+        shadow_file
+            .write_all(&bytes(&r.shadow))
+            .map_err(|e| Error::io(gt.join("shadow.npy"), e))?;
+        highlight_file
+            .write_all(&bytes(&r.highlight))
+            .map_err(|e| Error::io(gt.join("highlight.npy"), e))?;
+        drop((r.shadow, r.cast, r.highlight));
+        let data: Vec<u16> = r
+            .image
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
+            .collect();
+        drop(r.image);
+        write_png16(&dir.join(name), w, h, 3, &data)?;
+        progress.advance(1);
+    }
+    progress.end();
+    for (f, name) in [
+        (shadow_file, "shadow.npy"),
+        (highlight_file, "highlight.npy"),
+    ] {
+        f.into_inner()
+            .map_err(|e| Error::io(gt.join(name), e.into_error()))?;
+    }
+    stats.shadow_fraction /= n as f64;
+    stats.cast_shadow_fraction /= n as f64;
+    stats.highlight_fraction /= n as f64;
+    stats.clipped_fraction /= n as f64;
+    let list = dir.join("filenames.txt");
+    std::fs::write(&list, names.join("\n") + "\n").map_err(|e| Error::io(&list, e))?;
+    lights.write_directions(&dir.join("light_directions.txt"))?;
+    lights.write_intensities(&dir.join("light_intensities.txt"))?;
+    let mask: Vec<u8> = scene
+        .mask
+        .iter()
+        .map(|&m| if m { 255 } else { 0 })
+        .collect();
+    write_png8(&dir.join("mask.png"), w, h, 1, &mask)?;
+    drop(mask);
+    let masked3 = |v: &[[f32; 3]]| {
+        v.iter()
+            .zip(&scene.mask)
+            .flat_map(|(x, &m)| if m { *x } else { [0.0; 3] })
+            .collect::<Vec<f32>>()
+    };
+    write_npy_f32(&gt.join("normal.npy"), &[h, w, 3], &masked3(&scene.normals))?;
+    write_npy_f32(&gt.join("albedo.npy"), &[h, w, 3], &masked3(&scene.albedo))?;
+    let depth: Vec<f32> = scene
+        .depth
+        .iter()
+        .zip(&scene.mask)
+        .map(|(d, &m)| if m { *d } else { f32::NAN })
+        .collect();
+    write_npy_f32(&gt.join("depth.npy"), &[h, w], &depth)?;
+    let record = SynthRecord {
+        scene: &scene.name,
+        rig: &spec.rig.name(),
+        width: w,
+        height: h,
+        lights: n,
+        brdf: Some(spec.render.brdf.name()),
+        noise_sigma: Some(spec.render.noise_sigma),
+        shot_full_well: Some(spec.render.shot_full_well),
+        seed: Some(spec.render.seed),
+        mask: Some(spec.mask.unwrap_or(spec.scene.default_mask()).name()),
+        textured_albedo: Some(spec.textured_albedo),
+        intensities: Some(spec.intensities.name()),
+        highlight_rule: format!(
+            "not shadowed and mean-over-channels specular > max({HIGHLIGHT_MIN_FULL_SCALE}, {HIGHLIGHT_MIN_SIGMAS}·noise σ) of full scale"
+        ),
+        stats: &stats,
+    };
+    write_json(&dir.join("synth.json"), &record)?;
+    let target = folder.commit()?;
+    Ok((stats, lights, target))
 }
