@@ -54,6 +54,7 @@ pub mod imageio;
 pub mod indicators;
 pub mod integrate;
 pub mod lambert;
+pub mod lightmodel;
 pub mod lights;
 pub mod limits;
 pub mod maps;

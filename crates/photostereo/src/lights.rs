@@ -21,6 +21,10 @@ pub struct Lights {
     pub intensities: Vec<[f64; 3]>,
     /// How many input directions were not unit length and were normalised.
     pub renormalised: usize,
+    /// Near point lights ([`crate::lightmodel`]): then `directions` and `intensities` are the
+    /// distant approximation at the object's centre (directions toward each LED and the
+    /// brightness it gives there), and the kernel asks the model for per-pixel vectors.
+    pub near: Option<std::sync::Arc<crate::lightmodel::NearLights>>,
 }
 
 impl Lights {
@@ -39,6 +43,7 @@ impl Lights {
             intensities: vec![[1.0; 3]; out.len()],
             directions: out,
             renormalised,
+            near: None,
         })
     }
 
@@ -98,6 +103,7 @@ impl Lights {
             intensities: vec![[1.0; 3]; dirs.len()],
             directions: dirs,
             renormalised,
+            near: None,
         })
     }
 
@@ -166,6 +172,10 @@ impl Lights {
             directions: order.iter().map(|&k| self.directions[k]).collect(),
             intensities: order.iter().map(|&k| self.intensities[k]).collect(),
             renormalised: self.renormalised,
+            near: self
+                .near
+                .as_ref()
+                .map(|m| std::sync::Arc::new(m.permuted(order))),
         }
     }
 

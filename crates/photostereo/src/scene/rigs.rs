@@ -104,6 +104,7 @@ pub fn slant_tilt_lights(slant_deg: f64, tilts_deg: &[f64]) -> Lights {
         intensities: vec![[1.0; 3]; dirs.len()],
         directions: dirs,
         renormalised: 0,
+        near: None,
     }
 }
 
@@ -124,6 +125,7 @@ pub fn dome_lights(n: usize, max_slant_deg: f64) -> Lights {
         intensities: vec![[1.0; 3]; dirs.len()],
         directions: dirs,
         renormalised: 0,
+        near: None,
     }
 }
 
