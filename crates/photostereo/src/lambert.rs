@@ -127,7 +127,7 @@ fn solve_subsets_near(
         .for_each_init(
             || {
                 (
-                    crate::lightmodel::PixelLights::new(&capture.lights.directions, Some(near)),
+                    crate::lightmodel::PixelLights::new(&capture.lights.directions, Some(near), capture.width),
                     vec![0f64; n],
                 )
             },

@@ -84,9 +84,6 @@ pub struct NearLights {
     pub anisotropy: Vec<f64>,
     /// The object's mean distance D along the optical axis, mm.
     pub mean_distance: f64,
-    /// Image size the surface is defined on.
-    pub width: usize,
-    pub height: usize,
     /// Relative brightness cos^μ/r² of each LED at the object's centre (0, 0, −D).
     centre_brightness: Vec<f64>,
     surface: RwLock<Arc<Vec<f32>>>,
@@ -99,7 +96,6 @@ impl PartialEq for NearLights {
             && self.axes == other.axes
             && self.anisotropy == other.anisotropy
             && self.mean_distance == other.mean_distance
-            && (self.width, self.height) == (other.width, other.height)
     }
 }
 
@@ -114,8 +110,6 @@ impl NearLights {
         axes: Option<Vec<[f64; 3]>>,
         anisotropy: Option<Vec<f64>>,
         mean_distance: f64,
-        width: usize,
-        height: usize,
     ) -> Result<NearLights> {
         if !(mean_distance.is_finite() && mean_distance > 0.0) {
             return Err(Error::parameter(
@@ -212,10 +206,8 @@ impl NearLights {
             axes,
             anisotropy,
             mean_distance,
-            width,
-            height,
             centre_brightness: Vec::new(),
-            surface: RwLock::new(Arc::new(vec![mean_distance as f32; width * height])),
+            surface: RwLock::new(Arc::new(Vec::new())),
         };
         model.centre_brightness = (0..n)
             .map(|k| model.raw_light(k, centre).1)
@@ -268,12 +260,10 @@ impl NearLights {
         (0..self.len()).map(|k| self.raw_light(k, c).0).collect()
     }
 
-    /// The surface point X = Z · ray of pixel `pixel` (row-major full-frame index) at depth `z`.
+    /// The surface point X = Z · ray of pixel (col, row) at depth `z` (mm).
     #[inline]
-    pub fn point(&self, pixel: usize, z: f64) -> [f64; 3] {
-        let r = self
-            .camera
-            .ray((pixel % self.width) as f64, (pixel / self.width) as f64);
+    pub fn point(&self, col: usize, row: usize, z: f64) -> [f64; 3] {
+        let r = self.camera.ray(col as f64, row as f64);
         [z * r[0], z * r[1], z * r[2]]
     }
 
@@ -285,33 +275,25 @@ impl NearLights {
         (l, b / self.centre_brightness[k])
     }
 
-    /// The scaled light vectors v_k = b_k l_k of every light at pixel `pixel` (full-frame index)
-    /// with depth `z` (mm), into `out` (length N).
+    /// The scaled light vectors v_k = b_k l_k of every light at pixel (col, row) with depth `z`
+    /// (mm), into `out` (length N).
     #[inline]
-    pub fn vectors(&self, pixel: usize, z: f64, out: &mut [[f64; 3]]) {
-        let x = self.point(pixel, z);
+    pub fn vectors(&self, col: usize, row: usize, z: f64, out: &mut [[f64; 3]]) {
+        let x = self.point(col, row, z);
         for (k, o) in out.iter_mut().enumerate() {
             let (l, b) = self.light_at_point(k, x);
             *o = [b * l[0], b * l[1], b * l[2]];
         }
     }
 
-    /// The current surface: depth Z per pixel (full frame, mm; the plane Z = D until set).
+    /// The current surface: depth Z per pixel (full frame, mm); empty for the plane Z = D.
     pub fn surface(&self) -> Arc<Vec<f32>> {
         self.surface.read().map(|g| g.clone()).unwrap_or_else(|e| e.into_inner().clone())
     }
 
-    /// Replaces the current surface (full frame, mm). Non-finite or non-positive values (no
-    /// depth there) fall back to the mean distance.
-    pub fn set_surface(&self, depth: &[f32]) -> Result<()> {
-        if depth.len() != self.width * self.height {
-            return Err(Error::invalid(format!(
-                "surface has {} values, expected {}×{}",
-                depth.len(),
-                self.width,
-                self.height
-            )));
-        }
+    /// Replaces the current surface (full frame of the capture, mm). Non-finite or
+    /// non-positive values (no depth there) fall back to the mean distance.
+    pub fn set_surface(&self, depth: &[f32]) {
         let d = self.mean_distance as f32;
         let v: Vec<f32> = depth
             .iter()
@@ -321,13 +303,11 @@ impl NearLights {
             Ok(mut g) => *g = Arc::new(v),
             Err(e) => *e.into_inner() = Arc::new(v),
         }
-        Ok(())
     }
 
     /// Resets the current surface to the plane Z = D.
     pub fn reset_surface(&self) {
-        let plane = vec![self.mean_distance as f32; self.width * self.height];
-        let _ = self.set_surface(&plane);
+        self.set_surface(&[]);
     }
 
     /// The same rig with the lights reordered by `order` (a fresh plane surface).
@@ -338,8 +318,6 @@ impl NearLights {
             axes: order.iter().map(|&k| self.axes[k]).collect(),
             anisotropy: order.iter().map(|&k| self.anisotropy[k]).collect(),
             mean_distance: self.mean_distance,
-            width: self.width,
-            height: self.height,
             centre_brightness: order.iter().map(|&k| self.centre_brightness[k]).collect(),
             surface: RwLock::new(Arc::new(Vec::new())),
         };
@@ -353,17 +331,29 @@ impl NearLights {
 pub struct PixelLights<'a> {
     directions: &'a [[f64; 3]],
     near: Option<(&'a NearLights, Arc<Vec<f32>>)>,
+    width: usize,
     buf: Vec<[f64; 3]>,
 }
 
 impl<'a> PixelLights<'a> {
-    /// For lights `directions` (distant) and the near model when there is one.
-    pub fn new(directions: &'a [[f64; 3]], near: Option<&'a NearLights>) -> Self {
+    /// For lights `directions` (distant) and the near model when there is one, on images
+    /// `width` pixels wide.
+    pub fn new(directions: &'a [[f64; 3]], near: Option<&'a NearLights>, width: usize) -> Self {
         PixelLights {
             directions,
             near: near.map(|m| (m, m.surface())),
+            width,
             buf: vec![[0.0; 3]; directions.len()],
         }
+    }
+
+    /// For a capture's lights.
+    pub fn of(capture: &'a crate::capture::Capture) -> Self {
+        Self::new(
+            &capture.lights.directions,
+            capture.lights.near.as_deref(),
+            capture.width,
+        )
     }
 
     /// Whether the vectors vary per pixel.
@@ -378,11 +368,126 @@ impl<'a> PixelLights<'a> {
         match &self.near {
             None => self.directions,
             Some((m, z)) => {
-                m.vectors(pixel, z[pixel] as f64, &mut self.buf);
+                let depth = z.get(pixel).map_or(m.mean_distance, |&v| v as f64);
+                m.vectors(pixel % self.width, pixel / self.width, depth, &mut self.buf);
                 &self.buf
             }
         }
     }
+}
+
+/// Rounds of the near-light alternation (estimate → integrate → update X) at most; 3–5 settle
+/// rigs at a few hundred millimetres (ALGORITHMS.md §9).
+pub const MAX_ROUNDS: usize = 5;
+/// The alternation stops when the mean |ΔZ| of a round falls below this share of the mean
+/// distance (0.1%: 0.3 mm at 300 mm, a tenth of a degree of light direction).
+pub const DEPTH_TOLERANCE: f64 = 1e-3;
+
+/// Shadow maps of near point lights from a depth map Z (mm along the optical axis, full frame,
+/// NaN outside the mask) and shading normals (full frame): attached where n · l_k(p) ≤
+/// `attached_tolerance`, cast where the segment from X(p) toward the LED passes behind the
+/// surface as the camera sees it (a ray march in steps of about one pixel; the surface hides
+/// the point when it is nearer the camera by more than `cast_tolerance_px` pixels of depth).
+/// Only mask pixels cast shadows. The result has the layout of [`ShadowMaps`].
+pub fn near_shadow_maps(
+    near: &NearLights,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    params: &crate::shadows::ShadowParams,
+) -> Result<crate::shadows::ShadowMaps> {
+    use crate::shadows::ShadowMaps;
+    use rayon::prelude::*;
+    let hw = width * height;
+    if depth.len() != hw || normals.len() != hw || mask.len() != hw {
+        return Err(Error::invalid(format!(
+            "near shadows: depth {}, normals {} and mask {} values for a {width}×{height} image",
+            depth.len(),
+            normals.len(),
+            mask.len()
+        )));
+    }
+    let ok = |i: usize| mask[i] && depth[i].is_finite() && depth[i] > 0.0;
+    let z_min = (0..hw)
+        .filter(|&i| ok(i))
+        .map(|i| depth[i] as f64)
+        .fold(f64::INFINITY, f64::min);
+    let cam = &near.camera;
+    let f = cam.fx.min(cam.fy);
+    // The surface's depth at image position (col, row): bilinear over mask pixels, nearest
+    // where the 2×2 block leaves the mask; None outside it.
+    let surface_at = |c: f64, r: f64| -> Option<f64> {
+        if c < 0.0 || r < 0.0 || c > (width - 1) as f64 || r > (height - 1) as f64 {
+            return None;
+        }
+        let (c0, r0) = (c.floor() as usize, r.floor() as usize);
+        let (c1, r1) = ((c0 + 1).min(width - 1), (r0 + 1).min(height - 1));
+        let (fc, fr) = (c - c0 as f64, r - r0 as f64);
+        let ids = [r0 * width + c0, r0 * width + c1, r1 * width + c0, r1 * width + c1];
+        if ids.iter().all(|&i| ok(i)) {
+            let d = |i: usize| depth[ids[i]] as f64;
+            Some((1.0 - fr) * ((1.0 - fc) * d(0) + fc * d(1)) + fr * ((1.0 - fc) * d(2) + fc * d(3)))
+        } else {
+            let i = (r.round() as usize).min(height - 1) * width + (c.round() as usize).min(width - 1);
+            ok(i).then(|| depth[i] as f64)
+        }
+    };
+    let n = near.len();
+    let mut flags = vec![0u8; n * hw];
+    flags
+        .par_chunks_mut(hw)
+        .enumerate()
+        .for_each(|(k, out)| {
+            let s = near.positions[k];
+            for i in (0..hw).filter(|&i| ok(i)) {
+                let z = depth[i] as f64;
+                let x = near.point(i % width, i / width, z);
+                let d = sub(s, x);
+                let dist = norm(d);
+                let l = [d[0] / dist, d[1] / dist, d[2] / dist];
+                let nrm = normals[i];
+                let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
+                    out[i] |= ShadowMaps::ATTACHED;
+                }
+                // March: one pixel's footprint at this depth per step.
+                let step = z / f;
+                let tol = params.cast_tolerance_px * step;
+                let mut t = 1.5 * step;
+                while t < dist {
+                    let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
+                    let pz = -p[2];
+                    if pz < z_min - tol {
+                        break;
+                    }
+                    let Some((c, r)) = cam.project(p) else { break };
+                    match surface_at(c, r) {
+                        Some(zs) if zs < pz - tol => {
+                            out[i] |= ShadowMaps::CAST;
+                            break;
+                        }
+                        Some(_) => {}
+                        None if c < -1.0
+                            || r < -1.0
+                            || c > width as f64
+                            || r > height as f64 =>
+                        {
+                            break
+                        }
+                        None => {}
+                    }
+                    t += pz / f;
+                }
+            }
+        });
+    Ok(ShadowMaps {
+        width,
+        height,
+        lights: n,
+        flags,
+    })
 }
 
 #[inline]
@@ -412,8 +517,6 @@ mod tests {
             None,
             Some(vec![0.0, 1.0, 2.0]),
             300.0,
-            256,
-            256,
         )
         .unwrap()
     }
@@ -478,11 +581,11 @@ mod tests {
     #[test]
     fn inconsistent_rigs_are_refused_with_the_light_named() {
         let cam = Camera::new(768.0, 768.0, 127.5, 127.5).unwrap();
-        let e = NearLights::new(cam, vec![[0.0, 0.0, -400.0]; 3], None, None, 300.0, 8, 8)
+        let e = NearLights::new(cam, vec![[0.0, 0.0, -400.0]; 3], None, None, 300.0)
             .unwrap_err()
             .to_string();
         assert!(e.contains("light 1") && e.contains("behind the object"), "{e}");
-        let e = NearLights::new(cam, vec![[0.0, 0.0, 0.0]; 3], None, None, -1.0, 8, 8)
+        let e = NearLights::new(cam, vec![[0.0, 0.0, 0.0]; 3], None, None, -1.0)
             .unwrap_err()
             .to_string();
         assert!(e.contains("distance"), "{e}");
@@ -492,8 +595,6 @@ mod tests {
             Some(vec![[0.0, 0.0, 1.0]; 3]),
             None,
             300.0,
-            8,
-            8,
         )
         .unwrap_err()
         .to_string();
