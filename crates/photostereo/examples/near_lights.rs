@@ -26,7 +26,7 @@ fn main() -> photostereo::Result<()> {
             };
             let r = synthesize_near(&spec)?;
             let truth = &r.rendered.truth.normals;
-            let mut err = |capture: &photostereo::Capture, method: Method| -> photostereo::Result<(f64, usize)> {
+            let err = |capture: &photostereo::Capture, method: Method| -> photostereo::Result<(f64, usize)> {
                 let params = Params {
                     method,
                     ..Params::default()

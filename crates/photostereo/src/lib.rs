@@ -59,6 +59,7 @@ pub mod lights;
 pub mod limits;
 pub mod maps;
 pub mod matfile;
+pub mod nearlayout;
 pub mod metrics;
 pub mod pipeline;
 pub mod plausibility;

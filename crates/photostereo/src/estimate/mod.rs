@@ -18,7 +18,7 @@ use crate::error::Result;
 use crate::progress::Progress;
 
 pub use crate::lambert::{
-    channel_mean, solve_subsets, status, write_normal_albedo, Estimate, SubsetCache, SubsetSolver,
+    channel_mean, solve_subsets, status, write_normal_albedo, write_normal_albedo_with, Estimate, SubsetCache, SubsetSolver,
     CHUNK,
 };
 

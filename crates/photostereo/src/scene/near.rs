@@ -573,3 +573,17 @@ pub fn oracle_error(near: &NearRendered) -> Result<f64> {
     let (_, stats) = crate::metrics::evaluate(&normals, &truth.normals, Some(&truth.mask))?;
     Ok(stats.mean_deg)
 }
+
+/// Renders `spec` and writes it in the near-light layout to `output` atomically; refuses an
+/// existing `output` unless `force`. Returns the rendering and the final path.
+pub fn near_synth_to_folder(
+    spec: &NearSpec,
+    output: &Path,
+    force: bool,
+) -> Result<(NearRendered, std::path::PathBuf)> {
+    let folder = crate::export::OutputFolder::create(output, force)?;
+    let rendered = synthesize_near(spec)?;
+    write_near_capture(folder.path(), &rendered)?;
+    let target = folder.commit()?;
+    Ok((rendered, target))
+}
