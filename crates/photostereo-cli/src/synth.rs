@@ -147,7 +147,10 @@ fn near(
         bail!("--shot and --intensities apply to distant rigs; near rigs have their own LED radiances");
     }
     if a.size < 16 {
-        bail!("--size {}: near-light scenes need at least 16 pixels", a.size);
+        bail!(
+            "--size {}: near-light scenes need at least 16 pixels",
+            a.size
+        );
     }
     let spec = NearSpec {
         size: a.size,
@@ -208,7 +211,11 @@ fn near(
 fn list(out: &OutputOpts) -> Result<()> {
     let scenes: Vec<&str> = SceneKind::ALL.iter().map(|s| s.name()).collect();
     let mut rigs: Vec<&str> = Rig::NAMES.to_vec();
-    rigs.extend(photostereo::scene::near::NearRig::ALL.iter().map(|r| r.name()));
+    rigs.extend(
+        photostereo::scene::near::NearRig::ALL
+            .iter()
+            .map(|r| r.name()),
+    );
     let brdfs: Vec<&str> = Brdf::ALL.iter().map(|b| b.name()).collect();
     let masks: Vec<&str> = MaskShape::ALL.iter().map(|m| m.name()).collect();
     let intens: Vec<&str> = LightIntensities::ALL.iter().map(|m| m.name()).collect();

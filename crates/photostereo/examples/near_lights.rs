@@ -13,7 +13,10 @@ fn main() -> photostereo::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let size: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(256);
     let scenes: Vec<SceneKind> = if args.len() > 1 {
-        args[1..].iter().map(|s| s.parse()).collect::<Result<_, _>>()?
+        args[1..]
+            .iter()
+            .map(|s| s.parse())
+            .collect::<Result<_, _>>()?
     } else {
         vec![SceneKind::Sphere, SceneKind::Bumps, SceneKind::Face]
     };
@@ -26,7 +29,9 @@ fn main() -> photostereo::Result<()> {
             };
             let r = synthesize_near(&spec)?;
             let truth = &r.rendered.truth.normals;
-            let err = |capture: &photostereo::Capture, method: Method| -> photostereo::Result<(f64, usize)> {
+            let err = |capture: &photostereo::Capture,
+                       method: Method|
+             -> photostereo::Result<(f64, usize)> {
                 let params = Params {
                     method,
                     ..Params::default()

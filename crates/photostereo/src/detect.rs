@@ -361,7 +361,11 @@ impl<'a> NearTest<'a> {
     fn of(capture: &'a Capture, test: &Test) -> Option<Self> {
         capture.lights.near.as_deref().map(|m| NearTest {
             test: test.clone(),
-            lights: crate::lightmodel::PixelLights::new(&capture.lights.directions, Some(m), capture.width),
+            lights: crate::lightmodel::PixelLights::new(
+                &capture.lights.directions,
+                Some(m),
+                capture.width,
+            ),
         })
     }
 

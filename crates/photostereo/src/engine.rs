@@ -253,7 +253,15 @@ pub fn reconstruct_with_truth(
     }
     let (estimate, detection, diagnostics) = match capture.lights.near.as_deref() {
         None => estimate(capture, params, truth, can_detect, progress, &mut report)?,
-        Some(near) => alternate(capture, near, params, truth, can_detect, progress, &mut report)?,
+        Some(near) => alternate(
+            capture,
+            near,
+            params,
+            truth,
+            can_detect,
+            progress,
+            &mut report,
+        )?,
     };
     check_cancelled(progress)?;
     if let Some(d) = &detection {
@@ -433,7 +441,8 @@ fn alternate(
         let result = estimate(capture, params, truth, can_detect, progress, report)?;
         let normals = capture.scatter(&result.0.normals, 1, [0.0; 3]);
         let trust = integration_trust(capture, params, result.2.as_ref(), result.1.as_ref());
-        let surface = near_integration(capture, params, &normals, &trust, &crate::progress::Silent)?;
+        let surface =
+            near_integration(capture, params, &normals, &trust, &crate::progress::Silent)?;
         let z = &surface.depth.values;
         let (sum, count) = capture
             .pixels
@@ -447,7 +456,11 @@ fn alternate(
         near.set_surface(z);
         previous.clone_from(z);
         let error = match truth {
-            Some(t) => Some(crate::metrics::evaluate(&normals, t, Some(&capture.mask))?.1.mean_deg),
+            Some(t) => Some(
+                crate::metrics::evaluate(&normals, t, Some(&capture.mask))?
+                    .1
+                    .mean_deg,
+            ),
             None => None,
         };
         rounds.push(serde_json::json!({

@@ -127,7 +127,11 @@ fn solve_subsets_near(
         .for_each_init(
             || {
                 (
-                    crate::lightmodel::PixelLights::new(&capture.lights.directions, Some(near), capture.width),
+                    crate::lightmodel::PixelLights::new(
+                        &capture.lights.directions,
+                        Some(near),
+                        capture.width,
+                    ),
                     vec![0f64; n],
                 )
             },
@@ -141,7 +145,9 @@ fn solve_subsets_near(
                     let dirs = lights.at(capture.pixels[p] as usize);
                     let out_a = &mut alb[dp * c..(dp + 1) * c];
                     match solve_with(dirs, used, grey) {
-                        Some(m) => write_normal_albedo_with(dirs, c, samples, &m, used, out_n, out_a),
+                        Some(m) => {
+                            write_normal_albedo_with(dirs, c, samples, &m, used, out_n, out_a)
+                        }
                         None => {
                             *out_n = [0.0; 3];
                             out_a.fill(0.0);

@@ -288,7 +288,10 @@ impl NearLights {
 
     /// The current surface: depth Z per pixel (full frame, mm); empty for the plane Z = D.
     pub fn surface(&self) -> Arc<Vec<f32>> {
-        self.surface.read().map(|g| g.clone()).unwrap_or_else(|e| e.into_inner().clone())
+        self.surface
+            .read()
+            .map(|g| g.clone())
+            .unwrap_or_else(|e| e.into_inner().clone())
     }
 
     /// Replaces the current surface (full frame of the capture, mm). Non-finite or
@@ -425,63 +428,62 @@ pub fn near_shadow_maps(
         let (c0, r0) = (c.floor() as usize, r.floor() as usize);
         let (c1, r1) = ((c0 + 1).min(width - 1), (r0 + 1).min(height - 1));
         let (fc, fr) = (c - c0 as f64, r - r0 as f64);
-        let ids = [r0 * width + c0, r0 * width + c1, r1 * width + c0, r1 * width + c1];
+        let ids = [
+            r0 * width + c0,
+            r0 * width + c1,
+            r1 * width + c0,
+            r1 * width + c1,
+        ];
         if ids.iter().all(|&i| ok(i)) {
             let d = |i: usize| depth[ids[i]] as f64;
-            Some((1.0 - fr) * ((1.0 - fc) * d(0) + fc * d(1)) + fr * ((1.0 - fc) * d(2) + fc * d(3)))
+            Some(
+                (1.0 - fr) * ((1.0 - fc) * d(0) + fc * d(1)) + fr * ((1.0 - fc) * d(2) + fc * d(3)),
+            )
         } else {
-            let i = (r.round() as usize).min(height - 1) * width + (c.round() as usize).min(width - 1);
+            let i =
+                (r.round() as usize).min(height - 1) * width + (c.round() as usize).min(width - 1);
             ok(i).then(|| depth[i] as f64)
         }
     };
     let n = near.len();
     let mut flags = vec![0u8; n * hw];
-    flags
-        .par_chunks_mut(hw)
-        .enumerate()
-        .for_each(|(k, out)| {
-            let s = near.positions[k];
-            for i in (0..hw).filter(|&i| ok(i)) {
-                let z = depth[i] as f64;
-                let x = near.point(i % width, i / width, z);
-                let d = sub(s, x);
-                let dist = norm(d);
-                let l = [d[0] / dist, d[1] / dist, d[2] / dist];
-                let nrm = normals[i];
-                let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
-                if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
-                    out[i] |= ShadowMaps::ATTACHED;
+    flags.par_chunks_mut(hw).enumerate().for_each(|(k, out)| {
+        let s = near.positions[k];
+        for i in (0..hw).filter(|&i| ok(i)) {
+            let z = depth[i] as f64;
+            let x = near.point(i % width, i / width, z);
+            let d = sub(s, x);
+            let dist = norm(d);
+            let l = [d[0] / dist, d[1] / dist, d[2] / dist];
+            let nrm = normals[i];
+            let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+            if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
+                out[i] |= ShadowMaps::ATTACHED;
+            }
+            // March: one pixel's footprint at this depth per step.
+            let step = z / f;
+            let tol = params.cast_tolerance_px * step;
+            let mut t = 1.5 * step;
+            while t < dist {
+                let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
+                let pz = -p[2];
+                if pz < z_min - tol {
+                    break;
                 }
-                // March: one pixel's footprint at this depth per step.
-                let step = z / f;
-                let tol = params.cast_tolerance_px * step;
-                let mut t = 1.5 * step;
-                while t < dist {
-                    let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
-                    let pz = -p[2];
-                    if pz < z_min - tol {
+                let Some((c, r)) = cam.project(p) else { break };
+                match surface_at(c, r) {
+                    Some(zs) if zs < pz - tol => {
+                        out[i] |= ShadowMaps::CAST;
                         break;
                     }
-                    let Some((c, r)) = cam.project(p) else { break };
-                    match surface_at(c, r) {
-                        Some(zs) if zs < pz - tol => {
-                            out[i] |= ShadowMaps::CAST;
-                            break;
-                        }
-                        Some(_) => {}
-                        None if c < -1.0
-                            || r < -1.0
-                            || c > width as f64
-                            || r > height as f64 =>
-                        {
-                            break
-                        }
-                        None => {}
-                    }
-                    t += pz / f;
+                    Some(_) => {}
+                    None if c < -1.0 || r < -1.0 || c > width as f64 || r > height as f64 => break,
+                    None => {}
                 }
+                t += pz / f;
             }
-        });
+        }
+    });
     Ok(ShadowMaps {
         width,
         height,
@@ -538,7 +540,11 @@ mod tests {
         let s = m.positions[0];
         let a = m.axes[0];
         let r0 = norm(sub(s, c));
-        let far = [s[0] + 2.0 * r0 * a[0], s[1] + 2.0 * r0 * a[1], s[2] + 2.0 * r0 * a[2]];
+        let far = [
+            s[0] + 2.0 * r0 * a[0],
+            s[1] + 2.0 * r0 * a[1],
+            s[2] + 2.0 * r0 * a[2],
+        ];
         let (_, b) = m.light_at_point(0, far);
         assert!((b - 0.25).abs() < 1e-9, "{b}");
     }
@@ -584,7 +590,10 @@ mod tests {
         let e = NearLights::new(cam, vec![[0.0, 0.0, -400.0]; 3], None, None, 300.0)
             .unwrap_err()
             .to_string();
-        assert!(e.contains("light 1") && e.contains("behind the object"), "{e}");
+        assert!(
+            e.contains("light 1") && e.contains("behind the object"),
+            "{e}"
+        );
         let e = NearLights::new(cam, vec![[0.0, 0.0, 0.0]; 3], None, None, -1.0)
             .unwrap_err()
             .to_string();

@@ -47,7 +47,11 @@ pub fn parse_camera(text: &str, path: &Path) -> Result<Camera> {
         ));
     }
     if r1[0] != 0.0 {
-        return Err(Error::parse(path, *l1, format!("K[1][0] = {}: expected 0", r1[0])));
+        return Err(Error::parse(
+            path,
+            *l1,
+            format!("K[1][0] = {}: expected 0", r1[0]),
+        ));
     }
     if !(r0[0] > 0.0 && r1[1] > 0.0) {
         return Err(Error::file(
@@ -130,7 +134,10 @@ pub fn parse_near_layout(
     if rows.len() < 3 {
         return Err(Error::file(
             names[1],
-            format!("{} light position(s): expected at least three rows x y z in mm", rows.len()),
+            format!(
+                "{} light position(s): expected at least three rows x y z in mm",
+                rows.len()
+            ),
         ));
     }
     let pos: Vec<[f64; 3]> = rows.iter().map(|(_, r)| [r[0], r[1], r[2]]).collect();
@@ -141,7 +148,10 @@ pub fn parse_near_layout(
             if rows.len() != n {
                 return Err(Error::file(
                     names[2],
-                    format!("{} axes for {n} light positions: expected one per light", rows.len()),
+                    format!(
+                        "{} axes for {n} light positions: expected one per light",
+                        rows.len()
+                    ),
                 ));
             }
             Some(rows.iter().map(|(_, r)| [r[0], r[1], r[2]]).collect())
@@ -154,12 +164,19 @@ pub fn parse_near_layout(
             if rows.len() != n {
                 return Err(Error::file(
                     names[3],
-                    format!("{} anisotropy values for {n} light positions: expected one per light", rows.len()),
+                    format!(
+                        "{} anisotropy values for {n} light positions: expected one per light",
+                        rows.len()
+                    ),
                 ));
             }
             for (line, r) in &rows {
                 if r[0] < 0.0 {
-                    return Err(Error::parse(names[3], *line, format!("μ = {}: expected μ ≥ 0", r[0])));
+                    return Err(Error::parse(
+                        names[3],
+                        *line,
+                        format!("μ = {}: expected μ ≥ 0", r[0]),
+                    ));
                 }
             }
             Some(rows.iter().map(|(_, r)| r[0]).collect())
@@ -172,7 +189,10 @@ pub fn parse_near_layout(
             if rows.len() != n {
                 return Err(Error::file(
                     names[4],
-                    format!("{} intensity rows for {n} light positions: expected one per light", rows.len()),
+                    format!(
+                        "{} intensity rows for {n} light positions: expected one per light",
+                        rows.len()
+                    ),
                 ));
             }
             rows
@@ -336,10 +356,17 @@ pub fn parse_lp(text: &str, path: &Path) -> Result<(Vec<PathBuf>, Lights)> {
         .map(|(i, l)| (i + 1, l.trim().trim_start_matches('\u{feff}')))
         .filter(|(_, l)| !l.is_empty() && !l.starts_with('#'));
     let Some((count_line, count)) = lines.next() else {
-        return Err(Error::file(path, "empty: expected a count line, then `filename x y z` per image"));
+        return Err(Error::file(
+            path,
+            "empty: expected a count line, then `filename x y z` per image",
+        ));
     };
     let n: usize = count.parse().map_err(|_| {
-        Error::parse(path, count_line, format!("'{}' is not an image count", count.escape_debug()))
+        Error::parse(
+            path,
+            count_line,
+            format!("'{}' is not an image count", count.escape_debug()),
+        )
     })?;
     let mut images = Vec::new();
     let mut dirs = Vec::new();
@@ -351,14 +378,25 @@ pub fn parse_lp(text: &str, path: &Path) -> Result<(Vec<PathBuf>, Lights)> {
             return Err(Error::parse(
                 path,
                 line,
-                format!("{} value(s) after the file name: expected `filename x y z`", vals.len()),
+                format!(
+                    "{} value(s) after the file name: expected `filename x y z`",
+                    vals.len()
+                ),
             ));
         }
         let mut d = [0.0; 3];
         for (o, v) in d.iter_mut().zip(&vals) {
-            *o = v.parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| {
-                Error::parse(path, line, format!("'{}' is not a finite number", v.escape_debug()))
-            })?;
+            *o = v
+                .parse::<f64>()
+                .ok()
+                .filter(|x| x.is_finite())
+                .ok_or_else(|| {
+                    Error::parse(
+                        path,
+                        line,
+                        format!("'{}' is not a finite number", v.escape_debug()),
+                    )
+                })?;
         }
         if d.iter().all(|&x| x == 0.0) {
             return Err(Error::parse(path, line, "zero light direction"));
@@ -397,7 +435,14 @@ mod tests {
     }
 
     fn parse(k: &str, pos: &str, dist: Option<&str>) -> Result<NearLayout> {
-        let names = [p("K.txt"), p("light_positions.txt"), p("a"), p("m"), p("i"), p("mean_distance.txt")];
+        let names = [
+            p("K.txt"),
+            p("light_positions.txt"),
+            p("a"),
+            p("m"),
+            p("i"),
+            p("mean_distance.txt"),
+        ];
         parse_near_layout(
             Some(k),
             pos,
@@ -406,7 +451,9 @@ mod tests {
             None,
             dist,
             None,
-            [&names[0], &names[1], &names[2], &names[3], &names[4], &names[5]],
+            [
+                &names[0], &names[1], &names[2], &names[3], &names[4], &names[5],
+            ],
         )
     }
 
@@ -430,31 +477,60 @@ mod tests {
     #[test]
     fn every_inconsistency_names_its_file_and_line() {
         let e = parse(K, POS, None).unwrap_err().to_string();
-        assert!(e.contains("mean_distance.txt") && e.contains("--distance"), "{e}");
+        assert!(
+            e.contains("mean_distance.txt") && e.contains("--distance"),
+            "{e}"
+        );
         let e = parse(K, POS, Some("-3\n")).unwrap_err().to_string();
-        assert!(e.contains("mean_distance.txt") && e.contains("line 1"), "{e}");
-        let e = parse("0 0 127.5\n0 768 127.5\n0 0 1\n", POS, Some("300")).unwrap_err().to_string();
+        assert!(
+            e.contains("mean_distance.txt") && e.contains("line 1"),
+            "{e}"
+        );
+        let e = parse("0 0 127.5\n0 768 127.5\n0 0 1\n", POS, Some("300"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("K.txt") && e.contains("not invertible"), "{e}");
-        let e = parse("768 0 127.5\n0 768 127.5\n0 1 1\n", POS, Some("300")).unwrap_err().to_string();
+        let e = parse("768 0 127.5\n0 768 127.5\n0 1 1\n", POS, Some("300"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("K.txt") && e.contains("line 3"), "{e}");
         let l = parse(K, "75 0 -400\n0 75 0\n-75 0 0\n", Some("300")).unwrap();
         let e = l.lights(&p("light_positions.txt")).unwrap_err().to_string();
-        assert!(e.contains("light_positions.txt") && e.contains("light 1") && e.contains("behind the object"), "{e}");
+        assert!(
+            e.contains("light_positions.txt")
+                && e.contains("light 1")
+                && e.contains("behind the object"),
+            "{e}"
+        );
         let l = parse(K, "75 0 40\n0 75 0\n-75 0 0\n", Some("300")).unwrap();
         let e = l.lights(&p("light_positions.txt")).unwrap_err().to_string();
         assert!(e.contains("behind the camera"), "{e}");
         let e = parse(K, "75 0\n", Some("300")).unwrap_err().to_string();
-        assert!(e.contains("light_positions.txt") && e.contains("line 1"), "{e}");
+        assert!(
+            e.contains("light_positions.txt") && e.contains("line 1"),
+            "{e}"
+        );
     }
 
     #[test]
     fn lp_files_list_images_and_directions() {
-        let (imgs, lights) = parse_lp("3\na.png 0 0 1\nb.png 1 0 1\nc.png 0 1 1\n", Path::new("/x/f.lp")).unwrap();
+        let (imgs, lights) = parse_lp(
+            "3\na.png 0 0 1\nb.png 1 0 1\nc.png 0 1 1\n",
+            Path::new("/x/f.lp"),
+        )
+        .unwrap();
         assert_eq!(imgs[1], p("/x/b.png"));
         assert!((lights.directions[1][0] - 0.5f64.sqrt()).abs() < 1e-12);
-        let e = parse_lp("4\na.png 0 0 1\n", Path::new("f.lp")).unwrap_err().to_string();
-        assert!(e.contains("f.lp") && e.contains("line 1") && e.contains("count 4"), "{e}");
-        let e = parse_lp("1\na.png 0 0\n", Path::new("f.lp")).unwrap_err().to_string();
+        let e = parse_lp("4\na.png 0 0 1\n", Path::new("f.lp"))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("f.lp") && e.contains("line 1") && e.contains("count 4"),
+            "{e}"
+        );
+        let e = parse_lp("1\na.png 0 0\n", Path::new("f.lp"))
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("line 2"), "{e}");
     }
 }

@@ -662,7 +662,13 @@ fn fill_from_neighbours(
                 ([v[0] / b, v[1] / b, v[2] / b], b)
             };
             let ((l1, b1), (l2, b2)) = (unit(dirs[used[0]]), unit(dirs[used[1]]));
-            two_source_normal(l1, l2, grey[used[0]] / (rho * b1), grey[used[1]] / (rho * b2), surf)
+            two_source_normal(
+                l1,
+                l2,
+                grey[used[0]] / (rho * b1),
+                grey[used[1]] / (rho * b2),
+                surf,
+            )
         } else {
             None
         };

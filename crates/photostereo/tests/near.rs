@@ -68,7 +68,10 @@ fn recursive_in_the_near_model_beats_the_distant_approximation() {
     let (distant, _) = error(&r, &r.distant_capture().unwrap(), Method::L2);
     let (near, _) = error(&r, &r.capture().unwrap(), Method::Recursive);
     let oracle = oracle_error(&r).unwrap();
-    assert!(near <= 0.6 * distant && near <= 2.0 * oracle, "ring: {near} {distant} {oracle}");
+    assert!(
+        near <= 0.6 * distant && near <= 2.0 * oracle,
+        "ring: {near} {distant} {oracle}"
+    );
 }
 
 #[test]
@@ -77,7 +80,11 @@ fn every_method_uses_the_per_pixel_lights() {
     for method in [Method::L2, Method::BarskyPetrou] {
         let (distant, _) = error(&r, &r.distant_capture().unwrap(), method);
         let (near, _) = error(&r, &r.capture().unwrap(), method);
-        assert!(near < 0.75 * distant, "{}: near {near} distant {distant}", method.name());
+        assert!(
+            near < 0.75 * distant,
+            "{}: near {near} distant {distant}",
+            method.name()
+        );
     }
 }
 
@@ -94,7 +101,10 @@ fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
         ..Params::default()
     };
     let mut from_disk = reconstruct_with_truth(&capture, &params, None, &Silent).unwrap();
-    let e_disk = from_disk.evaluate(&r.rendered.truth.normals).unwrap().mean_deg;
+    let e_disk = from_disk
+        .evaluate(&r.rendered.truth.normals)
+        .unwrap()
+        .mean_deg;
     let (e_mem, _) = error(&r, &r.capture().unwrap(), Method::L2);
     assert!((e_disk - e_mem).abs() < 0.05, "{e_disk} vs {e_mem}");
     // Depth in mm along the optical axis: within a few mm of the truth (mean fixed by D).
@@ -107,11 +117,18 @@ fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
             count += 1;
         }
     }
-    assert!(sum / (count as f64) < 2.0, "mean |ΔZ| {} mm", sum / count as f64);
+    assert!(
+        sum / (count as f64) < 2.0,
+        "mean |ΔZ| {} mm",
+        sum / count as f64
+    );
     // A missing distance is refused with the file named.
     std::fs::remove_file(dir.path().join("mean_distance.txt")).unwrap();
     let e = CaptureFiles::from_inputs(&[dir.path().to_path_buf()], None, None, None)
         .unwrap_err()
         .to_string();
-    assert!(e.contains("mean_distance.txt") && e.contains("--distance"), "{e}");
+    assert!(
+        e.contains("mean_distance.txt") && e.contains("--distance"),
+        "{e}"
+    );
 }

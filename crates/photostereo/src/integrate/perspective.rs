@@ -12,7 +12,7 @@
 //! the orthographic case: |n_x / (n · r)| and |n_y / (n · r)| (height per pixel over depth per
 //! pixel) at `max_slope`.
 
-use super::{curl_map, Gradients, Integrator, IntegrationProblem, Surface};
+use super::{curl_map, Gradients, IntegrationProblem, Integrator, Surface};
 use crate::error::{Error, Result};
 use crate::lightmodel::Camera;
 use crate::progress::Progress;
@@ -86,7 +86,9 @@ pub fn perspective_surface(
     if !(mean_distance.is_finite() && mean_distance > 0.0) {
         return Err(Error::parameter(
             "distance",
-            format!("{mean_distance}: expected the object's mean distance in mm, finite and positive"),
+            format!(
+                "{mean_distance}: expected the object's mean distance in mm, finite and positive"
+            ),
         ));
     }
     let g = log_depth_gradients(width, height, normals, mask, camera, max_slope)?;
@@ -102,7 +104,9 @@ pub fn perspective_surface(
         .filter(|v| v.is_finite())
         .fold((0f64, 0usize), |(s, c), &v| (s + (v as f64).exp(), c + 1));
     if count == 0 {
-        return Err(Error::invalid("perspective integration: no pixel to integrate"));
+        return Err(Error::invalid(
+            "perspective integration: no pixel to integrate",
+        ));
     }
     let shift = mean_distance.ln() - (sum / count as f64).ln();
     depth.values.par_iter_mut().for_each(|v| {
@@ -142,44 +146,50 @@ pub fn normals_from_z(
         [d * r[0], d * r[1], d * r[2]]
     };
     let mut out = vec![[0f32; 3]; width * height];
-    out.par_chunks_mut(width).enumerate().for_each(|(row, line)| {
-        for (col, o) in line.iter_mut().enumerate() {
-            let i = row * width + col;
-            if !ok(i) {
-                continue;
+    out.par_chunks_mut(width)
+        .enumerate()
+        .for_each(|(row, line)| {
+            for (col, o) in line.iter_mut().enumerate() {
+                let i = row * width + col;
+                if !ok(i) {
+                    continue;
+                }
+                let left = col > 0 && ok(i - 1);
+                let right = col + 1 < width && ok(i + 1);
+                let up = row > 0 && ok(i - width);
+                let down = row + 1 < height && ok(i + width);
+                let diff = |a: usize, b: usize| {
+                    let (pa, pb) = (point(a), point(b));
+                    [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]]
+                };
+                // ∂X/∂col and −∂X/∂row (toward the image's top, +y).
+                let du = match (left, right) {
+                    (true, true) => diff(i - 1, i + 1),
+                    (false, true) => diff(i, i + 1),
+                    (true, false) => diff(i - 1, i),
+                    (false, false) => [1.0, 0.0, 0.0],
+                };
+                let dv = match (up, down) {
+                    (true, true) => diff(i + width, i - width),
+                    (false, true) => diff(i + width, i),
+                    (true, false) => diff(i, i - width),
+                    (false, false) => [0.0, 1.0, 0.0],
+                };
+                let n = [
+                    du[1] * dv[2] - du[2] * dv[1],
+                    du[2] * dv[0] - du[0] * dv[2],
+                    du[0] * dv[1] - du[1] * dv[0],
+                ];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if len > 0.0 && len.is_finite() {
+                    *o = [
+                        (n[0] / len) as f32,
+                        (n[1] / len) as f32,
+                        (n[2] / len) as f32,
+                    ];
+                }
             }
-            let left = col > 0 && ok(i - 1);
-            let right = col + 1 < width && ok(i + 1);
-            let up = row > 0 && ok(i - width);
-            let down = row + 1 < height && ok(i + width);
-            let diff = |a: usize, b: usize| {
-                let (pa, pb) = (point(a), point(b));
-                [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]]
-            };
-            // ∂X/∂col and −∂X/∂row (toward the image's top, +y).
-            let du = match (left, right) {
-                (true, true) => diff(i - 1, i + 1),
-                (false, true) => diff(i, i + 1),
-                (true, false) => diff(i - 1, i),
-                (false, false) => [1.0, 0.0, 0.0],
-            };
-            let dv = match (up, down) {
-                (true, true) => diff(i + width, i - width),
-                (false, true) => diff(i + width, i),
-                (true, false) => diff(i, i - width),
-                (false, false) => [0.0, 1.0, 0.0],
-            };
-            let n = [
-                du[1] * dv[2] - du[2] * dv[1],
-                du[2] * dv[0] - du[0] * dv[2],
-                du[0] * dv[1] - du[1] * dv[0],
-            ];
-            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-            if len > 0.0 && len.is_finite() {
-                *o = [(n[0] / len) as f32, (n[1] / len) as f32, (n[2] / len) as f32];
-            }
-        }
-    });
+        });
     out
 }
 
@@ -233,7 +243,11 @@ mod tests {
     fn true_normals_of_a_sphere_give_its_depth_within_half_a_percent_of_the_range() {
         let size = 96;
         let (cam, normals, z, mask) = sphere(size);
-        let truth: Vec<f64> = z.iter().filter(|v| v.is_finite()).map(|&v| v as f64).collect();
+        let truth: Vec<f64> = z
+            .iter()
+            .filter(|v| v.is_finite())
+            .map(|&v| v as f64)
+            .collect();
         let mean = truth.iter().sum::<f64>() / truth.len() as f64;
         let range = truth.iter().cloned().fold(f64::MIN, f64::max)
             - truth.iter().cloned().fold(f64::MAX, f64::min);
@@ -258,18 +272,27 @@ mod tests {
                 assert!(s.depth.values[i].is_nan());
             }
         }
-        assert!(worst < 0.005 * range, "worst {worst} mm of a {range} mm range");
+        assert!(
+            worst < 0.005 * range,
+            "worst {worst} mm of a {range} mm range"
+        );
         // Orthographic integration of the same normals misses (the check can fail).
         let back = normals_from_z(size, size, &s.depth.values, &mask, &cam);
         let mut err = 0f64;
         let mut count = 0;
         for i in 0..size * size {
             if mask[i] {
-                let d = back[i][0] * normals[i][0] + back[i][1] * normals[i][1] + back[i][2] * normals[i][2];
+                let d = back[i][0] * normals[i][0]
+                    + back[i][1] * normals[i][1]
+                    + back[i][2] * normals[i][2];
                 err += (d.clamp(-1.0, 1.0) as f64).acos().to_degrees();
                 count += 1;
             }
         }
-        assert!(err / (count as f64) < 1.0, "re-derived normals {}°", err / count as f64);
+        assert!(
+            err / (count as f64) < 1.0,
+            "re-derived normals {}°",
+            err / count as f64
+        );
     }
 }

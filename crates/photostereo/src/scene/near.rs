@@ -159,7 +159,11 @@ impl NearRendered {
         if let Some(m) = &lights.near {
             lights.near = Some(Arc::new(m.permuted(&(0..m.len()).collect::<Vec<_>>())));
         }
-        Capture::from_images(&self.images(), lights, Some(self.rendered.truth.mask.clone()))
+        Capture::from_images(
+            &self.images(),
+            lights,
+            Some(self.rendered.truth.mask.clone()),
+        )
     }
 
     /// The same capture under the distant approximation: directions toward each LED and its
@@ -167,7 +171,11 @@ impl NearRendered {
     pub fn distant_capture(&self) -> Result<Capture> {
         let mut lights = self.rendered.lights.clone();
         lights.near = None;
-        Capture::from_images(&self.images(), lights, Some(self.rendered.truth.mask.clone()))
+        Capture::from_images(
+            &self.images(),
+            lights,
+            Some(self.rendered.truth.mask.clone()),
+        )
     }
 
     fn images(&self) -> Vec<Image> {
@@ -220,7 +228,13 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
     let gn = (2.0 * extent / step).ceil() as usize + 1;
     let grid: Vec<f64> = (0..gn * gn)
         .into_par_iter()
-        .map(|i| height(-extent + (i % gn) as f64 * step, -extent + (i / gn) as f64 * step).0)
+        .map(|i| {
+            height(
+                -extent + (i % gn) as f64 * step,
+                -extent + (i / gn) as f64 * step,
+            )
+            .0
+        })
         .collect();
     let top = grid.iter().cloned().fold(f64::MIN, f64::max);
     let bottom = grid.iter().cloned().fold(f64::MAX, f64::min);
@@ -418,7 +432,8 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
                     if noisy >= 1.0 {
                         clipped = true;
                     }
-                    out.image[i * 3 + ch] = ((noisy.clamp(0.0, 1.0) * 65535.0).round() / 65535.0) as f32;
+                    out.image[i * 3 + ch] =
+                        ((noisy.clamp(0.0, 1.0) * 65535.0).round() / 65535.0) as f32;
                 }
                 if clipped && hit.as_ref().is_some_and(|h| h.inside) {
                     out.clipped += 1;
@@ -487,14 +502,13 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
     // The capture's lights: the distant approximation at the centre plus the near model; the
     // images are divided by E_k times the brightness at the centre.
     let centre = model.centre_brightness().to_vec();
-    let lights = Lights::new(&model.centre_directions())?
-        .with_intensities(
-            radiance
-                .iter()
-                .zip(&centre)
-                .map(|(e, b)| [e[0] * b, e[1] * b, e[2] * b])
-                .collect(),
-        )?;
+    let lights = Lights::new(&model.centre_directions())?.with_intensities(
+        radiance
+            .iter()
+            .zip(&centre)
+            .map(|(e, b)| [e[0] * b, e[1] * b, e[2] * b])
+            .collect(),
+    )?;
     let axes = model.axes.clone();
     let lights = Lights {
         near: Some(Arc::new(model)),
