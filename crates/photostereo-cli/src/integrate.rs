@@ -10,7 +10,6 @@ use photostereo::integrate::{
     surface_from_normals, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
 };
 use photostereo::report::Report;
-use photostereo::surface::write_surface;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -188,8 +187,18 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     summary["non_finite_normals"] = map.non_finite.into();
     report.extra.insert("integration".into(), summary);
     let t = Instant::now();
-    write_surface(folder.path(), &surface, &map.normals, !a.no_mesh)
-        .with_context(|| format!("writing {}", a.output.display()))?;
+    let camera = match &a.camera {
+        Some(k) => Some(photostereo::nearlayout::read_camera(k)?),
+        None => None,
+    };
+    photostereo::surface::write_surface_camera(
+        folder.path(),
+        &surface,
+        &map.normals,
+        !a.no_mesh,
+        camera.as_ref(),
+    )
+    .with_context(|| format!("writing {}", a.output.display()))?;
     report.time("write", t);
     report.time("total", start);
     write_json(&folder.file("report.json"), &report)?;

@@ -1,25 +1,33 @@
-use photostereo::scene::near::{oracle_error, synthesize_near, NearRig, NearSpec};
+use photostereo::estimate::{ColemanJain, Estimator, LeastSquares};
+use photostereo::progress::Silent;
+use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::{Brdf, SceneKind};
 fn main() -> photostereo::Result<()> {
-    for rig in [NearRig::Ring, NearRig::Square] {
-        for brdf in [Brdf::Lambert, Brdf::BlinnPhong] {
-            for noise in [0.0, 0.005] {
-                let spec = NearSpec {
-                    size: 128,
-                    brdf,
-                    noise_sigma: noise,
-                    ..NearSpec::new(SceneKind::Sphere, rig)
-                };
-                let r = synthesize_near(&spec)?;
-                println!(
-                    "{} {} {noise}: oracle {:.2} shadow {:.3} hl {:.3} clip {:.3}",
-                    rig.name(),
-                    brdf.name(),
-                    oracle_error(&r)?,
-                    r.rendered.stats.shadow_fraction,
-                    r.rendered.stats.highlight_fraction,
-                    r.rendered.stats.clipped_fraction
-                );
+    for brdf in [Brdf::Lambert, Brdf::BlinnPhong] {
+        let spec = NearSpec {
+            size: 64,
+            brdf,
+            ..NearSpec::new(SceneKind::Sphere, NearRig::Dome)
+        };
+        let r = synthesize_near(&spec)?;
+        let truth = &r.rendered.truth;
+        for (name, cap) in [("near", r.capture()?), ("distant", r.distant_capture()?)] {
+            if let Some(m) = cap.lights.near.as_deref() {
+                m.set_surface(&truth.depth);
+            }
+            for (en, est) in [
+                ("l2", LeastSquares.estimate(&cap, &Silent)?),
+                ("cj", ColemanJain::default().estimate(&cap, &Silent)?),
+            ] {
+                let n = cap.scatter(&est.normals, 1, [0.0; 3]);
+                if let Some(st) = &est.light_status {
+                    println!(
+                        "removed share {:.3}",
+                        st.iter().filter(|&&x| x != 0).count() as f64 / st.len() as f64
+                    );
+                }
+                let (_, s) = photostereo::metrics::evaluate(&n, &truth.normals, Some(&truth.mask))?;
+                println!("{} {name} {en}: {:.2}", brdf.name(), s.mean_deg);
             }
         }
     }

@@ -176,6 +176,8 @@ pub struct Reconstruction {
     pub surface: Option<Surface>,
     /// The recursive method's maps.
     pub recursive: Option<RecursiveMaps>,
+    /// The camera of a near-light capture: then `depth` is Z in mm along the optical axis.
+    pub camera: Option<crate::lightmodel::Camera>,
     /// (H, W) angular error in degrees against ground truth (NaN where not evaluated), when
     /// evaluated ([`Reconstruction::evaluate`]).
     pub error_map: Option<Vec<f32>>,
@@ -358,6 +360,7 @@ pub fn reconstruct_with_truth(
         trust,
         surface,
         recursive,
+        camera: capture.lights.near.as_ref().map(|m| m.camera),
         error_map: None,
         report,
     })

@@ -139,7 +139,13 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         )?;
     }
     if let Some(surface) = &rec.surface {
-        crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+        crate::surface::write_surface_camera(
+            dir,
+            surface,
+            &rec.normals,
+            true,
+            rec.camera.as_ref(),
+        )?;
     }
     if options.error_map {
         if let Some(map) = &rec.error_map {

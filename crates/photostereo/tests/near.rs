@@ -132,3 +132,78 @@ fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
         "{e}"
     );
 }
+
+/// DiLiGenT's camera (its calibration: fx 3772.08, fy 3759.01, cx 305.875, cy 255.125 pixels;
+/// objects about 1.5 m away): its ground-truth normals integrated through the camera and
+/// differentiated back are closer to the truth than with orthographic integration.
+#[test]
+fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic() {
+    use photostereo::integrate::perspective::{normals_from_z, perspective_surface};
+    use photostereo::integrate::{normals_from_depth, surface_from_normals, Poisson};
+    use photostereo::lightmodel::Camera;
+    let root = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/diligent"
+    ));
+    let camera = Camera::new(3772.08, 3759.01, 305.875, 255.125).unwrap();
+    for object in ["ballPNG", "bearPNG", "catPNG"] {
+        let map =
+            photostereo::groundtruth::read_normal_map(&root.join(object).join("Normal_gt.mat"))
+                .unwrap();
+        let (w, h) = (map.width, map.height);
+        let mask: Vec<bool> = map.normals.iter().map(|n| *n != [0.0; 3]).collect();
+        // Scored away from the outline (pixels whose 5×5 neighbourhood is inside the mask),
+        // where one-sided differences of either integration dominate.
+        let inner: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (r, c) = ((i / w) as i64, (i % w) as i64);
+                (-2..=2).all(|dr| {
+                    (-2..=2).all(|dc| {
+                        let (rr, cc) = (r + dr, c + dc);
+                        rr >= 0
+                            && cc >= 0
+                            && rr < h as i64
+                            && cc < w as i64
+                            && mask[rr as usize * w + cc as usize]
+                    })
+                })
+            })
+            .collect();
+        let mean_error = |normals: &[[f32; 3]]| {
+            let (_, s) =
+                photostereo::metrics::evaluate(normals, &map.normals, Some(&inner)).unwrap();
+            s.mean_deg
+        };
+        let ortho = surface_from_normals(
+            w,
+            h,
+            &map.normals,
+            Some(&mask),
+            None,
+            &Poisson::default(),
+            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            &Silent,
+        )
+        .unwrap();
+        let e_ortho = mean_error(&normals_from_depth(w, h, &ortho.depth.values, &mask));
+        let persp = perspective_surface(
+            w,
+            h,
+            &map.normals,
+            Some(&mask),
+            None,
+            &camera,
+            1500.0,
+            &Poisson::default(),
+            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            &Silent,
+        )
+        .unwrap();
+        let e_persp = mean_error(&normals_from_z(w, h, &persp.depth.values, &mask, &camera));
+        println!("{object}: orthographic {e_ortho:.3}°, perspective {e_persp:.3}°");
+        assert!(
+            e_persp < e_ortho,
+            "{object}: perspective {e_persp}° vs orthographic {e_ortho}°"
+        );
+    }
+}

@@ -132,12 +132,24 @@ impl ColemanJain {
         let kept = vec![true; n];
         let mut spreads = Vec::new();
         let stride = (capture.n_pixels() / 2000).max(1);
+        // Near lights: each sampled pixel's own vectors at the current surface.
+        let mut lights = crate::lightmodel::PixelLights::of(capture);
+        let mut buf = vec![[0f64; 3]; n];
         for p in (0..capture.n_pixels()).step_by(stride) {
             channel_mean(capture.pixel_samples(p), c, &mut grey);
-            let Some(m) = all.solve(&grey) else { continue };
-            let clean: Vec<f64> = capture
-                .lights
-                .directions
+            let dirs: &[[f64; 3]] = if lights.is_near() {
+                buf.copy_from_slice(lights.at(capture.pixels[p] as usize));
+                &buf
+            } else {
+                dirs
+            };
+            let m = if lights.is_near() {
+                crate::lambert::solve_with(dirs, None, &grey)
+            } else {
+                all.solve(&grey)
+            };
+            let Some(m) = m else { continue };
+            let clean: Vec<f64> = dirs
                 .iter()
                 .map(|l| l[0] * m.x + l[1] * m.y + l[2] * m.z)
                 .collect();
