@@ -836,7 +836,7 @@ fn fuzz_near_layout() {
 "
         .to_vec(),
     ];
-    fuzz("near_positions", seeds, text_mutations, |b| {
+    fuzz("near_positions", seeds, text_mutations, move |b| {
         text(b).is_some_and(|t| {
             photostereo::nearlayout::parse_near_layout(
                 Some(k),
@@ -856,7 +856,7 @@ fn fuzz_near_layout() {
         b"768 0 127.5\n0 768 127.5\n0 0 1\n".to_vec(),
         b"3772.08 0 305.875\n0 3759.01 255.125\n0 0 1\n".to_vec(),
     ];
-    fuzz("camera_file", seeds, text_mutations, |b| {
+    fuzz("camera_file", seeds, text_mutations, move |b| {
         text(b).is_some_and(|t| photostereo::nearlayout::parse_camera(&t, names[0]).is_ok())
     });
 }

@@ -207,3 +207,52 @@ fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic()
         );
     }
 }
+
+/// The point-light shadow maps of the recursive method, from the true depth and normals, agree
+/// with the renderer's shadows (an independent ray march against the analytic height field).
+#[test]
+fn point_light_shadow_maps_match_the_rendered_shadows() {
+    let r = synthesize_near(&NearSpec {
+        size: 64,
+        ..NearSpec::new(SceneKind::Blocks, NearRig::Dome)
+    })
+    .unwrap();
+    let t = &r.rendered.truth;
+    let capture = r.capture().unwrap();
+    let near = capture.lights.near.as_deref().unwrap();
+    let maps = photostereo::lightmodel::near_shadow_maps(
+        near,
+        &t.depth,
+        &t.normals,
+        &t.mask,
+        64,
+        64,
+        &photostereo::shadows::ShadowParams::default(),
+    )
+    .unwrap();
+    let (mut agree, mut total, mut cast_truth, mut cast_found) = (0usize, 0usize, 0usize, 0usize);
+    for k in 0..near.len() {
+        for i in 0..64 * 64 {
+            if !t.mask[i] {
+                continue;
+            }
+            total += 1;
+            let ours = maps.is_shadowed(k, i);
+            agree += (ours == t.shadow[k][i]) as usize;
+            if t.cast_shadow[k][i] {
+                cast_truth += 1;
+                cast_found += ours as usize;
+            }
+        }
+    }
+    let share = agree as f64 / total as f64;
+    assert!(
+        cast_truth > 100,
+        "the scene must have cast shadows ({cast_truth})"
+    );
+    assert!(share > 0.97, "agreement {share}");
+    assert!(
+        cast_found as f64 > 0.8 * cast_truth as f64,
+        "cast shadows found {cast_found} of {cast_truth}"
+    );
+}
