@@ -39,11 +39,10 @@ pub fn log_depth_gradients(
     let cap = max_slope as f64;
     let mut capped = 0;
     let mut backfacing = 0;
-    for i in 0..width * height {
+    for (i, n) in normals.iter().enumerate() {
         if !g.mask[i] {
             continue;
         }
-        let n = normals[i];
         let (nx, ny, nz) = (n[0] as f64, n[1] as f64, n[2] as f64);
         let r = camera.ray((i % width) as f64, (i / width) as f64);
         let nr = nx * r[0] + ny * r[1] + nz * r[2];

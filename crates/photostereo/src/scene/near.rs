@@ -415,8 +415,8 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
                                 spec_v = BLINN_PHONG_KS * ndh.powf(BLINN_PHONG_EXPONENT);
                             }
                         }
-                        for ch in 0..3 {
-                            value[ch] = radiance[k][ch] * raw * (h.albedo[ch] * ndl + spec_v);
+                        for (ch, v) in value.iter_mut().enumerate() {
+                            *v = radiance[k][ch] * raw * (h.albedo[ch] * ndl + spec_v);
                         }
                     }
                     if h.inside {
@@ -427,8 +427,8 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
                     }
                 }
                 let mut clipped = false;
-                for ch in 0..3 {
-                    let noisy = value[ch] + spec.noise_sigma * rng.next_normal();
+                for (ch, v) in value.iter().enumerate() {
+                    let noisy = v + spec.noise_sigma * rng.next_normal();
                     if noisy >= 1.0 {
                         clipped = true;
                     }
