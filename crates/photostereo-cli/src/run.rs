@@ -30,8 +30,9 @@ pub struct RunArgs {
     /// Mask image (non-zero = object); overrides the layout's own mask.
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Near-light captures (a folder with light_positions.txt): the object's mean distance
-    /// from the camera along the optical axis, mm; replaces mean_distance.txt.
+    /// A folder with light_positions.txt (near lights) or K.txt (a camera with distant lights):
+    /// the object's mean distance from the camera along the optical axis, mm; replaces
+    /// mean_distance.txt.
     #[arg(long)]
     pub distance: Option<f64>,
     /// Estimation method: recursive, l2, coleman-jain, barsky-petrou.
@@ -169,8 +170,19 @@ pub fn main(a: RunArgs) -> Result<()> {
             }
             f
         }
+        (Some(d), [dir]) if dir.is_dir() => {
+            // Distant lights with a camera (K.txt): --distance replaces mean_distance.txt.
+            let mut f = CaptureFiles::diligent_with_lights(dir, a.lights.as_deref())?;
+            if let Some(p) = &a.intensities {
+                f = f.with_intensities_file(p)?;
+            }
+            if let Some(m) = &a.mask {
+                f.mask = Some(m.clone());
+            }
+            photostereo::nearlayout::attach_camera(f, dir, Some(d))?
+        }
         (Some(_), _) => anyhow::bail!(
-            "--distance applies to a near-light capture: one folder holding light_positions.txt"
+            "--distance applies to one capture folder holding light_positions.txt or K.txt"
         ),
         (None, _) => CaptureFiles::from_inputs(
             &a.input,

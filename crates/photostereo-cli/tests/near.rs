@@ -92,10 +92,33 @@ fn synth_run_and_integrate_a_near_light_capture() {
     let o = photostereo(&["run", "cap", "--distance=-5", "-o", "out3"], d);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("distance"), "{}", stderr(&o));
+    // Without the LED positions the folder is distant lights (the directions at the centre)
+    // seen through K.txt: the depth is still Z in mm, the meshes in mm.
     std::fs::remove_file(d.join("cap/light_positions.txt")).unwrap();
-    let o = photostereo(&["run", "cap", "--distance", "300", "-o", "out4"], d);
+    let o = photostereo(
+        &[
+            "run",
+            "cap",
+            "--method",
+            "l2",
+            "--distance",
+            "300",
+            "-o",
+            "out4",
+        ],
+        d,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let r = report(&d.join("out4/report.json"));
+    assert!(r.get("near").is_none());
+    let ply = std::fs::read(d.join("out4/mesh.ply")).unwrap();
+    assert!(String::from_utf8_lossy(&ply[..200]).contains("mm, camera frame"));
+    // Without K.txt a distance has nothing to apply to.
+    std::fs::remove_file(d.join("cap/K.txt")).unwrap();
+    let o = photostereo(&["run", "cap", "--distance", "300", "-o", "out5"], d);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
-    assert!(stderr(&o).contains("light_positions.txt"), "{}", stderr(&o));
+    assert!(stderr(&o).contains("K.txt"), "{}", stderr(&o));
+    std::fs::write(d.join("cap/K.txt"), "768 0 23.5\n0 768 23.5\n0 0 1\n").unwrap();
     // integrate through the camera: the mean depth is the distance, in mm.
     let o = photostereo(
         &[

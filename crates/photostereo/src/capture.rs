@@ -84,6 +84,7 @@ impl CaptureFiles {
             }
             [dir] if dir.is_dir() => {
                 let f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                let f = crate::nearlayout::attach_camera(f, dir, None)?;
                 match intensities {
                     Some(p) => f.with_intensities_file(p)?,
                     None => f,

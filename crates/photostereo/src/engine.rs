@@ -176,7 +176,8 @@ pub struct Reconstruction {
     pub surface: Option<Surface>,
     /// The recursive method's maps.
     pub recursive: Option<RecursiveMaps>,
-    /// The camera of a near-light capture: then `depth` is Z in mm along the optical axis.
+    /// The camera of a near-light capture or of distant lights given with `K.txt`: then
+    /// `depth` is Z in mm along the optical axis and the meshes are in mm.
     pub camera: Option<crate::lightmodel::Camera>,
     /// (H, W) angular error in degrees against ground truth (NaN where not evaluated), when
     /// evaluated ([`Reconstruction::evaluate`]).
@@ -286,7 +287,7 @@ pub fn reconstruct_with_truth(
     let (w, h) = (capture.width, capture.height);
     let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
     let trust = integration_trust(capture, params, diagnostics.as_ref(), detection.as_ref());
-    let surface = if params.integrate && capture.lights.near.is_some() {
+    let surface = if params.integrate && capture.lights.perspective().is_some() {
         let t = Instant::now();
         let surface = near_integration(capture, params, &normals, &trust, progress)?;
         report.extra.insert("integration".into(), surface.summary());
@@ -360,7 +361,7 @@ pub fn reconstruct_with_truth(
         trust,
         surface,
         recursive,
-        camera: capture.lights.near.as_ref().map(|m| m.camera),
+        camera: capture.lights.perspective().map(|(c, _)| c),
         error_map: None,
         report,
     })
@@ -389,8 +390,9 @@ fn integration_trust(
     }
 }
 
-/// Perspective integration of full-frame normals with the near model's camera: Z in mm along
-/// the optical axis, mean over the mask = the model's mean distance.
+/// Perspective integration of full-frame normals with the capture's camera (the near model's,
+/// or the one given for distant lights): Z in mm along the optical axis, mean over the mask =
+/// the mean distance.
 fn near_integration(
     capture: &Capture,
     params: &Params,
@@ -398,11 +400,10 @@ fn near_integration(
     trust: &[f32],
     progress: &dyn Progress,
 ) -> Result<Surface> {
-    let near = capture
+    let (camera, distance) = capture
         .lights
-        .near
-        .as_deref()
-        .ok_or_else(|| Error::invalid("perspective integration needs the near model"))?;
+        .perspective()
+        .ok_or_else(|| Error::invalid("perspective integration needs a camera"))?;
     let (weighted, weights) = weighted_normals(normals, &capture.mask, Some(trust));
     crate::integrate::perspective::perspective_surface(
         capture.width,
@@ -410,8 +411,8 @@ fn near_integration(
         &weighted,
         Some(&capture.mask),
         Some(&weights),
-        &near.camera,
-        near.mean_distance,
+        &camera,
+        distance,
         params.integration.method.integrator().as_ref(),
         params.integration.max_slope,
         progress,

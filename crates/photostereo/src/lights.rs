@@ -25,6 +25,10 @@ pub struct Lights {
     /// distant approximation at the object's centre (directions toward each LED and the
     /// brightness it gives there), and the kernel asks the model for per-pixel vectors.
     pub near: Option<std::sync::Arc<crate::lightmodel::NearLights>>,
+    /// A pinhole camera and the object's mean distance (mm) for distant lights seen through a
+    /// lens (`K.txt` without LED positions): the depth is then integrated through the camera,
+    /// Z in mm. Near lights carry their own camera.
+    pub camera: Option<(crate::lightmodel::Camera, f64)>,
 }
 
 impl Lights {
@@ -44,7 +48,17 @@ impl Lights {
             directions: out,
             renormalised,
             near: None,
+            camera: None,
         })
+    }
+
+    /// The camera and mean distance (mm) the depth is integrated with, if any: the near
+    /// model's, or the one given for distant lights.
+    pub fn perspective(&self) -> Option<(crate::lightmodel::Camera, f64)> {
+        match &self.near {
+            Some(m) => Some((m.camera, m.mean_distance)),
+            None => self.camera,
+        }
     }
 
     /// Number of lights.
@@ -104,6 +118,7 @@ impl Lights {
             directions: dirs,
             renormalised,
             near: None,
+            camera: None,
         })
     }
 
@@ -176,6 +191,7 @@ impl Lights {
                 .near
                 .as_ref()
                 .map(|m| std::sync::Arc::new(m.permuted(order))),
+            camera: self.camera,
         }
     }
 

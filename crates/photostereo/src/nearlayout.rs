@@ -346,6 +346,51 @@ pub fn near_capture_files(dir: &Path, distance: Option<f64>) -> Result<CaptureFi
     })
 }
 
+/// Distant lights seen through a lens: when `dir` holds `K.txt` (and no LED positions),
+/// attaches the camera and the mean distance (`distance`, else `mean_distance.txt`; refused
+/// without either) to `files`, so that the depth is integrated through the camera in mm.
+/// Without `K.txt`, `files` is returned unchanged (and `distance` refused).
+pub fn attach_camera(
+    mut files: CaptureFiles,
+    dir: &Path,
+    distance: Option<f64>,
+) -> Result<CaptureFiles> {
+    let k = dir.join("K.txt");
+    if !k.is_file() {
+        if distance.is_some() {
+            return Err(Error::file(
+                &k,
+                "missing: --distance needs a near-light capture (light_positions.txt) or a camera (K.txt)",
+            ));
+        }
+        return Ok(files);
+    }
+    let camera = read_camera(&k)?;
+    let path = dir.join("mean_distance.txt");
+    let d = match distance {
+        Some(d) if d.is_finite() && d > 0.0 => d,
+        Some(d) => {
+            return Err(Error::parameter(
+                "distance",
+                format!("{d}: expected the object's mean distance in mm, positive"),
+            ))
+        }
+        None if path.is_file() => parse_distance(&crate::limits::read_text(&path)?, &path)?,
+        None => {
+            return Err(Error::file(
+                &path,
+                "missing: a camera (K.txt) needs the object's mean distance in mm (this file or --distance) to give the depth in mm",
+            ))
+        }
+    };
+    files.lights.camera = Some((camera, d));
+    files.notes.push(format!(
+        "perspective camera for distant lights: fx {} fy {} cx {} cy {}, mean distance {d} mm",
+        camera.fx, camera.fy, camera.cx, camera.cy
+    ));
+    Ok(files)
+}
+
 /// Parses an `.lp` light file of the RTI tools: a count line, then `filename x y z` per image
 /// (distant directions; normalised). Image paths are relative to the file's folder.
 pub fn parse_lp(text: &str, path: &Path) -> Result<(Vec<PathBuf>, Lights)> {

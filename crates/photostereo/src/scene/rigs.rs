@@ -105,6 +105,7 @@ pub fn slant_tilt_lights(slant_deg: f64, tilts_deg: &[f64]) -> Lights {
         directions: dirs,
         renormalised: 0,
         near: None,
+        camera: None,
     }
 }
 
@@ -126,6 +127,7 @@ pub fn dome_lights(n: usize, max_slant_deg: f64) -> Lights {
         directions: dirs,
         renormalised: 0,
         near: None,
+        camera: None,
     }
 }
 
