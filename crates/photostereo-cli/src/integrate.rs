@@ -107,6 +107,8 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     report.param("max_slope", a.max_slope);
     report.input.width = map.width;
     report.input.height = map.height;
+    report.input.files = vec![a.normals.display().to_string()];
+    report.input.mask_file = a.mask.as_ref().map(|m| m.display().to_string());
     let integrator: Box<dyn photostereo::integrate::Integrator> = match a.method {
         IntegratorKind::Poisson => {
             report.param("tolerance", a.tolerance);

@@ -211,16 +211,14 @@ pub fn main(a: RunArgs) -> Result<()> {
         .map_err(crate::common::flag_error)?;
     let r = &rec.report;
     if a.out.json {
-        // The JSON on stdout holds every note; a recursion that did not settle is also said
-        // on stderr.
-        if r.extra.get("recursive").and_then(|v| v.get("converged")) == Some(&false.into()) {
-            for n in r
-                .notes
-                .iter()
-                .filter(|n| n.starts_with("recursive: not converged"))
-            {
-                eprintln!("note: {n}");
-            }
+        // The JSON on stdout holds every note; a recursion that did not settle and a missing
+        // mask are also said on stderr.
+        for n in r
+            .notes
+            .iter()
+            .filter(|n| n.starts_with("recursive: not converged") || n.starts_with("no mask:"))
+        {
+            eprintln!("note: {n}");
         }
         let mut v = serde_json::to_value(r)?;
         v["output"] = serde_json::Value::from(a.output.display().to_string());

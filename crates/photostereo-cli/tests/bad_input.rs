@@ -1,65 +1,24 @@
 //! Bad input: every case gives a clear message naming the file, line or parameter, exit code 2,
 //! and writes nothing.
 
+mod common;
+
+use common::BIN;
 use photostereo::imageio::{write_png16, write_png8};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-const BIN: &str = env!("CARGO_BIN_EXE_photostereo");
-
-/// A valid small capture: 4 grey 16-bit images of a Lambertian sphere, lights and a mask.
+/// A valid small capture ([`common::write_sphere_capture`]) at the root of a temporary folder.
 struct Fixture {
     dir: tempfile::TempDir,
 }
 
-const DIRS: [[f64; 3]; 4] = [
-    [0.3, 0.3, 0.9],
-    [-0.3, 0.3, 0.9],
-    [-0.3, -0.3, 0.9],
-    [0.3, -0.3, 0.9],
-];
-
 impl Fixture {
     fn new() -> Self {
-        let dir = tempfile::tempdir().unwrap();
-        let f = Fixture { dir };
-        let size = 24;
-        for (k, l) in DIRS.iter().enumerate() {
-            let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-            let mut data = vec![0u16; size * size];
-            for r in 0..size {
-                for c in 0..size {
-                    let x = (c as f64 - 11.5) / 10.0;
-                    let y = (11.5 - r as f64) / 10.0;
-                    let rr = x * x + y * y;
-                    if rr < 1.0 {
-                        let n = [x, y, (1.0 - rr).sqrt()];
-                        let s = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / norm;
-                        data[r * size + c] = (s.max(0.0) * 50000.0) as u16;
-                    }
-                }
-            }
-            write_png16(&f.path(&format!("{:03}.png", k + 1)), size, size, 1, &data).unwrap();
-        }
-        f.write(
-            "light_directions.txt",
-            &DIRS
-                .iter()
-                .map(|d| format!("{} {} {}\n", d[0], d[1], d[2]))
-                .collect::<String>(),
-        );
-        let mask: Vec<u8> = (0..size * size)
-            .map(|i| {
-                let (r, c) = (i / size, i % size);
-                let (x, y) = (c as f64 - 11.5, r as f64 - 11.5);
-                if x * x + y * y < 81.0 {
-                    255
-                } else {
-                    0
-                }
-            })
-            .collect();
-        write_png8(&f.path("mask.png"), size, size, 1, &mask).unwrap();
+        let f = Fixture {
+            dir: tempfile::tempdir().unwrap(),
+        };
+        common::write_sphere_capture(f.dir.path());
         f
     }
     fn path(&self, name: &str) -> PathBuf {
@@ -112,20 +71,9 @@ fn expect_failure(mut cmd: Command, needles: &[&str]) {
 #[test]
 fn valid_fixture_runs() {
     let f = Fixture::new();
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(f.dir.path())
-        .arg("-o")
-        .arg(f.out())
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    assert!(f.out().join("normals.npy").exists() && f.out().join("report.json").exists());
+    let (report, _) = run_json(&f, &["--quiet"]);
+    assert_eq!(report["input"]["lights"], 4);
+    assert!(f.out().join("normals.npy").exists());
 }
 
 #[test]
@@ -305,4 +253,207 @@ fn out_of_range_parameters_are_refused() {
 fn unknown_method_is_a_usage_error() {
     let f = Fixture::new();
     f.fails(&["--method", "magic"], &["unknown method 'magic'"]);
+}
+
+/// Runs `photostereo run <capture> -o out [extra] --json`, expects success and returns
+/// (report.json, stderr).
+fn run_json(f: &Fixture, extra: &[&str]) -> (serde_json::Value, String) {
+    let out = Command::new(BIN)
+        .arg("run")
+        .arg(f.dir.path())
+        .arg("-o")
+        .arg(f.out())
+        .args(extra)
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{err}");
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
+            .unwrap();
+    (report, err)
+}
+
+/// Issue 17.4: a capture without `mask.png` is run on the whole frame, and says so on stderr
+/// (also with --json), in the report's notes and in `input.whole_frame_mask`.
+#[test]
+fn missing_mask_is_said() {
+    let f = Fixture::new();
+    let (with_mask, err) = run_json(&f, &["--quiet"]);
+    assert!(!err.contains("no mask"), "{err}");
+    assert_eq!(
+        with_mask["input"]["whole_frame_mask"],
+        serde_json::Value::Null
+    );
+    assert!(with_mask["input"]["mask_file"]
+        .as_str()
+        .unwrap()
+        .ends_with("mask.png"));
+    let masked_pixels = with_mask["input"]["mask_pixels"].as_u64().unwrap();
+    assert!(masked_pixels < 24 * 24);
+
+    std::fs::remove_file(f.path("mask.png")).unwrap();
+    for mode in ["--json", "--verbose"] {
+        let extra: &[&str] = if mode == "--json" {
+            &["--json", "--force"]
+        } else {
+            &["--force"]
+        };
+        let (report, err) = run_json(&f, extra);
+        assert!(
+            err.contains("note: no mask: the whole 24×24 frame is used as the object"),
+            "{mode}: {err}"
+        );
+        assert_eq!(report["input"]["whole_frame_mask"], true);
+        assert_eq!(report["input"]["mask_pixels"], 24 * 24);
+        assert_eq!(report["input"]["mask_file"], serde_json::Value::Null);
+        assert!(report["notes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|n| n.as_str().unwrap().starts_with("no mask:")));
+    }
+}
+
+/// Issue 17.5: the report names the input files (images, mask) in order.
+#[test]
+fn report_names_the_inputs() {
+    let f = Fixture::new();
+    let (report, _) = run_json(&f, &["--quiet"]);
+    let files: Vec<String> = report["input"]["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_str().unwrap().to_string())
+        .collect();
+    let expected: Vec<String> = (1..=4)
+        .map(|k| f.path(&format!("{k:03}.png")).display().to_string())
+        .collect();
+    assert_eq!(files, expected);
+    assert_eq!(report["input"]["lights"], 4);
+    assert_eq!(report["input"]["channels"], 1);
+    assert_eq!(report["input"]["bit_depth"], 16);
+}
+
+/// Issue 17.5: `integrate`'s report omits what does not apply to a normal map (channels, bit
+/// depth, lights, the light matrix's condition number) instead of writing zeros.
+#[test]
+fn integrate_report_omits_capture_fields() {
+    let f = Fixture::new();
+    let size = 16;
+    let mut normals = ndarray::Array3::<f32>::zeros((size, size, 3));
+    for r in 0..size {
+        for c in 0..size {
+            normals[[r, c, 0]] = 0.1;
+            normals[[r, c, 2]] = 1.0;
+        }
+    }
+    ndarray_npy::write_npy(f.path("n.npy"), &normals).unwrap();
+    let out = Command::new(BIN)
+        .arg("integrate")
+        .arg(f.path("n.npy"))
+        .arg("-o")
+        .arg(f.out())
+        .arg("--quiet")
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
+            .unwrap();
+    let input = report["input"].as_object().unwrap();
+    for absent in [
+        "channels",
+        "bit_depth",
+        "lights",
+        "light_condition_number",
+        "lights_renormalised",
+    ] {
+        assert!(!input.contains_key(absent), "{absent} in {input:?}");
+    }
+    assert_eq!(input["width"], size);
+    assert_eq!(input["mask_pixels"], size * size);
+    assert_eq!(
+        input["files"][0].as_str().unwrap(),
+        f.path("n.npy").display().to_string()
+    );
+}
+
+/// Issue 17.6: `eval` names the file and what was expected for an integer array, a folder
+/// given as a file, and an error map into a missing folder (not an internal temporary path).
+#[test]
+fn eval_messages_name_files_and_expectations() {
+    let f = Fixture::new();
+    let ones = ndarray::Array3::<f32>::from_elem((4, 4, 3), 0.5);
+    ndarray_npy::write_npy(f.path("f32.npy"), &ones).unwrap();
+    ndarray_npy::write_npy(f.path("i32.npy"), &ndarray::Array3::<i32>::zeros((4, 4, 3))).unwrap();
+    let eval = |args: &[PathBuf]| {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("eval").args(args);
+        cmd
+    };
+    expect_failure(
+        eval(&[f.path("i32.npy"), f.path("f32.npy")]),
+        &["i32.npy", "int32", "expected", "float32 or float64"],
+    );
+    std::fs::create_dir(f.path("adir")).unwrap();
+    expect_failure(
+        eval(&[f.path("adir"), f.path("f32.npy")]),
+        &["adir", "not a file"],
+    );
+    let mut cmd = eval(&[f.path("f32.npy"), f.path("f32.npy")]);
+    cmd.arg("--error-map").arg(f.path("missing/map.png"));
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{err}");
+    assert!(
+        err.contains("missing") && err.contains("does not exist"),
+        "{err}"
+    );
+    assert!(!err.contains("map.png.") && !err.contains("tmp-"), "{err}");
+}
+
+/// Issue 17.1: a list file whose count line counts the mask as a photograph (4 announced, 3
+/// photographs and the mask follow) is refused, naming the file and both numbers; with the
+/// right count the same list runs with the mask.
+#[test]
+fn list_count_that_swallows_the_mask_is_refused() {
+    let f = Fixture::new();
+    let lights = f.path("light_directions.txt");
+    let run = |list: &str| {
+        let mut cmd = Command::new(BIN);
+        cmd.arg("run")
+            .arg(f.path(list))
+            .arg("--lights")
+            .arg(&lights)
+            .arg("-o")
+            .arg(f.out())
+            .arg("--quiet");
+        cmd
+    };
+    f.write("bad.txt", "4\n001.png\n002.png\n003.png\nmask.png\n");
+    expect_failure(
+        run("bad.txt"),
+        &[
+            "bad.txt",
+            "announces 4 images",
+            "'mask.png' (line 5), names a mask",
+            "3 photograph(s) and a mask",
+        ],
+    );
+    assert!(!f.out().exists());
+    f.write(
+        "good.txt",
+        "4\n001.png\n002.png\n003.png\n004.png\nmask.png\n",
+    );
+    let out = run("good.txt").output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
 }

@@ -4,42 +4,18 @@
 //! right file, flag and numbers. Every failing case checks exit code 2, the message's key words,
 //! that nothing was written, that no temporary folder is left, and that the inputs are intact.
 
-use photostereo::imageio::{write_png16, write_png8};
+mod common;
+
+use common::{sphere_image, BIN, DIRS, SIZE};
+use photostereo::imageio::write_png16;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-const BIN: &str = env!("CARGO_BIN_EXE_photostereo");
-const SIZE: usize = 24;
-const DIRS: [[f64; 3]; 4] = [
-    [0.3, 0.3, 0.9],
-    [-0.3, 0.3, 0.9],
-    [-0.3, -0.3, 0.9],
-    [0.3, -0.3, 0.9],
-];
-
-/// A temporary folder `root` holding a valid capture in `root/cap` (4 grey 16-bit images of a
-/// Lambertian sphere, light_directions.txt, mask.png).
+/// A temporary folder `root` holding a valid capture in `root/cap`
+/// ([`common::write_sphere_capture`]).
 struct Fixture {
     dir: tempfile::TempDir,
-}
-
-fn sphere_image(l: [f64; 3], gain: f64) -> Vec<u16> {
-    let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-    let mut data = vec![0u16; SIZE * SIZE];
-    for r in 0..SIZE {
-        for c in 0..SIZE {
-            let x = (c as f64 - 11.5) / 10.0;
-            let y = (11.5 - r as f64) / 10.0;
-            let rr = x * x + y * y;
-            if rr < 1.0 {
-                let n = [x, y, (1.0 - rr).sqrt()];
-                let s = (n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / norm;
-                data[r * SIZE + c] = (s.max(0.0) * gain * 50000.0).min(65535.0) as u16;
-            }
-        }
-    }
-    data
 }
 
 impl Fixture {
@@ -48,27 +24,7 @@ impl Fixture {
             dir: tempfile::tempdir().unwrap(),
         };
         std::fs::create_dir(f.cap()).unwrap();
-        for (k, l) in DIRS.iter().enumerate() {
-            f.image(k, &sphere_image(*l, 1.0));
-        }
-        f.write(
-            "cap/light_directions.txt",
-            &DIRS
-                .iter()
-                .map(|d| format!("{} {} {}\n", d[0], d[1], d[2]))
-                .collect::<String>(),
-        );
-        let mask: Vec<u8> = (0..SIZE * SIZE)
-            .map(|i| {
-                let (x, y) = ((i % SIZE) as f64 - 11.5, (i / SIZE) as f64 - 11.5);
-                if x * x + y * y < 81.0 {
-                    255
-                } else {
-                    0
-                }
-            })
-            .collect();
-        write_png8(&f.path("cap/mask.png"), SIZE, SIZE, 1, &mask).unwrap();
+        common::write_sphere_capture(&f.cap());
         f
     }
     fn root(&self) -> &Path {
@@ -90,14 +46,7 @@ impl Fixture {
     }
     /// Writes image `k` (0-based) of the capture.
     fn image(&self, k: usize, data: &[u16]) {
-        write_png16(
-            &self.path(&format!("cap/{:03}.png", k + 1)),
-            SIZE,
-            SIZE,
-            1,
-            data,
-        )
-        .unwrap();
+        common::write_image(&self.cap(), k, data);
     }
     /// Every file under the root with its content: compared before and after a command.
     fn snapshot(&self) -> BTreeMap<PathBuf, Vec<u8>> {

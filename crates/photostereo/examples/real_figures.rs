@@ -67,9 +67,13 @@ fn main() {
                 integrate: false,
                 ..Params::default()
             };
-            // PS_KAPPA=0.01 fixes κ instead of measuring it.
+            // PS_KAPPA=0.02 fixes κ at another value; PS_KAPPA=measured measures it on the capture.
             if let Ok(k) = std::env::var("PS_KAPPA") {
-                params.detection.relative_noise = Some(k.parse().unwrap());
+                params.detection.relative_noise = if k == "measured" {
+                    None
+                } else {
+                    Some(k.parse().unwrap())
+                };
             }
             let t = Instant::now();
             let rec = reconstruct(&capture, &params, &Silent).unwrap();

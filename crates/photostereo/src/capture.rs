@@ -408,7 +408,19 @@ impl CaptureFiles {
         };
         let notes = crate::plausibility::check_capture(&capture)?;
         capture.notes.extend(notes);
+        capture.notes.extend(self.whole_frame_note(w, h));
         Ok(capture)
+    }
+
+    /// The note a capture without a mask gets: its whole frame is taken as the object, which is
+    /// rarely meant (background pixels get normals and join the integration).
+    pub fn whole_frame_note(&self, width: usize, height: usize) -> Option<String> {
+        self.mask.is_none().then(|| {
+            format!(
+                "no mask: the whole {width}×{height} frame is used as the object \
+                 (no mask.png in the capture folder, no mask line in a list file, no --mask)"
+            )
+        })
     }
 }
 
@@ -466,6 +478,27 @@ pub fn parse_list_file(text: &str, list: &Path) -> Result<ListFile> {
                 lines.len() - 1
             ),
         ));
+    }
+    if lines.len() - 1 == count {
+        // No mask line: a last "image" named like a mask means the count line counts the mask
+        // as a photograph (or a photograph is missing).
+        let (line, last) = lines[count];
+        let name = Path::new(last)
+            .file_name()
+            .map(|n| n.to_string_lossy().to_ascii_lowercase())
+            .unwrap_or_default();
+        if name.contains("mask") {
+            return Err(Error::file(
+                list,
+                format!(
+                    "the count line (line {first_line}) announces {count} images, but image path \
+                     {count}, '{last}' (line {line}), names a mask: {} photograph(s) and a mask \
+                     follow; write {} on the count line, or add the missing photograph",
+                    count - 1,
+                    count - 1
+                ),
+            ));
+        }
     }
     let base = match list.parent() {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),

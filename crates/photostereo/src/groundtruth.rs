@@ -160,6 +160,16 @@ pub fn parse_npy_header(bytes: &[u8]) -> Result<NpyHeader, String> {
 /// Decodes a normal map from the bytes of a `.npy` file: float32 or float64, shape (H, W, 3).
 pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
     let header = parse_npy_header(bytes)?;
+    if !matches!(
+        header.descr.as_str(),
+        "<f4" | "<f8" | "=f4" | "=f8" | "|f4" | "|f8"
+    ) {
+        return Err(format!(
+            "holds {} samples ('{}'): expected a little-endian float32 or float64 array of shape (H, W, 3)",
+            npy_type_name(&header.descr),
+            header.descr
+        ));
+    }
     if header.shape.len() != 3 || header.shape[2] != 3 {
         return Err(format!(
             "shape {}: expected (H, W, 3)",
@@ -200,6 +210,31 @@ pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
         h,
         flat.chunks_exact(3).map(|v| [v[0], v[1], v[2]]),
     ))
+}
+
+/// A readable name for a `.npy` `descr` such as `<i4` (int32) or `>f8` (big-endian float64).
+fn npy_type_name(descr: &str) -> String {
+    let body = descr.trim_start_matches(['<', '>', '=', '|']);
+    let mut chars = body.chars();
+    let kind = chars.next();
+    let bits = chars
+        .as_str()
+        .parse::<u32>()
+        .ok()
+        .and_then(|b| b.checked_mul(8));
+    let name = match (kind, bits) {
+        (Some('f'), Some(b)) => format!("float{b}"),
+        (Some('i'), Some(b)) => format!("int{b}"),
+        (Some('u'), Some(b)) => format!("uint{b}"),
+        (Some('b'), _) => "bool".to_string(),
+        (Some('c'), Some(b)) => format!("complex{b}"),
+        _ => return format!("'{descr}'"),
+    };
+    if descr.starts_with('>') && bits.is_some_and(|b| b > 8) {
+        format!("big-endian {name}")
+    } else {
+        name
+    }
 }
 
 /// A normal map from raw vectors, non-finite ones counted and read as "no data".
@@ -274,5 +309,33 @@ fn clean(v: [f32; 3]) -> [f32; 3] {
         v
     } else {
         [0.0; 3]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn npy(descr: &str) -> Vec<u8> {
+        let header =
+            format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': (1, 1, 3), }}\n");
+        let mut b = b"\x93NUMPY\x01\x00".to_vec();
+        b.extend_from_slice(&(header.len() as u16).to_le_bytes());
+        b.extend_from_slice(header.as_bytes());
+        b.extend_from_slice(&[0u8; 24]);
+        b
+    }
+
+    /// A normal map of another dtype is refused with the dtype's name and what was expected;
+    /// a descr that starts with a multi-byte character (found by fuzzing) is quoted, not split.
+    #[test]
+    fn dtype_errors_name_the_type() {
+        let e = decode_npy(&npy("<i4")).unwrap_err();
+        assert!(e.contains("int32") && e.contains("expected"), "{e}");
+        let e = decode_npy(&npy(">f8")).unwrap_err();
+        assert!(e.contains("big-endian float64"), "{e}");
+        let e = decode_npy(&npy("ѝf8")).unwrap_err();
+        assert!(e.contains("'ѝf8'"), "{e}");
+        assert!(decode_npy(&npy("<f8")).is_ok());
     }
 }

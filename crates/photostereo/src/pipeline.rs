@@ -213,6 +213,7 @@ pub fn run(
             &rec.mask,
         ));
     let report = &mut rec.report;
+    report.input.mask_file = files.mask.as_ref().map(|p| p.display().to_string());
     report
         .timings_s
         .shift_insert(0, "load".into(), load_seconds.into());

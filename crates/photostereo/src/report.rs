@@ -31,28 +31,63 @@ pub struct Report {
 /// Size and kind of the input of a run.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct InputSummary {
+    /// The input files read, in order: a capture's images, or the normal map of `integrate`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub files: Vec<String>,
+    /// The mask file, when one was read.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mask_file: Option<String>,
+    /// True when the whole frame was taken as the object (no mask given, or one without
+    /// background).
+    #[serde(skip_serializing_if = "is_false")]
+    pub whole_frame_mask: bool,
     pub width: usize,
     pub height: usize,
+    /// Channels per image (omitted where the input is no capture, as for `integrate`).
+    #[serde(skip_serializing_if = "is_zero")]
     pub channels: usize,
+    /// Bits per sample of the images (omitted where the input is no capture).
+    #[serde(skip_serializing_if = "is_zero")]
     pub bit_depth: u8,
+    /// Number of lights (omitted where the input is no capture).
+    #[serde(skip_serializing_if = "is_zero")]
     pub lights: usize,
     pub mask_pixels: usize,
-    pub lights_renormalised: usize,
-    pub light_condition_number: f64,
+    /// Light directions that were not unit length (omitted where the input is no capture).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lights_renormalised: Option<usize>,
+    /// Condition number of the light matrix (omitted where the input is no capture).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_condition_number: Option<f64>,
+}
+
+fn is_zero<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
+}
+
+fn is_false(v: &bool) -> bool {
+    !*v
 }
 
 impl InputSummary {
     /// The summary of a loaded capture.
     pub fn of(capture: &crate::capture::Capture) -> Self {
         InputSummary {
+            files: capture
+                .sources
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect(),
+            mask_file: None,
+            whole_frame_mask: capture.n_pixels() == capture.width * capture.height,
             width: capture.width,
             height: capture.height,
             channels: capture.channels,
             bit_depth: capture.bit_depth,
             lights: capture.n_lights(),
             mask_pixels: capture.n_pixels(),
-            lights_renormalised: capture.lights.renormalised,
-            light_condition_number: capture.lights.condition_number(),
+            lights_renormalised: Some(capture.lights.renormalised),
+            light_condition_number: Some(capture.lights.condition_number()),
         }
     }
 }

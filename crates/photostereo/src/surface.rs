@@ -23,8 +23,21 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
             depth.len()
         )));
     }
-    write_npy_f32(&dir.join("depth.npy"), &[height, width], depth)?;
-    write_exr_grey(&dir.join("depth.exr"), width, height, depth)?;
+    // The three files are independent: written side by side.
+    let (npy, (exr, png)) = rayon::join(
+        || write_npy_f32(&dir.join("depth.npy"), &[height, width], depth),
+        || {
+            rayon::join(
+                || write_exr_grey(&dir.join("depth.exr"), width, height, depth),
+                || write_depth_png(&dir.join("depth.png"), width, height, depth),
+            )
+        },
+    );
+    npy.and(exr).and(png)
+}
+
+/// `depth.png`: 16-bit grey, the finite depths' min..max mapped to 0..65535, 0 elsewhere.
+fn write_depth_png(path: &Path, width: usize, height: usize, depth: &[f32]) -> Result<()> {
     let (lo, hi) = depth
         .iter()
         .filter(|v| v.is_finite())
@@ -42,7 +55,7 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
             }
         })
         .collect();
-    write_png16(&dir.join("depth.png"), width, height, 1, &png)
+    write_png16(path, width, height, 1, &png)
 }
 
 /// Vertex numbering and triangles of a depth map's mesh.
@@ -76,9 +89,19 @@ impl Mesh {
     }
 
     /// Calls `f` with each triangle's vertex indices (counter-clockwise from +z).
-    fn for_each_face(&self, width: usize, height: usize, mut f: impl FnMut([u32; 3])) {
+    fn for_each_face(&self, width: usize, height: usize, f: impl FnMut([u32; 3])) {
+        self.for_each_face_in_rows(width, 0..height.saturating_sub(1), f);
+    }
+
+    /// [`Mesh::for_each_face`] for the 2×2 blocks whose top row is in `rows`.
+    fn for_each_face_in_rows(
+        &self,
+        width: usize,
+        rows: std::ops::Range<usize>,
+        mut f: impl FnMut([u32; 3]),
+    ) {
         let none = u32::MAX;
-        for r in 0..height.saturating_sub(1) {
+        for r in rows {
             for c in 0..width.saturating_sub(1) {
                 let i = r * width + c;
                 let (a, b, cc, d) = (
@@ -130,6 +153,57 @@ fn start_mesh(
     Ok((mesh, BufWriter::with_capacity(1 << 20, file)))
 }
 
+/// Rows per band of the mesh writers: bands are formatted in parallel, a few at a time, and
+/// written in order, so a writer holds a few bands of text, never the whole file.
+const BAND_ROWS: usize = 32;
+
+/// Writes the bytes that `band(rows, buffer)` appends for each band of `rows` (in bands of
+/// [`BAND_ROWS`]), in order. Bands are formatted in parallel, two per worker thread at a time,
+/// while the previous group is being written; `bytes_per_row` sizes the buffers.
+fn write_banded(
+    out: &mut (impl Write + Send),
+    rows: usize,
+    bytes_per_row: usize,
+    band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) + Sync,
+) -> std::io::Result<()> {
+    use rayon::prelude::*;
+    let starts: Vec<usize> = (0..rows).step_by(BAND_ROWS).collect();
+    let batch = 2 * rayon::current_num_threads().max(1);
+    let format = |group: &[usize]| -> Vec<Vec<u8>> {
+        group
+            .par_iter()
+            .map(|&r0| {
+                let r1 = (r0 + BAND_ROWS).min(rows);
+                let mut buf = Vec::with_capacity((r1 - r0) * bytes_per_row);
+                band(r0..r1, &mut buf);
+                buf
+            })
+            .collect()
+    };
+    let mut pending: Vec<Vec<u8>> = Vec::new();
+    for group in starts.chunks(batch) {
+        let (written, next) = rayon::join(
+            || pending.iter().try_for_each(|t| out.write_all(t)),
+            || format(group),
+        );
+        written?;
+        pending = next;
+    }
+    pending.iter().try_for_each(|t| out.write_all(t))
+}
+
+/// Appends `v` as the shortest decimal that reads back as the same f32.
+#[inline]
+fn push_f32(buf: &mut Vec<u8>, v: f32) {
+    buf.extend_from_slice(zmij::Buffer::new().format(v).as_bytes());
+}
+
+/// Appends `v` in decimal.
+#[inline]
+fn push_int(buf: &mut Vec<u8>, v: impl itoa::Integer) {
+    buf.extend_from_slice(itoa::Buffer::new().format(v).as_bytes());
+}
+
 /// Writes a binary little-endian PLY mesh of `depth` (NaN = no vertex) with per-vertex
 /// `normals`.
 pub fn write_mesh_ply(
@@ -161,6 +235,15 @@ fn vertex(i: usize, width: usize, z: f32, camera: Option<&Camera>) -> [f32; 3] {
     }
 }
 
+/// The units a mesh file's header states.
+fn mesh_units(camera: Option<&Camera>) -> &'static str {
+    if camera.is_some() {
+        "x y z in mm, camera frame (camera at the origin)"
+    } else {
+        "x = col, y = -row, z = depth (pixels)"
+    }
+}
+
 /// [`write_mesh_ply`]; with a `camera`, `depth` is Z in mm along the optical axis and the
 /// vertices are the points Z · ray in mm in the camera frame.
 pub fn write_mesh_ply_camera(
@@ -173,43 +256,44 @@ pub fn write_mesh_ply_camera(
 ) -> Result<()> {
     let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
-    let units = if camera.is_some() {
-        "x y z in mm, camera frame (camera at the origin)"
-    } else {
-        "x = col, y = -row, z = depth (pixels)"
-    };
+    let units = mesh_units(camera);
     write!(
         out,
         "ply\nformat binary_little_endian 1.0\ncomment photostereo: {units}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
         mesh.vertices, mesh.faces
     )
     .map_err(io)?;
-    for (i, &z) in depth.iter().enumerate() {
-        if !z.is_finite() {
-            continue;
+    write_banded(&mut out, height, width * 24, |rows, buf| {
+        for i in rows.start * width..rows.end * width {
+            let z = depth[i];
+            if z.is_finite() {
+                let [x, y, zz] = vertex(i, width, z, camera);
+                for v in [x, y, zz, normals[i][0], normals[i][1], normals[i][2]] {
+                    buf.extend_from_slice(&v.to_le_bytes());
+                }
+            }
         }
-        let [x, y, zz] = vertex(i, width, z, camera);
-        for v in [x, y, zz, normals[i][0], normals[i][1], normals[i][2]] {
-            out.write_all(&v.to_le_bytes()).map_err(io)?;
-        }
-    }
-    let mut result = Ok(());
-    mesh.for_each_face(width, height, |t| {
-        if result.is_err() {
-            return;
-        }
-        let mut rec = [0u8; 13];
-        rec[0] = 3;
-        for k in 0..3 {
-            rec[1 + 4 * k..5 + 4 * k].copy_from_slice(&(t[k] as i32).to_le_bytes());
-        }
-        result = out.write_all(&rec);
-    });
-    result.map_err(io)?;
+    })
+    .map_err(io)?;
+    write_banded(
+        &mut out,
+        height.saturating_sub(1),
+        width * 26,
+        |rows, buf| {
+            mesh.for_each_face_in_rows(width, rows, |t| {
+                buf.push(3);
+                for v in t {
+                    buf.extend_from_slice(&(v as i32).to_le_bytes());
+                }
+            });
+        },
+    )
+    .map_err(io)?;
     out.flush().map_err(io)
 }
 
-/// Writes a Wavefront OBJ mesh of `depth` with `vn` normals (faces `v//vn`, 1-based).
+/// Writes a Wavefront OBJ mesh of `depth` with `vn` normals (faces `v//vn`, 1-based). Numbers
+/// are written as the shortest decimals that read back as the same f32 values.
 pub fn write_mesh_obj(
     path: &Path,
     width: usize,
@@ -232,44 +316,73 @@ pub fn write_mesh_obj_camera(
 ) -> Result<()> {
     let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
-    let units = if camera.is_some() {
-        "x y z in mm, camera frame (camera at the origin)"
-    } else {
-        "x = col, y = -row, z = depth (pixels)"
-    };
     writeln!(
         out,
-        "# photostereo mesh: {units}; {} vertices, {} faces",
-        mesh.vertices, mesh.faces
+        "# photostereo mesh: {}; {} vertices, {} faces",
+        mesh_units(camera),
+        mesh.vertices,
+        mesh.faces
     )
     .map_err(io)?;
-    for (i, &z) in depth.iter().enumerate() {
-        if z.is_finite() {
-            match camera {
-                None => writeln!(out, "v {} {} {}", i % width, -((i / width) as i64), z),
-                Some(_) => {
-                    let [x, y, zz] = vertex(i, width, z, camera);
-                    writeln!(out, "v {x} {y} {zz}")
+    write_banded(&mut out, height, width * 24, |rows, buf| {
+        for i in rows.start * width..rows.end * width {
+            let z = depth[i];
+            if z.is_finite() {
+                buf.extend_from_slice(b"v ");
+                match camera {
+                    None => {
+                        push_int(buf, i % width);
+                        buf.extend_from_slice(b" ");
+                        push_int(buf, -((i / width) as i64));
+                        buf.push(b' ');
+                        push_f32(buf, z);
+                    }
+                    Some(_) => {
+                        let [x, y, zz] = vertex(i, width, z, camera);
+                        push_f32(buf, x);
+                        buf.push(b' ');
+                        push_f32(buf, y);
+                        buf.push(b' ');
+                        push_f32(buf, zz);
+                    }
                 }
+                buf.push(b'\n');
             }
-            .map_err(io)?;
         }
-    }
-    for (i, &z) in depth.iter().enumerate() {
-        if z.is_finite() {
-            let n = normals[i];
-            writeln!(out, "vn {} {} {}", n[0], n[1], n[2]).map_err(io)?;
+    })
+    .map_err(io)?;
+    write_banded(&mut out, height, width * 36, |rows, buf| {
+        for i in rows.start * width..rows.end * width {
+            if depth[i].is_finite() {
+                buf.extend_from_slice(b"vn");
+                for v in normals[i] {
+                    buf.push(b' ');
+                    push_f32(buf, v);
+                }
+                buf.push(b'\n');
+            }
         }
-    }
-    let mut result = Ok(());
-    mesh.for_each_face(width, height, |t| {
-        if result.is_err() {
-            return;
-        }
-        let (a, b, c) = (t[0] + 1, t[1] + 1, t[2] + 1);
-        result = writeln!(out, "f {a}//{a} {b}//{b} {c}//{c}");
-    });
-    result.map_err(io)?;
+    })
+    .map_err(io)?;
+    write_banded(
+        &mut out,
+        height.saturating_sub(1),
+        width * 120,
+        |rows, buf| {
+            mesh.for_each_face_in_rows(width, rows, |t| {
+                buf.push(b'f');
+                for v in t {
+                    buf.push(b' ');
+                    let one_based = u64::from(v) + 1;
+                    push_int(buf, one_based);
+                    buf.extend_from_slice(b"//");
+                    push_int(buf, one_based);
+                }
+                buf.push(b'\n');
+            });
+        },
+    )
+    .map_err(io)?;
     out.flush().map_err(io)
 }
 
@@ -295,12 +408,143 @@ pub fn write_surface_camera(
     camera: Option<&Camera>,
 ) -> Result<()> {
     let d = &surface.depth;
-    write_depth(dir, d.width, d.height, &d.values)?;
-    write_npy_f32(&dir.join("curl.npy"), &[d.height, d.width], &surface.curl)?;
+    let (depth, curl) = rayon::join(
+        || write_depth(dir, d.width, d.height, &d.values),
+        || write_npy_f32(&dir.join("curl.npy"), &[d.height, d.width], &surface.curl),
+    );
+    depth.and(curl)?;
     if meshes {
         let (w, h) = (d.width, d.height);
         write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera)?;
         write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A depth map over more rows than one band, with holes, and its expected mesh by the
+    /// definition (vertices in row-major order of the finite depths; triangles per 2×2 block).
+    fn fixture() -> (usize, usize, Vec<f32>, Vec<[f32; 3]>) {
+        let (w, h) = (7, 3 * BAND_ROWS + 5);
+        let depth: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % 11 == 3 || i % 17 == 0 {
+                    f32::NAN
+                } else {
+                    (i as f32 * 0.37).sin() * 1e-3 + i as f32 * 0.25
+                }
+            })
+            .collect();
+        let normals: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| [0.01 * (i % 5) as f32, -0.02, 1.0])
+            .collect();
+        (w, h, depth, normals)
+    }
+
+    /// The expected triangles, straight from the rule in the module's doc comment.
+    fn expected_faces(w: usize, h: usize, depth: &[f32]) -> Vec<[u64; 3]> {
+        let mut index = vec![None; w * h];
+        let mut next = 0u64;
+        for (i, z) in depth.iter().enumerate() {
+            if z.is_finite() {
+                index[i] = Some(next);
+                next += 1;
+            }
+        }
+        let mut faces = Vec::new();
+        for r in 0..h - 1 {
+            for c in 0..w - 1 {
+                let i = r * w + c;
+                let [a, b, cc, d] = [i, i + 1, i + w, i + w + 1].map(|j| index[j]);
+                match (a, b, cc, d) {
+                    (Some(a), Some(b), Some(cc), Some(d)) => {
+                        faces.push([a, cc, b]);
+                        faces.push([b, cc, d]);
+                    }
+                    (Some(a), Some(b), Some(cc), None) => faces.push([a, cc, b]),
+                    (Some(a), Some(b), None, Some(d)) => faces.push([a, d, b]),
+                    (Some(a), None, Some(cc), Some(d)) => faces.push([a, cc, d]),
+                    (None, Some(b), Some(cc), Some(d)) => faces.push([b, cc, d]),
+                    _ => {}
+                }
+            }
+        }
+        faces
+    }
+
+    /// The banded, parallel OBJ writer writes every vertex, normal and face in order, and its
+    /// numbers read back as the same f32 values.
+    #[test]
+    fn obj_matches_the_definition() {
+        let (w, h, depth, normals) = fixture();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.obj");
+        write_mesh_obj(&path, w, h, &depth, &normals).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let (mut v, mut vn, mut f) = (Vec::new(), Vec::new(), Vec::new());
+        for line in text.lines() {
+            let t: Vec<&str> = line.split_whitespace().collect();
+            match t[0] {
+                "v" => v.push([t[1], t[2], t[3]].map(|x| x.parse::<f32>().unwrap())),
+                "vn" => vn.push([t[1], t[2], t[3]].map(|x| x.parse::<f32>().unwrap())),
+                "f" => f.push([t[1], t[2], t[3]].map(|x| {
+                    let (a, b) = x.split_once("//").unwrap();
+                    assert_eq!(a, b);
+                    a.parse::<u64>().unwrap() - 1
+                })),
+                _ => assert!(line.starts_with('#')),
+            }
+        }
+        let finite: Vec<usize> = (0..w * h).filter(|&i| depth[i].is_finite()).collect();
+        assert_eq!(v.len(), finite.len());
+        assert_eq!(vn.len(), finite.len());
+        for (k, &i) in finite.iter().enumerate() {
+            assert_eq!(v[k], [(i % w) as f32, -((i / w) as f32), depth[i]]);
+            assert_eq!(vn[k], normals[i]);
+        }
+        assert_eq!(f, expected_faces(w, h, &depth));
+    }
+
+    /// The binary PLY holds the same vertices and faces.
+    #[test]
+    fn ply_matches_the_definition() {
+        let (w, h, depth, normals) = fixture();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.ply");
+        write_mesh_ply(&path, w, h, &depth, &normals).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let end = b"end_header\n";
+        let start = bytes.windows(end.len()).position(|x| x == end).unwrap() + end.len();
+        let body = &bytes[start..];
+        let finite: Vec<usize> = (0..w * h).filter(|&i| depth[i].is_finite()).collect();
+        let f32_at = |o: usize| f32::from_le_bytes(body[o..o + 4].try_into().unwrap());
+        for (k, &i) in finite.iter().enumerate() {
+            let o = k * 24;
+            let got = [0, 1, 2, 3, 4, 5].map(|j| f32_at(o + 4 * j));
+            let n = normals[i];
+            assert_eq!(
+                got,
+                [
+                    (i % w) as f32,
+                    -((i / w) as f32),
+                    depth[i],
+                    n[0],
+                    n[1],
+                    n[2]
+                ]
+            );
+        }
+        let faces = &body[finite.len() * 24..];
+        let expected = expected_faces(w, h, &depth);
+        assert_eq!(faces.len(), expected.len() * 13);
+        for (rec, e) in faces.chunks_exact(13).zip(&expected) {
+            assert_eq!(rec[0], 3);
+            let got = [0, 1, 2]
+                .map(|j| i32::from_le_bytes(rec[1 + 4 * j..5 + 4 * j].try_into().unwrap()) as u64);
+            assert_eq!(&got, e);
+        }
+    }
 }

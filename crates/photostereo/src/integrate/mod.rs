@@ -111,36 +111,54 @@ pub fn gradients_from_normals(
         rejected_backfacing: 0,
         capped: 0,
     };
-    for i in 0..n {
-        let v = normals[i];
-        let zero = v == [0.0; 3];
-        let wanted = match mask {
-            Some(m) => m[i],
-            None => !zero,
-        };
-        if !wanted {
-            continue;
-        }
-        let finite = v.iter().all(|x| x.is_finite());
-        let norm = (v[0] as f64).hypot(v[1] as f64).hypot(v[2] as f64);
-        if !finite || zero || norm < 1e-12 {
-            g.rejected_invalid += 1;
-            continue;
-        }
-        if v[2] <= 0.0 {
-            g.rejected_backfacing += 1;
-            continue;
-        }
-        let p = -(v[0] as f64) / v[2] as f64;
-        let q = v[1] as f64 / v[2] as f64;
-        let cap = max_slope as f64;
-        if p.abs() > cap || q.abs() > cap {
-            g.capped += 1;
-        }
-        g.p[i] = p.clamp(-cap, cap) as f32;
-        g.q[i] = q.clamp(-cap, cap) as f32;
-        g.mask[i] = true;
-    }
+    let cap = max_slope as f64;
+    let w = width.max(1);
+    // Rows in parallel; each returns its counts (invalid, back-facing, capped).
+    let counts =
+        g.p.par_chunks_mut(w)
+            .zip(g.q.par_chunks_mut(w))
+            .zip(g.mask.par_chunks_mut(w))
+            .enumerate()
+            .map(|(r, ((p_row, q_row), m_row))| {
+                let mut counts = [0usize; 3];
+                for c in 0..p_row.len() {
+                    let i = r * w + c;
+                    let v = normals[i];
+                    let zero = v == [0.0; 3];
+                    let wanted = match mask {
+                        Some(m) => m[i],
+                        None => !zero,
+                    };
+                    if !wanted {
+                        continue;
+                    }
+                    let finite = v.iter().all(|x| x.is_finite());
+                    let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
+                    // f32 components cannot overflow a sum of squares in f64.
+                    let norm = (x * x + y * y + z * z).sqrt();
+                    if !finite || zero || norm < 1e-12 {
+                        counts[0] += 1;
+                        continue;
+                    }
+                    if z <= 0.0 {
+                        counts[1] += 1;
+                        continue;
+                    }
+                    let p = -x / z;
+                    let q = y / z;
+                    if p.abs() > cap || q.abs() > cap {
+                        counts[2] += 1;
+                    }
+                    p_row[c] = p.clamp(-cap, cap) as f32;
+                    q_row[c] = q.clamp(-cap, cap) as f32;
+                    m_row[c] = true;
+                }
+                counts
+            })
+            .reduce(|| [0; 3], |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]]);
+    g.rejected_invalid = counts[0];
+    g.rejected_backfacing = counts[1];
+    g.capped = counts[2];
     Ok(g)
 }
 
@@ -155,18 +173,25 @@ pub fn curl_map(
     mask: &[bool],
 ) -> (Vec<f32>, f64) {
     let mut curl = vec![f32::NAN; width * height];
-    let (mut sum, mut count) = (0f64, 0usize);
-    for r in 0..height.saturating_sub(1) {
-        for c in 0..width.saturating_sub(1) {
-            let i = r * width + c;
-            if mask[i] && mask[i + 1] && mask[i + width] && mask[i + width + 1] {
-                let v = (p[i + width] - p[i]) - (q[i + 1] - q[i]);
-                curl[i] = v;
-                sum += v.abs() as f64;
-                count += 1;
+    let w = width.max(1);
+    let (sum, count) = curl
+        .par_chunks_mut(w)
+        .enumerate()
+        .take(height.saturating_sub(1))
+        .map(|(r, row)| {
+            let (mut sum, mut count) = (0f64, 0usize);
+            for (c, out) in row.iter_mut().enumerate().take(width.saturating_sub(1)) {
+                let i = r * width + c;
+                if mask[i] && mask[i + 1] && mask[i + width] && mask[i + width + 1] {
+                    let v = (p[i + width] - p[i]) - (q[i + 1] - q[i]);
+                    *out = v;
+                    sum += v.abs() as f64;
+                    count += 1;
+                }
             }
-        }
-    }
+            (sum, count)
+        })
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     (curl, if count > 0 { sum / count as f64 } else { 0.0 })
 }
 
