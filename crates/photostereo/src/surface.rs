@@ -325,8 +325,9 @@ pub fn write_mesh_obj_camera(
     )
     .map_err(io)?;
     write_banded(&mut out, height, width * 24, |rows, buf| {
-        for i in rows.start * width..rows.end * width {
-            let z = depth[i];
+        let first = rows.start * width;
+        for (i, &z) in depth[first..rows.end * width].iter().enumerate() {
+            let i = first + i;
             if z.is_finite() {
                 buf.extend_from_slice(b"v ");
                 match camera {
