@@ -10,7 +10,6 @@ use photostereo::integrate::{
     surface_from_normals, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
 };
 use photostereo::report::Report;
-use photostereo::surface::write_surface;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -30,6 +29,13 @@ pub struct IntegrateArgs {
     /// Relative residual at which poisson stops.
     #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
     pub tolerance: f64,
+    /// Perspective integration (log-depth) through this pinhole camera (K.txt: fx 0 cx / 0 fy
+    /// cy / 0 0 1): depth.npy then holds Z in mm along the optical axis; needs --distance.
+    #[arg(long, requires = "distance")]
+    pub camera: Option<PathBuf>,
+    /// With --camera: the object's mean distance along the optical axis, mm (mean of Z).
+    #[arg(long, requires = "camera")]
+    pub distance: Option<f64>,
     /// Skip mesh.ply and mesh.obj (large for big maps).
     #[arg(long)]
     pub no_mesh: bool,
@@ -69,6 +75,7 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     }
     let inputs: Vec<&Path> = std::iter::once(a.normals.as_path())
         .chain(a.mask.as_deref())
+        .chain(a.camera.as_deref())
         .collect();
     let folder = OutputFolder::create_for(&a.output, a.out.force, &inputs)?;
     let start = Instant::now();
@@ -114,16 +121,38 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     };
     let progress = a.out.progress();
     let t = Instant::now();
-    let surface = surface_from_normals(
-        map.width,
-        map.height,
-        &map.normals,
-        mask.as_deref(),
-        None,
-        integrator.as_ref(),
-        a.max_slope,
-        &progress,
-    )?;
+    let surface = match (&a.camera, a.distance) {
+        (Some(k), Some(d)) => {
+            let camera = photostereo::nearlayout::read_camera(k)?;
+            if !(d.is_finite() && d > 0.0) {
+                bail!("--distance {d}: expected the object's mean distance in mm, positive");
+            }
+            report.param("camera", k.display().to_string());
+            report.param("distance_mm", d);
+            photostereo::integrate::perspective::perspective_surface(
+                map.width,
+                map.height,
+                &map.normals,
+                mask.as_deref(),
+                None,
+                &camera,
+                d,
+                integrator.as_ref(),
+                a.max_slope,
+                &progress,
+            )?
+        }
+        _ => surface_from_normals(
+            map.width,
+            map.height,
+            &map.normals,
+            mask.as_deref(),
+            None,
+            integrator.as_ref(),
+            a.max_slope,
+            &progress,
+        )?,
+    };
     report.time("integrate", t);
     report.input.mask_pixels = surface
         .depth
@@ -160,8 +189,18 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     summary["non_finite_normals"] = map.non_finite.into();
     report.extra.insert("integration".into(), summary);
     let t = Instant::now();
-    write_surface(folder.path(), &surface, &map.normals, !a.no_mesh)
-        .with_context(|| format!("writing {}", a.output.display()))?;
+    let camera = match &a.camera {
+        Some(k) => Some(photostereo::nearlayout::read_camera(k)?),
+        None => None,
+    };
+    photostereo::surface::write_surface_camera(
+        folder.path(),
+        &surface,
+        &map.normals,
+        !a.no_mesh,
+        camera.as_ref(),
+    )
+    .with_context(|| format!("writing {}", a.output.display()))?;
     report.time("write", t);
     report.time("total", start);
     write_json(&folder.file("report.json"), &report)?;

@@ -30,6 +30,11 @@ pub struct RunArgs {
     /// Mask image (non-zero = object); overrides the layout's own mask.
     #[arg(long)]
     pub mask: Option<PathBuf>,
+    /// A folder with light_positions.txt (near lights) or K.txt (a camera with distant lights):
+    /// the object's mean distance from the camera along the optical axis, mm; replaces
+    /// mean_distance.txt.
+    #[arg(long)]
+    pub distance: Option<f64>,
     /// Estimation method: recursive, l2, coleman-jain, barsky-petrou.
     #[arg(long, default_value = defaults().method.name(), value_parser = parse_method)]
     pub method: Method,
@@ -169,12 +174,35 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.intensities.as_deref(),
         a.mask.as_deref(),
     )?;
-    let files = CaptureFiles::from_inputs(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
+    let files = match (a.distance, a.input.as_slice()) {
+        (Some(d), [dir]) if dir.is_dir() && photostereo::nearlayout::is_near_layout(dir) => {
+            let mut f = photostereo::nearlayout::near_capture_files(dir, Some(d))?;
+            if let Some(m) = &a.mask {
+                f.mask = Some(m.clone());
+            }
+            f
+        }
+        (Some(d), [dir]) if dir.is_dir() => {
+            // Distant lights with a camera (K.txt): --distance replaces mean_distance.txt.
+            let mut f = CaptureFiles::diligent_with_lights(dir, a.lights.as_deref())?;
+            if let Some(p) = &a.intensities {
+                f = f.with_intensities_file(p)?;
+            }
+            if let Some(m) = &a.mask {
+                f.mask = Some(m.clone());
+            }
+            photostereo::nearlayout::attach_camera(f, dir, Some(d))?
+        }
+        (Some(_), _) => anyhow::bail!(
+            "--distance applies to one capture folder holding light_positions.txt or K.txt"
+        ),
+        (None, _) => CaptureFiles::from_inputs(
+            &a.input,
+            a.lights.as_deref(),
+            a.intensities.as_deref(),
+            a.mask.as_deref(),
+        )?,
+    };
     // --force never replaces an input or a folder holding one.
     let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));

@@ -14,17 +14,22 @@ pub struct SynthArgs {
     /// The scene to render (see --list).
     #[arg(required_unless_present = "list")]
     pub scene: Option<String>,
-    /// Light rig: square4, ring8, ring-N, dome-N, or a light-direction file.
+    /// Light rig: square4, ring8, ring-N, dome-N, a light-direction file, or a near-light rig
+    /// with a perspective camera (near-ring, near-square, near-dome; written in the near-light
+    /// layout, ground-truth depth Z in mm).
     #[arg(long, default_value = "square4")]
     pub rig: String,
     /// Image size, pixels: `N` (N×N) or `WxH` (e.g. `8000x6000`; the scene at the centre of
-    /// the frame, its side the smaller of the two).
+    /// the frame, its side the smaller of the two). Near-light rigs take square sizes.
     #[arg(long, default_value = "128", value_parser = parse_size)]
     pub size: (usize, usize),
     /// Memory budget (e.g. `3G`; default: half of the memory available). Captures whose
     /// images do not fit whole are rendered one light at a time and written as they come.
     #[arg(long, value_parser = crate::common::parse_memory_limit)]
     pub memory_limit: Option<u64>,
+    /// Near-light rigs: the distance of the rig's centre from the camera, mm.
+    #[arg(long, default_value_t = 300.0)]
+    pub distance: f64,
     /// Reflectance model: lambert, blinn-phong or torrance-sparrow.
     #[arg(long, default_value = "blinn-phong")]
     pub brdf: String,
@@ -71,6 +76,12 @@ pub fn main(a: SynthArgs) -> Result<()> {
         other => bail!("--albedo {other}: expected texture or constant"),
     };
     let (width, height) = a.size;
+    if let Some(rig) = photostereo::scene::near::NearRig::parse(&a.rig) {
+        if width != height {
+            bail!("--size {width}x{height}: near-light rigs take square images (--size N)");
+        }
+        return near(&a, scene, rig, mask, textured_albedo);
+    }
     let mut spec = SynthSpec::new(scene, Rig::parse(&a.rig)?);
     spec.size = width;
     spec.height = (height != width).then_some(height);
@@ -177,9 +188,88 @@ pub fn main(a: SynthArgs) -> Result<()> {
     Ok(())
 }
 
+/// A near-light scene (issue 13) in the near-light layout.
+fn near(
+    a: &SynthArgs,
+    scene: SceneKind,
+    rig: photostereo::scene::near::NearRig,
+    mask: Option<MaskShape>,
+    textured_albedo: bool,
+) -> Result<()> {
+    use photostereo::scene::near::{near_synth_to_folder, NearSpec};
+    if a.shot != 0.0 || a.intensities != "uniform" {
+        bail!("--shot and --intensities apply to distant rigs; near rigs have their own LED radiances");
+    }
+    if a.size.0 < 16 {
+        bail!(
+            "--size {}: near-light scenes need at least 16 pixels",
+            a.size.0
+        );
+    }
+    let spec = NearSpec {
+        size: a.size.0,
+        distance: a.distance,
+        mask,
+        textured_albedo,
+        brdf: a.brdf.parse::<Brdf>()?,
+        noise_sigma: a.noise,
+        seed: a.seed,
+        ..NearSpec::new(scene, rig)
+    };
+    let output = a
+        .output
+        .clone()
+        .unwrap_or_else(|| PathBuf::from(format!("synth-{}", scene.name())));
+    let (r, target) = near_synth_to_folder(&spec, &output, a.out.force)?;
+    let s = &r.rendered.stats;
+    if a.out.json {
+        print_json(&serde_json::json!({
+            "output": target.display().to_string(),
+            "scene": r.rendered.scene,
+            "rig": r.rendered.rig,
+            "lights": r.positions.len(),
+            "size": spec.size,
+            "mean_distance_mm": r.distance,
+            "camera": {"fx": r.camera.fx, "fy": r.camera.fy, "cx": r.camera.cx, "cy": r.camera.cy},
+            "brdf": spec.brdf.name(),
+            "noise_sigma": spec.noise_sigma,
+            "seed": spec.seed,
+            "stats": s,
+        }));
+    } else if a.out.text() {
+        println!(
+            "{} under {} ({} LEDs, object at {:.1} mm, fx {:.1} px), {}×{}, {}, σ {}%, seed {}",
+            r.rendered.scene,
+            r.rendered.rig,
+            r.positions.len(),
+            r.distance,
+            r.camera.fx,
+            spec.size,
+            spec.size,
+            spec.brdf,
+            spec.noise_sigma * 100.0,
+            spec.seed
+        );
+        println!(
+            "mask pixels, mean over lights: shadowed {:.1}% (cast {:.1}%), highlighted {:.1}%, clipped {:.1}%",
+            100.0 * s.shadow_fraction,
+            100.0 * s.cast_shadow_fraction,
+            100.0 * s.highlight_fraction,
+            100.0 * s.clipped_fraction
+        );
+        println!("wrote {}", target.display());
+    }
+    Ok(())
+}
+
 fn list(out: &OutputOpts) -> Result<()> {
     let scenes: Vec<&str> = SceneKind::ALL.iter().map(|s| s.name()).collect();
-    let rigs: Vec<&str> = Rig::NAMES.to_vec();
+    let mut rigs: Vec<&str> = Rig::NAMES.to_vec();
+    rigs.extend(
+        photostereo::scene::near::NearRig::ALL
+            .iter()
+            .map(|r| r.name()),
+    );
     let brdfs: Vec<&str> = Brdf::ALL.iter().map(|b| b.name()).collect();
     let masks: Vec<&str> = MaskShape::ALL.iter().map(|m| m.name()).collect();
     let intens: Vec<&str> = LightIntensities::ALL.iter().map(|m| m.name()).collect();

@@ -34,7 +34,18 @@ fn list_names_scenes_rigs_and_models_under_headings() {
         after("scenes:"),
         ["sphere", "cavities", "blocks", "terrain", "bumps", "face"]
     );
-    assert_eq!(after("rigs:"), ["square4", "ring8", "ring-N", "dome-N"]);
+    assert_eq!(
+        after("rigs:"),
+        [
+            "square4",
+            "ring8",
+            "ring-N",
+            "dome-N",
+            "near-ring",
+            "near-square",
+            "near-dome"
+        ]
+    );
     assert_eq!(
         after("reflectance models:"),
         ["lambert", "blinn-phong", "torrance-sparrow"]

@@ -86,8 +86,16 @@ impl CaptureFiles {
                     "no input: expected a capture folder, a list file or image files",
                 ))
             }
+            // Near lights (CONVENTIONS.md): the folder's own LED positions, unless --lights.
+            [dir] if dir.is_dir() && lights.is_none() && crate::nearlayout::is_near_layout(dir) => {
+                crate::nearlayout::near_capture_files(dir, None)?
+            }
+            [lp] if lp.extension().is_some_and(|e| e.eq_ignore_ascii_case("lp")) => {
+                crate::nearlayout::lp_capture_files(lp)?
+            }
             [dir] if dir.is_dir() => {
                 let f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                let f = crate::nearlayout::attach_camera(f, dir, None)?;
                 match intensities {
                     Some(p) => f.with_intensities_file(p)?,
                     None => f,

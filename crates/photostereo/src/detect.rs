@@ -251,7 +251,8 @@ impl Detection {
     }
 }
 
-/// Per-capture constants of the test.
+/// Per-capture constants of the test (per pixel with near lights: see [`Test::set_directions`]).
+#[derive(Clone)]
 struct Test {
     directions: Vec<Vector3<f64>>,
     /// Structure-of-arrays copies for vectorised loops: components and the products that
@@ -316,6 +317,62 @@ impl Test {
             batch_z2: z * z,
             min_kept,
         })
+    }
+}
+
+impl Test {
+    /// Replaces the light vectors (a pixel's own near-light vectors, ALGORITHMS.md §9): the
+    /// structure-of-arrays copies and the normal matrix follow. Returns false when the vectors
+    /// do not determine a normal (singular normal matrix).
+    fn set_directions(&mut self, dirs: &[[f64; 3]]) -> bool {
+        let mut gram = Matrix3::zeros();
+        for (k, d) in dirs.iter().enumerate() {
+            let l = Vector3::from(*d);
+            self.directions[k] = l;
+            self.lx[k] = l.x;
+            self.ly[k] = l.y;
+            self.lz[k] = l.z;
+            self.quad[0][k] = l.x * l.x;
+            self.quad[1][k] = l.y * l.y;
+            self.quad[2][k] = l.z * l.z;
+            self.quad[3][k] = 2.0 * l.x * l.y;
+            self.quad[4][k] = 2.0 * l.x * l.z;
+            self.quad[5][k] = 2.0 * l.y * l.z;
+            gram += l * l.transpose();
+        }
+        self.gram = gram;
+        match gram.try_inverse() {
+            Some(inv) => {
+                self.gram_inv = inv;
+                true
+            }
+            None => false,
+        }
+    }
+}
+
+/// Per-pixel test constants with near lights: a copy of the test and the light model's access.
+struct NearTest<'a> {
+    test: Test,
+    lights: crate::lightmodel::PixelLights<'a>,
+}
+
+impl<'a> NearTest<'a> {
+    fn of(capture: &'a Capture, test: &Test) -> Option<Self> {
+        capture.lights.near.as_deref().map(|m| NearTest {
+            test: test.clone(),
+            lights: crate::lightmodel::PixelLights::new(
+                &capture.lights.directions,
+                Some(m),
+                capture.width,
+            ),
+        })
+    }
+
+    /// The test at full-frame pixel `pixel`; None where its vectors are singular.
+    fn at(&mut self, pixel: usize) -> Option<&Test> {
+        let dirs = self.lights.at(pixel);
+        self.test.set_directions(dirs).then_some(&self.test)
     }
 }
 
@@ -562,12 +619,22 @@ fn sweep(
         .zip(invisible.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each_init(
-            || Scratch::new(n),
-            |scratch, (chunk, ((res, st), inv))| {
+            || (Scratch::new(n), NearTest::of(capture, test)),
+            |(scratch, near), (chunk, ((res, st), inv))| {
                 let p0 = chunk * CHUNK;
                 for dp in 0..res.len() {
                     channel_mean(capture.pixel_samples(p0 + dp), c, &mut scratch.grey);
                     inv[dp] = dark_beyond_the_test(params, noise, &scratch.grey);
+                    let test = match near.as_mut() {
+                        None => test,
+                        Some(t) => match t.at(capture.pixels[p0 + dp] as usize) {
+                            Some(t) => t,
+                            None => {
+                                res[dp] = 0.0;
+                                continue;
+                            }
+                        },
+                    };
                     let (s_all, _, _) =
                         attribute(test, params, noise, scratch, &mut st[dp * n..(dp + 1) * n]);
                     res[dp] = s_all.sqrt() as f32;
@@ -967,21 +1034,54 @@ pub struct Attributor<'a> {
     test: Test,
     params: &'a DetectionParams,
     noise: NoiseModel,
+    capture: &'a Capture,
 }
 
 impl<'a> Attributor<'a> {
     /// For a capture, with the detector's parameters and noise model.
-    pub fn new(capture: &Capture, params: &'a DetectionParams, noise: NoiseModel) -> Result<Self> {
+    pub fn new(
+        capture: &'a Capture,
+        params: &'a DetectionParams,
+        noise: NoiseModel,
+    ) -> Result<Self> {
         Ok(Attributor {
             test: Test::new(capture, params)?,
             params,
             noise,
+            capture,
         })
     }
 
     /// Per-thread scratch space for [`Attributor::run`].
-    pub fn scratch(&self) -> AttributionScratch {
-        AttributionScratch(Scratch::new(self.test.directions.len()))
+    pub fn scratch(&self) -> AttributionScratch<'a> {
+        AttributionScratch(
+            Scratch::new(self.test.directions.len()),
+            NearTest::of(self.capture, &self.test),
+        )
+    }
+
+    /// [`Attributor::run`] at full-frame pixel `pixel`: with near lights, with that pixel's
+    /// light vectors at the current surface (NaN statistic, nothing changed, where they are
+    /// singular); with distant lights exactly `run`.
+    pub fn run_at(
+        &self,
+        pixel: usize,
+        grey: &[f64],
+        status: &mut [u8],
+        scratch: &mut AttributionScratch<'a>,
+    ) -> (f64, usize) {
+        let AttributionScratch(s, near) = scratch;
+        let test = match near.as_mut() {
+            None => &self.test,
+            Some(t) => match t.at(pixel) {
+                Some(t) => t,
+                None => {
+                    let count = status.iter().filter(|&&x| x == status::USED).count();
+                    return (f64::NAN, count);
+                }
+            },
+        };
+        self.run_with(test, grey, status, s)
     }
 
     /// Attribution at a pixel with grey intensities `grey` (one per light), starting from the
@@ -993,12 +1093,21 @@ impl<'a> Attributor<'a> {
         status: &mut [u8],
         scratch: &mut AttributionScratch,
     ) -> (f64, usize) {
-        let s = &mut scratch.0;
+        self.run_with(&self.test, grey, status, &mut scratch.0)
+    }
+
+    fn run_with(
+        &self,
+        test: &Test,
+        grey: &[f64],
+        status: &mut [u8],
+        s: &mut Scratch,
+    ) -> (f64, usize) {
         s.grey.copy_from_slice(grey);
         for (w, &st) in s.weight.iter_mut().zip(status.iter()) {
             *w = if st == status::USED { 1.0 } else { 0.0 };
         }
-        let (_, rss, count) = attribute_from(&self.test, self.params, &self.noise, s, status);
+        let (_, rss, count) = attribute_from(test, self.params, &self.noise, s, status);
         let n = grey.len();
         let level = grey.iter().sum::<f64>() / n as f64;
         let stat = if count > 3 {
@@ -1019,8 +1128,8 @@ impl<'a> Attributor<'a> {
     }
 }
 
-/// Scratch space of an [`Attributor`].
-pub struct AttributionScratch(Scratch);
+/// Scratch space of an [`Attributor`] (with near lights, the per-pixel test too).
+pub struct AttributionScratch<'a>(Scratch, Option<NearTest<'a>>);
 
 /// An orthonormal basis A (N × (N−3)) of the null space of Lᵀ: the eigenvectors of L Lᵀ with
 /// eigenvalue zero (for four lights, the paper's vector a). The detector never needs it (it uses

@@ -189,6 +189,9 @@ pub struct Reconstruction {
     pub surface: Option<Surface>,
     /// The recursive method's maps.
     pub recursive: Option<RecursiveMaps>,
+    /// The camera of a near-light capture or of distant lights given with `K.txt`: then
+    /// `depth` is Z in mm along the optical axis and the meshes are in mm.
+    pub camera: Option<crate::lightmodel::Camera>,
     /// (H, W) angular error in degrees against ground truth (NaN where not evaluated), when
     /// evaluated ([`Reconstruction::evaluate`]).
     pub error_map: Option<Vec<f32>>,
@@ -270,8 +273,18 @@ pub fn reconstruct_with_truth(
             .notes
             .push("detection skipped: it needs at least four lights".into());
     }
-    let (estimate, detection, diagnostics) =
-        estimate(capture, params, truth, can_detect, progress, &mut report)?;
+    let (estimate, detection, diagnostics) = match capture.lights.near.as_deref() {
+        None => estimate(capture, params, truth, can_detect, progress, &mut report)?,
+        Some(near) => alternate(
+            capture,
+            near,
+            params,
+            truth,
+            can_detect,
+            progress,
+            &mut report,
+        )?,
+    };
     check_cancelled(progress)?;
     if let Some(d) = &detection {
         report.extra.insert(
@@ -293,22 +306,14 @@ pub fn reconstruct_with_truth(
     }
     let (w, h) = (capture.width, capture.height);
     let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
-    // Integration trust: the recursive method's own; unreliable pixels low for the methods
-    // that keep faulty lights; 1 for Barsky & Petrou, which drops them itself.
-    let low = params.integration.unreliable_weight;
-    let trust = match (&diagnostics, &detection) {
-        (Some(r), _) => r.trust.clone(),
-        (None, Some(d)) if method != Method::BarskyPetrou => capture.scatter(
-            &d.unreliable
-                .iter()
-                .map(|&u| if u { low } else { 1.0 })
-                .collect::<Vec<f32>>(),
-            1,
-            0.0,
-        ),
-        _ => capture.scatter(&vec![1f32; capture.n_pixels()], 1, 0.0),
-    };
-    let surface = if params.integrate {
+    let trust = integration_trust(capture, params, diagnostics.as_ref(), detection.as_ref());
+    let surface = if params.integrate && capture.lights.perspective().is_some() {
+        let t = Instant::now();
+        let surface = near_integration(capture, params, &normals, &trust, progress)?;
+        report.extra.insert("integration".into(), surface.summary());
+        report.time("integrate", t);
+        Some(surface)
+    } else if params.integrate {
         let t = Instant::now();
         let (weighted, weights) = weighted_normals(&normals, &capture.mask, Some(&trust));
         let surface = surface_from_normals(
@@ -376,9 +381,143 @@ pub fn reconstruct_with_truth(
         trust,
         surface,
         recursive,
+        camera: capture.lights.perspective().map(|(c, _)| c),
         error_map: None,
         report,
     })
+}
+
+/// Integration trust: the recursive method's own; unreliable pixels low for the methods that
+/// keep faulty lights; 1 for Barsky & Petrou, which drops them itself. Full frame.
+fn integration_trust(
+    capture: &Capture,
+    params: &Params,
+    diagnostics: Option<&RecursiveDiagnostics>,
+    detection: Option<&Detection>,
+) -> Vec<f32> {
+    let low = params.integration.unreliable_weight;
+    match (diagnostics, detection) {
+        (Some(r), _) => r.trust.clone(),
+        (None, Some(d)) if params.method != Method::BarskyPetrou => capture.scatter(
+            &d.unreliable
+                .iter()
+                .map(|&u| if u { low } else { 1.0 })
+                .collect::<Vec<f32>>(),
+            1,
+            0.0,
+        ),
+        _ => capture.scatter(&vec![1f32; capture.n_pixels()], 1, 0.0),
+    }
+}
+
+/// Perspective integration of full-frame normals with the capture's camera (the near model's,
+/// or the one given for distant lights): Z in mm along the optical axis, mean over the mask =
+/// the mean distance.
+fn near_integration(
+    capture: &Capture,
+    params: &Params,
+    normals: &[[f32; 3]],
+    trust: &[f32],
+    progress: &dyn Progress,
+) -> Result<Surface> {
+    let (camera, distance) = capture
+        .lights
+        .perspective()
+        .ok_or_else(|| Error::invalid("perspective integration needs a camera"))?;
+    let (weighted, weights) = weighted_normals(normals, &capture.mask, Some(trust));
+    crate::integrate::perspective::perspective_surface(
+        capture.width,
+        capture.height,
+        &weighted,
+        Some(&capture.mask),
+        Some(&weights),
+        &camera,
+        distance,
+        params.integration.method.integrator().as_ref(),
+        params.integration.max_slope,
+        progress,
+    )
+}
+
+/// The near-light alternation (ALGORITHMS.md §9): from the plane Z = D, estimate with each
+/// pixel's light vectors, integrate through the camera, update X, and repeat until the mean
+/// |ΔZ| of a round falls below [`crate::lightmodel::DEPTH_TOLERANCE`] of D or
+/// [`crate::lightmodel::MAX_ROUNDS`] rounds. Records the rounds under `near` in the report.
+#[allow(clippy::too_many_arguments)]
+fn alternate(
+    capture: &Capture,
+    near: &crate::lightmodel::NearLights,
+    params: &Params,
+    truth: Option<&[[f32; 3]]>,
+    can_detect: bool,
+    progress: &dyn Progress,
+    report: &mut Report,
+) -> Result<(Estimate, Option<Detection>, Option<RecursiveDiagnostics>)> {
+    use crate::lightmodel::{DEPTH_TOLERANCE, MAX_ROUNDS};
+    near.reset_surface();
+    let d = near.mean_distance;
+    let mut previous = vec![d as f32; capture.width * capture.height];
+    let mut rounds = Vec::new();
+    let mut converged = false;
+    let mut last = None;
+    for round in 1..=MAX_ROUNDS {
+        let t = Instant::now();
+        let result = estimate(capture, params, truth, can_detect, progress, report)?;
+        let normals = capture.scatter(&result.0.normals, 1, [0.0; 3]);
+        let trust = integration_trust(capture, params, result.2.as_ref(), result.1.as_ref());
+        let surface =
+            near_integration(capture, params, &normals, &trust, &crate::progress::Silent)?;
+        let z = &surface.depth.values;
+        let (sum, count) = capture
+            .pixels
+            .iter()
+            .map(|&i| i as usize)
+            .filter(|&i| z[i].is_finite())
+            .fold((0f64, 0usize), |(s, c), i| {
+                (s + (z[i] as f64 - previous[i] as f64).abs(), c + 1)
+            });
+        let change = sum / count.max(1) as f64;
+        near.set_surface(z);
+        previous.clone_from(z);
+        let error = match truth {
+            Some(t) => Some(
+                crate::metrics::evaluate(&normals, t, Some(&capture.mask))?
+                    .1
+                    .mean_deg,
+            ),
+            None => None,
+        };
+        rounds.push(serde_json::json!({
+            "round": round,
+            "mean_abs_depth_change_mm": change,
+            "mean_error_deg": error,
+            "seconds": t.elapsed().as_secs_f64(),
+        }));
+        last = Some(result);
+        if change < DEPTH_TOLERANCE * d {
+            converged = true;
+            break;
+        }
+    }
+    let cam = near.camera;
+    report.extra.insert(
+        "near".into(),
+        serde_json::json!({
+            "model": "near point lights, perspective camera",
+            "mean_distance_mm": d,
+            "camera": {"fx": cam.fx, "fy": cam.fy, "cx": cam.cx, "cy": cam.cy},
+            "rounds": rounds,
+            "converged": converged,
+            "tolerance_mm": DEPTH_TOLERANCE * d,
+        }),
+    );
+    if !converged {
+        report.notes.push(format!(
+            "near lights: the depth still changed by more than {:.3} mm after {MAX_ROUNDS} rounds",
+            DEPTH_TOLERANCE * d
+        ));
+    }
+    Ok(last.expect("at least one round"))
 }
 
 /// The method's estimate, the χ² test's results (when it ran) and the recursive method's

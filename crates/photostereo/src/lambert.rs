@@ -54,6 +54,9 @@ pub fn solve_subsets(
     usable: Option<&[bool]>,
     progress: &dyn Progress,
 ) -> Estimate {
+    if let Some(near) = capture.lights.near.as_deref() {
+        return solve_subsets_near(capture, near, usable, progress);
+    }
     let n = capture.n_lights();
     let c = capture.channels;
     let np = capture.n_pixels();
@@ -103,6 +106,92 @@ pub fn solve_subsets(
     }
 }
 
+/// [`solve_subsets`] with near lights: each pixel's own light vectors at the current surface
+/// (ALGORITHMS.md §9), its 3×3 normal matrix formed and solved per pixel.
+fn solve_subsets_near(
+    capture: &Capture,
+    near: &crate::lightmodel::NearLights,
+    usable: Option<&[bool]>,
+    progress: &dyn Progress,
+) -> Estimate {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let np = capture.n_pixels();
+    let mut normals = vec![[0f32; 3]; np];
+    let mut albedo = vec![0f32; np * c];
+    progress.begin("estimating", np as u64);
+    normals
+        .par_chunks_mut(CHUNK)
+        .zip(albedo.par_chunks_mut(CHUNK * c))
+        .enumerate()
+        .for_each_init(
+            || {
+                (
+                    crate::lightmodel::PixelLights::new(
+                        &capture.lights.directions,
+                        Some(near),
+                        capture.width,
+                    ),
+                    vec![0f64; n],
+                )
+            },
+            |(lights, grey), (chunk, (nrm, alb))| {
+                let p0 = chunk * CHUNK;
+                for (dp, out_n) in nrm.iter_mut().enumerate() {
+                    let p = p0 + dp;
+                    let samples = capture.pixel_samples(p);
+                    channel_mean(samples, c, grey);
+                    let used = usable.map(|f| &f[p * n..(p + 1) * n]);
+                    let dirs = lights.at(capture.pixels[p] as usize);
+                    let out_a = &mut alb[dp * c..(dp + 1) * c];
+                    match solve_with(dirs, used, grey) {
+                        Some(m) => {
+                            write_normal_albedo_with(dirs, c, samples, &m, used, out_n, out_a)
+                        }
+                        None => {
+                            *out_n = [0.0; 3];
+                            out_a.fill(0.0);
+                        }
+                    }
+                }
+                progress.advance(nrm.len() as u64);
+            },
+        );
+    progress.end();
+    Estimate {
+        normals,
+        albedo,
+        light_status: None,
+    }
+}
+
+/// Least squares m = (LᵀL)⁻¹ Lᵀ I over the lights flagged in `used` (all when `None`) with
+/// light vectors `dirs` (any length: scaled near-light vectors too); `None` when fewer than
+/// three are used or they do not span three dimensions (the test of [`SubsetSolver::new`]).
+#[inline]
+pub fn solve_with(dirs: &[[f64; 3]], used: Option<&[bool]>, grey: &[f64]) -> Option<Vector3<f64>> {
+    let mut g = Matrix3::<f64>::zeros();
+    let mut b = Vector3::<f64>::zeros();
+    let mut count = 0;
+    for (k, d) in dirs.iter().enumerate() {
+        if used.is_some_and(|u| !u[k]) {
+            continue;
+        }
+        let v = Vector3::from(*d);
+        g += v * v.transpose();
+        b += v * grey[k];
+        count += 1;
+    }
+    if count < 3 {
+        return None;
+    }
+    let eig = nalgebra::SymmetricEigen::new(g).eigenvalues;
+    if eig.min() <= 1e-8 * eig.max() {
+        return None;
+    }
+    Some(g.try_inverse()? * b)
+}
+
 /// Mean over channels of each light's sample, into `grey` (length N).
 #[inline]
 pub fn channel_mean(samples: &[f32], channels: usize, grey: &mut [f64]) {
@@ -129,6 +218,29 @@ pub fn write_normal_albedo(
     out_n: &mut [f32; 3],
     out_a: &mut [f32],
 ) {
+    write_normal_albedo_with(
+        &capture.lights.directions,
+        capture.channels,
+        samples,
+        m,
+        used,
+        out_n,
+        out_a,
+    )
+}
+
+/// [`write_normal_albedo`] with explicit light vectors `dirs` (a pixel's own near-light
+/// vectors, or the distant directions) and channel count `c`.
+#[inline]
+pub fn write_normal_albedo_with(
+    dirs: &[[f64; 3]],
+    c: usize,
+    samples: &[f32],
+    m: &Vector3<f64>,
+    used: Option<&[bool]>,
+    out_n: &mut [f32; 3],
+    out_a: &mut [f32],
+) {
     let rho = m.norm();
     if rho.is_nan() || rho <= 1e-12 || !rho.is_finite() {
         *out_n = [0.0; 3];
@@ -137,10 +249,9 @@ pub fn write_normal_albedo(
     }
     let nrm = m / rho;
     *out_n = [nrm.x as f32, nrm.y as f32, nrm.z as f32];
-    let c = capture.channels;
     let mut num = [0f64; 3];
     let mut den = 0f64;
-    for (k, d) in capture.lights.directions.iter().enumerate() {
+    for (k, d) in dirs.iter().enumerate() {
         if let Some(u) = used {
             if !u[k] {
                 continue;

@@ -21,6 +21,14 @@ pub struct Lights {
     pub intensities: Vec<[f64; 3]>,
     /// How many input directions were not unit length and were normalised.
     pub renormalised: usize,
+    /// Near point lights ([`crate::lightmodel`]): then `directions` and `intensities` are the
+    /// distant approximation at the object's centre (directions toward each LED and the
+    /// brightness it gives there), and the kernel asks the model for per-pixel vectors.
+    pub near: Option<std::sync::Arc<crate::lightmodel::NearLights>>,
+    /// A pinhole camera and the object's mean distance (mm) for distant lights seen through a
+    /// lens (`K.txt` without LED positions): the depth is then integrated through the camera,
+    /// Z in mm. Near lights carry their own camera.
+    pub camera: Option<(crate::lightmodel::Camera, f64)>,
 }
 
 impl Lights {
@@ -39,7 +47,18 @@ impl Lights {
             intensities: vec![[1.0; 3]; out.len()],
             directions: out,
             renormalised,
+            near: None,
+            camera: None,
         })
+    }
+
+    /// The camera and mean distance (mm) the depth is integrated with, if any: the near
+    /// model's, or the one given for distant lights.
+    pub fn perspective(&self) -> Option<(crate::lightmodel::Camera, f64)> {
+        match &self.near {
+            Some(m) => Some((m.camera, m.mean_distance)),
+            None => self.camera,
+        }
     }
 
     /// Number of lights.
@@ -98,6 +117,8 @@ impl Lights {
             intensities: vec![[1.0; 3]; dirs.len()],
             directions: dirs,
             renormalised,
+            near: None,
+            camera: None,
         })
     }
 
@@ -166,6 +187,11 @@ impl Lights {
             directions: order.iter().map(|&k| self.directions[k]).collect(),
             intensities: order.iter().map(|&k| self.intensities[k]).collect(),
             renormalised: self.renormalised,
+            near: self
+                .near
+                .as_ref()
+                .map(|m| std::sync::Arc::new(m.permuted(order))),
+            camera: self.camera,
         }
     }
 

@@ -148,17 +148,19 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
     if let Some(surface) = &rec.surface {
         let d = &surface.depth;
         let vertices = d.values.iter().filter(|v| v.is_finite()).count();
+        let camera = rec.camera.as_ref();
         if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
-            crate::surface::write_surface(dir, surface, &rec.normals, false)?;
-            crate::surface::write_mesh_ply(
+            crate::surface::write_surface_camera(dir, surface, &rec.normals, false, camera)?;
+            crate::surface::write_mesh_ply_camera(
                 &dir.join("mesh.ply"),
                 d.width,
                 d.height,
                 &d.values,
                 &rec.normals,
+                camera,
             )?;
         } else {
-            crate::surface::write_surface(dir, surface, &rec.normals, true)?;
+            crate::surface::write_surface_camera(dir, surface, &rec.normals, true, camera)?;
         }
     }
     if options.error_map {

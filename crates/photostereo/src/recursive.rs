@@ -27,7 +27,7 @@ use crate::integrate::{
     gradients_from_normals, normals_from_depth, weighted_normals, IntegrationParams,
     IntegrationProblem,
 };
-use crate::lambert::{channel_mean, status, write_normal_albedo, Estimate, CHUNK};
+use crate::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
 use crate::progress::{Progress, Silent};
 use crate::shadows::{shadow_maps, ShadowMaps, ShadowParams};
@@ -297,8 +297,16 @@ pub fn recursive(
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
         // Full-frame maps are dropped as soon as they have served (large captures).
         drop((trust, est_full, masked_trust));
-        let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
-        let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
+        let (depth, surface_normals) = match capture.lights.near.as_deref() {
+            None => {
+                let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
+                let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
+                (depth, surface_normals)
+            }
+            // Near lights: the surface in mm through the camera, and the light vectors follow
+            // it (ALGORITHMS.md §9).
+            Some(near) => near_surface(capture, near, &normals_full, &weights, integration)?,
+        };
         // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
         let shading: Vec<[f32; 3]> = (0..w * h)
             .map(|i| {
@@ -310,16 +318,27 @@ pub fn recursive(
             })
             .collect();
         drop((normals_full, weights));
-        // 3. Shadows of every light.
-        let maps = shadow_maps(
-            &depth.values,
-            &shading,
-            &capture.mask,
-            w,
-            h,
-            &capture.lights.directions,
-            &params.shadows,
-        )?;
+        // 3. Shadows of every light (of point lights with a near model).
+        let maps = match capture.lights.near.as_deref() {
+            None => shadow_maps(
+                &depth.values,
+                &shading,
+                &capture.mask,
+                w,
+                h,
+                &capture.lights.directions,
+                &params.shadows,
+            )?,
+            Some(near) => crate::lightmodel::near_shadow_maps(
+                near,
+                &depth.values,
+                &shading,
+                &capture.mask,
+                w,
+                h,
+                &params.shadows,
+            )?,
+        };
         // 4–5. Usable lights.
         let mut new_status = vec![status::USED; np * n];
         let mut new_consistent = vec![false; np];
@@ -360,7 +379,7 @@ pub fn recursive(
                                 (unreliable[p], &attributor, scratch.as_mut())
                             {
                                 hl[dp] = shadowed == 0;
-                                let (stat, count) = att.run(grey, s, scratch);
+                                let (stat, count) = att.run_at(pix, grey, s, scratch);
                                 cons[dp] = count > 3 && stat <= att.threshold(count);
                                 count
                             } else {
@@ -565,6 +584,39 @@ fn integrate(
     integration.method.integrator().integrate(&problem, &Silent)
 }
 
+/// A near-light iteration's surface: the weighted normals integrated through the camera into
+/// Z (mm), made the light model's current surface, and its normals (for shading and shadows).
+fn near_surface(
+    capture: &Capture,
+    near: &crate::lightmodel::NearLights,
+    normals: &[[f32; 3]],
+    weights: &[f32],
+    integration: &IntegrationParams,
+) -> Result<(crate::integrate::Depth, Vec<[f32; 3]>)> {
+    let (w, h) = (capture.width, capture.height);
+    let s = crate::integrate::perspective::perspective_surface(
+        w,
+        h,
+        normals,
+        Some(&capture.mask),
+        Some(weights),
+        &near.camera,
+        near.mean_distance,
+        integration.method.integrator().as_ref(),
+        integration.max_slope,
+        &Silent,
+    )?;
+    near.set_surface(&s.depth.values);
+    let shading = crate::integrate::perspective::normals_from_z(
+        w,
+        h,
+        &s.depth.values,
+        &capture.mask,
+        &near.camera,
+    );
+    Ok((s.depth, shading))
+}
+
 /// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights;
 /// `samples_of` answers `pixel_samples` for those pixels (the capture itself, or a sampled view
 /// of a tiled one).
@@ -589,7 +641,8 @@ fn fill_from_neighbours(
             albedo_map[i as usize] = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() / c as f32;
         }
     }
-    let dirs = &capture.lights.directions;
+    let mut lights = crate::lightmodel::PixelLights::of(capture);
+    let mut dirs = vec![[0f64; 3]; n];
     let mut grey = vec![0f64; n];
     let mut samples = Vec::new();
     for p in (0..capture.n_pixels()).filter(|&p| few[p]) {
@@ -617,12 +670,27 @@ fn fill_from_neighbours(
             .filter(|&k| light_status[p * n + k] == status::USED)
             .collect();
         channel_mean(samples_of.pixel_samples(p), c, &mut grey);
-        let two = if used.len() == 2 && rho.is_finite() {
+        dirs.copy_from_slice(lights.at(pix));
+        let two = if used.len() == 2 && rho.is_finite() && !lights.is_near() {
             two_source_normal(
                 dirs[used[0]],
                 dirs[used[1]],
                 grey[used[0]] / rho,
                 grey[used[1]] / rho,
+                surf,
+            )
+        } else if used.len() == 2 && rho.is_finite() {
+            // Scaled near-light vectors v = b·l: n · l = I / (ρ b).
+            let unit = |v: [f64; 3]| {
+                let b = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                ([v[0] / b, v[1] / b, v[2] / b], b)
+            };
+            let ((l1, b1), (l2, b2)) = (unit(dirs[used[0]]), unit(dirs[used[1]]));
+            two_source_normal(
+                l1,
+                l2,
+                grey[used[0]] / (rho * b1),
+                grey[used[1]] / (rho * b2),
                 surf,
             )
         } else {
@@ -637,8 +705,9 @@ fn fill_from_neighbours(
         let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
         let flags: Vec<bool> = (0..n).map(|k| used.contains(&k)).collect();
         let mut out_n = [0f32; 3];
-        write_normal_albedo(
-            capture,
+        write_normal_albedo_with(
+            &dirs,
+            c,
             samples_of.pixel_samples(p),
             &m,
             Some(&flags),

@@ -10,6 +10,7 @@ use crate::error::{Error, Result};
 use crate::export::write_npy_f32;
 use crate::imageio::{write_exr_grey, write_png16};
 use crate::integrate::Surface;
+use crate::lightmodel::Camera;
 use std::io::{BufWriter, Write};
 use std::path::Path;
 
@@ -212,11 +213,53 @@ pub fn write_mesh_ply(
     depth: &[f32],
     normals: &[[f32; 3]],
 ) -> Result<()> {
+    write_mesh_ply_camera(path, width, height, depth, normals, None)
+}
+
+/// The vertex of pixel `i` with depth `z`: (col, −row, z) in pixels, or with a camera the point
+/// Z · ray in mm in the camera frame (z = −Z).
+#[inline]
+fn vertex(i: usize, width: usize, z: f32, camera: Option<&Camera>) -> [f32; 3] {
+    let (r, c) = ((i / width) as f32, (i % width) as f32);
+    match camera {
+        None => [c, -r, z],
+        Some(k) => {
+            let ray = k.ray(c as f64, r as f64);
+            let d = z as f64;
+            [
+                (d * ray[0]) as f32,
+                (d * ray[1]) as f32,
+                (d * ray[2]) as f32,
+            ]
+        }
+    }
+}
+
+/// The units a mesh file's header states.
+fn mesh_units(camera: Option<&Camera>) -> &'static str {
+    if camera.is_some() {
+        "x y z in mm, camera frame (camera at the origin)"
+    } else {
+        "x = col, y = -row, z = depth (pixels)"
+    }
+}
+
+/// [`write_mesh_ply`]; with a `camera`, `depth` is Z in mm along the optical axis and the
+/// vertices are the points Z · ray in mm in the camera frame.
+pub fn write_mesh_ply_camera(
+    path: &Path,
+    width: usize,
+    height: usize,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    camera: Option<&Camera>,
+) -> Result<()> {
     let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
+    let units = mesh_units(camera);
     write!(
         out,
-        "ply\nformat binary_little_endian 1.0\ncomment photostereo: x = col, y = -row, z = depth (pixels)\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
+        "ply\nformat binary_little_endian 1.0\ncomment photostereo: {units}\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face {}\nproperty list uchar int vertex_indices\nend_header\n",
         mesh.vertices, mesh.faces
     )
     .map_err(io)?;
@@ -224,8 +267,8 @@ pub fn write_mesh_ply(
         for i in rows.start * width..rows.end * width {
             let z = depth[i];
             if z.is_finite() {
-                let (r, c) = ((i / width) as f32, (i % width) as f32);
-                for v in [c, -r, z, normals[i][0], normals[i][1], normals[i][2]] {
+                let [x, y, zz] = vertex(i, width, z, camera);
+                for v in [x, y, zz, normals[i][0], normals[i][1], normals[i][2]] {
                     buf.extend_from_slice(&v.to_le_bytes());
                 }
             }
@@ -259,24 +302,52 @@ pub fn write_mesh_obj(
     depth: &[f32],
     normals: &[[f32; 3]],
 ) -> Result<()> {
+    write_mesh_obj_camera(path, width, height, depth, normals, None)
+}
+
+/// [`write_mesh_obj`]; with a `camera`, vertices in mm in the camera frame (see
+/// [`write_mesh_ply_camera`]).
+pub fn write_mesh_obj_camera(
+    path: &Path,
+    width: usize,
+    height: usize,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    camera: Option<&Camera>,
+) -> Result<()> {
     let (mesh, mut out) = start_mesh(path, width, height, depth, normals)?;
     let io = |e| Error::io(path, e);
     writeln!(
         out,
-        "# photostereo mesh: x = col, y = -row, z = depth (pixels); {} vertices, {} faces",
-        mesh.vertices, mesh.faces
+        "# photostereo mesh: {}; {} vertices, {} faces",
+        mesh_units(camera),
+        mesh.vertices,
+        mesh.faces
     )
     .map_err(io)?;
     write_banded(&mut out, height, width * 24, |rows, buf| {
-        for i in rows.start * width..rows.end * width {
-            let z = depth[i];
+        let first = rows.start * width;
+        for (i, &z) in depth[first..rows.end * width].iter().enumerate() {
+            let i = first + i;
             if z.is_finite() {
                 buf.extend_from_slice(b"v ");
-                push_int(buf, i % width);
-                buf.extend_from_slice(b" ");
-                push_int(buf, -((i / width) as i64));
-                buf.push(b' ');
-                push_f32(buf, z);
+                match camera {
+                    None => {
+                        push_int(buf, i % width);
+                        buf.extend_from_slice(b" ");
+                        push_int(buf, -((i / width) as i64));
+                        buf.push(b' ');
+                        push_f32(buf, z);
+                    }
+                    Some(_) => {
+                        let [x, y, zz] = vertex(i, width, z, camera);
+                        push_f32(buf, x);
+                        buf.push(b' ');
+                        push_f32(buf, y);
+                        buf.push(b' ');
+                        push_f32(buf, zz);
+                    }
+                }
                 buf.push(b'\n');
             }
         }
@@ -326,6 +397,18 @@ pub fn write_surface(
     normals: &[[f32; 3]],
     meshes: bool,
 ) -> Result<()> {
+    write_surface_camera(dir, surface, normals, meshes, None)
+}
+
+/// [`write_surface`]; with a `camera` the depth is Z in mm and the meshes are in mm in the
+/// camera frame.
+pub fn write_surface_camera(
+    dir: &Path,
+    surface: &Surface,
+    normals: &[[f32; 3]],
+    meshes: bool,
+    camera: Option<&Camera>,
+) -> Result<()> {
     let d = &surface.depth;
     let (depth, curl) = rayon::join(
         || write_depth(dir, d.width, d.height, &d.values),
@@ -333,8 +416,9 @@ pub fn write_surface(
     );
     depth.and(curl)?;
     if meshes {
-        write_mesh_ply(&dir.join("mesh.ply"), d.width, d.height, &d.values, normals)?;
-        write_mesh_obj(&dir.join("mesh.obj"), d.width, d.height, &d.values, normals)?;
+        let (w, h) = (d.width, d.height);
+        write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera)?;
+        write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera)?;
     }
     Ok(())
 }

@@ -781,3 +781,82 @@ fn fuzz_intensity_file() {
         })
     });
 }
+
+#[test]
+fn fuzz_lp_file() {
+    let seeds = vec![
+        b"3
+a.png 0 0 1
+b.png 0.5 0 0.86
+c.png 0 0.5 0.86
+"
+        .to_vec(),
+        b"# RTI
+4
+img1.jpg -0.3 0.3 0.9
+img2.jpg 0.3 0.3 0.9
+img3.jpg 0.3 -0.3 0.9
+img4.jpg -0.3 -0.3 0.9
+"
+        .to_vec(),
+    ];
+    fuzz("lp_file", seeds, text_mutations, |b| {
+        text(b).is_some_and(|t| {
+            photostereo::nearlayout::parse_lp(&t, Path::new("capture.lp"))
+                .and_then(|(_, l)| l.check_rank())
+                .is_ok()
+        })
+    });
+}
+
+#[test]
+fn fuzz_near_layout() {
+    // The positions file mutated; K and the distance fixed (each is fuzzed by its own seed
+    // set below through the same parser).
+    let k = "768 0 127.5\n0 768 127.5\n0 0 1\n";
+    let names = [
+        Path::new("K.txt"),
+        Path::new("light_positions.txt"),
+        Path::new("light_axes.txt"),
+        Path::new("light_anisotropy.txt"),
+        Path::new("light_intensities.txt"),
+        Path::new("mean_distance.txt"),
+    ];
+    let seeds = vec![
+        b"75 0 0
+0 75 0
+-75 0 0
+0 -75 0
+"
+        .to_vec(),
+        b"210 210 0
+-210 210 0
+-210 -210 0
+210 -210 -10
+"
+        .to_vec(),
+    ];
+    fuzz("near_positions", seeds, text_mutations, move |b| {
+        text(b).is_some_and(|t| {
+            photostereo::nearlayout::parse_near_layout(
+                Some(k),
+                &t,
+                None,
+                None,
+                None,
+                Some("300\n"),
+                None,
+                names,
+            )
+            .and_then(|l| l.lights(names[1]))
+            .is_ok()
+        })
+    });
+    let seeds = vec![
+        b"768 0 127.5\n0 768 127.5\n0 0 1\n".to_vec(),
+        b"3772.08 0 305.875\n0 3759.01 255.125\n0 0 1\n".to_vec(),
+    ];
+    fuzz("camera_file", seeds, text_mutations, move |b| {
+        text(b).is_some_and(|t| photostereo::nearlayout::parse_camera(&t, names[0]).is_ok())
+    });
+}

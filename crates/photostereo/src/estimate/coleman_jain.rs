@@ -13,7 +13,7 @@
 //! Gaussian noise of the capture's noise model ([`crate::detect::noise_model`]) give a spread
 //! distribution whose 95% quantile is the threshold.
 
-use super::{channel_mean, write_normal_albedo, Estimate, Estimator, SubsetSolver, CHUNK};
+use super::{channel_mean, write_normal_albedo_with, Estimate, Estimator, SubsetSolver, CHUNK};
 use crate::capture::Capture;
 use crate::detect::{noise_model, DetectionParams, NoiseModel};
 use crate::error::Result;
@@ -132,12 +132,24 @@ impl ColemanJain {
         let kept = vec![true; n];
         let mut spreads = Vec::new();
         let stride = (capture.n_pixels() / 2000).max(1);
+        // Near lights: each sampled pixel's own vectors at the current surface.
+        let mut lights = crate::lightmodel::PixelLights::of(capture);
+        let mut buf = vec![[0f64; 3]; n];
         for p in (0..capture.n_pixels()).step_by(stride) {
             channel_mean(capture.pixel_samples(p), c, &mut grey);
-            let Some(m) = all.solve(&grey) else { continue };
-            let clean: Vec<f64> = capture
-                .lights
-                .directions
+            let dirs: &[[f64; 3]] = if lights.is_near() {
+                buf.copy_from_slice(lights.at(capture.pixels[p] as usize));
+                &buf
+            } else {
+                dirs
+            };
+            let m = if lights.is_near() {
+                crate::lambert::solve_with(dirs, None, &grey)
+            } else {
+                all.solve(&grey)
+            };
+            let Some(m) = m else { continue };
+            let clean: Vec<f64> = dirs
                 .iter()
                 .map(|l| l[0] * m.x + l[1] * m.y + l[2] * m.z)
                 .collect();
@@ -222,11 +234,24 @@ impl ColemanJain {
             .zip(light_status.par_chunks_mut(CHUNK * n))
             .enumerate()
             .for_each_init(
-                || (vec![0f64; n], vec![true; n]),
-                |(grey, kept), (chunk, ((nrm, alb), st))| {
-                    let dirs = &capture.lights.directions;
+                || {
+                    (
+                        vec![0f64; n],
+                        vec![true; n],
+                        crate::lightmodel::PixelLights::of(capture),
+                        vec![[0f64; 3]; n],
+                    )
+                },
+                |(grey, kept, lights, buf), (chunk, ((nrm, alb), st))| {
                     for dp in 0..nrm.len() {
                         let p = chunk * CHUNK + dp;
+                        // Near lights: this pixel's own vectors (ALGORITHMS.md §9).
+                        let dirs: &[[f64; 3]] = if lights.is_near() {
+                            buf.copy_from_slice(lights.at(capture.pixels[p] as usize));
+                            buf
+                        } else {
+                            &capture.lights.directions
+                        };
                         let samples = capture.pixel_samples(p);
                         channel_mean(samples, c, grey);
                         kept.fill(true);
@@ -271,8 +296,9 @@ impl ColemanJain {
                         }
                         let out_a = &mut alb[dp * c..(dp + 1) * c];
                         match &fit {
-                            Some(f) => write_normal_albedo(
-                                capture,
+                            Some(f) => write_normal_albedo_with(
+                                dirs,
+                                c,
                                 samples,
                                 &f.m,
                                 Some(kept),

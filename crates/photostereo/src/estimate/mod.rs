@@ -18,8 +18,8 @@ use crate::error::Result;
 use crate::progress::Progress;
 
 pub use crate::lambert::{
-    channel_mean, solve_subsets, status, write_normal_albedo, Estimate, SubsetCache, SubsetSolver,
-    CHUNK,
+    channel_mean, solve_subsets, status, write_normal_albedo, write_normal_albedo_with, Estimate,
+    SubsetCache, SubsetSolver, CHUNK,
 };
 
 /// A normal-and-albedo estimator. Implementations are stateless between calls and thread-safe.

@@ -26,6 +26,7 @@
 
 mod multigrid;
 mod paths;
+pub mod perspective;
 mod poisson;
 mod spectral;
 

@@ -15,6 +15,7 @@
 //! height field f has ∂f/∂col = −n_x/n_z and ∂f/∂row = +n_y/n_z. Light directions point from
 //! the surface toward the light.
 
+pub mod near;
 pub mod reflectance;
 pub mod render;
 pub mod rigs;

@@ -104,6 +104,8 @@ pub fn slant_tilt_lights(slant_deg: f64, tilts_deg: &[f64]) -> Lights {
         intensities: vec![[1.0; 3]; dirs.len()],
         directions: dirs,
         renormalised: 0,
+        near: None,
+        camera: None,
     }
 }
 
@@ -124,6 +126,8 @@ pub fn dome_lights(n: usize, max_slant_deg: f64) -> Lights {
         intensities: vec![[1.0; 3]; dirs.len()],
         directions: dirs,
         renormalised: 0,
+        near: None,
+        camera: None,
     }
 }
 

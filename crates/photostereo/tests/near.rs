@@ -1,0 +1,258 @@
+//! Near point lights and a perspective camera (issue 13): the near model against the distant
+//! approximation and against the oracle, on small near-light scenes; the near-light layout
+//! read back from disk.
+
+use photostereo::engine::{reconstruct_with_truth, Method, Params};
+use photostereo::progress::Silent;
+use photostereo::scene::near::{
+    oracle_error, synthesize_near, write_near_capture, NearRendered, NearRig, NearSpec,
+};
+use photostereo::scene::{Brdf, SceneKind};
+use photostereo::{Capture, CaptureFiles};
+
+fn error(r: &NearRendered, capture: &Capture, method: Method) -> (f64, serde_json::Value) {
+    let params = Params {
+        method,
+        ..Params::default()
+    };
+    let mut rec = reconstruct_with_truth(capture, &params, None, &Silent).unwrap();
+    let e = rec.evaluate(&r.rendered.truth.normals).unwrap();
+    (
+        e.mean_deg,
+        rec.report.extra.get("near").cloned().unwrap_or_default(),
+    )
+}
+
+fn scene(rig: NearRig, size: usize) -> NearRendered {
+    synthesize_near(&NearSpec {
+        size,
+        ..NearSpec::new(SceneKind::Sphere, rig)
+    })
+    .unwrap()
+}
+
+#[test]
+fn the_near_model_is_exact_on_noise_free_lambertian_images() {
+    // The oracle (true per-pixel light vectors, lit lights only) recovers the normals: the
+    // renderer and the light model agree on the image formation.
+    let r = synthesize_near(&NearSpec {
+        size: 48,
+        brdf: Brdf::Lambert,
+        noise_sigma: 0.0,
+        ..NearSpec::new(SceneKind::Sphere, NearRig::Ring)
+    })
+    .unwrap();
+    let e = oracle_error(&r).unwrap();
+    assert!(e < 0.05, "oracle {e}°");
+}
+
+#[test]
+fn recursive_in_the_near_model_beats_the_distant_approximation() {
+    for rig in [NearRig::Square, NearRig::Dome] {
+        let r = scene(rig, 64);
+        let (distant, _) = error(&r, &r.distant_capture().unwrap(), Method::L2);
+        let (near, record) = error(&r, &r.capture().unwrap(), Method::Recursive);
+        let oracle = oracle_error(&r).unwrap();
+        assert!(
+            near <= 0.25 * distant && near <= 2.0 * oracle,
+            "{}: recursive near {near:.2}°, l2 distant {distant:.2}°, oracle {oracle:.2}°",
+            rig.name()
+        );
+        let rounds = record["rounds"].as_array().unwrap();
+        assert!(!rounds.is_empty() && rounds.len() <= 5);
+        assert!(rounds[0]["mean_abs_depth_change_mm"].as_f64().unwrap() > 0.0);
+    }
+    // The ring's glossy highlights hit every light at once (the LEDs sit beside the lens):
+    // the near model still halves the distant error and stays within 2× of the oracle.
+    let r = scene(NearRig::Ring, 64);
+    let (distant, _) = error(&r, &r.distant_capture().unwrap(), Method::L2);
+    let (near, _) = error(&r, &r.capture().unwrap(), Method::Recursive);
+    let oracle = oracle_error(&r).unwrap();
+    assert!(
+        near <= 0.6 * distant && near <= 2.0 * oracle,
+        "ring: {near} {distant} {oracle}"
+    );
+}
+
+#[test]
+fn every_method_uses_the_per_pixel_lights() {
+    let r = scene(NearRig::Dome, 48);
+    for method in [Method::L2, Method::BarskyPetrou] {
+        let (distant, _) = error(&r, &r.distant_capture().unwrap(), method);
+        let (near, _) = error(&r, &r.capture().unwrap(), method);
+        assert!(
+            near < 0.75 * distant,
+            "{}: near {near} distant {distant}",
+            method.name()
+        );
+    }
+}
+
+#[test]
+fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
+    let r = scene(NearRig::Square, 48);
+    let dir = tempfile::tempdir().unwrap();
+    write_near_capture(dir.path(), &r).unwrap();
+    let files = CaptureFiles::from_inputs(&[dir.path().to_path_buf()], None, None, None).unwrap();
+    assert!(files.lights.near.is_some());
+    let capture = files.load(&Silent).unwrap();
+    let params = Params {
+        method: Method::L2,
+        ..Params::default()
+    };
+    let mut from_disk = reconstruct_with_truth(&capture, &params, None, &Silent).unwrap();
+    let e_disk = from_disk
+        .evaluate(&r.rendered.truth.normals)
+        .unwrap()
+        .mean_deg;
+    let (e_mem, _) = error(&r, &r.capture().unwrap(), Method::L2);
+    assert!((e_disk - e_mem).abs() < 0.05, "{e_disk} vs {e_mem}");
+    // Depth in mm along the optical axis: within a few mm of the truth (mean fixed by D).
+    let depth = from_disk.depth().unwrap();
+    let truth = &r.rendered.truth.depth;
+    let (mut sum, mut count) = (0.0, 0);
+    for (d, t) in depth.iter().zip(truth) {
+        if d.is_finite() && t.is_finite() {
+            sum += (d - t).abs() as f64;
+            count += 1;
+        }
+    }
+    assert!(
+        sum / (count as f64) < 2.0,
+        "mean |ΔZ| {} mm",
+        sum / count as f64
+    );
+    // A missing distance is refused with the file named.
+    std::fs::remove_file(dir.path().join("mean_distance.txt")).unwrap();
+    let e = CaptureFiles::from_inputs(&[dir.path().to_path_buf()], None, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("mean_distance.txt") && e.contains("--distance"),
+        "{e}"
+    );
+}
+
+/// DiLiGenT's camera (its calibration: fx 3772.08, fy 3759.01, cx 305.875, cy 255.125 pixels;
+/// objects about 1.5 m away): its ground-truth normals integrated through the camera and
+/// differentiated back are closer to the truth than with orthographic integration.
+#[test]
+fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic() {
+    use photostereo::integrate::perspective::{normals_from_z, perspective_surface};
+    use photostereo::integrate::{normals_from_depth, surface_from_normals, Poisson};
+    use photostereo::lightmodel::Camera;
+    let root = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/diligent"
+    ));
+    let camera = Camera::new(3772.08, 3759.01, 305.875, 255.125).unwrap();
+    for object in ["ballPNG", "bearPNG", "catPNG"] {
+        let map =
+            photostereo::groundtruth::read_normal_map(&root.join(object).join("Normal_gt.mat"))
+                .unwrap();
+        let (w, h) = (map.width, map.height);
+        let mask: Vec<bool> = map.normals.iter().map(|n| *n != [0.0; 3]).collect();
+        // Scored away from the outline (pixels whose 5×5 neighbourhood is inside the mask),
+        // where one-sided differences of either integration dominate.
+        let inner: Vec<bool> = (0..w * h)
+            .map(|i| {
+                let (r, c) = ((i / w) as i64, (i % w) as i64);
+                (-2..=2).all(|dr| {
+                    (-2..=2).all(|dc| {
+                        let (rr, cc) = (r + dr, c + dc);
+                        rr >= 0
+                            && cc >= 0
+                            && rr < h as i64
+                            && cc < w as i64
+                            && mask[rr as usize * w + cc as usize]
+                    })
+                })
+            })
+            .collect();
+        let mean_error = |normals: &[[f32; 3]]| {
+            let (_, s) =
+                photostereo::metrics::evaluate(normals, &map.normals, Some(&inner)).unwrap();
+            s.mean_deg
+        };
+        let ortho = surface_from_normals(
+            w,
+            h,
+            &map.normals,
+            Some(&mask),
+            None,
+            &Poisson::default(),
+            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            &Silent,
+        )
+        .unwrap();
+        let e_ortho = mean_error(&normals_from_depth(w, h, &ortho.depth.values, &mask));
+        let persp = perspective_surface(
+            w,
+            h,
+            &map.normals,
+            Some(&mask),
+            None,
+            &camera,
+            1500.0,
+            &Poisson::default(),
+            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            &Silent,
+        )
+        .unwrap();
+        let e_persp = mean_error(&normals_from_z(w, h, &persp.depth.values, &mask, &camera));
+        println!("{object}: orthographic {e_ortho:.3}°, perspective {e_persp:.3}°");
+        assert!(
+            e_persp < e_ortho,
+            "{object}: perspective {e_persp}° vs orthographic {e_ortho}°"
+        );
+    }
+}
+
+/// The point-light shadow maps of the recursive method, from the true depth and normals, agree
+/// with the renderer's shadows (an independent ray march against the analytic height field).
+#[test]
+fn point_light_shadow_maps_match_the_rendered_shadows() {
+    let r = synthesize_near(&NearSpec {
+        size: 64,
+        ..NearSpec::new(SceneKind::Blocks, NearRig::Dome)
+    })
+    .unwrap();
+    let t = &r.rendered.truth;
+    let capture = r.capture().unwrap();
+    let near = capture.lights.near.as_deref().unwrap();
+    let maps = photostereo::lightmodel::near_shadow_maps(
+        near,
+        &t.depth,
+        &t.normals,
+        &t.mask,
+        64,
+        64,
+        &photostereo::shadows::ShadowParams::default(),
+    )
+    .unwrap();
+    let (mut agree, mut total, mut cast_truth, mut cast_found) = (0usize, 0usize, 0usize, 0usize);
+    for k in 0..near.len() {
+        for i in 0..64 * 64 {
+            if !t.mask[i] {
+                continue;
+            }
+            total += 1;
+            let ours = maps.is_shadowed(k, i);
+            agree += (ours == t.shadow[k][i]) as usize;
+            if t.cast_shadow[k][i] {
+                cast_truth += 1;
+                cast_found += ours as usize;
+            }
+        }
+    }
+    let share = agree as f64 / total as f64;
+    assert!(
+        cast_truth > 100,
+        "the scene must have cast shadows ({cast_truth})"
+    );
+    assert!(share > 0.97, "agreement {share}");
+    assert!(
+        cast_found as f64 > 0.8 * cast_truth as f64,
+        "cast shadows found {cast_found} of {cast_truth}"
+    );
+}
