@@ -88,6 +88,19 @@ fn synth_run_and_integrate_a_near_light_capture() {
         r["near"]["mean_distance_mm"].as_f64().unwrap(),
         distance + 20.0
     );
+    // --intensities cannot replace a near capture's LED radiance: refused, not ignored.
+    std::fs::write(d.join("other.txt"), "1\n".repeat(24)).unwrap();
+    let o = photostereo(
+        &["run", "cap", "--intensities", "other.txt", "-o", "out3"],
+        d,
+    );
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("near-light capture") && stderr(&o).contains("--intensities"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!d.join("out3").exists());
     // Bad distances and a distance for a distant capture are refused (exit 2, named).
     let o = photostereo(&["run", "cap", "--distance=-5", "-o", "out3"], d);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));

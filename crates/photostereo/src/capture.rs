@@ -88,10 +88,25 @@ impl CaptureFiles {
             }
             // Near lights (CONVENTIONS.md): the folder's own LED positions, unless --lights.
             [dir] if dir.is_dir() && lights.is_none() && crate::nearlayout::is_near_layout(dir) => {
+                if let Some(p) = intensities {
+                    return Err(Error::file(
+                        p,
+                        format!(
+                            "{} is a near-light capture: its LEDs' radiance is read from \
+                             light_intensities.txt in that folder, so --intensities does not apply \
+                             (edit that file instead)",
+                            dir.display()
+                        ),
+                    ));
+                }
                 crate::nearlayout::near_capture_files(dir, None)?
             }
             [lp] if lp.extension().is_some_and(|e| e.eq_ignore_ascii_case("lp")) => {
-                crate::nearlayout::lp_capture_files(lp)?
+                let f = crate::nearlayout::lp_capture_files(lp)?;
+                match intensities {
+                    Some(p) => f.with_intensities_file(p)?,
+                    None => f,
+                }
             }
             [dir] if dir.is_dir() => {
                 let f = CaptureFiles::diligent_with_lights(dir, lights)?;
