@@ -190,32 +190,7 @@ impl CaptureFiles {
         }
         let lights = Lights::read_directions(&lights_path)?;
         let names = dir.join("filenames.txt");
-        let images: Vec<PathBuf> = if names.exists() {
-            let text = crate::limits::read_text(&names)?;
-            text.lines()
-                .map(str::trim)
-                .filter(|l| !l.is_empty())
-                .map(|l| dir.join(l))
-                .collect()
-        } else {
-            let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-                .map_err(|e| Error::io(dir, e))?
-                .filter_map(|e| e.ok().map(|e| e.path()))
-                .filter(|p| {
-                    let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-                    let ext = p
-                        .extension()
-                        .and_then(|e| e.to_str())
-                        .unwrap_or("")
-                        .to_ascii_lowercase();
-                    matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr")
-                        && !name.starts_with("mask")
-                        && !name.starts_with("Normal_gt")
-                })
-                .collect();
-            v.sort();
-            v
-        };
+        let images = folder_images(dir)?;
         let source = if names.exists() {
             format!("listed in {}", names.display())
         } else {
@@ -751,6 +726,38 @@ impl CaptureFiles {
             )
         })
     }
+}
+
+/// The images of a capture folder: the names listed in `filenames.txt` (one per line, blank
+/// lines skipped) when it exists, else every PNG, TIFF or OpenEXR file of the folder but the mask
+/// and the ground truth (`mask*`, `Normal_gt*`), sorted by name.
+pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
+    let names = dir.join("filenames.txt");
+    if names.is_file() {
+        return Ok(crate::limits::read_text(&names)?
+            .lines()
+            .map(str::trim)
+            .filter(|l| !l.is_empty())
+            .map(|l| dir.join(l))
+            .collect());
+    }
+    let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| Error::io(dir, e))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| {
+            let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
+            let ext = p
+                .extension()
+                .and_then(|e| e.to_str())
+                .unwrap_or("")
+                .to_ascii_lowercase();
+            matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr")
+                && !name.starts_with("mask")
+                && !name.starts_with("Normal_gt")
+        })
+        .collect();
+    v.sort();
+    Ok(v)
 }
 
 /// The images and mask named by a list file (CONVENTIONS.md, layout 2).

@@ -872,17 +872,15 @@ pub fn estimate_kappa(capture: &Capture, sigma0: f64, floor: f64, params: &Detec
     crate::metrics::median(&mut k2).max(0.0).sqrt()
 }
 
-/// Sensor noise of the channel-mean images (see [`NoiseEstimate::Images`]); `None` when fewer
-/// than 100 object pixels have their whole 3×3 neighbourhood in the mask.
-pub fn image_noise(capture: &Capture) -> Option<f64> {
+/// The mask pixels whose whole 3×3 neighbourhood lies in the mask, each as the nine mask-pixel
+/// indices of that neighbourhood (row by row), in the order of [`Capture::pixels`].
+pub(crate) fn interior_neighbourhoods(capture: &Capture) -> Vec<[u32; 9]> {
     let (w, h) = (capture.width, capture.height);
     let mut index = vec![u32::MAX; w * h];
     for (p, &i) in capture.pixels.iter().enumerate() {
         index[i as usize] = p as u32;
     }
-    // Interior pixels: the 3×3 neighbourhood's sample indices (a regular sample of at most 4096
-    // of them per image is used: plenty for a median).
-    let mut interior: Vec<[u32; 9]> = Vec::new();
+    let mut interior = Vec::new();
     for &i in &capture.pixels {
         let (r, col) = (i as usize / w, i as usize % w);
         if r == 0 || col == 0 || r + 1 >= h || col + 1 >= w {
@@ -899,6 +897,13 @@ pub fn image_noise(capture: &Capture) -> Option<f64> {
             interior.push(nb);
         }
     }
+    interior
+}
+
+/// Sensor noise of the channel-mean images (see [`NoiseEstimate::Images`]); `None` when fewer
+/// than 100 object pixels have their whole 3×3 neighbourhood in the mask.
+pub fn image_noise(capture: &Capture) -> Option<f64> {
+    let interior = interior_neighbourhoods(capture);
     if interior.len() < 100 {
         return None;
     }

@@ -294,31 +294,7 @@ pub fn near_capture_files(dir: &Path, distance: Option<f64>) -> Result<CaptureFi
     let layout = read_near_layout(dir, distance)?;
     let positions = dir.join("light_positions.txt");
     let lights = layout.lights(&positions)?;
-    let names = dir.join("filenames.txt");
-    let images: Vec<PathBuf> = if names.is_file() {
-        crate::limits::read_text(&names)?
-            .lines()
-            .map(str::trim)
-            .filter(|l| !l.is_empty())
-            .map(|l| dir.join(l))
-            .collect()
-    } else {
-        let mut v: Vec<PathBuf> = std::fs::read_dir(dir)
-            .map_err(|e| Error::io(dir, e))?
-            .filter_map(|e| e.ok().map(|e| e.path()))
-            .filter(|p| {
-                let name = p.file_name().and_then(|n| n.to_str()).unwrap_or("");
-                let ext = p
-                    .extension()
-                    .and_then(|e| e.to_str())
-                    .unwrap_or("")
-                    .to_ascii_lowercase();
-                matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr") && !name.starts_with("mask")
-            })
-            .collect();
-        v.sort();
-        v
-    };
+    let images = crate::capture::folder_images(dir)?;
     if images.len() != lights.len() {
         return Err(Error::file(
             &positions,

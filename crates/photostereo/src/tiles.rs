@@ -39,28 +39,7 @@ pub fn statistics_pixels(capture: &Capture) -> Vec<usize> {
     ids.extend((0..np).step_by(np.div_ceil(8192).max(1)));
     ids.extend((0..np).step_by((np / 2000).max(1)));
     // Image noise: interior pixels (whole 3×3 neighbourhood in the mask), every stride-th.
-    let (w, h) = (capture.width, capture.height);
-    let mut index = vec![u32::MAX; w * h];
-    for (p, &i) in capture.pixels.iter().enumerate() {
-        index[i as usize] = p as u32;
-    }
-    let mut interior: Vec<[u32; 9]> = Vec::new();
-    for &i in &capture.pixels {
-        let (r, col) = (i as usize / w, i as usize % w);
-        if r == 0 || col == 0 || r + 1 >= h || col + 1 >= w {
-            continue;
-        }
-        let mut nb = [0u32; 9];
-        let mut inside = true;
-        for (j, slot) in nb.iter_mut().enumerate() {
-            let q = index[(r + j / 3 - 1) * w + col + j % 3 - 1];
-            inside &= q != u32::MAX;
-            *slot = q;
-        }
-        if inside {
-            interior.push(nb);
-        }
-    }
+    let interior = crate::detect::interior_neighbourhoods(capture);
     if interior.len() >= 100 {
         let stride = interior.len().div_ceil(4096);
         for nb in interior.iter().step_by(stride) {
