@@ -286,6 +286,7 @@ def reconstruct(
     unreliable_weight: float = 0.1,
     detect: bool = True,
     integrate: bool = True,
+    memory_limit: Union[int, str, None] = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
 ) -> Reconstruction:
@@ -314,6 +315,8 @@ def reconstruct(
     unreliable_weight: integration weight of unreliable pixels (reliable ones weigh 1).
     detect: run the chi-square test for its maps with methods that do not need it.
     integrate: integrate the normals into depth and curl.
+    memory_limit: the memory budget (bytes, or a size such as ``"4G"``; None: half of the memory
+        available), as for :func:`run`; an array given here is already held whole in memory.
     num_threads: cap on worker threads (None: all cores); several workers can share a node.
     progress: ``progress(stage, done, total)``, called from this thread while the work runs.
     """
@@ -336,6 +339,7 @@ def reconstruct(
         unreliable_weight=unreliable_weight,
         detect=detect,
         integrate=integrate,
+        memory_limit=memory_limit,
     )
     if isinstance(images, Capture):
         if lights is not None or intensities is not None or mask is not None:
