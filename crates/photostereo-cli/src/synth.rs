@@ -176,14 +176,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
             spec.render.noise_sigma * 100.0,
             spec.render.seed
         );
-        println!(
-            "mask pixels, mean over lights: shadowed {:.1}% (cast {:.1}%), highlighted {:.1}%, clipped {:.1}%",
-            100.0 * s.shadow_fraction,
-            100.0 * s.cast_shadow_fraction,
-            100.0 * s.highlight_fraction,
-            100.0 * s.clipped_fraction
-        );
-        println!("wrote {}", target.display());
+        print_stats(s, &target);
     }
     Ok(())
 }
@@ -250,16 +243,22 @@ fn near(
             spec.noise_sigma * 100.0,
             spec.seed
         );
-        println!(
-            "mask pixels, mean over lights: shadowed {:.1}% (cast {:.1}%), highlighted {:.1}%, clipped {:.1}%",
-            100.0 * s.shadow_fraction,
-            100.0 * s.cast_shadow_fraction,
-            100.0 * s.highlight_fraction,
-            100.0 * s.clipped_fraction
-        );
-        println!("wrote {}", target.display());
+        print_stats(s, &target);
     }
     Ok(())
+}
+
+/// The closing lines of a rendered capture's text summary: its shadow, highlight and clipping
+/// shares and where it was written.
+fn print_stats(s: &photostereo::scene::render::CaptureStats, target: &std::path::Path) {
+    println!(
+        "mask pixels, mean over lights: shadowed {:.1}% (cast {:.1}%), highlighted {:.1}%, clipped {:.1}%",
+        100.0 * s.shadow_fraction,
+        100.0 * s.cast_shadow_fraction,
+        100.0 * s.highlight_fraction,
+        100.0 * s.clipped_fraction
+    );
+    println!("wrote {}", target.display());
 }
 
 fn list(out: &OutputOpts) -> Result<()> {

@@ -255,23 +255,30 @@ fn unknown_method_is_a_usage_error() {
     f.fails(&["--method", "magic"], &["unknown method 'magic'"]);
 }
 
-/// Runs `photostereo run <capture> -o out [extra] --json`, expects success and returns
+/// Runs `cmd`, expects success and returns its stderr.
+fn succeeds(mut cmd: Command) -> String {
+    let out = cmd.output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert!(out.status.success(), "{err}");
+    err
+}
+
+/// The `report.json` a command wrote into the fixture's output folder.
+fn report_of(f: &Fixture) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap()).unwrap()
+}
+
+/// Runs `photostereo run <capture> -o out [extra]`, expects success and returns
 /// (report.json, stderr).
 fn run_json(f: &Fixture, extra: &[&str]) -> (serde_json::Value, String) {
-    let out = Command::new(BIN)
-        .arg("run")
+    let mut cmd = Command::new(BIN);
+    cmd.arg("run")
         .arg(f.dir.path())
         .arg("-o")
         .arg(f.out())
-        .args(extra)
-        .output()
-        .unwrap();
-    let err = String::from_utf8_lossy(&out.stderr).to_string();
-    assert!(out.status.success(), "{err}");
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
-            .unwrap();
-    (report, err)
+        .args(extra);
+    let err = succeeds(cmd);
+    (report_of(f), err)
 }
 
 /// Issue 17.4: a capture without `mask.png` is run on the whole frame, and says so on stderr
@@ -349,22 +356,14 @@ fn integrate_report_omits_capture_fields() {
         }
     }
     ndarray_npy::write_npy(f.path("n.npy"), &normals).unwrap();
-    let out = Command::new(BIN)
-        .arg("integrate")
+    let mut cmd = Command::new(BIN);
+    cmd.arg("integrate")
         .arg(f.path("n.npy"))
         .arg("-o")
         .arg(f.out())
-        .arg("--quiet")
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
-            .unwrap();
+        .arg("--quiet");
+    succeeds(cmd);
+    let report = report_of(&f);
     let input = report["input"].as_object().unwrap();
     for absent in [
         "channels",
@@ -478,22 +477,7 @@ fn memory_limits() {
         .next()
         .unwrap()
         .trim();
-    let out = Command::new(BIN)
-        .arg("run")
-        .arg(f.dir.path())
-        .args(["-o"])
-        .arg(f.out())
-        .args(["--quiet", "--memory-limit", minimum])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(f.out().join("report.json")).unwrap())
-            .unwrap();
+    let (report, _) = run_json(&f, &["--quiet", "--memory-limit", minimum]);
     assert!(
         report["memory"]["minimum_budget"].as_u64().unwrap()
             <= report["memory"]["budget"].as_u64().unwrap()
