@@ -213,28 +213,47 @@ pub fn normals_from_depth(
             if !ok(i) {
                 continue;
             }
-            let left = c > 0 && ok(i - 1);
-            let right = c + 1 < width && ok(i + 1);
-            let up = r > 0 && ok(i - width);
-            let down = r + 1 < height && ok(i + width);
             let d = |a: usize| depth[a] as f64;
-            let p = match (left, right) {
-                (true, true) => (d(i + 1) - d(i - 1)) / 2.0,
-                (false, true) => d(i + 1) - d(i),
-                (true, false) => d(i) - d(i - 1),
-                (false, false) => 0.0,
+            let slope = |pair: Option<(usize, usize, f64)>| {
+                pair.map_or(0.0, |(a, b, steps)| (d(b) - d(a)) / steps)
             };
-            let q = match (up, down) {
-                (true, true) => (d(i + width) - d(i - width)) / 2.0,
-                (false, true) => d(i + width) - d(i),
-                (true, false) => d(i) - d(i - width),
-                (false, false) => 0.0,
-            };
+            let [along_cols, along_rows] = difference_pairs(i, width, height, ok);
+            let (p, q) = (slope(along_cols), slope(along_rows));
             let norm = (p * p + q * q + 1.0).sqrt();
             *o = [(-p / norm) as f32, (q / norm) as f32, (1.0 / norm) as f32];
         }
     });
     out
+}
+
+/// The pixels a finite difference at pixel `i` (row-major, `width × height`) takes along the
+/// columns and along the rows, among the pixels where `ok` holds: `(a, b, steps)` with `b` one
+/// or two pixels after `a` (right of it, or below it) — central (`i − 1, i + 1`, 2 steps) where
+/// both neighbours are valid, one-sided (1 step) where one is, `None` where neither is.
+pub(crate) fn difference_pairs(
+    i: usize,
+    width: usize,
+    height: usize,
+    ok: impl Fn(usize) -> bool,
+) -> [Option<(usize, usize, f64)>; 2] {
+    let (r, c) = (i / width, i % width);
+    let pair = |before: Option<usize>, after: Option<usize>| match (before, after) {
+        (Some(a), Some(b)) => Some((a, b, 2.0)),
+        (None, Some(b)) => Some((i, b, 1.0)),
+        (Some(a), None) => Some((a, i, 1.0)),
+        (None, None) => None,
+    };
+    let valid = |j: usize| ok(j).then_some(j);
+    [
+        pair(
+            (c > 0).then(|| i - 1).and_then(valid),
+            (c + 1 < width).then(|| i + 1).and_then(valid),
+        ),
+        pair(
+            (r > 0).then(|| i - width).and_then(valid),
+            (r + 1 < height).then(|| i + width).and_then(valid),
+        ),
+    ]
 }
 
 /// A depth prior: the solution is pulled toward `depth` with strength `lambda` per pixel

@@ -153,27 +153,15 @@ pub fn normals_from_z(
                 if !ok(i) {
                     continue;
                 }
-                let left = col > 0 && ok(i - 1);
-                let right = col + 1 < width && ok(i + 1);
-                let up = row > 0 && ok(i - width);
-                let down = row + 1 < height && ok(i + width);
                 let diff = |a: usize, b: usize| {
                     let (pa, pb) = (point(a), point(b));
                     [pb[0] - pa[0], pb[1] - pa[1], pb[2] - pa[2]]
                 };
-                // ∂X/∂col and −∂X/∂row (toward the image's top, +y).
-                let du = match (left, right) {
-                    (true, true) => diff(i - 1, i + 1),
-                    (false, true) => diff(i, i + 1),
-                    (true, false) => diff(i - 1, i),
-                    (false, false) => [1.0, 0.0, 0.0],
-                };
-                let dv = match (up, down) {
-                    (true, true) => diff(i + width, i - width),
-                    (false, true) => diff(i + width, i),
-                    (true, false) => diff(i, i - width),
-                    (false, false) => [0.0, 1.0, 0.0],
-                };
+                // ∂X/∂col and −∂X/∂row (toward the image's top, +y); the scale of each is
+                // irrelevant, the normal is normalised below.
+                let [along_cols, along_rows] = super::difference_pairs(i, width, height, ok);
+                let du = along_cols.map_or([1.0, 0.0, 0.0], |(a, b, _)| diff(a, b));
+                let dv = along_rows.map_or([0.0, 1.0, 0.0], |(a, b, _)| diff(b, a));
                 let n = [
                     du[1] * dv[2] - du[2] * dv[1],
                     du[2] * dv[0] - du[0] * dv[2],
