@@ -71,6 +71,11 @@ pub struct RunArgs {
     /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
     #[arg(long, default_value_t = defaults().recursive.change_tolerance)]
     pub change_tolerance: f64,
+    /// Recursive method: radius of the spatial consensus of the usable lights (a pixel takes
+    /// the majority of its (2r+1)² neighbourhood's removals where its readings pass the test
+    /// with them); 0 = the paper's per-pixel decisions.
+    #[arg(long, default_value_t = defaults().recursive.consensus_radius)]
+    pub consensus_radius: usize,
     /// Integration weight of unreliable pixels relative to reliable ones (0 = fill them from
     /// their neighbours), for the recursive method's surfaces and the exported depth.
     #[arg(long, default_value_t = defaults().integration.unreliable_weight)]
@@ -140,6 +145,7 @@ pub fn params(a: &RunArgs) -> Params {
         recursive: RecursiveParams {
             max_iterations: a.max_iterations,
             change_tolerance: a.change_tolerance,
+            consensus_radius: a.consensus_radius,
             fallback: a.fallback,
             ..d.recursive
         },

@@ -67,6 +67,9 @@ fn main() {
                 integrate: false,
                 ..Params::default()
             };
+            if let Ok(i) = std::env::var("PS_ITERS") {
+                params.recursive.max_iterations = i.parse().unwrap();
+            }
             // PS_KAPPA=0.02 fixes κ at another value; PS_KAPPA=measured measures it on the capture.
             if let Ok(k) = std::env::var("PS_KAPPA") {
                 params.detection.relative_noise = if k == "measured" {

@@ -1123,6 +1123,68 @@ impl<'a> Attributor<'a> {
         (stat, count)
     }
 
+    /// After the usable set of a pixel was changed from outside the attribution (the spatial
+    /// consensus of [`crate::consensus`]): the fit over the USED lights at full-frame pixel
+    /// `pixel`, the labels of the removed lights by the attribution's rule (SHADOW at the shadow
+    /// level, HIGHLIGHT brighter than the fit predicts, REJECTED darker), and the χ² statistic
+    /// (NaN below four lights) with the kept count.
+    pub fn settle_at(
+        &self,
+        pixel: usize,
+        grey: &[f64],
+        status: &mut [u8],
+        scratch: &mut AttributionScratch<'a>,
+    ) -> (f64, usize) {
+        let AttributionScratch(s, near) = scratch;
+        let test = match near.as_mut() {
+            None => &self.test,
+            Some(t) => match t.at(pixel) {
+                Some(t) => t,
+                None => {
+                    let count = status.iter().filter(|&&x| x == status::USED).count();
+                    return (f64::NAN, count);
+                }
+            },
+        };
+        let n = grey.len();
+        let level = grey.iter().sum::<f64>() / n as f64;
+        let (mut gram, mut b, mut count) = (Matrix3::zeros(), Vector3::zeros(), 0);
+        for (k, (w, &st)) in s.weight.iter_mut().zip(status.iter()).enumerate() {
+            *w = f64::from(u8::from(st == status::USED));
+            if st == status::USED {
+                let l = test.directions[k];
+                gram += l * l.transpose();
+                b += l * grey[k];
+                count += 1;
+            }
+        }
+        let Some(gram_inv) = gram.try_inverse().filter(|_| count >= 3) else {
+            return (f64::NAN, count);
+        };
+        let m = gram_inv * b;
+        let mut rss = 0.0;
+        for k in 0..n {
+            let e = grey[k] - test.directions[k].dot(&m);
+            rss += s.weight[k] * e * e;
+        }
+        let shadow_level = self.noise.shadow_level(self.params, level);
+        for k in (0..n).filter(|&k| s.weight[k] == 0.0) {
+            status[k] = if grey[k] <= shadow_level {
+                status::SHADOW
+            } else if grey[k] > test.directions[k].dot(&m) {
+                status::HIGHLIGHT
+            } else {
+                status::REJECTED
+            };
+        }
+        let stat = if count > 3 {
+            rss / self.noise.variance(level)
+        } else {
+            f64::NAN
+        };
+        (stat, count)
+    }
+
     /// The χ² threshold for `count` kept lights (infinite below four).
     pub fn threshold(&self, count: usize) -> f64 {
         if count > 3 {

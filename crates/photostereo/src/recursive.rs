@@ -92,6 +92,12 @@ pub struct RecursiveParams {
     /// pixels relative to the paper's brightest-lights choice, which feeds shadowed readings
     /// back into the solve.
     pub fallback: Fallback,
+    /// Radius of the spatial consensus of the usable lights ([`crate::consensus`]): each
+    /// light's removal at a pixel follows the majority of its (2r + 1)² neighbourhood in the
+    /// mask, where the pixel's readings pass the χ² test with that set. Default 2 (5 × 5): a
+    /// fault region narrower than three pixels is not told apart from the test's noise-level
+    /// decisions; 0 turns the consensus off (the paper's per-pixel decisions).
+    pub consensus_radius: usize,
 }
 
 impl Default for RecursiveParams {
@@ -101,6 +107,7 @@ impl Default for RecursiveParams {
             max_iterations: 5,
             change_tolerance: 0.002,
             fallback: Fallback::Neighbours,
+            consensus_radius: 2,
         }
     }
 }
@@ -270,13 +277,16 @@ pub fn recursive(
     let mut last_maps = None;
     let mut last_depth = Vec::new();
     let mut highlight = vec![false; np];
+    // The per-pixel decisions of the last iteration before the spatial consensus, for the
+    // hysteresis of the attribution.
+    let (mut raw_status, mut raw_consistent, mut raw_few): (Vec<u8>, Vec<bool>, Vec<bool>) =
+        (Vec::new(), Vec::new(), Vec::new());
     let truth_masked: Option<Vec<[f32; 3]>> =
         truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
     progress.begin("recursive", params.max_iterations as u64);
     // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
     // iteration that reached the smallest change so far (stall detection).
-    let mut seen: Vec<u64> = vec![fingerprint(&light_status)];
-    let mut best_change = (f64::INFINITY, 0usize);
+    let mut stop = StopRule::new(params, fingerprint(&light_status));
     let mut converged = false;
     let mut stop_reason = String::new();
     for iteration in 1..=params.max_iterations {
@@ -368,6 +378,24 @@ pub fn recursive(
                             // there, and the light stays for the test to judge.
                             let level = grey.iter().sum::<f64>() / n as f64;
                             let dark = noise.shadow_level(detection_params, level);
+                            // Hysteresis: a usable set that passed the test in the last
+                            // iteration and already drops every light the new surface shadows
+                            // (where the reading agrees) stays; the recursion then settles
+                            // instead of trading equally good sets between iterations.
+                            let previous = raw_status.get(p * n..(p + 1) * n).unwrap_or(&[]);
+                            if iteration > 1
+                                && raw_consistent[p]
+                                && !raw_few[p]
+                                && (0..n).all(|k| {
+                                    previous[k] != status::USED
+                                        || !(maps.is_shadowed(k, pix) && grey[k] <= dark)
+                                })
+                            {
+                                s.copy_from_slice(previous);
+                                cons[dp] = true;
+                                hl[dp] = highlight[p];
+                                continue;
+                            }
                             let mut shadowed = 0;
                             for (k, sk) in s.iter_mut().enumerate() {
                                 if maps.is_shadowed(k, pix) && grey[k] <= dark {
@@ -398,8 +426,68 @@ pub fn recursive(
                 );
             Ok(())
         })?;
+        // Spatial consensus: a fault is a region, not a pixel (see [`crate::consensus`]). The
+        // neighbourhood proposes, the test disposes: a pixel takes the filtered set only when
+        // its own readings pass the χ² test with it (labels follow the final fit); otherwise
+        // its own decisions stand.
+        raw_status.clone_from(&new_status);
+        raw_consistent.clone_from(&new_consistent);
+        raw_few.clone_from(&new_few);
+        if params.consensus_radius > 0 {
+            let min_kept =
+                ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
+            let (filtered, _) = crate::consensus::majority_filter(
+                capture,
+                &new_status,
+                params.consensus_radius,
+                min_kept,
+            );
+            let moved: Vec<usize> = (0..np)
+                .filter(|&p| {
+                    let (a, b) = (
+                        &filtered[p * n..(p + 1) * n],
+                        &new_status[p * n..(p + 1) * n],
+                    );
+                    a.iter()
+                        .zip(b)
+                        .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
+                })
+                .collect();
+            new_status = filtered;
+            if let Some(att) = attributor.as_ref() {
+                let view = if capture.is_tiled() {
+                    std::borrow::Cow::Owned(capture.sampled(&moved)?)
+                } else {
+                    std::borrow::Cow::Borrowed(capture)
+                };
+                let mut scratch = att.scratch();
+                let mut grey = vec![0f64; n];
+                for &p in &moved {
+                    channel_mean(view.pixel_samples(p), c, &mut grey);
+                    let pix = capture.pixels[p] as usize;
+                    let s = &mut new_status[p * n..(p + 1) * n];
+                    let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
+                    if count > 3 && stat <= att.threshold(count) {
+                        new_consistent[p] = true;
+                        new_few[p] = false;
+                    } else {
+                        // The neighbours' set does not fit this pixel's readings: the
+                        // pixel's own decisions stand (the test disposes).
+                        s.copy_from_slice(&raw_status[p * n..(p + 1) * n]);
+                    }
+                }
+            }
+        }
         let changed_pixels = (0..np)
-            .filter(|&p| new_status[p * n..(p + 1) * n] != light_status[p * n..(p + 1) * n])
+            .filter(|&p| {
+                let (a, b) = (
+                    &new_status[p * n..(p + 1) * n],
+                    &light_status[p * n..(p + 1) * n],
+                );
+                a.iter()
+                    .zip(b)
+                    .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
+            })
             .count();
         light_status = new_status;
         consistent = new_consistent;
@@ -441,58 +529,14 @@ pub fn recursive(
         on_iteration(&record);
         progress.advance(1);
         let change = record.changed_share;
-        let done = change < params.change_tolerance;
         records.push(record);
         last_maps = Some(maps);
         last_depth = depth.values;
-        if done {
-            converged = true;
-            stop_reason = format!(
-                "converged after {iteration} iterations: {:.2}% of the pixels changed their usable lights (tolerance {:.2}%)",
-                100.0 * change,
-                100.0 * params.change_tolerance
-            );
-            break;
-        }
-        // The same usable-light sets as an earlier iteration (not the last one: that would be
-        // no change): the recursion cycles and would never settle.
         let print = fingerprint(&light_status);
-        if seen.last() == Some(&print) {
-            // Only labels changed: the usable sets, hence the estimate, are settled.
-            converged = true;
-            stop_reason = format!(
-                "converged after {iteration} iterations: the usable-light sets did not change"
-            );
+        if let Some((done, reason)) = stop.after(iteration, change, print) {
+            converged = done;
+            stop_reason = reason;
             break;
-        }
-        if let Some(at) = seen.iter().rposition(|&f| f == print) {
-            stop_reason = format!(
-                "not converged: iteration {iteration} repeats the usable-light sets of iteration {at} (a cycle of period {}); {:.2}% of the pixels change per iteration against a tolerance of {:.2}%",
-                iteration - at,
-                100.0 * change,
-                100.0 * params.change_tolerance
-            );
-            break;
-        }
-        seen.push(print);
-        if change < best_change.0 {
-            best_change = (change, iteration);
-        } else if iteration - best_change.1 >= STALL_ITERATIONS {
-            stop_reason = format!(
-                "not converged: the change has not fallen below its smallest value ({:.2}% at iteration {}) for {STALL_ITERATIONS} iterations; {:.2}% of the pixels change per iteration against a tolerance of {:.2}%",
-                100.0 * best_change.0,
-                best_change.1,
-                100.0 * change,
-                100.0 * params.change_tolerance
-            );
-            break;
-        }
-        if iteration == params.max_iterations {
-            stop_reason = format!(
-                "not converged: stopped at the iteration limit ({iteration}) with {:.2}% of the pixels changing their usable lights (tolerance {:.2}%)",
-                100.0 * change,
-                100.0 * params.change_tolerance
-            );
         }
     }
     progress.end();
@@ -523,6 +567,84 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// When the recursion stops, and why: the usable-light sets settled (the share of pixels that
+/// changed fell below the tolerance, or the sets did not change), they cycle (an iteration
+/// repeats the sets of an earlier one, not the last), the change stalled (no new smallest
+/// change for [`STALL_ITERATIONS`] iterations), or the iteration limit.
+struct StopRule {
+    tolerance: f64,
+    max_iterations: usize,
+    /// Fingerprints of the usable-light sets after each iteration (the initial sets first).
+    seen: Vec<u64>,
+    /// The smallest change so far and its iteration.
+    best_change: (f64, usize),
+}
+
+impl StopRule {
+    fn new(params: &RecursiveParams, initial: u64) -> Self {
+        StopRule {
+            tolerance: params.change_tolerance,
+            max_iterations: params.max_iterations,
+            seen: vec![initial],
+            best_change: (f64::INFINITY, 0),
+        }
+    }
+
+    /// After `iteration` (from 1), whose sets have fingerprint `print` and changed at a share
+    /// `change` of the pixels: `Some((converged, reason))` to stop, `None` to go on (the
+    /// iteration limit gives `Some((false, …))`).
+    fn after(&mut self, iteration: usize, change: f64, print: u64) -> Option<(bool, String)> {
+        let (pct, tol) = (100.0 * change, 100.0 * self.tolerance);
+        if change < self.tolerance {
+            return Some((
+                true,
+                format!(
+                    "converged after {iteration} iterations: {pct:.2}% of the pixels changed their usable lights (tolerance {tol:.2}%)"
+                ),
+            ));
+        }
+        if self.seen.last() == Some(&print) {
+            // Only labels changed: the usable sets, hence the estimate, are settled.
+            return Some((
+                true,
+                format!(
+                    "converged after {iteration} iterations: the usable-light sets did not change"
+                ),
+            ));
+        }
+        if let Some(at) = self.seen.iter().rposition(|&f| f == print) {
+            return Some((
+                false,
+                format!(
+                    "not converged: iteration {iteration} repeats the usable-light sets of iteration {at} (a cycle of period {}); {pct:.2}% of the pixels change per iteration against a tolerance of {tol:.2}%",
+                    iteration - at
+                ),
+            ));
+        }
+        self.seen.push(print);
+        if change < self.best_change.0 {
+            self.best_change = (change, iteration);
+        } else if iteration - self.best_change.1 >= STALL_ITERATIONS {
+            return Some((
+                false,
+                format!(
+                    "not converged: the change has not fallen below its smallest value ({:.2}% at iteration {}) for {STALL_ITERATIONS} iterations; {pct:.2}% of the pixels change per iteration against a tolerance of {tol:.2}%",
+                    100.0 * self.best_change.0,
+                    self.best_change.1
+                ),
+            ));
+        }
+        (iteration >= self.max_iterations).then(|| {
+            (
+                false,
+                format!(
+                    "not converged: stopped at the iteration limit ({iteration}) with {pct:.2}% of the pixels changing their usable lights (tolerance {tol:.2}%)"
+                ),
+            )
+        })
+    }
 }
 
 /// Iterations without a new smallest change after which the recursion is declared stalled
@@ -781,4 +903,65 @@ fn mean_error(normals: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
         }
     }
     sum / count.max(1) as f64
+}
+
+#[cfg(test)]
+mod stop_tests {
+    use super::*;
+
+    fn rule(tolerance: f64, max_iterations: usize) -> StopRule {
+        let params = RecursiveParams {
+            change_tolerance: tolerance,
+            max_iterations,
+            ..RecursiveParams::default()
+        };
+        StopRule::new(&params, 100)
+    }
+
+    #[test]
+    fn settling_below_the_tolerance_or_unchanged_sets_converge() {
+        let mut r = rule(0.01, 50);
+        assert_eq!(r.after(1, 0.2, 1), None);
+        let (done, why) = r.after(2, 0.005, 2).unwrap();
+        assert!(done && why.contains("0.50%"), "{why}");
+        let mut r = rule(0.0, 50);
+        assert_eq!(r.after(1, 0.2, 1), None);
+        let (done, why) = r.after(2, 0.0, 1).unwrap();
+        assert!(done && why.contains("did not change"), "{why}");
+    }
+
+    #[test]
+    fn a_repeated_set_is_a_cycle_with_its_period() {
+        let mut r = rule(0.001, 1000);
+        for (i, print) in [1u64, 2, 3].into_iter().enumerate() {
+            assert_eq!(r.after(i + 1, 0.1, print), None);
+        }
+        // Iteration 4 repeats iteration 2's sets: period 2.
+        let (done, why) = r.after(4, 0.1, 2).unwrap();
+        assert!(
+            !done && why.contains("iteration 2") && why.contains("period 2"),
+            "{why}"
+        );
+        // The initial sets count too (iteration 0).
+        let mut r = rule(0.001, 1000);
+        assert_eq!(r.after(1, 0.1, 7), None);
+        let (done, why) = r.after(2, 0.1, 100).unwrap();
+        assert!(!done && why.contains("period 2"), "{why}");
+    }
+
+    #[test]
+    fn a_stall_and_the_limit_stop_without_convergence() {
+        let mut r = rule(0.001, 1000);
+        assert_eq!(r.after(1, 0.05, 1), None);
+        for i in 2..=STALL_ITERATIONS {
+            assert_eq!(r.after(i, 0.06, i as u64), None, "iteration {i}");
+        }
+        let (done, why) = r.after(STALL_ITERATIONS + 1, 0.06, 999).unwrap();
+        assert!(!done && why.contains("has not fallen"), "{why}");
+        let mut r = rule(0.001, 3);
+        assert_eq!(r.after(1, 0.3, 1), None);
+        assert_eq!(r.after(2, 0.2, 2), None);
+        let (done, why) = r.after(3, 0.1, 3).unwrap();
+        assert!(!done && why.contains("iteration limit (3)"), "{why}");
+    }
 }

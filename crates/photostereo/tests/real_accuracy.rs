@@ -122,34 +122,28 @@ fn attached_shadows_are_labelled_shadows() {
     }
 }
 
-/// A 64² sphere under the eight-light ring cycles between the same usable-light sets: with an
-/// iteration limit of a million the recursion ends at once, says `converged: false` and why.
+/// A 64² sphere under the eight-light ring used to cycle between the same usable-light sets
+/// (period 2, "not converged"); with the attribution's hysteresis (a set that passed the test
+/// and agrees with the new surface's shadows stays) it settles within the default limit and
+/// says so. (The stop rule's cycle, stall and limit verdicts are unit-tested in
+/// `recursive::stop_tests`.)
 #[test]
-fn a_cycling_recursion_ends_and_says_so() {
+fn the_recursion_settles_where_it_used_to_cycle() {
     let mut spec = SynthSpec::new(SceneKind::Sphere, Rig::Ring(8));
     spec.size = 64;
     spec.render.brdf = Brdf::BlinnPhong;
     let capture = synthesize(&spec).unwrap().capture().unwrap();
-    let mut params = Params {
+    let params = Params {
         integrate: false,
         ..Params::default()
     };
-    params.recursive.max_iterations = 1_000_000;
-    let start = std::time::Instant::now();
     let rec = reconstruct(&capture, &params, &Silent).unwrap();
     let r = &rec.report.extra["recursive"];
     let iterations = r["iterations"].as_array().unwrap().len();
-    assert!(
-        iterations <= 20 && start.elapsed().as_secs() < 60,
-        "{iterations}"
-    );
-    assert_eq!(r["converged"], false, "{r}");
+    assert_eq!(r["converged"], true, "{r}");
+    assert!(iterations < params.recursive.max_iterations, "{iterations}");
     let reason = r["stop_reason"].as_str().unwrap();
-    assert!(reason.contains("cycle"), "{reason}");
-    assert!(r["final_change"].as_f64().unwrap() >= params.recursive.change_tolerance);
-    assert!(rec
-        .report
-        .notes
-        .iter()
-        .any(|n| n.contains("not converged") && n.contains("cycle")));
+    assert!(reason.starts_with("converged after"), "{reason}");
+    assert!(r["final_change"].as_f64().unwrap() < params.recursive.change_tolerance);
+    assert!(!rec.report.notes.iter().any(|n| n.contains("not converged")));
 }

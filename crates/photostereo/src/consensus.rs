@@ -1,0 +1,213 @@
+//! Spatial consistency of light statuses (issue 19): a light's fault at a pixel — a shadow, a
+//! highlight, a reading off the model — is a region on the object, not a single pixel. Cast and
+//! attached shadows and highlights have extent; a removal that none of a pixel's neighbours
+//! share is the χ² test's noise-level decision, and so is a kept light that every neighbour
+//! drops. Per light, a pixel's removal is replaced by the majority of its square neighbourhood
+//! inside the mask (itself included). This is what keeps the recursive normal field as smooth as
+//! the least-squares one where the surface is: neighbouring pixels use the same lights, so they
+//! share the same model error instead of switching between subsets with different biases.
+//!
+//! Statuses are per mask pixel and light (`n_pixels * n_lights`, the layout of
+//! [`crate::detect::Detection::light_status`]).
+
+use crate::capture::Capture;
+use crate::lambert::{status, CHUNK};
+use rayon::prelude::*;
+
+/// The majority filter of the removals of each light over the (2·`radius` + 1)² neighbourhood
+/// of every mask pixel (neighbours outside the mask do not vote). A pixel whose filtered set
+/// would keep fewer than `min_kept` lights keeps its own statuses. A light newly removed takes
+/// the label most of its removing neighbours gave it; a light newly kept becomes USED.
+///
+/// Returns the filtered statuses and the number of mask pixels whose usable set changed.
+pub fn majority_filter(
+    capture: &Capture,
+    light_status: &[u8],
+    radius: usize,
+    min_kept: usize,
+) -> (Vec<u8>, usize) {
+    let n = capture.n_lights();
+    let np = capture.n_pixels();
+    let (w, h) = (capture.width, capture.height);
+    debug_assert_eq!(light_status.len(), np * n);
+    // Mask index of each frame pixel (u32::MAX outside).
+    let mut index = vec![u32::MAX; w * h];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        index[i as usize] = p as u32;
+    }
+    let mut out = light_status.to_vec();
+    let changed: usize = out
+        .par_chunks_mut(CHUNK * n)
+        .enumerate()
+        .map_init(
+            || {
+                (
+                    vec![[0u32; 4]; n],
+                    Vec::with_capacity((2 * radius + 1).pow(2)),
+                )
+            },
+            |(votes, neighbours), (chunk, rows)| {
+                let mut changed = 0;
+                for (dp, row) in rows.chunks_mut(n).enumerate() {
+                    let p = chunk * CHUNK + dp;
+                    let pix = capture.pixels[p] as usize;
+                    let (r, c) = (pix / w, pix % w);
+                    neighbours.clear();
+                    for rr in r.saturating_sub(radius)..(r + radius + 1).min(h) {
+                        for cc in c.saturating_sub(radius)..(c + radius + 1).min(w) {
+                            let q = index[rr * w + cc];
+                            if q != u32::MAX {
+                                neighbours.push(q as usize);
+                            }
+                        }
+                    }
+                    let total = neighbours.len() as u32;
+                    for v in votes.iter_mut() {
+                        *v = [0; 4];
+                    }
+                    for &q in neighbours.iter() {
+                        let st = &light_status[q * n..(q + 1) * n];
+                        for (v, &s) in votes.iter_mut().zip(st) {
+                            if s != status::USED && (s as usize) < 4 {
+                                v[s as usize] += 1;
+                            }
+                        }
+                    }
+                    let own = &light_status[p * n..(p + 1) * n];
+                    let mut kept = 0;
+                    let mut differs = false;
+                    for k in 0..n {
+                        let removals = votes[k][1] + votes[k][2] + votes[k][3];
+                        let removed = 2 * removals > total;
+                        row[k] = if !removed {
+                            status::USED
+                        } else if own[k] != status::USED {
+                            own[k]
+                        } else {
+                            // The label most removing neighbours gave.
+                            (1..4u8).max_by_key(|&s| votes[k][s as usize]).unwrap()
+                        };
+                        kept += usize::from(!removed);
+                        differs |= (row[k] == status::USED) != (own[k] == status::USED);
+                    }
+                    if kept < min_kept {
+                        row.copy_from_slice(own);
+                    } else if differs {
+                        changed += 1;
+                    }
+                }
+                changed
+            },
+        )
+        .sum();
+    (out, changed)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::fixtures::{lambert_sphere, ring};
+    use crate::rng::Pcg32;
+
+    /// Against a direct count over the neighbourhood, on random statuses over a sphere's mask
+    /// (whose border pixels have partial neighbourhoods).
+    #[test]
+    fn the_filter_is_the_neighbourhood_majority() {
+        let (capture, _) = lambert_sphere(40, 15.0, &ring(8, 30.0));
+        let (n, np, w) = (capture.n_lights(), capture.n_pixels(), capture.width);
+        let mut rng = Pcg32::new(19, 0);
+        let statuses: Vec<u8> = (0..np * n)
+            .map(|_| match rng.next_u32() % 10 {
+                0..=5 => status::USED,
+                6 | 7 => status::SHADOW,
+                8 => status::HIGHLIGHT,
+                _ => status::REJECTED,
+            })
+            .collect();
+        for radius in [1usize, 2] {
+            let (out, changed) = majority_filter(&capture, &statuses, radius, 3);
+            let mut expect_changed = 0;
+            for p in 0..np {
+                let (r, c) = (
+                    capture.pixels[p] as usize / w,
+                    capture.pixels[p] as usize % w,
+                );
+                let neighbours: Vec<usize> = (0..np)
+                    .filter(|&q| {
+                        let (rq, cq) = (
+                            capture.pixels[q] as usize / w,
+                            capture.pixels[q] as usize % w,
+                        );
+                        rq.abs_diff(r) <= radius && cq.abs_diff(c) <= radius
+                    })
+                    .collect();
+                let removed: Vec<bool> = (0..n)
+                    .map(|k| {
+                        let votes = neighbours
+                            .iter()
+                            .filter(|&&q| statuses[q * n + k] != status::USED)
+                            .count();
+                        2 * votes > neighbours.len()
+                    })
+                    .collect();
+                let own = &statuses[p * n..(p + 1) * n];
+                let row = &out[p * n..(p + 1) * n];
+                if removed.iter().filter(|&&x| !x).count() < 3 {
+                    assert_eq!(row, own, "pixel {p} keeps its own statuses");
+                    continue;
+                }
+                let mut differs = false;
+                for k in 0..n {
+                    assert_eq!(row[k] != status::USED, removed[k], "pixel {p} light {k}");
+                    if removed[k] && own[k] != status::USED {
+                        assert_eq!(row[k], own[k], "own label kept");
+                    }
+                    differs |= removed[k] != (own[k] != status::USED);
+                }
+                expect_changed += usize::from(differs);
+            }
+            assert_eq!(changed, expect_changed);
+            assert!(
+                changed > np / 2,
+                "random statuses mostly change: {changed}/{np}"
+            );
+        }
+    }
+
+    /// A removal no neighbour shares is dropped; a region of removals stays but for its
+    /// corners (a 6×6 block under a 5×5 window).
+    #[test]
+    fn isolated_removals_go_and_regions_stay() {
+        let (capture, _) = lambert_sphere(40, 18.0, &ring(8, 30.0));
+        let (n, np, w) = (capture.n_lights(), capture.n_pixels(), capture.width);
+        let at = |r: usize, c: usize| capture.pixels.iter().position(|&i| i as usize == r * w + c);
+        let mut statuses = vec![status::USED; np * n];
+        let lone = at(20, 20).unwrap();
+        statuses[lone * n + 2] = status::HIGHLIGHT;
+        let mut block = Vec::new();
+        for r in 8..14 {
+            for c in 17..23 {
+                let p = at(r, c).unwrap();
+                statuses[p * n + 5] = status::SHADOW;
+                block.push(p);
+            }
+        }
+        let (out, changed) = majority_filter(&capture, &statuses, 2, 3);
+        assert_eq!(out[lone * n + 2], status::USED);
+        let mut kept_in_block = 0;
+        for &p in &block {
+            let (r, c) = (
+                capture.pixels[p] as usize / w,
+                capture.pixels[p] as usize % w,
+            );
+            let inner = (9..13).contains(&r) && (18..22).contains(&c);
+            let shadow = out[p * n + 5] == status::SHADOW;
+            assert!(shadow || !inner, "({r}, {c}) inside the region");
+            kept_in_block += usize::from(shadow);
+        }
+        // Only pixels near the block's corners fall (fewer than 13 of their 25 neighbours
+        // remove the light): 2 at each corner.
+        assert_eq!(kept_in_block, 36 - 4 * 3);
+        assert_eq!(changed, 1 + 4 * 3);
+    }
+}
