@@ -1163,9 +1163,9 @@ impl<'a> Attributor<'a> {
         };
         let m = gram_inv * b;
         let mut rss = 0.0;
-        for k in 0..n {
-            let e = grey[k] - test.directions[k].dot(&m);
-            rss += s.weight[k] * e * e;
+        for ((&g, l), &w) in grey.iter().zip(&test.directions).zip(&s.weight) {
+            let e = g - l.dot(&m);
+            rss += w * e * e;
         }
         let shadow_level = self.noise.shadow_level(self.params, level);
         for k in (0..n).filter(|&k| s.weight[k] == 0.0) {
