@@ -384,8 +384,12 @@ pub struct IntegrationStats {
     pub components: usize,
     /// Pixels whose gradients were interpolated (weight below `fill_below`).
     pub filled_pixels: usize,
-    /// Multigrid levels (`poisson`).
+    /// Multigrid levels (`poisson`; 0 when solved directly).
     pub levels: usize,
+    /// `poisson` only: the mask covered the whole rectangle with unit weights, so its equations
+    /// — the same as `dct`'s there — were solved exactly by the DCT (0 iterations; the relative
+    /// residual is the true one of the solution).
+    pub direct: bool,
     pub notes: Vec<String>,
 }
 
@@ -587,6 +591,7 @@ impl Surface {
             "iterations": self.depth.stats.iterations,
             "relative_residual": self.depth.stats.relative_residual,
             "levels": self.depth.stats.levels,
+            "direct": self.depth.stats.direct,
             "components": self.depth.stats.components,
             "filled_pixels": self.depth.stats.filled_pixels,
             "mean_abs_curl": self.mean_abs_curl,
