@@ -214,7 +214,7 @@ impl Poisson {
         let (p, q) = (problem.p, problem.q);
         let g = |i: usize| (p[i] as f64, q[i] as f64);
         let (f, relative_residual) =
-            super::spectral::dct_solve(w, h, &g, problem.mask, problem.prior, true);
+            super::spectral::dct_solve(w, h, g, problem.mask, problem.prior, true);
         progress.advance(1);
         progress.end();
         let mut notes = Vec::new();

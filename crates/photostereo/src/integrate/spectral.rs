@@ -119,37 +119,52 @@ fn transpose(src: &[f64], w: usize, h: usize, dst: &mut [f64]) {
 ///
 /// Two transposes: DCT-II along rows, transpose, DCT-II along columns, the division by the
 /// eigenvalues, DCT-III along columns (still transposed), transpose back, DCT-III along rows.
-pub(super) fn dct_solve(
+pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
     w: usize,
     h: usize,
-    g: &(dyn Fn(usize) -> (f64, f64) + Sync),
+    g: G,
     mask: &[bool],
     prior: Option<super::Prior>,
     residual: bool,
 ) -> (Vec<f64>, f64) {
     let lambda = prior.map_or(0.0, |pr| pr.lambda as f64);
-    // b at pixel i (see `Dct`): −div of the edge targets, plus the prior's pull.
-    let rhs = |i: usize, r: usize, c: usize| -> f64 {
-        let (pi, qi) = g(i);
-        let mut s = 0f64;
-        if c + 1 < w {
-            s -= 0.5 * (pi + g(i + 1).0);
+    // Row r of b (see `Dct`): −div of the edge targets, plus the prior's pull; `rows` is a
+    // scratch of 4 · w values (p of row r, q of rows r − 1, r, r + 1; 0 beyond the grid).
+    let rhs_row = |r: usize, rows: &mut [f64], out: &mut [f64]| {
+        let (pr, rest) = rows.split_at_mut(w);
+        let (qu, rest) = rest.split_at_mut(w);
+        let (qm, qd) = rest.split_at_mut(w);
+        let lo = r * w;
+        for c in 0..w {
+            let (p, q) = g(lo + c);
+            pr[c] = p;
+            qm[c] = q;
+            qu[c] = if r > 0 { g(lo + c - w).1 } else { 0.0 };
+            qd[c] = if r + 1 < h { g(lo + c + w).1 } else { 0.0 };
         }
-        if c > 0 {
-            s += 0.5 * (pi + g(i - 1).0);
-        }
-        if r + 1 < h {
-            s -= 0.5 * (qi + g(i + w).1);
-        }
-        if r > 0 {
-            s += 0.5 * (qi + g(i - w).1);
+        for c in 0..w {
+            let mut s = 0f64;
+            if c + 1 < w {
+                s -= 0.5 * (pr[c] + pr[c + 1]);
+            }
+            if c > 0 {
+                s += 0.5 * (pr[c] + pr[c - 1]);
+            }
+            if r + 1 < h {
+                s -= 0.5 * (qm[c] + qd[c]);
+            }
+            if r > 0 {
+                s += 0.5 * (qm[c] + qu[c]);
+            }
+            out[c] = s;
         }
         if let Some(pr) = prior {
-            if mask[i] {
-                s += lambda * pr.depth[i] as f64;
+            for c in 0..w {
+                if mask[lo + c] {
+                    out[c] += lambda * pr.depth[lo + c] as f64;
+                }
             }
         }
-        s
     };
     let mut planner = DctPlanner::<f64>::new();
     let (dw, dh) = (planner.plan_dct2(w), planner.plan_dct2(h));
@@ -160,13 +175,10 @@ pub(super) fn dct_solve(
         .par_chunks_mut(w)
         .enumerate()
         .map_init(
-            || vec![0f64; sw],
-            |scratch, (r, row)| {
-                let mut sq = 0f64;
-                for (c, v) in row.iter_mut().enumerate() {
-                    *v = rhs(r * w + c, r, c);
-                    sq += *v * *v;
-                }
+            || (vec![0f64; sw], vec![0f64; 4 * w]),
+            |(scratch, rows), (r, row)| {
+                rhs_row(r, rows, row);
+                let sq = row.iter().map(|v| v * v).sum::<f64>();
                 dw.process_dct2_with_scratch(row, scratch);
                 sq
             },
@@ -216,28 +228,32 @@ pub(super) fn dct_solve(
     }
     let res_sq: f64 = (0..h)
         .into_par_iter()
-        .map(|r| {
-            let mut sq = 0f64;
-            for c in 0..w {
-                let i = r * w + c;
-                let mut a = lambda * f[i];
-                if c + 1 < w {
-                    a += f[i] - f[i + 1];
+        .map_init(
+            || (vec![0f64; 4 * w], vec![0f64; w]),
+            |(rows, b), r| {
+                rhs_row(r, rows, b);
+                let mut sq = 0f64;
+                for c in 0..w {
+                    let i = r * w + c;
+                    let mut a = lambda * f[i];
+                    if c + 1 < w {
+                        a += f[i] - f[i + 1];
+                    }
+                    if c > 0 {
+                        a += f[i] - f[i - 1];
+                    }
+                    if r + 1 < h {
+                        a += f[i] - f[i + w];
+                    }
+                    if r > 0 {
+                        a += f[i] - f[i - w];
+                    }
+                    let d = b[c] - a;
+                    sq += d * d;
                 }
-                if c > 0 {
-                    a += f[i] - f[i - 1];
-                }
-                if r + 1 < h {
-                    a += f[i] - f[i + w];
-                }
-                if r > 0 {
-                    a += f[i] - f[i - w];
-                }
-                let d = rhs(i, r, c) - a;
-                sq += d * d;
-            }
-            sq
-        })
+                sq
+            },
+        )
         .sum();
     (f, (res_sq / b_sq).sqrt())
 }
@@ -260,7 +276,7 @@ impl Integrator for Dct {
                 (0.0, 0.0)
             }
         };
-        let (f, _) = dct_solve(w, h, &g, mask, problem.prior, false);
+        let (f, _) = dct_solve(w, h, g, mask, problem.prior, false);
         drop((p, q));
         progress.advance(1);
         progress.end();
