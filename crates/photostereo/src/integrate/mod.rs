@@ -623,15 +623,6 @@ pub fn surface_from_normals(
         ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
     };
     let depth = integrator.integrate(&problem, progress)?;
-    let t3 = std::time::Instant::now();
-    if std::env::var_os("PS_PROF").is_some() {
-        eprintln!(
-            "PROF grad {:?} curl {:?} solve {:?}",
-            t1 - t0,
-            t2 - t1,
-            t3 - t2
-        );
-    }
     Ok(Surface {
         depth,
         curl,
