@@ -22,11 +22,12 @@ now() { date +%s.%N; }
 declare -A T
 for ((k = 0; k < RUNS; k++)); do
   for m in scipy dct poisson; do
+    rm -rf "${DIR:?}/$m" "$DIR/$m.npy"   # each run writes afresh (no --force removal timed)
     t0=$(now)
     if [ $m = scipy ]; then
-      "$PY" "$ROOT/benches/scipy_dct.py" "$DIR/normals.npy" "$DIR/scipy.npy"
+      "$PY" "$ROOT/benches/scipy_dct.py" "$DIR/normals.npy" "$DIR/$m.npy"
     else
-      "$B" integrate "$DIR/normals.npy" --method $m --no-mesh -o "$DIR/$m" --force --quiet
+      "$B" integrate "$DIR/normals.npy" --method $m --no-mesh -o "$DIR/$m" --quiet
     fi
     t1=$(now)
     T[$m]+="$(echo "$t1 - $t0" | bc) "

@@ -38,15 +38,21 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
 
 /// `depth.png`: 16-bit grey, the finite depths' min..max mapped to 0..65535, 0 elsewhere.
 fn write_depth_png(path: &Path, width: usize, height: usize, depth: &[f32]) -> Result<()> {
+    use rayon::prelude::*;
     let (lo, hi) = depth
-        .iter()
+        .par_iter()
         .filter(|v| v.is_finite())
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
+        .fold(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |(a, b), &v| (a.min(v), b.max(v)),
+        )
+        .reduce(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |x, y| (x.0.min(y.0), x.1.max(y.1)),
+        );
     let span = if hi > lo { hi - lo } else { 1.0 };
     let png: Vec<u16> = depth
-        .iter()
+        .par_iter()
         .map(|&v| {
             if v.is_finite() {
                 (((v - lo) / span).clamp(0.0, 1.0) * 65535.0).round() as u16
