@@ -233,7 +233,7 @@ pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
             |(rows, b), r| {
                 rhs_row(r, rows, b);
                 let mut sq = 0f64;
-                for c in 0..w {
+                for (c, &bc) in b.iter().enumerate() {
                     let i = r * w + c;
                     let mut a = lambda * f[i];
                     if c + 1 < w {
@@ -248,7 +248,7 @@ pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
                     if r > 0 {
                         a += f[i] - f[i - w];
                     }
-                    let d = b[c] - a;
+                    let d = bc - a;
                     sq += d * d;
                 }
                 sq
