@@ -482,8 +482,12 @@ pub fn write_surface_camera(
     depth.and(curl)?;
     if meshes {
         let (w, h) = (d.width, d.height);
-        write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera)?;
-        write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera)?;
+        // Two files: one's page-cache copies overlap the other's formatting.
+        let (ply, obj) = rayon::join(
+            || write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera),
+            || write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera),
+        );
+        ply.and(obj)?;
     }
     Ok(())
 }
