@@ -14,6 +14,7 @@ use photostereo::metrics::{evaluate, ErrorStats};
 use photostereo::pipeline::{write_reconstruction, RunOptions};
 use photostereo::progress::Silent;
 use photostereo::scene::{synthesize, write_capture, Brdf, Rig, SceneKind, SynthSpec};
+use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -62,12 +63,31 @@ pub fn main(a: DemoArgs) -> Result<()> {
     let folder = OutputFolder::create(&a.output, a.out.force || ours)?;
     std::fs::write(folder.file(MARKER), "written by photostereo demo\n")?;
     let start = Instant::now();
+    // Every (rig, scene) pair is independent (fixed seeds): all of them, and the near-light
+    // line, run side by side; the results are gathered in the tables' order.
+    for rig in &rigs {
+        make_dirs(folder.path(), &folder.path().join(rig.name()))?;
+    }
+    let jobs: Vec<(&Rig, SceneKind)> = rigs
+        .iter()
+        .flat_map(|rig| SceneKind::ALL.iter().map(move |&kind| (rig, kind)))
+        .collect();
+    let root = folder.path();
+    let (scenes, near) = rayon::join(
+        || {
+            jobs.par_iter()
+                .map(|&(rig, kind)| run_scene(rig, kind, root, a.size))
+                .collect::<Result<Vec<_>>>()
+        },
+        || near_line(a.size),
+    );
+    let (scenes, near) = (scenes?, near?);
     let mut rows: Vec<Row> = Vec::new();
     let mut scene_stats = Vec::new();
-    for rig in &rigs {
-        run_rig(rig, folder.path(), a.size, &mut rows, &mut scene_stats)?;
+    for (scene_rows, stats) in scenes {
+        rows.extend(scene_rows);
+        scene_stats.push(stats);
     }
-    let near = near_line(a.size)?;
     let elapsed = start.elapsed().as_secs_f64();
     let target = folder.commit()?;
     if a.out.json {
@@ -187,16 +207,22 @@ fn make_dirs(root: &std::path::Path, dir: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
-/// Renders the six scenes under one rig, runs every method, writes captures, outputs and one
-/// figure per scene under `root`.
-fn run_rig(
+/// What one scene gives the tables: a row per method, and the capture's statistics.
+type SceneResult = (
+    Vec<Row>,
+    (String, &'static str, photostereo::scene::CaptureStats),
+);
+
+/// Renders one scene under one rig, runs every method, writes the capture, the outputs and the
+/// scene's figure under `root` (the rig's folder must exist).
+fn run_scene(
     rig: &Rig,
+    kind: SceneKind,
     root: &std::path::Path,
     size: usize,
-    rows: &mut Vec<Row>,
-    scene_stats: &mut Vec<(String, &'static str, photostereo::scene::CaptureStats)>,
-) -> Result<()> {
-    for &kind in SceneKind::ALL {
+) -> Result<SceneResult> {
+    let mut rows = Vec::new();
+    {
         let mut spec = SynthSpec::new(kind, rig.clone());
         spec.size = size;
         spec.render.brdf = Brdf::BlinnPhong;
@@ -305,9 +331,8 @@ fn run_rig(
             rig.name(),
             kind.name()
         )))?;
-        scene_stats.push((rig.name(), kind.name(), rendered.stats.clone()));
+        Ok((rows, (rig.name(), kind.name(), rendered.stats.clone())))
     }
-    Ok(())
 }
 
 /// The 95th percentile of the finite values (0 when none).

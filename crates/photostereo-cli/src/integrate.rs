@@ -154,12 +154,15 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
         )?,
     };
     report.time("integrate", t);
-    report.input.mask_pixels = surface
-        .depth
-        .values
-        .iter()
-        .filter(|v| v.is_finite())
-        .count();
+    report.input.mask_pixels = {
+        use rayon::prelude::*;
+        surface
+            .depth
+            .values
+            .par_iter()
+            .filter(|v| v.is_finite())
+            .count()
+    };
     // NaN/infinite vectors of the file were read as "no data": count them as invalid (with a
     // mask they already are, as zero vectors inside it).
     let invalid = surface.rejected_invalid + if mask.is_none() { map.non_finite } else { 0 };

@@ -1,5 +1,6 @@
 //! Integration benchmarks: `poisson` on a full 4096² grid and on a 1024² irregular mask, `dct`
-//! on a full 1024² grid. Keep runs short:
+//! on a full 1024² grid; `poisson` on a full rectangle solves directly by the DCT unless
+//! `direct_on_rectangle` is off (`poisson_multigrid_full_1024`). Keep runs short:
 //! `RAYON_NUM_THREADS=2 cargo bench -p photostereo --bench integrate -- --warm-up-time 1 --measurement-time 3`
 //! (the 4096² case alone takes several seconds per sample; filter it with `poisson_full_4096`).
 
@@ -50,6 +51,14 @@ fn bench(c: &mut Criterion) {
         });
         g.bench_function("poisson_full_1024", |b| {
             b.iter(|| black_box(Poisson::default().integrate(&problem, &Silent).unwrap()))
+        });
+        // The same problem by multigrid CG (what any mask or weight gets).
+        let multigrid = Poisson {
+            direct_on_rectangle: false,
+            ..Poisson::default()
+        };
+        g.bench_function("poisson_multigrid_full_1024", |b| {
+            b.iter(|| black_box(multigrid.integrate(&problem, &Silent).unwrap()))
         });
     }
     {

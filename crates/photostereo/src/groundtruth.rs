@@ -192,6 +192,37 @@ pub fn decode_npy(bytes: &[u8]) -> Result<NormalMap, String> {
         pixels.saturating_mul(3 * 8 + 12),
         &format!("declares {w}×{h} normals: reading them"),
     )?;
+    // The common case — little-endian float32 in C order — straight from the bytes, rows in
+    // parallel (one pass, no intermediate array). The header check above guarantees the bytes.
+    let little_f4 = matches!(header.descr.as_str(), "<f4" | "|f4")
+        || (header.descr == "=f4" && cfg!(target_endian = "little"));
+    if !header.fortran_order && little_f4 {
+        let (w, h) = (w as usize, h as usize);
+        let data = &bytes[header.data_offset..header.data_offset + w * h * 12];
+        let mut normals = vec![[0f32; 3]; w * h];
+        use rayon::prelude::*;
+        let non_finite = normals
+            .par_chunks_mut(w.max(1))
+            .zip(data.par_chunks(12 * w.max(1)))
+            .map(|(row, raw)| {
+                let mut bad = 0usize;
+                for (o, px) in row.iter_mut().zip(raw.chunks_exact(12)) {
+                    let v = [0, 4, 8]
+                        .map(|k| f32::from_le_bytes([px[k], px[k + 1], px[k + 2], px[k + 3]]));
+                    let c = clean(v);
+                    bad += usize::from(c != v);
+                    *o = c;
+                }
+                bad
+            })
+            .sum();
+        return Ok(NormalMap {
+            width: w,
+            height: h,
+            normals,
+            non_finite,
+        });
+    }
     use ndarray_npy::ReadNpyExt;
     let arr: ndarray::Array3<f32> = match ndarray::Array3::<f32>::read_npy(bytes) {
         Ok(a) => a,
@@ -337,5 +368,48 @@ mod tests {
         let e = decode_npy(&npy("ѝf8")).unwrap_err();
         assert!(e.contains("'ѝf8'"), "{e}");
         assert!(decode_npy(&npy("<f8")).is_ok());
+    }
+
+    /// float32 in C order (the direct path), in Fortran order and float64 (through ndarray)
+    /// decode to the same vectors, non-finite ones read as zero and counted.
+    #[test]
+    fn npy_float32_c_order_matches_the_general_decoder() {
+        use ndarray::ShapeBuilder;
+        use ndarray_npy::WriteNpyExt;
+        let (h, w) = (3usize, 5usize);
+        let value = |r: usize, c: usize, k: usize| -> f32 {
+            match (r * w + c, k) {
+                (4, 1) => f32::NAN,
+                (9, 2) => f32::INFINITY,
+                (i, k) => 0.1 * i as f32 - 0.7 * k as f32 + 0.05,
+            }
+        };
+        let c_order = ndarray::Array3::from_shape_fn((h, w, 3), |(r, c, k)| value(r, c, k));
+        let f_order = ndarray::Array3::from_shape_fn((h, w, 3).f(), |(r, c, k)| value(r, c, k));
+        let f64s = c_order.mapv(|v| v as f64);
+        let encode = |write: &dyn Fn(&mut Vec<u8>)| {
+            let mut b = Vec::new();
+            write(&mut b);
+            decode_npy(&b).unwrap()
+        };
+        let maps = [
+            encode(&|b| c_order.write_npy(b).unwrap()),
+            encode(&|b| f_order.write_npy(b).unwrap()),
+            encode(&|b| f64s.write_npy(b).unwrap()),
+        ];
+        for m in &maps {
+            assert_eq!((m.width, m.height, m.non_finite), (w, h, 2));
+            for r in 0..h {
+                for c in 0..w {
+                    let i = r * w + c;
+                    let want = if i == 4 || i == 9 {
+                        [0.0; 3]
+                    } else {
+                        [0, 1, 2].map(|k| value(r, c, k))
+                    };
+                    assert_eq!(m.normals[i], want, "pixel {i}");
+                }
+            }
+        }
     }
 }

@@ -493,10 +493,16 @@ pub fn write_png16(
     channels: usize,
     data: &[u16],
 ) -> Result<()> {
-    let mut bytes = Vec::with_capacity(data.len() * 2);
-    for v in data {
-        bytes.extend_from_slice(&v.to_be_bytes());
-    }
+    use rayon::prelude::*;
+    let mut bytes = vec![0u8; data.len() * 2];
+    bytes
+        .par_chunks_mut(1 << 16)
+        .zip(data.par_chunks(1 << 15))
+        .for_each(|(out, vals)| {
+            for (o, v) in out.chunks_exact_mut(2).zip(vals) {
+                o.copy_from_slice(&v.to_be_bytes());
+            }
+        });
     write_png(
         path,
         width,
@@ -559,19 +565,26 @@ fn write_png(
 
 /// Writes a float RGB OpenEXR file from interleaved samples (`height * width * 3`).
 pub fn write_exr_rgb(path: &Path, width: usize, height: usize, data: &[f32]) -> Result<()> {
-    exr::prelude::write_rgb_file(path, width, height, |x, y| {
+    use exr::prelude::*;
+    // Uncompressed scan lines: float maps hardly compress (RLE saved nothing on depth and
+    // normal maps) and this writes at memory speed.
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
         let i = (y * width + x) * 3;
         (data[i], data[i + 1], data[i + 2])
-    })
-    .map_err(|e| Error::file(path, format!("OpenEXR encoding failed: {e}")))
+    });
+    exr::prelude::Image::from_encoded_channels((width, height), Encoding::UNCOMPRESSED, channels)
+        .write()
+        .to_file(path)
+        .map_err(|e| crate::error::Error::file(path, format!("OpenEXR encoding failed: {e}")))
 }
 
 /// Writes a float single-channel OpenEXR file (channel `Y`).
 pub fn write_exr_grey(path: &Path, width: usize, height: usize, data: &[f32]) -> Result<()> {
     use exr::prelude::*;
     let channel = AnyChannel::new("Y", FlatSamples::F32(data.to_vec()));
-    let image = exr::prelude::Image::from_channels(
+    let image = exr::prelude::Image::from_encoded_channels(
         (width, height),
+        Encoding::UNCOMPRESSED,
         AnyChannels::sort(SmallVec::from_vec(vec![channel])),
     );
     image

@@ -11,7 +11,7 @@ use crate::export::write_npy_f32;
 use crate::imageio::{write_exr_grey, write_png16};
 use crate::integrate::Surface;
 use crate::lightmodel::Camera;
-use std::io::{BufWriter, Write};
+use std::io::Write;
 use std::path::Path;
 
 /// Writes `depth.npy` (float32 (H, W), NaN outside), `depth.exr` and `depth.png` (16-bit grey,
@@ -38,15 +38,21 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
 
 /// `depth.png`: 16-bit grey, the finite depths' min..max mapped to 0..65535, 0 elsewhere.
 fn write_depth_png(path: &Path, width: usize, height: usize, depth: &[f32]) -> Result<()> {
+    use rayon::prelude::*;
     let (lo, hi) = depth
-        .iter()
+        .par_iter()
         .filter(|v| v.is_finite())
-        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), &v| {
-            (a.min(v), b.max(v))
-        });
+        .fold(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |(a, b), &v| (a.min(v), b.max(v)),
+        )
+        .reduce(
+            || (f32::INFINITY, f32::NEG_INFINITY),
+            |x, y| (x.0.min(y.0), x.1.max(y.1)),
+        );
     let span = if hi > lo { hi - lo } else { 1.0 };
     let png: Vec<u16> = depth
-        .iter()
+        .par_iter()
         .map(|&v| {
             if v.is_finite() {
                 (((v - lo) / span).clamp(0.0, 1.0) * 65535.0).round() as u16
@@ -146,62 +152,124 @@ fn start_mesh(
     height: usize,
     depth: &[f32],
     normals: &[[f32; 3]],
-) -> Result<(Mesh, BufWriter<std::fs::File>)> {
+) -> Result<(Mesh, Sink)> {
     check_lengths(width, height, depth, normals)?;
     let mesh = Mesh::new(width, height, depth)?;
     let file = std::fs::File::create(path).map_err(|e| Error::io(path, e))?;
-    Ok((mesh, BufWriter::with_capacity(1 << 20, file)))
+    Ok((mesh, Sink { file, offset: 0 }))
 }
 
 /// Rows per band of the mesh writers: bands are formatted in parallel, a few at a time, and
 /// written in order, so a writer holds a few bands of text, never the whole file.
 const BAND_ROWS: usize = 32;
 
-/// Writes the bytes that `band(rows, buffer)` appends for each band of `rows` (in bands of
-/// [`BAND_ROWS`]), in order. Bands are formatted in parallel, two per worker thread at a time,
-/// while the previous group is being written; `bytes_per_row` sizes the buffers.
-fn write_banded(
-    out: &mut (impl Write + Send),
-    rows: usize,
-    bytes_per_row: usize,
-    band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) + Sync,
-) -> std::io::Result<()> {
-    use rayon::prelude::*;
-    let starts: Vec<usize> = (0..rows).step_by(BAND_ROWS).collect();
-    let batch = 2 * rayon::current_num_threads().max(1);
-    let format = |group: &[usize]| -> Vec<Vec<u8>> {
-        group
-            .par_iter()
-            .map(|&r0| {
-                let r1 = (r0 + BAND_ROWS).min(rows);
-                let mut buf = Vec::with_capacity((r1 - r0) * bytes_per_row);
-                band(r0..r1, &mut buf);
-                buf
-            })
-            .collect()
-    };
-    let mut pending: Vec<Vec<u8>> = Vec::new();
-    for group in starts.chunks(batch) {
-        let (written, next) = rayon::join(
-            || pending.iter().try_for_each(|t| out.write_all(t)),
-            || format(group),
-        );
-        written?;
-        pending = next;
+/// A file written front to back by positioned writes. [`Sink::banded`] formats groups of
+/// bands in parallel while the previous group is being written (buffered writes into one file
+/// serialise on its inode, so one writer at a time), reusing the bands' buffers.
+struct Sink {
+    file: std::fs::File,
+    /// Bytes written so far (the next write's offset).
+    offset: u64,
+}
+
+impl Write for Sink {
+    fn write(&mut self, bytes: &[u8]) -> std::io::Result<usize> {
+        use std::os::unix::fs::FileExt;
+        self.file.write_all_at(bytes, self.offset)?;
+        self.offset += bytes.len() as u64;
+        Ok(bytes.len())
     }
-    pending.iter().try_for_each(|t| out.write_all(t))
+
+    fn flush(&mut self) -> std::io::Result<()> {
+        Ok(())
+    }
 }
 
-/// Appends `v` as the shortest decimal that reads back as the same f32.
-#[inline]
-fn push_f32(buf: &mut Vec<u8>, v: f32) {
-    buf.extend_from_slice(zmij::Buffer::new().format(v).as_bytes());
+impl Sink {
+    /// Writes the bytes that `band(rows, buffer)` appends for each band of `rows` (in bands of
+    /// [`BAND_ROWS`]), in order: groups of two bands per worker thread are formatted in
+    /// parallel while the previous group is written. `bytes_per_row` sizes the buffers.
+    fn banded(
+        &mut self,
+        rows: usize,
+        bytes_per_row: usize,
+        band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) + Sync,
+    ) -> std::io::Result<()> {
+        use rayon::prelude::*;
+        let starts: Vec<usize> = (0..rows).step_by(BAND_ROWS).collect();
+        let batch = 2 * rayon::current_num_threads().max(1);
+        let mut pending: Vec<Vec<u8>> = (0..batch).map(|_| Vec::new()).collect();
+        let mut spare: Vec<Vec<u8>> = (0..batch).map(|_| Vec::new()).collect();
+        let mut pending_len = 0;
+        for group in starts.chunks(batch) {
+            let (written, ()) = rayon::join(
+                || {
+                    pending[..pending_len]
+                        .iter()
+                        .try_for_each(|b| self.write_all(b))
+                },
+                || {
+                    spare[..group.len()]
+                        .par_iter_mut()
+                        .zip(group)
+                        .for_each(|(buf, &r0)| {
+                            let r1 = (r0 + BAND_ROWS).min(rows);
+                            buf.clear();
+                            buf.reserve((r1 - r0) * bytes_per_row);
+                            band(r0..r1, buf);
+                        })
+                },
+            );
+            written?;
+            std::mem::swap(&mut pending, &mut spare);
+            pending_len = group.len();
+        }
+        pending[..pending_len]
+            .iter()
+            .try_for_each(|b| self.write_all(b))
+    }
 }
 
-/// Appends `v` in decimal.
-#[inline]
-fn push_int(buf: &mut Vec<u8>, v: impl itoa::Integer) {
-    buf.extend_from_slice(itoa::Buffer::new().format(v).as_bytes());
+/// A text line built on the stack (one copy into the band's buffer per line, not one per
+/// number).
+struct Line {
+    buf: [u8; 128],
+    len: usize,
+}
+
+impl Line {
+    fn new() -> Line {
+        Line {
+            buf: [0; 128],
+            len: 0,
+        }
+    }
+
+    /// Appends `s` (short: a number or a separator; the caller keeps a line under 128 bytes).
+    #[inline]
+    fn push(&mut self, s: &[u8]) {
+        for (d, &b) in self.buf[self.len..self.len + s.len()].iter_mut().zip(s) {
+            *d = b;
+        }
+        self.len += s.len();
+    }
+
+    #[inline]
+    fn f32(&mut self, v: f32) {
+        self.push(zmij::Buffer::new().format(v).as_bytes());
+    }
+
+    #[inline]
+    fn int(&mut self, v: impl itoa::Integer) {
+        self.push(itoa::Buffer::new().format(v).as_bytes());
+    }
+
+    /// Appends the line to `out` and empties it.
+    #[inline]
+    fn flush_to(&mut self, out: &mut Vec<u8>) {
+        out.extend_from_slice(&self.buf[..self.len]);
+        self.len = 0;
+    }
 }
 
 /// Writes a binary little-endian PLY mesh of `depth` (NaN = no vertex) with per-vertex
@@ -263,7 +331,7 @@ pub fn write_mesh_ply_camera(
         mesh.vertices, mesh.faces
     )
     .map_err(io)?;
-    write_banded(&mut out, height, width * 24, |rows, buf| {
+    out.banded(height, width * 24, |rows, buf| {
         for i in rows.start * width..rows.end * width {
             let z = depth[i];
             if z.is_finite() {
@@ -275,19 +343,14 @@ pub fn write_mesh_ply_camera(
         }
     })
     .map_err(io)?;
-    write_banded(
-        &mut out,
-        height.saturating_sub(1),
-        width * 26,
-        |rows, buf| {
-            mesh.for_each_face_in_rows(width, rows, |t| {
-                buf.push(3);
-                for v in t {
-                    buf.extend_from_slice(&(v as i32).to_le_bytes());
-                }
-            });
-        },
-    )
+    out.banded(height.saturating_sub(1), width * 26, |rows, buf| {
+        mesh.for_each_face_in_rows(width, rows, |t| {
+            buf.push(3);
+            for v in t {
+                buf.extend_from_slice(&(v as i32).to_le_bytes());
+            }
+        });
+    })
     .map_err(io)?;
     out.flush().map_err(io)
 }
@@ -325,65 +388,67 @@ pub fn write_mesh_obj_camera(
         mesh.faces
     )
     .map_err(io)?;
-    write_banded(&mut out, height, width * 24, |rows, buf| {
+    out.banded(height, width * 24, |rows, buf| {
+        let mut line = Line::new();
         let first = rows.start * width;
         for (i, &z) in depth[first..rows.end * width].iter().enumerate() {
             let i = first + i;
             if z.is_finite() {
-                buf.extend_from_slice(b"v ");
+                line.push(b"v ");
                 match camera {
                     None => {
-                        push_int(buf, i % width);
-                        buf.extend_from_slice(b" ");
-                        push_int(buf, -((i / width) as i64));
-                        buf.push(b' ');
-                        push_f32(buf, z);
+                        line.int(i % width);
+                        line.push(b" ");
+                        line.int(-((i / width) as i64));
+                        line.push(b" ");
+                        line.f32(z);
                     }
                     Some(_) => {
                         let [x, y, zz] = vertex(i, width, z, camera);
-                        push_f32(buf, x);
-                        buf.push(b' ');
-                        push_f32(buf, y);
-                        buf.push(b' ');
-                        push_f32(buf, zz);
+                        line.f32(x);
+                        line.push(b" ");
+                        line.f32(y);
+                        line.push(b" ");
+                        line.f32(zz);
                     }
                 }
-                buf.push(b'\n');
+                line.push(b"\n");
+                line.flush_to(buf);
             }
         }
     })
     .map_err(io)?;
-    write_banded(&mut out, height, width * 36, |rows, buf| {
+    out.banded(height, width * 36, |rows, buf| {
+        let mut line = Line::new();
         for i in rows.start * width..rows.end * width {
             if depth[i].is_finite() {
-                buf.extend_from_slice(b"vn");
+                line.push(b"vn");
                 for v in normals[i] {
-                    buf.push(b' ');
-                    push_f32(buf, v);
+                    line.push(b" ");
+                    line.f32(v);
                 }
-                buf.push(b'\n');
+                line.push(b"\n");
+                line.flush_to(buf);
             }
         }
     })
     .map_err(io)?;
-    write_banded(
-        &mut out,
-        height.saturating_sub(1),
-        width * 120,
-        |rows, buf| {
-            mesh.for_each_face_in_rows(width, rows, |t| {
-                buf.push(b'f');
-                for v in t {
-                    buf.push(b' ');
-                    let one_based = u64::from(v) + 1;
-                    push_int(buf, one_based);
-                    buf.extend_from_slice(b"//");
-                    push_int(buf, one_based);
-                }
-                buf.push(b'\n');
-            });
-        },
-    )
+    out.banded(height.saturating_sub(1), width * 120, |rows, buf| {
+        let mut line = Line::new();
+        mesh.for_each_face_in_rows(width, rows, |t| {
+            line.push(b"f");
+            for v in t {
+                let mut digits = itoa::Buffer::new();
+                let one_based = digits.format(u64::from(v) + 1).as_bytes();
+                line.push(b" ");
+                line.push(one_based);
+                line.push(b"//");
+                line.push(one_based);
+            }
+            line.push(b"\n");
+            line.flush_to(buf);
+        });
+    })
     .map_err(io)?;
     out.flush().map_err(io)
 }
@@ -417,8 +482,12 @@ pub fn write_surface_camera(
     depth.and(curl)?;
     if meshes {
         let (w, h) = (d.width, d.height);
-        write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera)?;
-        write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera)?;
+        // Two files: one's page-cache copies overlap the other's formatting.
+        let (ply, obj) = rayon::join(
+            || write_mesh_ply_camera(&dir.join("mesh.ply"), w, h, &d.values, normals, camera),
+            || write_mesh_obj_camera(&dir.join("mesh.obj"), w, h, &d.values, normals, camera),
+        );
+        ply.and(obj)?;
     }
     Ok(())
 }

@@ -206,7 +206,11 @@ fn poisson_and_paths_recover_analytic_surfaces_on_masks() {
 fn dct_fft_and_poisson_agree_on_the_full_rectangle() {
     let (p, q, _) = gradients(peaks);
     let mask = full_mask();
-    let a = solve(&Poisson::default(), &p, &q, &mask);
+    let multigrid = Poisson {
+        direct_on_rectangle: false,
+        ..Poisson::default()
+    };
+    let a = solve(&multigrid, &p, &q, &mask);
     let b = solve(&Dct::default(), &p, &q, &mask);
     let c = solve(&Fft::default(), &p, &q, &mask);
     let range = b.iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v))
@@ -222,6 +226,36 @@ fn dct_fft_and_poisson_agree_on_the_full_rectangle() {
         max_pd <= 1e-4 * range,
         "poisson vs dct: max diff {max_pd} (range {range})"
     );
+    // By default poisson solves this whole-rectangle, unit-weight case directly: the same
+    // solution as its multigrid CG up to the CG tolerance, with a true residual at round-off;
+    // all-one weights are the same problem, any other weight goes back to multigrid.
+    let problem = IntegrationProblem::new(W, H, &p, &q, &mask);
+    let direct = Poisson::default().integrate(&problem, &Silent).unwrap();
+    let s = &direct.stats;
+    assert!(s.direct && s.iterations == 0 && s.levels == 0, "{s:?}");
+    assert!(s.relative_residual < 1e-10, "{s:?}");
+    let max_direct = direct
+        .values
+        .iter()
+        .zip(&a)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0f32, f32::max);
+    assert!(
+        max_direct <= 1e-4 * range,
+        "direct vs multigrid: max diff {max_direct} (range {range})"
+    );
+    let ones = vec![1f32; W * H];
+    let mut almost = ones.clone();
+    almost[W * H / 2] = 0.5;
+    for (weights, expect_direct) in [(&ones, true), (&almost, false)] {
+        let weighted = IntegrationProblem {
+            weights: Some(weights),
+            ..problem
+        };
+        let d = Poisson::default().integrate(&weighted, &Silent).unwrap();
+        assert_eq!(d.stats.direct, expect_direct);
+        assert!(d.stats.relative_residual <= 1e-6);
+    }
     // fft uses the spectral derivative instead of the trapezoid rule: equal to discretisation error.
     let rms_fd = (c
         .iter()
@@ -362,7 +396,15 @@ fn a_prior_pulls_the_level_and_dct_matches_poisson_with_it() {
         }),
         ..IntegrationProblem::new(W, H, &p, &q, &mask)
     };
-    for m in [&Poisson::default() as &dyn Integrator, &Dct::default()] {
+    let multigrid = Poisson {
+        direct_on_rectangle: false,
+        ..Poisson::default()
+    };
+    for m in [
+        &Poisson::default() as &dyn Integrator,
+        &multigrid,
+        &Dct::default(),
+    ] {
         let d = m.integrate(&problem, &Silent).unwrap();
         let max = d
             .values
@@ -605,7 +647,11 @@ fn poisson_iterations_do_not_grow_with_the_grid() {
             .collect();
         for (name, mask) in [("full", &full), ("irregular", &irregular)] {
             let problem = IntegrationProblem::new(n, n, &p, &q, mask);
-            let depth = Poisson::default().integrate(&problem, &Silent).unwrap();
+            let multigrid = Poisson {
+                direct_on_rectangle: false,
+                ..Poisson::default()
+            };
+            let depth = multigrid.integrate(&problem, &Silent).unwrap();
             assert!(depth.stats.relative_residual <= 1e-6, "{n}² {name}");
             let (rmse, range) = rmse_and_range_on(n, n, &depth.values, &truth, mask);
             assert!(

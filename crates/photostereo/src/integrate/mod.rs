@@ -134,9 +134,9 @@ pub fn gradients_from_normals(
                     }
                     let finite = v.iter().all(|x| x.is_finite());
                     let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
-                    // f32 components cannot overflow a sum of squares in f64.
-                    let norm = (x * x + y * y + z * z).sqrt();
-                    if !finite || zero || norm < 1e-12 {
+                    // f32 components cannot overflow a sum of squares in f64; |n| < 1e-12.
+                    let tiny = x * x + y * y + z * z < 1e-24;
+                    if !finite || zero || tiny {
                         counts[0] += 1;
                         continue;
                     }
@@ -144,8 +144,9 @@ pub fn gradients_from_normals(
                         counts[1] += 1;
                         continue;
                     }
-                    let p = -x / z;
-                    let q = y / z;
+                    let inv_z = 1.0 / z;
+                    let p = -x * inv_z;
+                    let q = y * inv_z;
                     if p.abs() > cap || q.abs() > cap {
                         counts[2] += 1;
                     }
@@ -384,8 +385,12 @@ pub struct IntegrationStats {
     pub components: usize,
     /// Pixels whose gradients were interpolated (weight below `fill_below`).
     pub filled_pixels: usize,
-    /// Multigrid levels (`poisson`).
+    /// Multigrid levels (`poisson`; 0 when solved directly).
     pub levels: usize,
+    /// `poisson` only: the mask covered the whole rectangle with unit weights, so its equations
+    /// — the same as `dct`'s there — were solved exactly by the DCT (0 iterations; the relative
+    /// residual is the true one of the solution).
+    pub direct: bool,
     pub notes: Vec<String>,
 }
 
@@ -587,6 +592,7 @@ impl Surface {
             "iterations": self.depth.stats.iterations,
             "relative_residual": self.depth.stats.relative_residual,
             "levels": self.depth.stats.levels,
+            "direct": self.depth.stats.direct,
             "components": self.depth.stats.components,
             "filled_pixels": self.depth.stats.filled_pixels,
             "mean_abs_curl": self.mean_abs_curl,

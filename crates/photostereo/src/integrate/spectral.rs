@@ -50,12 +50,15 @@ impl Default for Fft {
 fn masked_gradients(problem: &IntegrationProblem, fill_below: f32) -> (Vec<f32>, Vec<f32>, usize) {
     let (p, q, filled) = fill_unreliable(problem, fill_below);
     let (mut p, mut q) = (p.into_owned(), q.into_owned());
-    for i in 0..p.len() {
-        if !problem.mask[i] {
-            p[i] = 0.0;
-            q[i] = 0.0;
-        }
-    }
+    p.par_iter_mut()
+        .zip(q.par_iter_mut())
+        .zip(problem.mask.par_iter())
+        .for_each(|((p, q), &m)| {
+            if !m {
+                *p = 0.0;
+                *q = 0.0;
+            }
+        });
     (p, q, filled)
 }
 
@@ -84,25 +87,6 @@ fn notes_for(problem: &IntegrationProblem, name: &str) -> Vec<String> {
     notes
 }
 
-/// In-place 2-D transform of a row-major `h × w` array: `f` along rows, then along columns.
-fn transform_2d(
-    data: &mut [f64],
-    w: usize,
-    h: usize,
-    row_op: &(dyn Fn(&mut [f64], &mut [f64]) + Sync),
-    col_op: &(dyn Fn(&mut [f64], &mut [f64]) + Sync),
-    row_scratch: usize,
-    col_scratch: usize,
-) {
-    data.par_chunks_mut(w)
-        .for_each_init(|| vec![0f64; row_scratch], |s, row| row_op(row, s));
-    let mut t = vec![0f64; w * h];
-    transpose(data, w, h, &mut t);
-    t.par_chunks_mut(h)
-        .for_each_init(|| vec![0f64; col_scratch], |s, col| col_op(col, s));
-    transpose(&t, h, w, data);
-}
-
 /// `dst[c * h + r] = src[r * w + c]` for a row-major `h × w` `src`, in cache-sized blocks of
 /// columns (a plain column-by-column copy strides through memory a row at a time).
 fn transpose(src: &[f64], w: usize, h: usize, dst: &mut [f64]) {
@@ -127,6 +111,153 @@ fn transpose(src: &[f64], w: usize, h: usize, dst: &mut [f64]) {
         });
 }
 
+/// The unit-weight normal equations of the trapezoid edge targets on the full `w × h`
+/// rectangle, `(L + λ) f = b`, solved exactly by the DCT (Neumann boundary): `g(i)` gives the
+/// gradients `(p, q)` of pixel `i` (0 outside the mask: the flat apron), `prior` adds `λ · z_i`
+/// to `b` inside `mask`. Without a prior (λ = 0) the solution has zero mean over `mask`. With
+/// `residual`, also returns the true relative residual `‖b − (L + λ) f‖ / ‖b‖` (f64).
+///
+/// Two transposes: DCT-II along rows, transpose, DCT-II along columns, the division by the
+/// eigenvalues, DCT-III along columns (still transposed), transpose back, DCT-III along rows.
+pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
+    w: usize,
+    h: usize,
+    g: G,
+    mask: &[bool],
+    prior: Option<super::Prior>,
+    residual: bool,
+) -> (Vec<f64>, f64) {
+    let lambda = prior.map_or(0.0, |pr| pr.lambda as f64);
+    // Row r of b (see `Dct`): −div of the edge targets, plus the prior's pull; `rows` is a
+    // scratch of 4 · w values (p of row r, q of rows r − 1, r, r + 1; 0 beyond the grid).
+    let rhs_row = |r: usize, rows: &mut [f64], out: &mut [f64]| {
+        let (pr, rest) = rows.split_at_mut(w);
+        let (qu, rest) = rest.split_at_mut(w);
+        let (qm, qd) = rest.split_at_mut(w);
+        let lo = r * w;
+        for c in 0..w {
+            let (p, q) = g(lo + c);
+            pr[c] = p;
+            qm[c] = q;
+            qu[c] = if r > 0 { g(lo + c - w).1 } else { 0.0 };
+            qd[c] = if r + 1 < h { g(lo + c + w).1 } else { 0.0 };
+        }
+        for c in 0..w {
+            let mut s = 0f64;
+            if c + 1 < w {
+                s -= 0.5 * (pr[c] + pr[c + 1]);
+            }
+            if c > 0 {
+                s += 0.5 * (pr[c] + pr[c - 1]);
+            }
+            if r + 1 < h {
+                s -= 0.5 * (qm[c] + qd[c]);
+            }
+            if r > 0 {
+                s += 0.5 * (qm[c] + qu[c]);
+            }
+            out[c] = s;
+        }
+        if let Some(pr) = prior {
+            for c in 0..w {
+                if mask[lo + c] {
+                    out[c] += lambda * pr.depth[lo + c] as f64;
+                }
+            }
+        }
+    };
+    let mut planner = DctPlanner::<f64>::new();
+    let (dw, dh) = (planner.plan_dct2(w), planner.plan_dct2(h));
+    let (sw, sh) = (dw.get_scratch_len(), dh.get_scratch_len());
+    // b row by row, each row transformed while it is in cache; ‖b‖² on the way.
+    let mut f: Vec<f64> = super::multigrid::par_zeros(w * h);
+    let b_sq: f64 = f
+        .par_chunks_mut(w)
+        .enumerate()
+        .map_init(
+            || (vec![0f64; sw], vec![0f64; 4 * w]),
+            |(scratch, rows), (r, row)| {
+                rhs_row(r, rows, row);
+                let sq = row.iter().map(|v| v * v).sum::<f64>();
+                dw.process_dct2_with_scratch(row, scratch);
+                sq
+            },
+        )
+        .sum();
+    let mut t: Vec<f64> = super::multigrid::par_zeros(w * h);
+    transpose(&f, w, h, &mut t);
+    // Column k of the transposed array holds row frequency l at t[k * h + l].
+    let eh: Vec<f64> = (0..h)
+        .map(|k| 2.0 - 2.0 * (std::f64::consts::PI * k as f64 / h as f64).cos())
+        .collect();
+    let scale = 4.0 / (w as f64 * h as f64);
+    t.par_chunks_mut(h).enumerate().for_each_init(
+        || vec![0f64; sh],
+        |scratch, (k, col)| {
+            dh.process_dct2_with_scratch(col, scratch);
+            let ew = 2.0 - 2.0 * (std::f64::consts::PI * k as f64 / w as f64).cos();
+            for (v, &e) in col.iter_mut().zip(&eh) {
+                let e = ew + e + lambda;
+                *v = if e > 0.0 { *v * scale / e } else { 0.0 };
+            }
+            dh.process_dct3_with_scratch(col, scratch);
+        },
+    );
+    transpose(&t, h, w, &mut f);
+    drop(t);
+    let (sum, count) = f
+        .par_chunks_mut(w)
+        .zip(mask.par_chunks(w))
+        .map_init(
+            || vec![0f64; sw],
+            |scratch, (row, m)| {
+                dw.process_dct3_with_scratch(row, scratch);
+                row.iter()
+                    .zip(m)
+                    .filter(|(_, &m)| m)
+                    .fold((0f64, 0usize), |(s, n), (v, _)| (s + v, n + 1))
+            },
+        )
+        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    if lambda == 0.0 && count > 0 {
+        let mean = sum / count as f64;
+        f.par_iter_mut().for_each(|v| *v -= mean);
+    }
+    if !residual || b_sq == 0.0 {
+        return (f, 0.0);
+    }
+    let res_sq: f64 = (0..h)
+        .into_par_iter()
+        .map_init(
+            || (vec![0f64; 4 * w], vec![0f64; w]),
+            |(rows, b), r| {
+                rhs_row(r, rows, b);
+                let mut sq = 0f64;
+                for (c, &bc) in b.iter().enumerate() {
+                    let i = r * w + c;
+                    let mut a = lambda * f[i];
+                    if c + 1 < w {
+                        a += f[i] - f[i + 1];
+                    }
+                    if c > 0 {
+                        a += f[i] - f[i - 1];
+                    }
+                    if r + 1 < h {
+                        a += f[i] - f[i + w];
+                    }
+                    if r > 0 {
+                        a += f[i] - f[i - w];
+                    }
+                    let d = bc - a;
+                    sq += d * d;
+                }
+                sq
+            },
+        )
+        .sum();
+    (f, (res_sq / b_sq).sqrt())
+}
+
 impl Integrator for Dct {
     fn name(&self) -> &'static str {
         "dct"
@@ -136,73 +267,17 @@ impl Integrator for Dct {
         problem.validate()?;
         let (w, h) = (problem.width, problem.height);
         progress.begin("integrate", 1);
-        let (p, q, filled) = masked_gradients(problem, self.fill_below);
-        let lambda = problem.prior.map_or(0.0, |pr| pr.lambda as f64);
-        // Right-hand side of the unit-weight normal equations on the full rectangle.
-        let mut b = vec![0f64; w * h];
-        b.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
-            for (c, v) in row.iter_mut().enumerate() {
-                let i = r * w + c;
-                let mut s = 0f64;
-                if c + 1 < w {
-                    s -= 0.5 * (p[i] as f64 + p[i + 1] as f64);
-                }
-                if c > 0 {
-                    s += 0.5 * (p[i] as f64 + p[i - 1] as f64);
-                }
-                if r + 1 < h {
-                    s -= 0.5 * (q[i] as f64 + q[i + w] as f64);
-                }
-                if r > 0 {
-                    s += 0.5 * (q[i] as f64 + q[i - w] as f64);
-                }
-                if let Some(pr) = problem.prior {
-                    if problem.mask[i] {
-                        s += lambda * pr.depth[i] as f64;
-                    }
-                }
-                *v = s;
+        let (p, q, filled) = fill_unreliable(problem, self.fill_below);
+        let mask = problem.mask;
+        let g = |i: usize| {
+            if mask[i] {
+                (p[i] as f64, q[i] as f64)
+            } else {
+                (0.0, 0.0)
             }
-        });
-        drop(p);
-        drop(q);
-        let mut planner = DctPlanner::<f64>::new();
-        let (dw, dh) = (planner.plan_dct2(w), planner.plan_dct2(h));
-        let (sw, sh) = (dw.get_scratch_len(), dh.get_scratch_len());
-        transform_2d(
-            &mut b,
-            w,
-            h,
-            &|x, s| dw.process_dct2_with_scratch(x, s),
-            &|x, s| dh.process_dct2_with_scratch(x, s),
-            sw,
-            sh,
-        );
-        let ew: Vec<f64> = (0..w)
-            .map(|k| 2.0 - 2.0 * (std::f64::consts::PI * k as f64 / w as f64).cos())
-            .collect();
-        let eh: Vec<f64> = (0..h)
-            .map(|k| 2.0 - 2.0 * (std::f64::consts::PI * k as f64 / h as f64).cos())
-            .collect();
-        let scale = 4.0 / (w as f64 * h as f64);
-        b.par_chunks_mut(w).enumerate().for_each(|(l, row)| {
-            for (k, v) in row.iter_mut().enumerate() {
-                let e = ew[k] + eh[l] + lambda;
-                *v = if e > 0.0 { *v * scale / e } else { 0.0 };
-            }
-        });
-        transform_2d(
-            &mut b,
-            w,
-            h,
-            &|x, s| dw.process_dct3_with_scratch(x, s),
-            &|x, s| dh.process_dct3_with_scratch(x, s),
-            sw,
-            sh,
-        );
-        if lambda == 0.0 {
-            mean_over_mask(&mut b, problem.mask);
-        }
+        };
+        let (f, _) = dct_solve(w, h, g, mask, problem.prior, false);
+        drop((p, q));
         progress.advance(1);
         progress.end();
         let stats = IntegrationStats {
@@ -212,7 +287,7 @@ impl Integrator for Dct {
             notes: notes_for(problem, "dct"),
             ..Default::default()
         };
-        Ok(to_depth(w, h, &b, problem.mask, stats))
+        Ok(to_depth(w, h, &f, problem.mask, stats))
     }
 }
 
