@@ -281,6 +281,10 @@ pub fn recursive(
     // hysteresis of the attribution.
     let (mut raw_status, mut raw_consistent, mut raw_few): (Vec<u8>, Vec<bool>, Vec<bool>) =
         (Vec::new(), Vec::new(), Vec::new());
+    // Per pixel, the attribution's input of the last iteration as bits (see below).
+    let key_words = n.div_ceil(64);
+    let mut raw_key: Vec<u64> = Vec::new();
+    let near_lights = capture.lights.near.is_some();
     let truth_masked: Option<Vec<[f32; 3]>> =
         truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
     progress.begin("recursive", params.max_iterations as u64);
@@ -354,6 +358,7 @@ pub fn recursive(
         let mut new_consistent = vec![false; np];
         let mut new_few = vec![false; np];
         let mut new_highlight = vec![false; np];
+        let mut new_key = vec![0u64; np * key_words];
         // Tile by tile (the whole capture at once when it is held whole): `off` is the tile's
         // first mask pixel, `tile` its view (local indices).
         capture.for_each_tile(|off, tile| {
@@ -363,10 +368,14 @@ pub fn recursive(
                 .zip(new_consistent[off..off + tn].par_chunks_mut(CHUNK))
                 .zip(new_few[off..off + tn].par_chunks_mut(CHUNK))
                 .zip(new_highlight[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(
+                    new_key[off * key_words..(off + tn) * key_words]
+                        .par_chunks_mut(CHUNK * key_words),
+                )
                 .enumerate()
                 .for_each_init(
                     || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
-                    |(grey, scratch), (chunk, (((st, cons), fw), hl))| {
+                    |(grey, scratch), (chunk, ((((st, cons), fw), hl), keys))| {
                         for dp in 0..cons.len() {
                             let lp = chunk * CHUNK + dp;
                             let p = off + lp;
@@ -378,6 +387,15 @@ pub fn recursive(
                             // there, and the light stays for the test to judge.
                             let level = grey.iter().sum::<f64>() / n as f64;
                             let dark = noise.shadow_level(detection_params, level);
+                            // The attribution's input beyond the fixed readings: the lights the
+                            // surface shadows where the reading agrees, as bits.
+                            let key = &mut keys[dp * key_words..(dp + 1) * key_words];
+                            key.fill(0);
+                            for k in 0..n {
+                                if maps.is_shadowed(k, pix) && grey[k] <= dark {
+                                    key[k / 64] |= 1 << (k % 64);
+                                }
+                            }
                             // Hysteresis: a usable set that passed the test in the last
                             // iteration and already drops every light the new surface shadows
                             // (where the reading agrees) stays; the recursion then settles
@@ -393,6 +411,19 @@ pub fn recursive(
                             {
                                 s.copy_from_slice(previous);
                                 cons[dp] = true;
+                                hl[dp] = highlight[p];
+                                continue;
+                            }
+                            // The same input as in the last iteration gives the same
+                            // decisions (distant lights: the light vectors do not follow the
+                            // surface): they are reused, not recomputed.
+                            if iteration > 1
+                                && !near_lights
+                                && raw_key.get(p * key_words..(p + 1) * key_words) == Some(&*key)
+                            {
+                                s.copy_from_slice(previous);
+                                cons[dp] = raw_consistent[p];
+                                fw[dp] = raw_few[p];
                                 hl[dp] = highlight[p];
                                 continue;
                             }
@@ -433,6 +464,7 @@ pub fn recursive(
         raw_status.clone_from(&new_status);
         raw_consistent.clone_from(&new_consistent);
         raw_few.clone_from(&new_few);
+        raw_key = new_key;
         if params.consensus_radius > 0 {
             let min_kept =
                 ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
