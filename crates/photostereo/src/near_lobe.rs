@@ -1,0 +1,486 @@
+//! Highlights modelled rather than dropped, for near-light captures (issue 13).
+//!
+//! With LEDs close around the lens (a ring rig) the glossy lobe covers every LED at once on
+//! surfaces that face the camera: no light is free of highlight there, so no choice of lights
+//! can recover the normal. What does separate them is the shape of the readings: the diffuse
+//! part follows n · l_k, the specular part a lobe about each light's half vector
+//! h_k = (l_k + u)/‖l_k + u‖ (u toward the camera). Each pixel is fitted with
+//!
+//! I_k = b_k · (ρ n · l_k + s · exp(−m (1 − n · h_k))),   ρ ≥ 0, s ≥ 0,
+//!
+//! in the units of the intensity-normalised channel means (b_k the light's relative brightness
+//! at the pixel, [`crate::lightmodel::NearLights`]). exp(−m (1 − cos θ)) ≈ exp(−m θ²/2) is the
+//! Gaussian lobe that Blinn–Phong (cos^m), Ward and Torrance–Sparrow lobes all approach near
+//! their peak. The sharpness m is a property of the material, shared by the capture: it is
+//! chosen among [`LOBE_EXPONENTS`] by the least total squared residual over a sample of
+//! pixels. Per pixel, with m fixed, ρ and s follow linearly from n, and n is found by a grid
+//! over the normals within [`CONE_DEG`] of u ([`GRID_STEP_DEG`] apart) and a pattern search
+//! from the best node and the method's own normal (the residual has several minima: a local
+//! search alone lands in the wrong one at most highlight pixels).
+//!
+//! A pixel takes the fitted normal when the lobe lowers its squared residual, over the same
+//! lights, below that of the best purely diffuse fit by more than the χ² quantile of one
+//! degree of freedom at the detector's confidence times the pixel's variance: a Lambertian
+//! pixel keeps the method's estimate. Lights in the method's shadow maps stay out of the fit.
+//! Frames and units as in [`crate::lightmodel`].
+
+use crate::capture::Capture;
+use crate::detect::NoiseModel;
+use crate::lambert::{channel_mean, status, Estimate, CHUNK};
+use crate::lightmodel::{NearLights, PixelLights};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// The lobe sharpnesses m tried (about 25 to 400: lobes that fall to half height 13.3° to
+/// 3.4° from their peak).
+pub const LOBE_EXPONENTS: &[f64] = &[25.0, 35.0, 50.0, 70.0, 100.0, 140.0, 200.0, 280.0, 400.0];
+/// Spacing of the grid of trial normals, degrees.
+pub const GRID_STEP_DEG: f64 = 4.0;
+/// Trial normals lie within this angle of the direction toward the camera, degrees.
+pub const CONE_DEG: f64 = 60.0;
+/// Lights a pixel needs in the fit: the four unknowns (n, ρ, s) and two degrees of freedom
+/// left for the residual to compare with the diffuse fit's.
+pub const MIN_LIGHTS: usize = 6;
+/// Pixels sampled to choose m (evenly spaced over the mask).
+const SAMPLE_PIXELS: usize = 1500;
+/// The pattern search stops at this step, radians (0.05°).
+const FINEST_STEP: f64 = 0.05 * std::f64::consts::PI / 180.0;
+
+/// What [`refine`] did, for `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct LobeSummary {
+    /// The lobe sharpness m chosen for the capture.
+    pub exponent: f64,
+    /// Mask pixels whose normal now comes from the lobe fit.
+    pub refined_pixels: usize,
+    /// Their share of the mask.
+    pub refined_share: f64,
+}
+
+/// One pixel's data: scaled light vectors v_k = b_k l_k, unit half vectors, grey readings and
+/// the lights in the fit.
+struct PixelData<'a> {
+    v: &'a [[f64; 3]],
+    h: &'a [[f64; 3]],
+    b: &'a [f64],
+    g: &'a [f64],
+    used: &'a [bool],
+}
+
+/// The fit at normal `n` with sharpness `m`: (squared residual, ρ, s).
+#[inline]
+fn fit_at(d: &PixelData, n: [f64; 3], m: f64) -> (f64, f64, f64) {
+    let (mut aa, mut ab, mut bb, mut ag, mut bg, mut gg) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for k in 0..d.v.len() {
+        if !d.used[k] {
+            continue;
+        }
+        let a = dot(d.v[k], n).max(0.0);
+        let b = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
+        let g = d.g[k];
+        aa += a * a;
+        ab += a * b;
+        bb += b * b;
+        ag += a * g;
+        bg += b * g;
+        gg += g * g;
+    }
+    // Non-negative least squares in two unknowns: the interior solution, else an edge.
+    let mut best = (gg, 0.0, 0.0);
+    if aa > 0.0 {
+        let r = (ag / aa).max(0.0);
+        best = (gg - r * ag, r, 0.0);
+    }
+    if bb > 0.0 {
+        let s = (bg / bb).max(0.0);
+        if gg - s * bg < best.0 {
+            best = (gg - s * bg, 0.0, s);
+        }
+    }
+    let det = aa * bb - ab * ab;
+    if det > 1e-12 * (aa * bb).max(1e-300) {
+        let r = (ag * bb - bg * ab) / det;
+        let s = (bg * aa - ag * ab) / det;
+        if r >= 0.0 && s >= 0.0 {
+            let e = gg - r * ag - s * bg;
+            if e < best.0 {
+                best = (e, r, s);
+            }
+        }
+    }
+    (best.0.max(0.0), best.1, best.2)
+}
+
+/// Grid offsets (tan x, tan y) of the trial normals about u.
+fn grid() -> Vec<(f64, f64)> {
+    let r = (CONE_DEG / GRID_STEP_DEG).floor() as i32;
+    let cone = CONE_DEG.to_radians();
+    let mut out = Vec::new();
+    for i in -r..=r {
+        for j in -r..=r {
+            let (x, y) = (
+                (i as f64 * GRID_STEP_DEG).to_radians(),
+                (j as f64 * GRID_STEP_DEG).to_radians(),
+            );
+            if x * x + y * y <= cone * cone {
+                out.push((x.tan(), y.tan()));
+            }
+        }
+    }
+    out
+}
+
+/// The best normal for sharpness `m`: the grid about `u`, then a pattern search from the best
+/// node and from `start` (when given). Returns (squared residual, normal, ρ, s).
+fn fit_pixel(
+    d: &PixelData,
+    u: [f64; 3],
+    start: Option<[f64; 3]>,
+    m: f64,
+    nodes: &[(f64, f64)],
+    refine: bool,
+) -> (f64, [f64; 3], f64, f64) {
+    let (t1, t2) = basis(u);
+    let mut best = (f64::INFINITY, u);
+    for &(x, y) in nodes {
+        let n = unit(add3(u, add3(scale(t1, x), scale(t2, y))));
+        let e = fit_at(d, n, m).0;
+        if e < best.0 {
+            best = (e, n);
+        }
+    }
+    if !refine {
+        let (e, r, s) = fit_at(d, best.1, m);
+        return (e, best.1, r, s);
+    }
+    let mut result = search(d, best.1, m);
+    if let Some(s) = start {
+        let other = search(d, s, m);
+        if other.0 < result.0 {
+            result = other;
+        }
+    }
+    let (e, r, s) = fit_at(d, result.1, m);
+    (e, result.1, r, s)
+}
+
+/// Pattern search on the sphere of normals: eight directions, the step halved when none
+/// improves, from 2° (half the grid spacing) down to [`FINEST_STEP`].
+fn search(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
+    let mut n = from;
+    let mut e = fit_at(d, n, m).0;
+    let mut step = (GRID_STEP_DEG / 2.0).to_radians();
+    while step > FINEST_STEP {
+        let (t1, t2) = basis(n);
+        let mut improved = false;
+        for dir in 0..8 {
+            let a = dir as f64 * std::f64::consts::FRAC_PI_4;
+            let c = unit(add3(
+                n,
+                add3(scale(t1, a.cos() * step), scale(t2, a.sin() * step)),
+            ));
+            let ec = fit_at(d, c, m).0;
+            if ec < e {
+                e = ec;
+                n = c;
+                improved = true;
+            }
+        }
+        if !improved {
+            step *= 0.5;
+        }
+    }
+    (e, n)
+}
+
+/// Squared residual of the best purely diffuse fit (unconstrained least squares, 3 unknowns)
+/// over the used lights; infinite when they do not span three dimensions.
+fn diffuse_residual(d: &PixelData) -> f64 {
+    let used = (0..d.v.len()).filter(|&k| d.used[k]);
+    match crate::lambert::solve_with(d.v, Some(d.used), d.g) {
+        Some(x) => used
+            .map(|k| {
+                let r = d.g[k] - (d.v[k][0] * x[0] + d.v[k][1] * x[1] + d.v[k][2] * x[2]);
+                r * r
+            })
+            .sum(),
+        None => f64::INFINITY,
+    }
+}
+
+/// Per-thread buffers of one pixel (no allocation per pixel).
+struct Scratch<'a> {
+    lights: PixelLights<'a>,
+    v: Vec<[f64; 3]>,
+    h: Vec<[f64; 3]>,
+    b: Vec<f64>,
+    g: Vec<f64>,
+    used: Vec<bool>,
+}
+
+impl<'a> Scratch<'a> {
+    fn new(capture: &'a Capture, near: &'a NearLights) -> Self {
+        let n = capture.n_lights();
+        Scratch {
+            lights: PixelLights::new(&capture.lights.directions, Some(near), capture.width),
+            v: vec![[0.0; 3]; n],
+            h: vec![[0.0; 3]; n],
+            b: vec![0.0; n],
+            g: vec![0.0; n],
+            used: vec![false; n],
+        }
+    }
+
+    /// Loads full-frame pixel `pixel` with grey readings from `samples` and the lights not in
+    /// shadow by `statuses`; returns u, the unit vector toward the camera.
+    fn load(
+        &mut self,
+        near: &NearLights,
+        depth: &[f32],
+        width: usize,
+        pixel: usize,
+        samples: &[f32],
+        channels: usize,
+        statuses: Option<&[u8]>,
+    ) -> [f64; 3] {
+        channel_mean(samples, channels, &mut self.g);
+        self.v.copy_from_slice(self.lights.at(pixel));
+        let z = depth
+            .get(pixel)
+            .map_or(near.mean_distance, |&z| z as f64)
+            .max(1e-6);
+        let x = near.point(pixel % width, pixel / width, z);
+        let u = unit([-x[0], -x[1], -x[2]]);
+        for k in 0..self.v.len() {
+            let b = norm(self.v[k]);
+            self.b[k] = b;
+            let l = if b > 0.0 {
+                scale(self.v[k], 1.0 / b)
+            } else {
+                [0.0, 0.0, 1.0]
+            };
+            self.h[k] = unit(add3(l, u));
+            self.used[k] = statuses.is_none_or(|s| s[k] != status::SHADOW);
+        }
+        u
+    }
+
+    fn data(&self) -> PixelData<'_> {
+        PixelData {
+            v: &self.v,
+            h: &self.h,
+            b: &self.b,
+            g: &self.g,
+            used: &self.used,
+        }
+    }
+}
+
+/// Refits the pixels of `est` (per mask pixel, statuses in `est.light_status`, the near model's
+/// current surface) with the lobe model and keeps the fit where the lobe is significant (see
+/// the module documentation). Statuses: lights in the fit become USED, or HIGHLIGHT where the
+/// fitted lobe adds more than three σ_p to their reading. Returns the summary and the
+/// per-mask-pixel flags of the refined pixels.
+pub fn refine(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    noise: &NoiseModel,
+    confidence: f64,
+) -> crate::error::Result<(LobeSummary, Vec<bool>)> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let np = capture.n_pixels();
+    let depth = near.surface();
+    let nodes = grid();
+    // 1. The capture's lobe sharpness: the least total residual over evenly spaced pixels.
+    let stride = (np / SAMPLE_PIXELS).max(1);
+    let sample: Vec<usize> = (0..np).step_by(stride).collect();
+    let view = if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(&sample)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    };
+    let statuses = est.light_status.as_deref();
+    let totals: Vec<f64> = sample
+        .par_chunks(64)
+        .map_init(
+            || Scratch::new(capture, near),
+            |s, ps| {
+                let mut t = vec![0f64; LOBE_EXPONENTS.len()];
+                for &p in ps {
+                    let pixel = capture.pixels[p] as usize;
+                    let u = s.load(
+                        near,
+                        &depth,
+                        capture.width,
+                        pixel,
+                        view.pixel_samples(p),
+                        c,
+                        statuses.map(|st| &st[p * n..(p + 1) * n]),
+                    );
+                    if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
+                        continue;
+                    }
+                    let d = s.data();
+                    let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
+                    let var = noise.variance(level);
+                    for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
+                        t[j] += fit_pixel(&d, u, None, m, &nodes, true).0 / var;
+                    }
+                }
+                t
+            },
+        )
+        .reduce(
+            || vec![0f64; LOBE_EXPONENTS.len()],
+            |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
+        );
+    let (best_j, _) =
+        totals.iter().enumerate().fold(
+            (0, f64::INFINITY),
+            |acc, (j, &t)| {
+                if t < acc.1 {
+                    (j, t)
+                } else {
+                    acc
+                }
+            },
+        );
+    let m = LOBE_EXPONENTS[best_j];
+    drop(view);
+    // 2. Every pixel with that sharpness.
+    let quantile = crate::stats::chi2_quantile(confidence, 1);
+    let mut refined = vec![false; np];
+    let mut new_status = est
+        .light_status
+        .clone()
+        .unwrap_or_else(|| vec![status::USED; np * n]);
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        est.normals[off..off + tn]
+            .par_chunks_mut(CHUNK)
+            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+            .zip(new_status[off * n..(off + tn) * n].par_chunks_mut(CHUNK * n))
+            .zip(refined[off..off + tn].par_chunks_mut(CHUNK))
+            .enumerate()
+            .for_each_init(
+                || (Scratch::new(capture, near), vec![0f64; c]),
+                |(s, num), (chunk, (((nrm, alb), st), rf))| {
+                    for dp in 0..nrm.len() {
+                        let lp = chunk * CHUNK + dp;
+                        let p = off + lp;
+                        let pixel = capture.pixels[p] as usize;
+                        let samples = tile.pixel_samples(lp);
+                        let stp = &mut st[dp * n..(dp + 1) * n];
+                        let u = s.load(near, &depth, capture.width, pixel, samples, c, Some(stp));
+                        if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
+                            continue;
+                        }
+                        let d = s.data();
+                        let own = nrm[dp];
+                        let start = (own != [0.0; 3])
+                            .then(|| [own[0] as f64, own[1] as f64, own[2] as f64]);
+                        let (e, nf, rho, spec) = fit_pixel(&d, u, start, m, &nodes, true);
+                        let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
+                        let var = noise.variance(level);
+                        if !(rho > 0.0 && diffuse_residual(&d) - e > quantile * var) {
+                            continue;
+                        }
+                        rf[dp] = true;
+                        nrm[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+                        // Albedo per channel with the normal and the lobe fixed (the lobe is
+                        // the same in every channel of the normalised images).
+                        let sd = 3.0 * var.sqrt();
+                        num.fill(0.0);
+                        let mut den = 0f64;
+                        for k in 0..n {
+                            if !d.used[k] {
+                                continue;
+                            }
+                            let a = dot(d.v[k], nf).max(0.0);
+                            let lobe = spec * d.b[k] * (-m * (1.0 - dot(d.h[k], nf))).exp();
+                            for (ch, x) in num.iter_mut().enumerate() {
+                                *x += a * (samples[k * c + ch] as f64 - lobe);
+                            }
+                            den += a * a;
+                            stp[k] = if lobe > sd {
+                                status::HIGHLIGHT
+                            } else {
+                                status::USED
+                            };
+                        }
+                        for ch in 0..c {
+                            alb[dp * c + ch] = if den > 0.0 {
+                                (num[ch] / den).max(0.0) as f32
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
+                },
+            );
+        Ok(())
+    })?;
+    est.light_status = Some(new_status);
+    let count = refined.iter().filter(|&&r| r).count();
+    Ok((
+        LobeSummary {
+            exponent: m,
+            refined_pixels: count,
+            refined_share: count as f64 / np.max(1) as f64,
+        },
+        refined,
+    ))
+}
+
+/// Two unit vectors orthogonal to unit `n` and to each other.
+#[inline]
+fn basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+    let a = if n[0].abs() < 0.9 {
+        [1.0, 0.0, 0.0]
+    } else {
+        [0.0, 1.0, 0.0]
+    };
+    let t1 = unit(cross(n, a));
+    (t1, cross(n, t1))
+}
+
+#[inline]
+fn cross(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[inline]
+fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+#[inline]
+fn scale(a: [f64; 3], s: f64) -> [f64; 3] {
+    [a[0] * s, a[1] * s, a[2] * s]
+}
+
+#[inline]
+fn add3(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+#[inline]
+fn unit(a: [f64; 3]) -> [f64; 3] {
+    let l = norm(a);
+    if l > 0.0 {
+        scale(a, 1.0 / l)
+    } else {
+        [0.0, 0.0, 1.0]
+    }
+}
