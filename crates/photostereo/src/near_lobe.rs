@@ -36,8 +36,18 @@ use serde::Serialize;
 pub const LOBE_EXPONENTS: &[f64] = &[25.0, 35.0, 50.0, 70.0, 100.0, 140.0, 200.0, 280.0, 400.0];
 /// Spacing of the grid of trial normals, degrees.
 pub const GRID_STEP_DEG: f64 = 4.0;
+/// Spacing of the trial normals within [`FINE_CONE_DEG`] of the direction toward the camera,
+/// degrees: a sharp lobe's residual changes too fast for [`GRID_STEP_DEG`] there (a node 3°
+/// from the true normal can score worse than a wrong normal 35° away).
+pub const FINE_STEP_DEG: f64 = 1.5;
+/// The cone of the fine grid, degrees: a lobe about the half vectors of lights near the lens
+/// reaches normals up to about this far from the camera's direction.
+pub const FINE_CONE_DEG: f64 = 20.0;
 /// Trial normals lie within this angle of the direction toward the camera, degrees.
 pub const CONE_DEG: f64 = 60.0;
+/// The broad lobe whose grid minimum seeds the search of a sharper one (half height 13.3°
+/// from the peak).
+const BROAD_LOBE: f64 = 25.0;
 /// Lights a pixel needs in the fit: the four unknowns (n, ρ, s) and two degrees of freedom
 /// left for the residual to compare with the diffuse fit's.
 pub const MIN_LIGHTS: usize = 6;
@@ -49,8 +59,9 @@ const FINEST_STEP: f64 = 0.05 * std::f64::consts::PI / 180.0;
 /// What [`refine`] did, for `report.json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct LobeSummary {
-    /// The lobe sharpness m chosen for the capture.
-    pub exponent: f64,
+    /// The lobe sharpness m chosen for the capture; `None` when no pixel has
+    /// [`MIN_LIGHTS`] lights out of shadow (then nothing is refitted).
+    pub exponent: Option<f64>,
     /// Mask pixels whose normal now comes from the lobe fit.
     pub refined_pixels: usize,
     /// Their share of the mask.
@@ -113,20 +124,22 @@ fn fit_at(d: &PixelData, n: [f64; 3], m: f64) -> (f64, f64, f64) {
 
 /// Grid offsets (tan x, tan y) of the trial normals about u.
 fn grid() -> Vec<(f64, f64)> {
-    let r = (CONE_DEG / GRID_STEP_DEG).floor() as i32;
-    let cone = CONE_DEG.to_radians();
     let mut out = Vec::new();
-    for i in -r..=r {
-        for j in -r..=r {
-            let (x, y) = (
-                (i as f64 * GRID_STEP_DEG).to_radians(),
-                (j as f64 * GRID_STEP_DEG).to_radians(),
-            );
-            if x * x + y * y <= cone * cone {
-                out.push((x.tan(), y.tan()));
+    let mut add = |step: f64, inner: f64, outer: f64| {
+        let r = (outer / step).floor() as i32;
+        for i in -r..=r {
+            for j in -r..=r {
+                let (x, y) = (i as f64 * step, j as f64 * step);
+                let a2 = x * x + y * y;
+                if a2 <= outer * outer && a2 > inner * inner {
+                    out.push((x.to_radians().tan(), y.to_radians().tan()));
+                }
             }
         }
-    }
+    };
+    // Finely where the highlights are (normals near the camera's direction), coarsely beyond.
+    add(FINE_STEP_DEG, -1.0, FINE_CONE_DEG);
+    add(GRID_STEP_DEG, FINE_CONE_DEG, CONE_DEG);
     out
 }
 
@@ -141,12 +154,22 @@ fn fit_pixel(
     refine: bool,
 ) -> (f64, [f64; 3], f64, f64) {
     let (t1, t2) = basis(u);
+    // The best node with the lobe itself and with a broad one: a sharp lobe's residual varies
+    // too fast for the grid's spacing near the true normal, a broad lobe's leads to its basin.
+    let broad = m.min(BROAD_LOBE);
     let mut best = (f64::INFINITY, u);
+    let mut best_broad = (f64::INFINITY, u);
     for &(x, y) in nodes {
         let n = unit(add3(u, add3(scale(t1, x), scale(t2, y))));
         let e = fit_at(d, n, m).0;
         if e < best.0 {
             best = (e, n);
+        }
+        if refine && broad < m {
+            let e = fit_at(d, n, broad).0;
+            if e < best_broad.0 {
+                best_broad = (e, n);
+            }
         }
     }
     if !refine {
@@ -154,8 +177,8 @@ fn fit_pixel(
         return (e, best.1, r, s);
     }
     let mut result = search(d, best.1, m);
-    if let Some(s) = start {
-        let other = search(d, s, m);
+    let from_broad = (broad < m).then(|| search(d, search(d, best_broad.1, broad).1, m));
+    for other in from_broad.into_iter().chain(start.map(|s| search(d, s, m))) {
         if other.0 < result.0 {
             result = other;
         }
@@ -307,7 +330,7 @@ pub fn refine(
         .map_init(
             || Scratch::new(capture, near),
             |s, ps| {
-                let mut t = vec![0f64; LOBE_EXPONENTS.len()];
+                let mut t = vec![0f64; LOBE_EXPONENTS.len() + 1];
                 for &p in ps {
                     let pixel = capture.pixels[p] as usize;
                     let u = s.load(
@@ -322,6 +345,7 @@ pub fn refine(
                     if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
                         continue;
                     }
+                    t[LOBE_EXPONENTS.len()] += 1.0;
                     let d = s.data();
                     let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
                     let var = noise.variance(level);
@@ -333,20 +357,29 @@ pub fn refine(
             },
         )
         .reduce(
-            || vec![0f64; LOBE_EXPONENTS.len()],
+            || vec![0f64; LOBE_EXPONENTS.len() + 1],
             |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
         );
-    let (best_j, _) =
-        totals.iter().enumerate().fold(
-            (0, f64::INFINITY),
-            |acc, (j, &t)| {
-                if t < acc.1 {
-                    (j, t)
-                } else {
-                    acc
-                }
+    if totals[LOBE_EXPONENTS.len()] == 0.0 {
+        return Ok((
+            LobeSummary {
+                exponent: None,
+                refined_pixels: 0,
+                refined_share: 0.0,
             },
-        );
+            vec![false; np],
+        ));
+    }
+    let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
+        (0, f64::INFINITY),
+        |acc, (j, &t)| {
+            if t < acc.1 {
+                (j, t)
+            } else {
+                acc
+            }
+        },
+    );
     let m = LOBE_EXPONENTS[best_j];
     drop(view);
     // 2. Every pixel with that sharpness.
@@ -426,7 +459,7 @@ pub fn refine(
     let count = refined.iter().filter(|&&r| r).count();
     Ok((
         LobeSummary {
-            exponent: m,
+            exponent: Some(m),
             refined_pixels: count,
             refined_share: count as f64 / np.max(1) as f64,
         },
@@ -482,5 +515,57 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
         scale(a, 1.0 / l)
     } else {
         [0.0, 0.0, 1.0]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// One pixel under a ring of 12 distant lights 14° off the axis, with a Gaussian lobe about
+    /// each half vector: the lobe fit recovers the normal (the diffuse fit does not).
+    #[test]
+    fn the_lobe_fit_recovers_a_normal_whose_every_light_is_highlighted() {
+        let u = [0.0, 0.0, 1.0];
+        let slant = 14f64.to_radians();
+        let v: Vec<[f64; 3]> = (0..12)
+            .map(|k| {
+                let t = (30.0 * k as f64 + 15.0).to_radians();
+                [slant.sin() * t.cos(), slant.sin() * t.sin(), slant.cos()]
+            })
+            .collect();
+        let h: Vec<[f64; 3]> = v.iter().map(|l| unit(add3(*l, u))).collect();
+        let b = vec![1.0; 12];
+        let used = vec![true; 12];
+        let nodes = grid();
+        for (tilt, azimuth) in [(3.0f64, 40.0f64), (6.0, 200.0), (10.0, 300.0)] {
+            let (t, a) = (tilt.to_radians(), azimuth.to_radians());
+            let n = [t.sin() * a.cos(), t.sin() * a.sin(), t.cos()];
+            let (rho, spec, m) = (0.5, 0.6, 100.0);
+            let g: Vec<f64> = (0..12)
+                .map(|k| rho * dot(v[k], n) + spec * (-m * (1.0 - dot(h[k], n))).exp())
+                .collect();
+            // Every light carries a lobe of at least a tenth of the diffuse reading.
+            assert!((0..12).all(|k| g[k] - rho * dot(v[k], n) > 0.1 * rho * dot(v[k], n)));
+            let d = PixelData {
+                v: &v,
+                h: &h,
+                b: &b,
+                g: &g,
+                used: &used,
+            };
+            let (e, found, r, s) = fit_pixel(&d, u, None, m, &nodes, true);
+            let err = dot(found, n).clamp(-1.0, 1.0).acos().to_degrees();
+            assert!(err < 0.5, "tilt {tilt}°: {err}° off, residual {e}");
+            assert!((r - rho).abs() < 0.05 && (s - spec).abs() < 0.05, "{r} {s}");
+            let x = crate::lambert::solve_with(&v, None, &g).unwrap();
+            let diffuse = unit([x[0], x[1], x[2]]);
+            let err_diffuse = dot(diffuse, n).clamp(-1.0, 1.0).acos().to_degrees();
+            assert!(
+                err_diffuse > 5.0,
+                "the diffuse fit errs by only {err_diffuse}°"
+            );
+            assert!(diffuse_residual(&d) > 1e3 * e.max(1e-12));
+        }
     }
 }
