@@ -256,6 +256,7 @@ impl<'a> Scratch<'a> {
 
     /// Loads full-frame pixel `pixel` with grey readings from `samples` and the lights not in
     /// shadow by `statuses`; returns u, the unit vector toward the camera.
+    #[allow(clippy::too_many_arguments)]
     fn load(
         &mut self,
         near: &NearLights,
