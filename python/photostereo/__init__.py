@@ -77,22 +77,58 @@ class Capture:
     def from_arrays(
         cls,
         images: np.ndarray,
-        lights: Any,
+        lights: Any = None,
         intensities: Any = None,
         mask: Any = None,
+        *,
+        light_positions: Any = None,
+        camera: Any = None,
+        distance: Optional[float] = None,
+        light_axes: Any = None,
+        light_anisotropy: Any = None,
     ) -> "Capture":
         """A capture from an (N, H, W) or (N, H, W, C) array of uint8, uint16, float32 or
         float64 (any strides), (N, 3) light directions, optional (N,) or (N, C) intensities and
-        an (H, W) mask (non-zero = object). The array is read once into the library's store."""
+        an (H, W) mask (non-zero = object). The array is read once into the library's store.
+
+        Near lights (LEDs a few hundred mm away; CONVENTIONS.md): instead of ``lights``, give
+        ``light_positions`` (N, 3) in mm in the camera frame (camera centre at the origin, x
+        right, y up, z toward the camera: the object has z < 0), ``camera`` (the 3x3
+        intrinsics K in pixels, or the path of a K.txt) and ``distance`` (the object's mean
+        distance along the optical axis, mm); optional ``light_axes`` (N, 3) (default: each
+        LED aims at (0, 0, -distance)), ``light_anisotropy`` (N,) (mu: radiance ~ cos^mu off
+        the axis; default 0) and ``intensities`` (each LED's radiance along its axis at 1 mm;
+        default 1). Every method then uses per-pixel light vectors and the depth is Z in mm.
+        Distant ``lights`` with ``camera`` and ``distance`` keep the distant model but
+        integrate through the camera (depth in mm)."""
         stack = _as_stack(images)
-        lights_arr = _float_array(lights, "lights")
+        lights_arr = None if lights is None else _float_array(lights, "lights")
         intens = None
         if intensities is not None:
             intens = _float_array(intensities, "intensities")
             if intens.ndim == 1:
                 intens = intens[:, None]
         mask_arr = None if mask is None else _mask_array(mask)
-        return cls(_native.capture_from_stack(stack, lights_arr, intens, mask_arr))
+        positions = None
+        if light_positions is not None:
+            positions = _float_array(light_positions, "light_positions")
+        axes = None if light_axes is None else _float_array(light_axes, "light_axes")
+        mu = None
+        if light_anisotropy is not None:
+            mu = [float(v) for v in _float_array(light_anisotropy, "light_anisotropy").ravel()]
+        return cls(
+            _native.capture_from_stack(
+                stack,
+                lights_arr,
+                intens,
+                mask_arr,
+                positions,
+                _camera_arg(camera),
+                None if distance is None else float(distance),
+                axes,
+                mu,
+            )
+        )
 
     @property
     def width(self) -> int:
@@ -218,6 +254,8 @@ def _float_array(values: Any, name: str) -> np.ndarray:
         raise PhotostereoError(f"{name}: expected an array of numbers ({e})") from None
     if name == "lights" and (arr.ndim != 2 or arr.shape[1] != 3):
         raise PhotostereoError(f"lights: expected an (N, 3) array, got shape {arr.shape}")
+    if name in ("light_positions", "light_axes") and (arr.ndim != 2 or arr.shape[1] != 3):
+        raise PhotostereoError(f"{name}: expected an (N, 3) array in mm, got shape {arr.shape}")
     if name == "intensities" and arr.ndim not in (1, 2):
         raise PhotostereoError(
             f"intensities: expected an (N,) or (N, C) array, got shape {arr.shape}"
@@ -232,6 +270,25 @@ def _mask_array(mask: Any) -> np.ndarray:
     if arr.ndim != 2:
         raise PhotostereoError(f"mask: expected an (H, W) array, got shape {arr.shape}")
     return arr.astype(bool, copy=False)
+
+
+def _camera_arg(camera: Any) -> Any:
+    """``camera=`` as the native module takes it: a path string or a (3, 3) float64 array."""
+    if camera is None:
+        return None
+    if isinstance(camera, (str, os.PathLike)):
+        return os.fspath(camera)
+    try:
+        k = np.asarray(camera, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise PhotostereoError(
+            f"camera: expected a 3x3 array K or the path of a K.txt ({e})"
+        ) from None
+    if k.shape != (3, 3):
+        raise PhotostereoError(
+            f"camera: expected a 3x3 array K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got shape {k.shape}"
+        )
+    return np.ascontiguousarray(k)
 
 
 def _paths(path: Union[PathLike, Sequence[PathLike]]) -> list:
@@ -250,14 +307,25 @@ def load_capture(
     intensities: Optional[PathLike] = None,
     mask: Optional[PathLike] = None,
     *,
+    distance: Optional[float] = None,
+    camera: Any = None,
     num_threads: Optional[int] = None,
 ) -> Capture:
     """Reads a capture from files, in every layout the command line reads: a DiLiGenT-layout
-    folder (``lights`` replaces its directions), a list file (with ``lights``), or a list of
-    image files (with ``lights``). ``intensities`` and ``mask`` replace the layout's own.
-    Images are decoded in parallel (``num_threads`` caps the threads)."""
+    folder (``lights`` replaces its directions), a near-light folder (``light_positions.txt``,
+    ``K.txt``...), a list file (with ``lights``), or a list of image files (with ``lights``).
+    ``intensities`` and ``mask`` replace the layout's own. For one folder, ``distance`` (mm)
+    replaces ``mean_distance.txt`` (as ``--distance``) and ``camera`` (a 3x3 K in pixels or a
+    K.txt path) replaces ``K.txt``; on a folder of distant lights they add a camera (depth in
+    mm). Images are decoded in parallel (``num_threads`` caps the threads)."""
     native = _native.load_capture(
-        _paths(path), _opt_path(lights), _opt_path(intensities), _opt_path(mask), num_threads
+        _paths(path),
+        _opt_path(lights),
+        _opt_path(intensities),
+        _opt_path(mask),
+        num_threads,
+        None if distance is None else float(distance),
+        _camera_arg(camera),
     )
     return Capture(native)
 
@@ -268,6 +336,11 @@ def reconstruct(
     *,
     mask: Any = None,
     intensities: Any = None,
+    light_positions: Any = None,
+    camera: Any = None,
+    distance: Optional[float] = None,
+    light_axes: Any = None,
+    light_anisotropy: Any = None,
     method: str = "recursive",
     sigma: Optional[float] = None,
     relative_noise: float = 0.01,
@@ -296,6 +369,13 @@ def reconstruct(
         float32 or float64 (any strides; integers scaled by 255 or 65535), with ``lights``
         (N, 3) unit directions toward the lights and optional ``intensities`` (N,) or (N, C)
         and ``mask`` (H, W).
+    light_positions, camera, distance, light_axes, light_anisotropy: near lights instead of
+        ``lights`` (LED positions (N, 3) in mm, camera frame; ``camera`` the 3x3 intrinsics K in
+        pixels or a K.txt path; ``distance`` the object's mean distance in mm; optional axes
+        and anisotropy; ``intensities`` then the LEDs' radiances at 1 mm), or ``camera`` and
+        ``distance`` with distant ``lights``: see :meth:`Capture.from_arrays`. Then ``depth`` is
+        Z in mm along the optical axis and ``report["near"]`` gives the rounds of the
+        alternation.
     method: ``l2``, ``coleman-jain``, ``barsky-petrou`` or ``recursive``.
     sigma: image noise per channel, full scale 1 (None: estimated from the images).
     relative_noise: model error as a share of a pixel's mean intensity (kappa); None: measured
@@ -341,16 +421,28 @@ def reconstruct(
         integrate=integrate,
         memory_limit=memory_limit,
     )
+    near = dict(
+        light_positions=light_positions,
+        camera=camera,
+        distance=distance,
+        light_axes=light_axes,
+        light_anisotropy=light_anisotropy,
+    )
     if isinstance(images, Capture):
-        if lights is not None or intensities is not None or mask is not None:
+        given = [k for k, v in near.items() if v is not None]
+        if lights is not None or intensities is not None or mask is not None or given:
             raise PhotostereoError(
-                "images is a Capture: it carries its own lights, intensities and mask"
+                "images is a Capture: it carries its own lights, intensities, mask, camera "
+                "and distance"
             )
         capture = images
     else:
-        if lights is None:
-            raise PhotostereoError("lights: an image array needs (N, 3) light directions")
-        capture = Capture.from_arrays(images, lights, intensities, mask)
+        if lights is None and light_positions is None:
+            raise PhotostereoError(
+                "lights: an image array needs (N, 3) light directions, or light_positions "
+                "(N, 3) in mm with camera and distance for near lights"
+            )
+        capture = Capture.from_arrays(images, lights, intensities, mask, **near)
     out = _native.reconstruct(capture._native, params, num_threads, progress)
     report = json.loads(out.pop("report_json"))
     return Reconstruction(report=report, **out)
@@ -367,6 +459,8 @@ def run(
     error_map: bool = False,
     light_subset: Optional[str] = None,
     force: bool = False,
+    distance: Optional[float] = None,
+    camera: Any = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
     **params: Any,
@@ -379,7 +473,9 @@ def run(
     memory available): a capture whose samples do not fit as float32 is held in tiles at the
     images' precision, in memory or in a spill file, with the same results (``report["memory"]``
     gives the plan and the peak). Returns the report. ``force`` replaces an existing output
-    folder."""
+    folder. ``distance`` (mm) and ``camera`` (a 3x3 K in pixels or a K.txt path) act as in
+    :func:`load_capture`: on a near-light folder the depth is Z in mm and ``report["near"]``
+    gives the rounds."""
     full = defaults()
     unknown = sorted(set(params) - set(full))
     if unknown:
@@ -398,6 +494,8 @@ def run(
         force,
         num_threads,
         progress,
+        None if distance is None else float(distance),
+        _camera_arg(camera),
     )
     return json.loads(report)
 
@@ -480,11 +578,22 @@ def render_scene(
     ``face``) under a rig (``square4``, ``ring8``, ``dome-N``...) at size x size pixels with
     16-bit quantisation and Gaussian noise ``noise`` (full scale 1). Returns ``(images (N, S,
     S, 3) float32, lights (N, 3), mask (S, S), truth)`` with ``truth`` a dict of ``normals``
-    (S, S, 3), ``depth`` (S, S) and per-light ``shadows`` (N, S, S)."""
-    images, lights, mask, normals, depth, shadows = _native.render_scene(
+    (S, S, 3), ``depth`` (S, S) and per-light ``shadows`` (N, S, S).
+
+    The near-light rigs ``near-ring`` (12 LEDs around the lens), ``near-square`` and
+    ``near-dome`` place the object about 300 mm in front of a pinhole camera (``brdf``
+    ``lambert`` or ``blinn-phong``, textured albedo): ``lights`` is then the distant
+    approximation (directions at the object's centre), ``truth["depth"]`` is Z in mm, and
+    ``truth["near"]`` holds the rig as :func:`reconstruct` takes it: ``light_positions``
+    (N, 3) mm, ``light_axes``, ``light_anisotropy``, ``intensities`` (radiance at 1 mm),
+    ``camera`` (3x3 K) and ``distance`` (mm)."""
+    images, lights, mask, normals, depth, shadows, near = _native.render_scene(
         name, rig, size, brdf, noise, seed
     )
-    return images, lights, mask, {"normals": normals, "depth": depth, "shadows": shadows}
+    truth = {"normals": normals, "depth": depth, "shadows": shadows}
+    if near is not None:
+        truth["near"] = dict(near)
+    return images, lights, mask, truth
 
 
 def synth(
@@ -499,7 +608,8 @@ def synth(
     force: bool = False,
 ) -> str:
     """Renders a built-in scene into a DiLiGenT-layout folder with ground truth (``gt/``), as
-    ``photostereo synth`` does. Returns the folder."""
+    ``photostereo synth`` does (a near rig writes the near-light layout: ``K.txt``,
+    ``light_positions.txt``, ``mean_distance.txt``...). Returns the folder."""
     return _native.synth(name, os.fspath(output), rig, size, brdf, noise, seed, force)
 
 

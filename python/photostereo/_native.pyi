@@ -52,17 +52,29 @@ def load_capture(
     intensities: Optional[str] = None,
     mask: Optional[str] = None,
     num_threads: Optional[int] = None,
+    distance: Optional[float] = None,
+    camera: Optional[Any] = None,
 ) -> NativeCapture:
-    """A DiLiGenT folder, a list file (with lights) or image files (with lights)."""
+    """A DiLiGenT folder, a near-light folder, a list file (with lights) or image files (with
+    lights). For one folder, ``distance`` (mm) replaces mean_distance.txt and ``camera`` (a K.txt
+    path or a (3, 3) float64 K in pixels) replaces K.txt."""
 
 def capture_from_stack(
     images: np.ndarray,
-    lights: np.ndarray,
+    lights: Optional[np.ndarray],
     intensities: Optional[np.ndarray] = None,
     mask: Optional[np.ndarray] = None,
+    light_positions: Optional[np.ndarray] = None,
+    camera: Optional[Any] = None,
+    distance: Optional[float] = None,
+    light_axes: Optional[np.ndarray] = None,
+    light_anisotropy: Optional[List[float]] = None,
 ) -> NativeCapture:
     """images: (N, H, W, C) uint8, uint16, float32 or float64, any strides; lights (N, 3)
-    float64; intensities (N, C) float64; mask (H, W) bool. Read once, GIL released."""
+    float64; intensities (N, C) float64; mask (H, W) bool. Read once, GIL released. Near lights:
+    light_positions (N, 3) mm instead of lights, with camera (a K.txt path or a (3, 3) float64
+    K), distance (mm), optional light_axes (N, 3) and light_anisotropy (N,); intensities are
+    then radiances at 1 mm. Distant lights with camera and distance integrate in mm."""
 
 def reconstruct(
     capture: NativeCapture,
@@ -87,8 +99,11 @@ def run(
     force: bool = False,
     num_threads: Optional[int] = None,
     progress: Optional[Callable[[str, int, int], Any]] = None,
+    distance: Optional[float] = None,
+    camera: Optional[Any] = None,
 ) -> str:
-    """The command line's ``run``; returns report.json's content."""
+    """The command line's ``run``; returns report.json's content. ``distance`` and ``camera``
+    as in ``load_capture``."""
 
 def integrate(
     normals: np.ndarray,
@@ -115,8 +130,13 @@ def render_scene(
     brdf: str = "blinn-phong",
     noise: float = 0.005,
     seed: int = 1,
-) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(images, lights, mask, truth normals, truth depth, shadows)."""
+) -> Tuple[
+    np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, Optional[Dict[str, Any]]
+]:
+    """(images, lights, mask, truth normals, truth depth, shadows, near): ``near`` is None for
+    distant rigs; for near-ring, near-square and near-dome a dict of light_positions (N, 3) mm,
+    light_axes (N, 3), light_anisotropy (N,), intensities (N, 3) radiance at 1 mm, camera (3, 3)
+    K and distance (mm); the depth is then Z in mm."""
 
 def synth(
     name: str,
@@ -128,7 +148,8 @@ def synth(
     seed: int = 1,
     force: bool = False,
 ) -> str:
-    """Renders a built-in scene into a DiLiGenT-layout folder; returns the folder."""
+    """Renders a built-in scene into a DiLiGenT-layout folder (the near-light layout for a
+    near rig); returns the folder."""
 
 def read_image(path: str) -> np.ndarray:
     """(H, W, C) float32, integers scaled to [0, 1]."""

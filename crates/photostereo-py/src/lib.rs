@@ -12,10 +12,12 @@ use photostereo::capture::{Capture, CaptureFiles, Stack};
 use photostereo::detect::NoiseEstimate;
 use photostereo::engine::{Method, Params, Reconstruction};
 use photostereo::imageio::Image;
+use photostereo::lightmodel::Camera;
 use photostereo::lights::Lights;
 use photostereo::pipeline::{LightSubset, RunOptions};
 use photostereo::progress::Progress;
 use photostereo::recursive::Fallback;
+use photostereo::scene::near::{near_synth_to_folder, synthesize_near, NearRig, NearSpec};
 use photostereo::scene::{synth_to_folder, Brdf, Rig, SceneKind, SynthSpec};
 use pyo3::create_exception;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
@@ -403,29 +405,93 @@ impl NativeCapture {
     }
 }
 
-/// The input arguments of `load_capture` and `run`, as the command line takes them.
+/// The input arguments of `load_capture` and `run`, as the command line takes them, with the
+/// near-light keywords `distance` (replaces `mean_distance.txt`, as `--distance`) and `camera`
+/// (replaces `K.txt`, or gives distant lights a camera).
 struct InputFiles {
     inputs: Vec<PathBuf>,
     lights: Option<PathBuf>,
     intensities: Option<PathBuf>,
     mask: Option<PathBuf>,
+    distance: Option<f64>,
+    camera: Option<Camera>,
 }
 
 impl InputFiles {
     fn resolve(&self) -> photostereo::Result<CaptureFiles> {
-        CaptureFiles::from_inputs(
-            &self.inputs,
-            self.lights.as_deref(),
-            self.intensities.as_deref(),
-            self.mask.as_deref(),
-        )
+        use photostereo::nearlayout::{
+            attach_camera_with, is_near_layout, near_capture_files_with,
+        };
+        if self.distance.is_none() && self.camera.is_none() {
+            return CaptureFiles::from_inputs(
+                &self.inputs,
+                self.lights.as_deref(),
+                self.intensities.as_deref(),
+                self.mask.as_deref(),
+            );
+        }
+        let dir = match self.inputs.as_slice() {
+            [dir] if dir.is_dir() => dir,
+            _ => {
+                return Err(photostereo::Error::parameter(
+                    "distance",
+                    "distance= and camera= apply to one capture folder (near lights: light_positions.txt; distant lights: light_directions.txt)",
+                ))
+            }
+        };
+        let mut files = if is_near_layout(dir) {
+            near_capture_files_with(dir, self.distance, self.camera)?
+        } else {
+            let mut f = CaptureFiles::diligent_with_lights(dir, self.lights.as_deref())?;
+            if let Some(p) = &self.intensities {
+                f = f.with_intensities_file(p)?;
+            }
+            attach_camera_with(f, dir, self.distance, self.camera)?
+        };
+        if let Some(m) = &self.mask {
+            files.mask = Some(m.clone());
+        }
+        Ok(files)
     }
+}
+
+/// A camera from a K.txt path or a 3×3 array of intrinsics (pixels).
+fn camera_from(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Camera>> {
+    let Some(obj) = obj else { return Ok(None) };
+    if obj.is_none() {
+        return Ok(None);
+    }
+    if let Ok(path) = obj.extract::<PathBuf>() {
+        return photostereo::nearlayout::read_camera(&path)
+            .map(Some)
+            .map_err(py_err);
+    }
+    let k = obj
+        .extract::<PyReadonlyArray2<'_, f64>>()
+        .ok()
+        .filter(|a| a.as_array().dim() == (3, 3))
+        .ok_or_else(|| {
+            bad(format!(
+                "camera: expected a 3×3 array K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (pixels) or the path of a K.txt, got {}",
+                repr(obj)
+            ))
+        })?;
+    let k = k.as_array();
+    let rows = [
+        [k[[0, 0]], k[[0, 1]], k[[0, 2]]],
+        [k[[1, 0]], k[[1, 1]], k[[1, 2]]],
+        [k[[2, 0]], k[[2, 1]], k[[2, 2]]],
+    ];
+    photostereo::nearlayout::camera_from_matrix(rows)
+        .map(Some)
+        .map_err(py_err)
 }
 
 /// Reads a capture from files: a DiLiGenT-layout folder, a list file with `lights`, or image
 /// files with `lights`.
 #[pyfunction]
-#[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None))]
+#[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None, distance=None, camera=None))]
+#[allow(clippy::too_many_arguments)]
 fn load_capture(
     py: Python<'_>,
     inputs: Vec<PathBuf>,
@@ -433,12 +499,16 @@ fn load_capture(
     intensities: Option<PathBuf>,
     mask: Option<PathBuf>,
     num_threads: Option<usize>,
+    distance: Option<f64>,
+    camera: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<NativeCapture> {
     let files = InputFiles {
         inputs,
         lights,
         intensities,
         mask,
+        distance,
+        camera: camera_from(camera)?,
     };
     let capture = run_detached(py, num_threads, None, move |progress| {
         files.resolve()?.load(progress)
@@ -497,17 +567,109 @@ fn lights_from(
     Ok(lights)
 }
 
+/// Near lights from LED positions (N, 3) mm, a camera, the mean distance, optional axes (N, 3),
+/// anisotropy (N,) and radiances (N, C) (1 when absent).
+#[allow(clippy::too_many_arguments)]
+fn near_lights_from(
+    positions: ArrayView2<'_, f64>,
+    camera: Option<Camera>,
+    distance: Option<f64>,
+    axes: Option<ArrayView2<'_, f64>>,
+    anisotropy: Option<Vec<f64>>,
+    intensities: Option<ArrayView2<'_, f64>>,
+    channels: usize,
+) -> PyResult<Lights> {
+    let rows3 = |a: ArrayView2<'_, f64>, what: &str| -> PyResult<Vec<[f64; 3]>> {
+        if a.ncols() != 3 {
+            return Err(bad(format!(
+                "{what}: expected an (N, 3) array, got shape {:?}",
+                a.shape()
+            )));
+        }
+        Ok(a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
+    };
+    let positions = rows3(positions, "light_positions")?;
+    let n = positions.len();
+    if n < 3 {
+        return Err(bad(format!(
+            "light_positions: {n} light(s): expected at least three rows x y z in mm"
+        )));
+    }
+    let camera = camera.ok_or_else(|| {
+        bad("camera: near lights need the camera intrinsics (a 3×3 K or a K.txt path)")
+    })?;
+    let distance = distance.ok_or_else(|| {
+        bad("distance: near lights need the object's mean distance in mm; without it the lights cannot be placed")
+    })?;
+    let axes = axes.map(|a| rows3(a, "light_axes")).transpose()?;
+    if let Some(a) = &axes {
+        if a.len() != n {
+            return Err(bad(format!(
+                "light_axes: {} axes for {n} light positions: expected one per light",
+                a.len()
+            )));
+        }
+    }
+    if let Some(m) = &anisotropy {
+        if m.len() != n {
+            return Err(bad(format!(
+                "light_anisotropy: {} values for {n} light positions: expected one per light",
+                m.len()
+            )));
+        }
+    }
+    let intensities = match intensities {
+        None => vec![[1.0; 3]; n],
+        Some(e) => {
+            if e.nrows() != n || (e.ncols() != 1 && e.ncols() != channels && e.ncols() != 3) {
+                return Err(bad(format!(
+                    "intensities: expected an (N, C) array of radiances with N = {n} lights and C = 1 or {channels}, got shape {:?}",
+                    e.shape()
+                )));
+            }
+            e.rows()
+                .into_iter()
+                .map(|r| {
+                    if r.len() == 1 {
+                        [r[0]; 3]
+                    } else {
+                        [r[0], r[1], r[2]]
+                    }
+                })
+                .collect()
+        }
+    };
+    let layout = photostereo::nearlayout::NearLayout {
+        camera,
+        positions,
+        axes,
+        anisotropy,
+        intensities,
+        distance,
+    };
+    layout
+        .lights(std::path::Path::new("light_positions"))
+        .map_err(py_err)
+}
+
 /// A capture from an (N, H, W, C) array of uint8, uint16, float32 or float64, (N, 3) lights,
 /// optional (N, C) intensities and (H, W) mask. The array is read once into the library's
 /// store, with the GIL released.
 #[pyfunction]
-#[pyo3(signature = (images, lights, intensities=None, mask=None))]
+#[pyo3(signature = (images, lights, intensities=None, mask=None, light_positions=None,
+    camera=None, distance=None, light_axes=None, light_anisotropy=None))]
+#[allow(clippy::too_many_arguments)]
 fn capture_from_stack(
     py: Python<'_>,
     images: &Bound<'_, PyAny>,
-    lights: PyReadonlyArray2<'_, f64>,
+    lights: Option<PyReadonlyArray2<'_, f64>>,
     intensities: Option<PyReadonlyArray2<'_, f64>>,
     mask: Option<PyReadonlyArray2<'_, bool>>,
+    light_positions: Option<PyReadonlyArray2<'_, f64>>,
+    camera: Option<&Bound<'_, PyAny>>,
+    distance: Option<f64>,
+    light_axes: Option<PyReadonlyArray2<'_, f64>>,
+    light_anisotropy: Option<Vec<f64>>,
 ) -> PyResult<NativeCapture> {
     let channels = images
         .getattr("shape")
@@ -515,11 +677,62 @@ fn capture_from_stack(
         .and_then(|s| s.extract::<Vec<usize>>().ok())
         .and_then(|s| s.get(3).copied())
         .unwrap_or(1);
-    let lights = lights_from(
-        lights.as_array(),
-        intensities.as_ref().map(|i| i.as_array()),
-        channels,
-    )?;
+    let camera = camera_from(camera)?;
+    let lights = match (light_positions, lights) {
+        (Some(positions), None) => near_lights_from(
+            positions.as_array(),
+            camera,
+            distance,
+            light_axes.as_ref().map(|a| a.as_array()),
+            light_anisotropy,
+            intensities.as_ref().map(|i| i.as_array()),
+            channels,
+        )?,
+        (Some(_), Some(_)) => {
+            return Err(bad(
+                "lights and light_positions: give directions (distant lights) or LED positions (near lights), not both",
+            ))
+        }
+        (None, Some(lights)) => {
+            if light_axes.is_some() || light_anisotropy.is_some() {
+                return Err(bad(
+                    "light_axes and light_anisotropy describe near lights: they need light_positions",
+                ));
+            }
+            let mut l = lights_from(
+                lights.as_array(),
+                intensities.as_ref().map(|i| i.as_array()),
+                channels,
+            )?;
+            match (camera, distance) {
+                (Some(c), Some(d)) => {
+                    if !(d.is_finite() && d > 0.0) {
+                        return Err(bad(format!(
+                            "distance {d}: expected the object's mean distance in mm, finite and positive"
+                        )));
+                    }
+                    l.camera = Some((c, d));
+                }
+                (None, None) => {}
+                (Some(_), None) => {
+                    return Err(bad(
+                        "camera: distant lights seen through a camera need distance= (the object's mean distance in mm) too",
+                    ))
+                }
+                (None, Some(_)) => {
+                    return Err(bad(
+                        "distance: needs camera= (a 3×3 K or a K.txt path), or light_positions= for near lights",
+                    ))
+                }
+            }
+            l
+        }
+        (None, None) => {
+            return Err(bad(
+                "lights: an image array needs (N, 3) light directions, or light_positions (N, 3) in mm with camera and distance for near lights",
+            ))
+        }
+    };
     let mask_view = mask.as_ref().map(|m| m.as_array());
     macro_rules! build {
         ($t:ty, $variant:ident) => {
@@ -631,7 +844,8 @@ fn reconstruct<'py>(
 /// atomically; returns report.json's content as a string.
 #[pyfunction]
 #[pyo3(signature = (inputs, output, params, lights=None, intensities=None, mask=None, gt=None,
-    error_map=false, light_subset=None, force=false, num_threads=None, progress=None))]
+    error_map=false, light_subset=None, force=false, num_threads=None, progress=None,
+    distance=None, camera=None))]
 #[allow(clippy::too_many_arguments)]
 fn run(
     py: Python<'_>,
@@ -647,8 +861,11 @@ fn run(
     force: bool,
     num_threads: Option<usize>,
     progress: Option<Py<PyAny>>,
+    distance: Option<f64>,
+    camera: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<String> {
     let params = params_from(params)?;
+    let camera = camera_from(camera)?;
     let light_subset = light_subset
         .map(|s| s.parse::<LightSubset>())
         .transpose()
@@ -666,6 +883,8 @@ fn run(
         lights,
         intensities,
         mask,
+        distance,
+        camera,
     };
     let rec = run_detached(py, num_threads, progress, move |p| {
         photostereo::pipeline::run(&files.resolve()?, &options, &output, force, p)
@@ -842,8 +1061,30 @@ fn spec_from(
     Ok(spec)
 }
 
+/// The spec of a near-light scene (`rig` near-ring, near-square or near-dome).
+fn near_spec_from(
+    name: &str,
+    rig: NearRig,
+    size: usize,
+    brdf: &str,
+    noise: f64,
+    seed: u64,
+) -> PyResult<NearSpec> {
+    let scene: SceneKind = name.parse().map_err(py_err)?;
+    Ok(NearSpec {
+        size,
+        brdf: brdf.parse::<Brdf>().map_err(py_err)?,
+        noise_sigma: noise,
+        seed,
+        ..NearSpec::new(scene, rig)
+    })
+}
+
 /// Renders a built-in scene: (images (N, S, S, 3) float32, lights (N, 3), mask (S, S),
-/// truth normals (S, S, 3), truth depth (S, S), shadows (N, S, S) bool).
+/// truth normals (S, S, 3), truth depth (S, S), shadows (N, S, S) bool, near) with `near`
+/// None for distant rigs and, for the near rigs, a dict of the rig (`light_positions` (N, 3)
+/// mm, `light_axes` (N, 3), `light_anisotropy` (N,), `intensities` (N, 3) radiance at 1 mm,
+/// `camera` (3, 3) K in pixels, `distance` mm); the depth is then Z in mm.
 #[pyfunction]
 #[pyo3(signature = (name, rig="square4", size=128, brdf="blinn-phong", noise=0.005, seed=1))]
 fn render_scene<'py>(
@@ -855,10 +1096,37 @@ fn render_scene<'py>(
     noise: f64,
     seed: u64,
 ) -> PyResult<Bound<'py, PyTuple>> {
-    let spec = spec_from(name, rig, size, brdf, noise, seed)?;
-    let r = py
-        .detach(|| photostereo::scene::synthesize(&spec))
-        .map_err(py_err)?;
+    let (r, near) = match NearRig::parse(rig) {
+        Some(near_rig) => {
+            let spec = near_spec_from(name, near_rig, size, brdf, noise, seed)?;
+            let r = py.detach(|| synthesize_near(&spec)).map_err(py_err)?;
+            let d = PyDict::new(py);
+            let rows = |v: &[[f64; 3]]| Array2::from_shape_fn((v.len(), 3), |(k, j)| v[k][j]);
+            d.set_item("light_positions", rows(&r.positions).into_pyarray(py))?;
+            d.set_item("light_axes", rows(&r.axes).into_pyarray(py))?;
+            d.set_item(
+                "light_anisotropy",
+                ndarray::Array1::from_vec(r.anisotropy.clone()).into_pyarray(py),
+            )?;
+            d.set_item("intensities", rows(&r.radiance).into_pyarray(py))?;
+            let k = &r.camera;
+            let kk = Array2::from_shape_vec(
+                (3, 3),
+                vec![k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
+            )
+            .map_err(|e| bad(e.to_string()))?;
+            d.set_item("camera", kk.into_pyarray(py))?;
+            d.set_item("distance", r.distance)?;
+            (r.rendered, d.into_any().unbind())
+        }
+        None => {
+            let spec = spec_from(name, rig, size, brdf, noise, seed)?;
+            let r = py
+                .detach(|| photostereo::scene::synthesize(&spec))
+                .map_err(py_err)?;
+            (r, py.None())
+        }
+    };
     let (n, s) = (r.images.len(), size);
     let mut images = Array4::<f32>::zeros((n, s, s, 3));
     for (k, img) in r.images.iter().enumerate() {
@@ -883,6 +1151,7 @@ fn render_scene<'py>(
             normals.into_pyarray(py).into_any(),
             depth.into_pyarray(py).into_any(),
             shadows.into_pyarray(py).into_any(),
+            near.into_bound(py),
         ],
     )
 }
@@ -903,6 +1172,13 @@ fn synth(
     seed: u64,
     force: bool,
 ) -> PyResult<String> {
+    if let Some(near_rig) = NearRig::parse(rig) {
+        let spec = near_spec_from(name, near_rig, size, brdf, noise, seed)?;
+        let (_, target) = py
+            .detach(|| near_synth_to_folder(&spec, &output, force))
+            .map_err(py_err)?;
+        return Ok(target.display().to_string());
+    }
     let spec = spec_from(name, rig, size, brdf, noise, seed)?;
     let (_, target) = py
         .detach(|| synth_to_folder(&spec, &output, force))

@@ -45,6 +45,21 @@ fn main() -> photostereo::Result<()> {
                     .and_then(|v| v.get("rounds"))
                     .and_then(|v| v.as_array())
                     .map_or(0, |a| a.len());
+                if let Some(l) = rec
+                    .report
+                    .extra
+                    .get("near")
+                    .and_then(|v| v.get("highlight_lobe"))
+                {
+                    if !l.is_null() {
+                        eprintln!(
+                            "  {} {} {}: lobe {l}",
+                            scene.name(),
+                            rig.name(),
+                            method.name()
+                        );
+                    }
+                }
                 Ok((e.mean_deg, rounds))
             };
             let distant = err(&r.distant_capture()?, Method::L2)?.0;

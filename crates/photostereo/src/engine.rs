@@ -460,9 +460,31 @@ fn alternate(
     let mut rounds = Vec::new();
     let mut converged = false;
     let mut last = None;
+    let method = params.method;
+    let mut lobe = None;
     for round in 1..=MAX_ROUNDS {
         let t = Instant::now();
-        let result = estimate(capture, params, truth, can_detect, progress, report)?;
+        let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
+        // The recursive method's highlights, modelled where no light is free of them.
+        if let (Method::Recursive, Some(d)) = (method, result.1.as_ref()) {
+            let t = Instant::now();
+            let (summary, refined) = crate::near_lobe::refine(
+                capture,
+                near,
+                &mut result.0,
+                &d.noise,
+                d.params.confidence,
+            )?;
+            if let Some(diag) = result.2.as_mut() {
+                for (p, &i) in capture.pixels.iter().enumerate() {
+                    if refined[p] {
+                        diag.trust[i as usize] = 1.0;
+                    }
+                }
+            }
+            report.time("highlight_lobe", t);
+            lobe = Some(summary);
+        }
         let normals = capture.scatter(&result.0.normals, 1, [0.0; 3]);
         let trust = integration_trust(capture, params, result.2.as_ref(), result.1.as_ref());
         let surface =
@@ -509,6 +531,7 @@ fn alternate(
             "rounds": rounds,
             "converged": converged,
             "tolerance_mm": DEPTH_TOLERANCE * d,
+            "highlight_lobe": lobe,
         }),
     );
     if !converged {

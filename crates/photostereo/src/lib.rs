@@ -62,6 +62,7 @@ pub mod maps;
 pub mod matfile;
 pub mod memory;
 pub mod metrics;
+pub mod near_lobe;
 pub mod nearlayout;
 pub mod pipeline;
 pub mod plausibility;

@@ -255,8 +255,28 @@ impl NearLayout {
     }
 }
 
+/// [`read_near_layout`] with `camera` in place of `K.txt` (not read).
+fn read_near_layout_with_camera(
+    dir: &Path,
+    distance: Option<f64>,
+    camera: Camera,
+) -> Result<NearLayout> {
+    let mut layout = read_near_layout_files(dir, distance, Some("1 0 0\n0 1 0\n0 0 1\n"))?;
+    layout.camera = camera;
+    Ok(layout)
+}
+
 /// Reads the near-light files of `dir` ([`parse_near_layout`]).
 pub fn read_near_layout(dir: &Path, distance: Option<f64>) -> Result<NearLayout> {
+    read_near_layout_files(dir, distance, None)
+}
+
+/// [`read_near_layout`]; `camera_text` replaces the content of `K.txt` when given.
+fn read_near_layout_files(
+    dir: &Path,
+    distance: Option<f64>,
+    camera_text: Option<&str>,
+) -> Result<NearLayout> {
     let names = [
         dir.join("K.txt"),
         dir.join("light_positions.txt"),
@@ -274,8 +294,12 @@ pub fn read_near_layout(dir: &Path, distance: Option<f64>) -> Result<NearLayout>
     };
     let positions = read(&names[1])?
         .ok_or_else(|| Error::file(&names[1], "missing: expected N rows x y z in mm"))?;
+    let k_text = match camera_text {
+        Some(t) => Some(t.to_string()),
+        None => read(&names[0])?,
+    };
     parse_near_layout(
-        read(&names[0])?.as_deref(),
+        k_text.as_deref(),
         &positions,
         read(&names[2])?.as_deref(),
         read(&names[3])?.as_deref(),
@@ -288,10 +312,59 @@ pub fn read_near_layout(dir: &Path, distance: Option<f64>) -> Result<NearLayout>
     )
 }
 
+/// A camera from its 3×3 intrinsics `k` (rows `fx 0 cx / 0 fy cy / 0 0 1`, pixels), checked as
+/// [`parse_camera`] checks `K.txt`; errors name the parameter `camera`.
+pub fn camera_from_matrix(k: [[f64; 3]; 3]) -> Result<Camera> {
+    if k.iter().flatten().any(|v| !v.is_finite()) {
+        return Err(Error::parameter(
+            "camera",
+            format!("{k:?}: expected finite values"),
+        ));
+    }
+    if k[2] != [0.0, 0.0, 1.0] {
+        return Err(Error::parameter(
+            "camera",
+            format!("last row {:?}: expected 0 0 1", k[2]),
+        ));
+    }
+    if k[0][1] != 0.0 || k[1][0] != 0.0 {
+        return Err(Error::parameter(
+            "camera",
+            format!(
+                "K[0][1] = {}, K[1][0] = {}: expected 0 (square pixels without skew)",
+                k[0][1], k[1][0]
+            ),
+        ));
+    }
+    if !(k[0][0] > 0.0 && k[1][1] > 0.0) {
+        return Err(Error::parameter(
+            "camera",
+            format!(
+                "focal lengths fx = {}, fy = {}: K is not invertible (expected positive values in pixels)",
+                k[0][0], k[1][1]
+            ),
+        ));
+    }
+    Camera::new(k[0][0], k[1][1], k[0][2], k[1][2])
+}
+
 /// The capture files of a near-light folder: the DiLiGenT layout's images and mask with the
 /// near lights (`light_directions.txt` is not read). `distance` overrides `mean_distance.txt`.
 pub fn near_capture_files(dir: &Path, distance: Option<f64>) -> Result<CaptureFiles> {
-    let layout = read_near_layout(dir, distance)?;
+    near_capture_files_with(dir, distance, None)
+}
+
+/// [`near_capture_files`] with `camera`, when given, in place of the folder's `K.txt` (which
+/// may then be absent).
+pub fn near_capture_files_with(
+    dir: &Path,
+    distance: Option<f64>,
+    camera: Option<Camera>,
+) -> Result<CaptureFiles> {
+    let layout = match camera {
+        None => read_near_layout(dir, distance)?,
+        Some(camera) => read_near_layout_with_camera(dir, distance, camera)?,
+    };
     let positions = dir.join("light_positions.txt");
     let lights = layout.lights(&positions)?;
     let images = crate::capture::folder_images(dir)?;
@@ -327,12 +400,23 @@ pub fn near_capture_files(dir: &Path, distance: Option<f64>) -> Result<CaptureFi
 /// without either) to `files`, so that the depth is integrated through the camera in mm.
 /// Without `K.txt`, `files` is returned unchanged (and `distance` refused).
 pub fn attach_camera(
-    mut files: CaptureFiles,
+    files: CaptureFiles,
     dir: &Path,
     distance: Option<f64>,
 ) -> Result<CaptureFiles> {
+    attach_camera_with(files, dir, distance, None)
+}
+
+/// [`attach_camera`] with `camera`, when given, in place of the folder's `K.txt` (which may
+/// then be absent).
+pub fn attach_camera_with(
+    mut files: CaptureFiles,
+    dir: &Path,
+    distance: Option<f64>,
+    camera: Option<Camera>,
+) -> Result<CaptureFiles> {
     let k = dir.join("K.txt");
-    if !k.is_file() {
+    if camera.is_none() && !k.is_file() {
         if distance.is_some() {
             return Err(Error::file(
                 &k,
@@ -341,7 +425,10 @@ pub fn attach_camera(
         }
         return Ok(files);
     }
-    let camera = read_camera(&k)?;
+    let camera = match camera {
+        Some(c) => c,
+        None => read_camera(&k)?,
+    };
     let path = dir.join("mean_distance.txt");
     let d = match distance {
         Some(d) if d.is_finite() && d > 0.0 => d,
