@@ -518,6 +518,20 @@ fn load_capture(
     })
 }
 
+/// The rows of an (N, 1|3) intensity array as RGB triples (one value: grey light).
+fn rgb_rows(e: &ArrayView2<'_, f64>) -> Vec<[f64; 3]> {
+    e.rows()
+        .into_iter()
+        .map(|r| {
+            if r.len() == 1 {
+                [r[0]; 3]
+            } else {
+                [r[0], r[1], r[2]]
+            }
+        })
+        .collect()
+}
+
 /// Lights from (N, 3) directions and optional (N, C) intensities.
 fn lights_from(
     directions: ArrayView2<'_, f64>,
@@ -551,17 +565,7 @@ fn lights_from(
                 e.shape()
             )));
         }
-        let rows: Vec<[f64; 3]> = e
-            .rows()
-            .into_iter()
-            .map(|r| {
-                if r.len() == 1 {
-                    [r[0]; 3]
-                } else {
-                    [r[0], r[1], r[2]]
-                }
-            })
-            .collect();
+        let rows = rgb_rows(&e);
         lights = lights.with_intensities(rows).map_err(py_err)?;
     }
     Ok(lights)
@@ -627,16 +631,7 @@ fn near_lights_from(
                     e.shape()
                 )));
             }
-            e.rows()
-                .into_iter()
-                .map(|r| {
-                    if r.len() == 1 {
-                        [r[0]; 3]
-                    } else {
-                        [r[0], r[1], r[2]]
-                    }
-                })
-                .collect()
+            rgb_rows(&e)
         }
     };
     let layout = photostereo::nearlayout::NearLayout {

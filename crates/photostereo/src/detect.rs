@@ -1065,6 +1065,15 @@ impl<'a> Attributor<'a> {
         )
     }
 
+    /// The test at full-frame pixel `pixel`: the capture's own with distant lights, the pixel's
+    /// with near lights (None where its vectors are singular).
+    fn test_at<'s>(&'s self, near: &'s mut Option<NearTest<'a>>, pixel: usize) -> Option<&'s Test> {
+        match near.as_mut() {
+            None => Some(&self.test),
+            Some(t) => t.at(pixel),
+        }
+    }
+
     /// [`Attributor::run`] at full-frame pixel `pixel`: with near lights, with that pixel's
     /// light vectors at the current surface (NaN statistic, nothing changed, where they are
     /// singular); with distant lights exactly `run`.
@@ -1076,15 +1085,9 @@ impl<'a> Attributor<'a> {
         scratch: &mut AttributionScratch<'a>,
     ) -> (f64, usize) {
         let AttributionScratch(s, near) = scratch;
-        let test = match near.as_mut() {
-            None => &self.test,
-            Some(t) => match t.at(pixel) {
-                Some(t) => t,
-                None => {
-                    let count = status.iter().filter(|&&x| x == status::USED).count();
-                    return (f64::NAN, count);
-                }
-            },
+        let Some(test) = self.test_at(near, pixel) else {
+            let count = status.iter().filter(|&&x| x == status::USED).count();
+            return (f64::NAN, count);
         };
         self.run_with(test, grey, status, s)
     }
@@ -1136,15 +1139,9 @@ impl<'a> Attributor<'a> {
         scratch: &mut AttributionScratch<'a>,
     ) -> (f64, usize) {
         let AttributionScratch(s, near) = scratch;
-        let test = match near.as_mut() {
-            None => &self.test,
-            Some(t) => match t.at(pixel) {
-                Some(t) => t,
-                None => {
-                    let count = status.iter().filter(|&&x| x == status::USED).count();
-                    return (f64::NAN, count);
-                }
-            },
+        let Some(test) = self.test_at(near, pixel) else {
+            let count = status.iter().filter(|&&x| x == status::USED).count();
+            return (f64::NAN, count);
         };
         let n = grey.len();
         let level = grey.iter().sum::<f64>() / n as f64;

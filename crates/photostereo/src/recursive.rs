@@ -475,15 +475,7 @@ pub fn recursive(
                 min_kept,
             );
             let moved: Vec<usize> = (0..np)
-                .filter(|&p| {
-                    let (a, b) = (
-                        &filtered[p * n..(p + 1) * n],
-                        &new_status[p * n..(p + 1) * n],
-                    );
-                    a.iter()
-                        .zip(b)
-                        .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
-                })
+                .filter(|&p| usable_differs(&filtered, &new_status, p, n))
                 .collect();
             new_status = filtered;
             if let Some(att) = attributor.as_ref() {
@@ -511,15 +503,7 @@ pub fn recursive(
             }
         }
         let changed_pixels = (0..np)
-            .filter(|&p| {
-                let (a, b) = (
-                    &new_status[p * n..(p + 1) * n],
-                    &light_status[p * n..(p + 1) * n],
-                );
-                a.iter()
-                    .zip(b)
-                    .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
-            })
+            .filter(|&p| usable_differs(&new_status, &light_status, p, n))
             .count();
         light_status = new_status;
         consistent = new_consistent;
@@ -599,6 +583,15 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
+/// per pixel (labels of removed lights aside).
+fn usable_differs(a: &[u8], b: &[u8], p: usize, n: usize) -> bool {
+    a[p * n..(p + 1) * n]
+        .iter()
+        .zip(&b[p * n..(p + 1) * n])
+        .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
 }
 
 /// When the recursion stops, and why: the usable-light sets settled (the share of pixels that
