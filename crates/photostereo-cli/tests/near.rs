@@ -3,15 +3,10 @@
 //! --distance` integrates any normal map through a camera.
 
 use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn photostereo(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_photostereo"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .expect("the binary runs")
-}
+mod common;
+use common::photostereo;
 
 fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).to_string()

@@ -1,15 +1,9 @@
 //! `photostereo synth` and `photostereo demo` end to end: the binary, its files and its output.
 
-use std::path::Path;
-use std::process::{Command, Output};
+use std::process::Output;
 
-fn photostereo(args: &[&str], cwd: &Path) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_photostereo"))
-        .args(args)
-        .current_dir(cwd)
-        .output()
-        .expect("the binary runs")
-}
+mod common;
+use common::photostereo;
 
 fn stdout(o: &Output) -> String {
     String::from_utf8_lossy(&o.stdout).to_string()

@@ -9,6 +9,15 @@ use std::path::Path;
 
 /// The binary under test.
 pub const BIN: &str = env!("CARGO_BIN_EXE_photostereo");
+
+/// Runs the binary under test with `args` in the folder `cwd`.
+pub fn photostereo(args: &[&str], cwd: &Path) -> std::process::Output {
+    std::process::Command::new(BIN)
+        .args(args)
+        .current_dir(cwd)
+        .output()
+        .expect("the binary runs")
+}
 /// Width and height of the images, pixels.
 pub const SIZE: usize = 24;
 /// The light directions (not unit length; the reader normalises them).
