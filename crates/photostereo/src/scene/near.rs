@@ -12,7 +12,7 @@
 //! image centre.
 
 use super::reflectance::{BLINN_PHONG_EXPONENT, BLINN_PHONG_KS};
-use super::render::{CaptureStats, GroundTruth, Rendered};
+use super::render::{gather_lights, GroundTruth, LightResult, Rendered};
 use super::rng::{splitmix64, Pcg32};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Brdf;
@@ -349,19 +349,12 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
         .collect();
     let threshold = 0.02f64.max(3.0 * spec.noise_sigma);
     let seed = splitmix64(spec.seed);
-    struct PerLight {
-        image: Vec<f32>,
-        shadow: Vec<bool>,
-        cast: Vec<bool>,
-        highlight: Vec<bool>,
-        clipped: usize,
-    }
-    let per_light: Vec<PerLight> = (0..n_lights)
+    let per_light: Vec<LightResult> = (0..n_lights)
         .into_par_iter()
         .map(|k| {
             let mut rng = Pcg32::new(seed, k as u64 + 1);
             let s = positions[k];
-            let mut out = PerLight {
+            let mut out = LightResult {
                 image: vec![0.0; size * size * 3],
                 shadow: vec![false; size * size],
                 cast: vec![false; size * size],
@@ -475,30 +468,7 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
         cast_shadow: Vec::with_capacity(n_lights),
         highlight: Vec::with_capacity(n_lights),
     };
-    let mut stats = CaptureStats::default();
-    let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
-    let mut images = Vec::with_capacity(n_lights);
-    for r in per_light {
-        stats.shadow_fraction += count(&r.shadow);
-        stats.cast_shadow_fraction += count(&r.cast);
-        stats.highlight_fraction += count(&r.highlight);
-        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
-        images.push(Image {
-            width: size,
-            height: size,
-            channels: 3,
-            bit_depth: 16,
-            data: r.image,
-        });
-        truth.shadow.push(r.shadow);
-        truth.cast_shadow.push(r.cast);
-        truth.highlight.push(r.highlight);
-    }
-    let nl = n_lights as f64;
-    stats.shadow_fraction /= nl;
-    stats.cast_shadow_fraction /= nl;
-    stats.highlight_fraction /= nl;
-    stats.clipped_fraction /= nl;
+    let (images, stats) = gather_lights(per_light, size, size, mask_pixels, &mut truth);
     // The capture's lights: the distant approximation at the centre plus the near model; the
     // images are divided by E_k times the brightness at the centre.
     let centre = model.centre_brightness().to_vec();

@@ -260,8 +260,6 @@ pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result
         .collect();
     let n = lights.len();
     let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
-    let mut stats = CaptureStats::default();
-    let mut images = Vec::with_capacity(n);
     let mut truth = GroundTruth {
         width: w,
         height: h,
@@ -288,27 +286,7 @@ pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result
         cast_shadow: Vec::with_capacity(n),
         highlight: Vec::with_capacity(n),
     };
-    let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
-    for r in per_light {
-        stats.shadow_fraction += count(&r.shadow);
-        stats.cast_shadow_fraction += count(&r.cast);
-        stats.highlight_fraction += count(&r.highlight);
-        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
-        images.push(Image {
-            width: w,
-            height: h,
-            channels: 3,
-            bit_depth: 16,
-            data: r.image,
-        });
-        truth.shadow.push(r.shadow);
-        truth.cast_shadow.push(r.cast);
-        truth.highlight.push(r.highlight);
-    }
-    stats.shadow_fraction /= n as f64;
-    stats.cast_shadow_fraction /= n as f64;
-    stats.highlight_fraction /= n as f64;
-    stats.clipped_fraction /= n as f64;
+    let (images, stats) = gather_lights(per_light, w, h, mask_pixels, &mut truth);
     Ok(Rendered {
         scene: scene.name.clone(),
         rig: String::new(),
@@ -319,12 +297,50 @@ pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result
     })
 }
 
-struct LightResult {
-    image: Vec<f32>,
-    shadow: Vec<bool>,
-    cast: Vec<bool>,
-    highlight: Vec<bool>,
-    clipped: usize,
+/// One light's rendering: its 16-bit RGB image as f32 and its ground-truth maps.
+pub(crate) struct LightResult {
+    pub(crate) image: Vec<f32>,
+    pub(crate) shadow: Vec<bool>,
+    pub(crate) cast: Vec<bool>,
+    pub(crate) highlight: Vec<bool>,
+    pub(crate) clipped: usize,
+}
+
+/// The lights' renderings as the capture's images (`width` × `height`, RGB, 16-bit), their maps
+/// pushed onto `truth`, and the shares of shadowed, cast-shadowed, highlighted and clipped mask
+/// pixels averaged over the lights (`mask_pixels` mask pixels).
+pub(crate) fn gather_lights(
+    per_light: Vec<LightResult>,
+    width: usize,
+    height: usize,
+    mask_pixels: f64,
+    truth: &mut GroundTruth,
+) -> (Vec<Image>, CaptureStats) {
+    let n = per_light.len().max(1) as f64;
+    let mut stats = CaptureStats::default();
+    let mut images = Vec::with_capacity(per_light.len());
+    let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
+    for r in per_light {
+        stats.shadow_fraction += count(&r.shadow);
+        stats.cast_shadow_fraction += count(&r.cast);
+        stats.highlight_fraction += count(&r.highlight);
+        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
+        images.push(Image {
+            width,
+            height,
+            channels: 3,
+            bit_depth: 16,
+            data: r.image,
+        });
+        truth.shadow.push(r.shadow);
+        truth.cast_shadow.push(r.cast);
+        truth.highlight.push(r.highlight);
+    }
+    stats.shadow_fraction /= n;
+    stats.cast_shadow_fraction /= n;
+    stats.highlight_fraction /= n;
+    stats.clipped_fraction /= n;
+    (images, stats)
 }
 
 fn render_light(
