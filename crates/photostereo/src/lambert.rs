@@ -54,65 +54,55 @@ pub fn solve_subsets(
     usable: Option<&[bool]>,
     progress: &dyn Progress,
 ) -> Estimate {
-    if let Some(near) = capture.lights.near.as_deref() {
-        return solve_subsets_near(capture, near, usable, progress);
-    }
     let n = capture.n_lights();
-    let c = capture.channels;
-    let np = capture.n_pixels();
-    let mut normals = vec![[0f32; 3]; np];
-    let mut albedo = vec![0f32; np * c];
-    let all = SubsetSolver::all_lights(capture);
-    progress.begin("estimating", np as u64);
-    normals
-        .par_chunks_mut(CHUNK)
-        .zip(albedo.par_chunks_mut(CHUNK * c))
-        .enumerate()
-        .for_each_init(
-            || (SubsetCache::new(capture), vec![0f64; n]),
-            |(cache, grey), (chunk, (nrm, alb))| {
-                let p0 = chunk * CHUNK;
-                for (dp, out_n) in nrm.iter_mut().enumerate() {
-                    let p = p0 + dp;
-                    let samples = capture.pixel_samples(p);
-                    channel_mean(samples, c, grey);
-                    let solved = match usable {
-                        None => all.solve(grey),
-                        Some(flags) => {
-                            let used = &flags[p * n..(p + 1) * n];
-                            cache.solve(used, grey)
-                        }
-                    };
-                    let out_a = &mut alb[dp * c..(dp + 1) * c];
-                    match solved {
-                        Some(m) => {
-                            let used = usable.map(|f| &f[p * n..(p + 1) * n]);
-                            write_normal_albedo(capture, samples, &m, used, out_n, out_a);
-                        }
-                        None => {
-                            *out_n = [0.0; 3];
-                            out_a.fill(0.0);
-                        }
-                    }
-                }
-                progress.advance(nrm.len() as u64);
+    let used_at = |p: usize| usable.map(|f| &f[p * n..(p + 1) * n]);
+    if let Some(near) = capture.lights.near.as_deref() {
+        // Near lights: each pixel's own light vectors at the current surface (ALGORITHMS.md
+        // §9), its 3×3 normal matrix formed and solved per pixel.
+        let c = capture.channels;
+        return solve_per_pixel(
+            capture,
+            progress,
+            || {
+                crate::lightmodel::PixelLights::new(
+                    &capture.lights.directions,
+                    Some(near),
+                    capture.width,
+                )
+            },
+            |lights, p, samples, grey, out_n, out_a| {
+                let used = used_at(p);
+                let dirs = lights.at(capture.pixels[p] as usize);
+                let m = solve_with(dirs, used, grey)?;
+                write_normal_albedo_with(dirs, c, samples, &m, used, out_n, out_a);
+                Some(())
             },
         );
-    progress.end();
-    Estimate {
-        normals,
-        albedo,
-        light_status: None,
     }
+    let all = SubsetSolver::all_lights(capture);
+    solve_per_pixel(
+        capture,
+        progress,
+        || SubsetCache::new(capture),
+        |cache, p, samples, grey, out_n, out_a| {
+            let m = match used_at(p) {
+                None => all.solve(grey),
+                Some(used) => cache.solve(used, grey),
+            }?;
+            write_normal_albedo(capture, samples, &m, used_at(p), out_n, out_a);
+            Some(())
+        },
+    )
 }
 
-/// [`solve_subsets`] with near lights: each pixel's own light vectors at the current surface
-/// (ALGORITHMS.md §9), its 3×3 normal matrix formed and solved per pixel.
-fn solve_subsets_near(
+/// The per-pixel skeleton of the least-squares solvers: rows of pixels in parallel, the channel
+/// mean of each pixel's samples, and `solve(state, p, samples, grey, normal, albedo)` writing the
+/// pixel's normal and albedo; `None` leaves a zero normal and albedo.
+fn solve_per_pixel<S>(
     capture: &Capture,
-    near: &crate::lightmodel::NearLights,
-    usable: Option<&[bool]>,
     progress: &dyn Progress,
+    init: impl Fn() -> S + Sync + Send,
+    solve: impl Fn(&mut S, usize, &[f32], &[f64], &mut [f32; 3], &mut [f32]) -> Option<()> + Sync + Send,
 ) -> Estimate {
     let n = capture.n_lights();
     let c = capture.channels;
@@ -125,33 +115,17 @@ fn solve_subsets_near(
         .zip(albedo.par_chunks_mut(CHUNK * c))
         .enumerate()
         .for_each_init(
-            || {
-                (
-                    crate::lightmodel::PixelLights::new(
-                        &capture.lights.directions,
-                        Some(near),
-                        capture.width,
-                    ),
-                    vec![0f64; n],
-                )
-            },
-            |(lights, grey), (chunk, (nrm, alb))| {
+            || (init(), vec![0f64; n]),
+            |(state, grey), (chunk, (nrm, alb))| {
                 let p0 = chunk * CHUNK;
                 for (dp, out_n) in nrm.iter_mut().enumerate() {
                     let p = p0 + dp;
                     let samples = capture.pixel_samples(p);
                     channel_mean(samples, c, grey);
-                    let used = usable.map(|f| &f[p * n..(p + 1) * n]);
-                    let dirs = lights.at(capture.pixels[p] as usize);
                     let out_a = &mut alb[dp * c..(dp + 1) * c];
-                    match solve_with(dirs, used, grey) {
-                        Some(m) => {
-                            write_normal_albedo_with(dirs, c, samples, &m, used, out_n, out_a)
-                        }
-                        None => {
-                            *out_n = [0.0; 3];
-                            out_a.fill(0.0);
-                        }
+                    if solve(state, p, samples, grey, out_n, out_a).is_none() {
+                        *out_n = [0.0; 3];
+                        out_a.fill(0.0);
                     }
                 }
                 progress.advance(nrm.len() as u64);
