@@ -192,7 +192,9 @@ pub fn curl_map(
             }
             (sum, count)
         })
-        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     (curl, if count > 0 { sum / count as f64 } else { 0.0 })
 }
 
@@ -733,14 +735,13 @@ impl Components {
                     sums(t * BLOCK, labels, &mut sum, &mut cnt);
                     (sum, cnt)
                 })
-                .reduce(
-                    || (vec![0f64; k], vec![0f64; k]),
-                    |mut a, b| {
-                        a.0.iter_mut().zip(&b.0).for_each(|(x, y)| *x += y);
-                        a.1.iter_mut().zip(&b.1).for_each(|(x, y)| *x += y);
-                        a
-                    },
-                )
+                .collect::<Vec<_>>()
+                .into_iter()
+                .fold((vec![0f64; k], vec![0f64; k]), |mut a, b| {
+                    a.0.iter_mut().zip(&b.0).for_each(|(x, y)| *x += y);
+                    a.1.iter_mut().zip(&b.1).for_each(|(x, y)| *x += y);
+                    a
+                })
         } else {
             let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
             sums(0, &self.labels, &mut sum, &mut cnt);
@@ -752,7 +753,12 @@ impl Components {
     /// The mean of `f` over each component (sums in f64).
     pub fn means<T: Sample>(&self, f: &[T]) -> Vec<f64> {
         if self.is_whole_grid() {
-            let sum = f.par_iter().map(|&v| v.to_f64()).sum::<f64>();
+            let sum = f
+                .par_chunks(1 << 14)
+                .map(|c| c.iter().map(|&v| v.to_f64()).sum::<f64>())
+                .collect::<Vec<f64>>()
+                .into_iter()
+                .sum::<f64>();
             return vec![sum / f.len().max(1) as f64];
         }
         self.labelled_means(|i| f[i].to_f64())

@@ -238,7 +238,9 @@ impl Level {
                     (dot_and_sums(&x[r * w..(r + 1) * w], &acc[..w]).0, sum)
                 },
             )
-            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
 
     /// `r = b − A x` with f64 `x` and `b` (the CG's true residual; 0 on inactive cells).
@@ -753,6 +755,8 @@ fn dot64(a: &[f64], b: &[f64]) -> f64 {
     a.par_chunks(CHUNK)
         .zip(b.par_chunks(CHUNK))
         .map(|(x, y)| dot_f64(x, y))
+        .collect::<Vec<f64>>()
+        .into_iter()
         .sum()
 }
 
@@ -797,6 +801,8 @@ fn cg_update(
             }
             acc.iter().sum::<f64>()
         })
+        .collect::<Vec<f64>>()
+        .into_iter()
         .sum()
 }
 
@@ -859,7 +865,9 @@ pub(crate) fn pcg(
             .par_chunks(CHUNK)
             .zip(r.par_chunks(CHUNK))
             .map(|(a, b)| dot_and_sums(a, b))
-            .reduce(|| (0.0, 0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold((0.0, 0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
         match null_space {
             Some(c) if c.is_whole_grid() => {
                 let m = z_sum / n as f64;

@@ -183,6 +183,8 @@ pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
                 sq
             },
         )
+        .collect::<Vec<f64>>()
+        .into_iter()
         .sum();
     let mut t: Vec<f64> = super::multigrid::par_zeros(w * h);
     transpose(&f, w, h, &mut t);
@@ -218,7 +220,9 @@ pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
                     .fold((0f64, 0usize), |(s, n), (v, _)| (s + v, n + 1))
             },
         )
-        .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        .collect::<Vec<_>>()
+        .into_iter()
+        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
     if lambda == 0.0 && count > 0 {
         let mean = sum / count as f64;
         f.par_iter_mut().for_each(|v| *v -= mean);
@@ -254,6 +258,8 @@ pub(super) fn dct_solve<G: Fn(usize) -> (f64, f64) + Sync>(
                 sq
             },
         )
+        .collect::<Vec<f64>>()
+        .into_iter()
         .sum();
     (f, (res_sq / b_sq).sqrt())
 }
