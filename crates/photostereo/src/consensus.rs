@@ -26,6 +26,18 @@ pub fn majority_filter(
     radius: usize,
     min_kept: usize,
 ) -> (Vec<u8>, usize) {
+    majority_filter_where(capture, light_status, radius, min_kept, None)
+}
+
+/// [`majority_filter`] at the mask pixels where `only` is true (every pixel when None); the
+/// others keep their statuses and are not counted.
+pub fn majority_filter_where(
+    capture: &Capture,
+    light_status: &[u8],
+    radius: usize,
+    min_kept: usize,
+    only: Option<&[bool]>,
+) -> (Vec<u8>, usize) {
     let n = capture.n_lights();
     let np = capture.n_pixels();
     let (w, h) = (capture.width, capture.height);
@@ -50,6 +62,9 @@ pub fn majority_filter(
                 let mut changed = 0;
                 for (dp, row) in rows.chunks_mut(n).enumerate() {
                     let p = chunk * CHUNK + dp;
+                    if only.is_some_and(|o| !o[p]) {
+                        continue;
+                    }
                     let pix = capture.pixels[p] as usize;
                     let (r, c) = (pix / w, pix % w);
                     neighbours.clear();
@@ -101,6 +116,31 @@ pub fn majority_filter(
         )
         .sum();
     (out, changed)
+}
+
+/// The mask pixels within `radius` (Chebyshev distance, in pixels) of a mask pixel where
+/// `seeds` is true: where [`majority_filter`]'s result can differ after the statuses changed
+/// at the seeds.
+pub fn neighbourhood_of(capture: &Capture, seeds: &[bool], radius: usize) -> Vec<bool> {
+    let (w, h) = (capture.width, capture.height);
+    // Per frame pixel, whether a seed lies within `radius` columns on its row, then within
+    // `radius` rows of that.
+    let mut across = vec![false; w * h];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        if seeds[p] {
+            let (r, c) = (i as usize / w, i as usize % w);
+            let row = &mut across[r * w..(r + 1) * w];
+            row[c.saturating_sub(radius)..(c + radius + 1).min(w)].fill(true);
+        }
+    }
+    capture
+        .pixels
+        .par_iter()
+        .map(|&i| {
+            let (r, c) = (i as usize / w, i as usize % w);
+            (r.saturating_sub(radius)..(r + radius + 1).min(h)).any(|rr| across[rr * w + c])
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -171,6 +211,44 @@ mod tests {
                 changed > np / 2,
                 "random statuses mostly change: {changed}/{np}"
             );
+        }
+    }
+
+    /// Filtering only the neighbourhood of the pixels whose statuses changed gives the whole
+    /// filter of the changed statuses.
+    #[test]
+    fn filtering_the_neighbourhood_of_changes_equals_filtering_everything() {
+        let (capture, _) = lambert_sphere(40, 15.0, &ring(8, 30.0));
+        let (n, np) = (capture.n_lights(), capture.n_pixels());
+        let mut rng = Pcg32::new(7, 0);
+        let mut random = |rng: &mut Pcg32| match rng.next_u32() % 10 {
+            0..=5 => status::USED,
+            6 | 7 => status::SHADOW,
+            8 => status::HIGHLIGHT,
+            _ => status::REJECTED,
+        };
+        let before: Vec<u8> = (0..np * n).map(|_| random(&mut rng)).collect();
+        let mut after = before.clone();
+        let mut seeds = vec![false; np];
+        for _ in 0..12 {
+            let p = rng.next_u32() as usize % np;
+            seeds[p] = true;
+            for k in 0..n {
+                after[p * n + k] = random(&mut rng);
+            }
+        }
+        for radius in [1usize, 2] {
+            let (old, _) = majority_filter(&capture, &before, radius, 3);
+            let (full, _) = majority_filter(&capture, &after, radius, 3);
+            let near = neighbourhood_of(&capture, &seeds, radius);
+            assert!(near.iter().filter(|&&x| x).count() < np / 2);
+            let (part, _) = majority_filter_where(&capture, &after, radius, 3, Some(&near));
+            let mut merged = old.clone();
+            for p in (0..np).filter(|&p| near[p]) {
+                merged[p * n..(p + 1) * n].copy_from_slice(&part[p * n..(p + 1) * n]);
+            }
+            assert_eq!(merged, full, "radius {radius}");
+            assert_ne!(old, full, "the changes reach the filter");
         }
     }
 

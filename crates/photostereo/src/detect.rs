@@ -205,6 +205,10 @@ pub struct Detection {
     pub unreliable: Vec<bool>,
     /// Per pixel and light (`n_pixels * n_lights`): USED, SHADOW or HIGHLIGHT.
     pub light_status: Vec<u8>,
+    /// Per pixel: the lights the attribution kept (USED in `light_status`) pass the χ² test —
+    /// more than three of them and the statistic of their fit under its threshold (the test's
+    /// verdict with all lights where no light was removed).
+    pub settled: Vec<bool>,
     /// The noise model used.
     pub noise: NoiseModel,
     /// The χ² threshold with all lights.
@@ -228,6 +232,7 @@ impl Detection {
             residual: vec![0.0; np],
             unreliable: vec![false; np],
             light_status: vec![status::USED; np * capture.n_lights()],
+            settled: vec![false; np],
             noise: NoiseModel {
                 sigma0,
                 kappa: params.relative_noise.unwrap_or(0.0),
@@ -605,22 +610,24 @@ fn sweep(
     params: &DetectionParams,
     noise: &NoiseModel,
     progress: &dyn Progress,
-) -> (Vec<f32>, Vec<u8>, Vec<bool>) {
+) -> Sweep {
     let n = capture.n_lights();
     let c = capture.channels;
     let np = capture.n_pixels();
     let mut residual = vec![0f32; np];
     let mut light_status = vec![status::USED; np * n];
     let mut invisible = vec![false; np];
+    let mut settled = vec![false; np];
     progress.begin("detecting", np as u64);
     residual
         .par_chunks_mut(CHUNK)
         .zip(light_status.par_chunks_mut(CHUNK * n))
         .zip(invisible.par_chunks_mut(CHUNK))
+        .zip(settled.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each_init(
             || (Scratch::new(n), NearTest::of(capture, test)),
-            |(scratch, near), (chunk, ((res, st), inv))| {
+            |(scratch, near), (chunk, (((res, st), inv), set))| {
                 let p0 = chunk * CHUNK;
                 for dp in 0..res.len() {
                     channel_mean(capture.pixel_samples(p0 + dp), c, &mut scratch.grey);
@@ -635,15 +642,32 @@ fn sweep(
                             }
                         },
                     };
-                    let (s_all, _, _) =
+                    let (s_all, rss, count) =
                         attribute(test, params, noise, scratch, &mut st[dp * n..(dp + 1) * n]);
                     res[dp] = s_all.sqrt() as f32;
+                    // The same statistic as [`Attributor::run`]'s of the final set.
+                    let level = scratch.grey.iter().sum::<f64>() / n as f64;
+                    set[dp] =
+                        count > 3 && rss / noise.variance(level) <= test.thresholds[count - 3];
                 }
                 progress.advance(res.len() as u64);
             },
         );
     progress.end();
-    (residual, light_status, invisible)
+    Sweep {
+        residual,
+        light_status,
+        invisible,
+        settled,
+    }
+}
+
+/// What [`sweep`] finds per mask pixel.
+struct Sweep {
+    residual: Vec<f32>,
+    light_status: Vec<u8>,
+    invisible: Vec<bool>,
+    settled: Vec<bool>,
 }
 
 /// Faults confined to a set S of lights are invisible to the linear test when they can be
@@ -1016,7 +1040,12 @@ pub fn detect_with_noise(
     params.validate()?;
     let test = Test::new(capture, params)?;
     let n = capture.n_lights();
-    let (residual, light_status, invisible) = sweep(capture, &test, params, &noise, progress);
+    let Sweep {
+        residual,
+        light_status,
+        invisible,
+        settled,
+    } = sweep(capture, &test, params, &noise, progress);
     let threshold = test.thresholds[n - 3];
     let unreliable = residual
         .iter()
@@ -1027,6 +1056,7 @@ pub fn detect_with_noise(
         residual,
         unreliable,
         light_status,
+        settled,
         noise,
         threshold,
         params: params.clone(),

@@ -95,6 +95,56 @@ pub fn solve_subsets(
     )
 }
 
+/// [`solve_subsets`] with distant lights over the USED lights of `light_status`
+/// (`n_pixels * n_lights`), at the mask pixels `ids` only, written into `est` (the other
+/// pixels keep their values): each pixel's result is exactly `solve_subsets`'s, so an estimate
+/// is brought up to date by re-solving the pixels whose usable lights changed. `capture` must
+/// answer `pixel_samples` for `ids` (a [`Capture::sampled`] view of a tiled capture).
+pub fn resolve_subsets_at(
+    capture: &Capture,
+    light_status: &[u8],
+    ids: &[usize],
+    est: &mut Estimate,
+) {
+    debug_assert!(capture.lights.near.is_none());
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let parts: Vec<(Vec<[f32; 3]>, Vec<f32>)> = ids
+        .par_chunks(CHUNK)
+        .map_init(
+            || (SubsetCache::new(capture), vec![0f64; n], vec![false; n]),
+            |(cache, grey, used), chunk| {
+                let mut normals = vec![[0f32; 3]; chunk.len()];
+                let mut albedo = vec![0f32; chunk.len() * c];
+                for (j, &p) in chunk.iter().enumerate() {
+                    let samples = capture.pixel_samples(p);
+                    channel_mean(samples, c, grey);
+                    for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
+                        *u = st == status::USED;
+                    }
+                    if let Some(m) = cache.solve(used, grey) {
+                        let out_a = &mut albedo[j * c..(j + 1) * c];
+                        write_normal_albedo(
+                            capture,
+                            samples,
+                            &m,
+                            Some(used),
+                            &mut normals[j],
+                            out_a,
+                        );
+                    }
+                }
+                (normals, albedo)
+            },
+        )
+        .collect();
+    for (chunk, (normals, albedo)) in ids.chunks(CHUNK).zip(parts) {
+        for (j, &p) in chunk.iter().enumerate() {
+            est.normals[p] = normals[j];
+            est.albedo[p * c..(p + 1) * c].copy_from_slice(&albedo[j * c..(j + 1) * c]);
+        }
+    }
+}
+
 /// The per-pixel skeleton of the least-squares solvers: rows of pixels in parallel, the channel
 /// mean of each pixel's samples, and `solve(state, p, samples, grey, normal, albedo)` writing the
 /// pixel's normal and albedo; `None` leaves a zero normal and albedo.

@@ -414,6 +414,21 @@ pub fn recursive(
                                 hl[dp] = highlight[p];
                                 continue;
                             }
+                            // In the first iteration, a pixel the surface shadows nowhere (where
+                            // the reading agrees) starts the attribution from every light, as
+                            // the detector did: its decisions are the detector's (distant lights).
+                            let detected = &detection.light_status[p * n..(p + 1) * n];
+                            if iteration == 1
+                                && !near_lights
+                                && unreliable[p]
+                                && key.iter().all(|&b| b == 0)
+                                && detected.iter().filter(|&&x| x == status::USED).count() >= 3
+                            {
+                                s.copy_from_slice(detected);
+                                cons[dp] = detection.settled[p];
+                                hl[dp] = true;
+                                continue;
+                            }
                             // The same input as in the last iteration gives the same
                             // decisions (distant lights: the light vectors do not follow the
                             // surface): they are reused, not recomputed.
@@ -461,6 +476,20 @@ pub fn recursive(
         // neighbourhood proposes, the test disposes: a pixel takes the filtered set only when
         // its own readings pass the χ² test with it (labels follow the final fit); otherwise
         // its own decisions stand.
+        // From the second iteration, the filter and the settling are redone only near the
+        // pixels whose own decisions changed: elsewhere their inputs are the last iteration's,
+        // and so are their results.
+        let redo = (iteration > 1 && params.consensus_radius > 0).then(|| {
+            let seeds: Vec<bool> = (0..np)
+                .into_par_iter()
+                .map(|p| {
+                    raw_status[p * n..(p + 1) * n] != new_status[p * n..(p + 1) * n]
+                        || raw_consistent[p] != new_consistent[p]
+                        || raw_few[p] != new_few[p]
+                })
+                .collect();
+            crate::consensus::neighbourhood_of(capture, &seeds, params.consensus_radius)
+        });
         raw_status.clone_from(&new_status);
         raw_consistent.clone_from(&new_consistent);
         raw_few.clone_from(&new_few);
@@ -468,16 +497,23 @@ pub fn recursive(
         if params.consensus_radius > 0 {
             let min_kept =
                 ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
-            let (filtered, _) = crate::consensus::majority_filter(
+            let (filtered, _) = crate::consensus::majority_filter_where(
                 capture,
                 &new_status,
                 params.consensus_radius,
                 min_kept,
+                redo.as_deref(),
             );
+            let redone = |p: usize| redo.as_ref().is_none_or(|r| r[p]);
             let moved: Vec<usize> = (0..np)
-                .filter(|&p| usable_differs(&filtered, &new_status, p, n))
+                .filter(|&p| redone(p) && usable_differs(&filtered, &new_status, p, n))
                 .collect();
             new_status = filtered;
+            for p in (0..np).filter(|&p| !redone(p)) {
+                new_status[p * n..(p + 1) * n].copy_from_slice(&light_status[p * n..(p + 1) * n]);
+                new_consistent[p] = consistent[p];
+                new_few[p] = few[p];
+            }
             if let Some(att) = attributor.as_ref() {
                 let view = if capture.is_tiled() {
                     std::borrow::Cow::Owned(capture.sampled(&moved)?)
@@ -502,15 +538,32 @@ pub fn recursive(
                 }
             }
         }
-        let changed_pixels = (0..np)
-            .filter(|&p| usable_differs(&new_status, &light_status, p, n))
-            .count();
+        let changed: Vec<bool> = (0..np)
+            .into_par_iter()
+            .map(|p| usable_differs(&new_status, &light_status, p, n))
+            .collect();
+        let changed_pixels = changed.iter().filter(|&&x| x).count();
+        // 6. Re-estimate. With distant lights a pixel's least-squares result depends only on
+        // its usable lights: only pixels whose set changed are solved again, and those the
+        // neighbour fill below rewrote in the last iteration or rewrites in this one.
+        if near_lights {
+            est = crate::tiles::solve_statuses(capture, &new_status)?;
+        } else {
+            let ids: Vec<usize> = (0..np)
+                .filter(|&p| changed[p] || few[p] || new_few[p])
+                .collect();
+            let view = if capture.is_tiled() {
+                std::borrow::Cow::Owned(capture.sampled(&ids)?)
+            } else {
+                std::borrow::Cow::Borrowed(capture)
+            };
+            crate::lambert::resolve_subsets_at(&view, &new_status, &ids, &mut est);
+        }
+        drop(changed);
         light_status = new_status;
         consistent = new_consistent;
         few = new_few;
         highlight = new_highlight;
-        // 6. Re-estimate.
-        est = crate::tiles::solve_statuses(capture, &light_status)?;
         if params.fallback == Fallback::Neighbours {
             solved_two.fill(false);
             let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();

@@ -144,30 +144,46 @@ pub fn shadow_maps(
     let mut flags = vec![0u8; n * lights.len()];
     if n > 0 {
         let heights = valid_heights(depth, mask);
-        flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
-            SweepScratch::default,
-            |scratch, (out, l)| {
-                sweep(
-                    &heights,
-                    width,
-                    height,
-                    *l,
-                    params.cast_tolerance_px,
-                    scratch,
-                    out,
-                );
-                let tau = params.attached_tolerance;
-                for ((o, nrm), &inside) in out.iter_mut().zip(normals).zip(mask) {
-                    // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
-                    let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
-                    let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
-                    if inside && s <= tau {
-                        f |= ShadowMaps::ATTACHED;
+        // Flags are zero outside the mask: only the bounding box of the valid pixels is visited
+        // (mask pixels with a non-finite height take their attached flag there too).
+        let window = Window::of(width, height, |i| {
+            heights[i] != f32::NEG_INFINITY || mask[i]
+        });
+        if let Some(window) = window {
+            flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
+                SweepScratch::default,
+                |scratch, (out, l)| {
+                    sweep(
+                        &heights,
+                        width,
+                        height,
+                        *l,
+                        window,
+                        params.cast_tolerance_px,
+                        scratch,
+                        out,
+                    );
+                    let tau = params.attached_tolerance;
+                    for row in window.row0..window.row1 {
+                        let span = row * width + window.col0..row * width + window.col1;
+                        for ((o, nrm), &inside) in out[span.clone()]
+                            .iter_mut()
+                            .zip(&normals[span.clone()])
+                            .zip(&mask[span])
+                        {
+                            // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
+                            let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
+                            let s =
+                                l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                            if inside && s <= tau {
+                                f |= ShadowMaps::ATTACHED;
+                            }
+                            *o = f;
+                        }
                     }
-                    *o = f;
-                }
-            },
-        );
+                },
+            );
+        }
     }
     Ok(ShadowMaps {
         width,
@@ -201,15 +217,19 @@ pub fn cast_shadows(
     params.check()?;
     let l = unit_light(light).map_err(|m| Error::invalid(format!("light {light:?}: {m}")))?;
     let mut out = vec![0u8; width * height];
-    sweep(
-        &valid_heights(depth, mask),
-        width,
-        height,
-        l,
-        params.cast_tolerance_px,
-        &mut SweepScratch::default(),
-        &mut out,
-    );
+    let heights = valid_heights(depth, mask);
+    if let Some(window) = Window::of(width, height, |i| heights[i] != f32::NEG_INFINITY) {
+        sweep(
+            &heights,
+            width,
+            height,
+            l,
+            window,
+            params.cast_tolerance_px,
+            &mut SweepScratch::default(),
+            &mut out,
+        );
+    }
     Ok(out.into_iter().map(|f| f != 0).collect())
 }
 
@@ -474,7 +494,6 @@ fn unit_light(l: [f64; 3]) -> std::result::Result<[f64; 3], String> {
 /// lateral index j across it; pixel (i, j) is at `base + i·di + j·dj`.
 struct Walk {
     n_steps: usize,
-    n_lat: usize,
     base: isize,
     di: isize,
     dj: isize,
@@ -502,15 +521,14 @@ impl Walk {
         } else {
             (false, dr > 0.0, dr, dc)
         };
-        let (n_steps, n_lat, stride_primary, stride_lateral) = if along_cols {
-            (width, height, 1, w)
+        let (n_steps, stride_primary, stride_lateral) = if along_cols {
+            (width, 1, w)
         } else {
-            (height, width, w, 1)
+            (height, w, 1)
         };
         let step = 1.0 / primary.abs();
         Some(Walk {
             n_steps,
-            n_lat,
             base: if toward_plus {
                 (n_steps as isize - 1) * stride_primary
             } else {
@@ -576,6 +594,7 @@ fn sweep(
     width: usize,
     height: usize,
     l: [f64; 3],
+    window: Window,
     tolerance: f64,
     scratch: &mut SweepScratch,
     out: &mut [u8],
@@ -585,16 +604,32 @@ fn sweep(
         return;
     };
     let tolerance = tolerance as f32;
-    let (n_steps, n_lat, shift) = (walk.n_steps, walk.n_lat, walk.shift);
-    let span = shift * (n_steps - 1) as f64;
-    let q_min = span.min(0.0).floor() as isize;
-    let q_max = (n_lat as f64 - 1.0 + span.max(0.0)).ceil() as isize;
+    let (n_steps, shift) = (walk.n_steps, walk.shift);
+    // The window's steps and laterals in the whole frame's walk. Outside the window every pixel
+    // is invalid, so a line enters it with its horizon reset to −∞ exactly as in a sweep of the
+    // whole frame; with the lines and the per-step tables kept at their whole-frame positions
+    // (global step i, lateral j), the result is bit-identical and the work is the window's.
+    let (along_lo, along_hi, lat_lo, lat_hi) = if walk.along_cols {
+        (window.col0, window.col1, window.row0, window.row1)
+    } else {
+        (window.row0, window.row1, window.col0, window.col1)
+    };
+    let (i_lo, i_hi) = if walk.di < 0 {
+        (n_steps - along_hi, n_steps - along_lo)
+    } else {
+        (along_lo, along_hi)
+    };
+    let w_steps = i_hi - i_lo;
+    let shift_lo = (shift * i_lo as f64).min(shift * (i_hi - 1) as f64);
+    let shift_hi = (shift * i_lo as f64).max(shift * (i_hi - 1) as f64);
+    let q_min = (lat_lo as f64 + shift_lo).floor() as isize - 2;
+    let q_max = (lat_hi as f64 + shift_hi).ceil() as isize + 2;
     let n_lines = (q_max - q_min + 1) as usize;
-    // Line q = q_min + line sits at lateral q − shift·i at step i: the integer part and the
-    // fraction of −shift·i are the same for every line, so they are tabulated once per step.
+    // Line q sits at lateral q − shift·i at step i: the integer part and the fraction of
+    // −shift·i are the same for every line, so they are tabulated once per step.
     scratch.offsets.clear();
     scratch.fractions.clear();
-    for i in 0..n_steps {
+    for i in i_lo..i_hi {
         let p = -shift * i as f64;
         let p0 = p.floor();
         let mut f = (p - p0) as f32;
@@ -610,32 +645,34 @@ fn sweep(
     scratch.horizons.clear();
     scratch
         .horizons
-        .resize(n_lines * n_steps, f32::NEG_INFINITY);
+        .resize(n_lines * w_steps, f32::NEG_INFINITY);
     let (offsets, fractions) = (&scratch.offsets, &scratch.fractions);
-    // Pass 1: the horizon of every line at every step, `horizons[line * n_steps + i]`.
+    let (lat_lo, lat_hi) = (lat_lo as isize, lat_hi as isize);
+    // Pass 1: the horizon of every line at every step of the window,
+    // `horizons[line * w_steps + (i − i_lo)]`.
     scratch
         .horizons
-        .par_chunks_mut(n_steps)
+        .par_chunks_mut(w_steps)
         .enumerate()
         .for_each(|(line, line_horizons)| {
             let q = q_min + line as isize;
             let at = |i: usize, j: isize| -> f32 {
-                if j < 0 || j >= n_lat as isize {
+                if j < lat_lo || j >= lat_hi {
                     f32::NEG_INFINITY
                 } else {
                     heights[walk.index(i, j)]
                 }
             };
             let mut highest = f32::NEG_INFINITY; // M = max(h, H) at the previous step
-            for (i, horizon) in line_horizons.iter_mut().enumerate() {
+            for (s, horizon) in line_horizons.iter_mut().enumerate() {
                 *horizon = highest - walk.drop;
-                let p0 = q + offsets[i];
-                let f = fractions[i];
+                let p0 = q + offsets[s];
+                let f = fractions[s];
                 // −∞ on a side with weight (hole or border) stays −∞: the horizon resets.
                 let h = if f == 0.0 {
-                    at(i, p0)
+                    at(i_lo + s, p0)
                 } else {
-                    (1.0 - f) * at(i, p0) + f * at(i, p0 + 1)
+                    (1.0 - f) * at(i_lo + s, p0) + f * at(i_lo + s, p0 + 1)
                 };
                 highest = if h == f32::NEG_INFINITY {
                     h
@@ -644,18 +681,20 @@ fn sweep(
                 };
             }
         });
-    // Pass 2: each valid pixel against the horizon interpolated between its two lines, in
-    // bands of TILE rows and tiles of TILE columns so that the lines read stay in cache.
+    // Pass 2: each valid pixel of the window against the horizon interpolated between its two
+    // lines, in bands of TILE rows and tiles of TILE columns so that the lines read stay in
+    // cache.
     let horizons = &scratch.horizons;
-    out.par_chunks_mut(width * TILE)
+    out[window.row0 * width..window.row1 * width]
+        .par_chunks_mut(width * TILE)
         .enumerate()
         .for_each(|(band, out_band)| {
-            let row0 = band * TILE;
+            let row0 = window.row0 + band * TILE;
             let rows = out_band.len() / width;
-            for col0 in (0..width).step_by(TILE) {
+            for col0 in (window.col0..window.col1).step_by(TILE) {
                 for r in 0..rows {
                     let row = row0 + r;
-                    for col in col0..(col0 + TILE).min(width) {
+                    for col in col0..(col0 + TILE).min(window.col1) {
                         let x = row * width + col;
                         let h = heights[x];
                         if h == f32::NEG_INFINITY {
@@ -670,16 +709,16 @@ fn sweep(
                             n_steps - 1 - along
                         } else {
                             along
-                        };
+                        } - i_lo;
                         // The pixel lies at lateral j = q − shift·i, i.e. on line
                         // q = j − offsets[i] − fractions[i]: between lines q0 − 1 and q0.
                         let q0 = (j as isize - offsets[i] - q_min) as usize;
                         let f = fractions[i];
-                        let a = q0 * n_steps + i;
+                        let a = q0 * w_steps + i;
                         let horizon = if f == 0.0 {
                             horizons[a]
                         } else {
-                            f * horizons[a - n_steps] + (1.0 - f) * horizons[a]
+                            f * horizons[a - w_steps] + (1.0 - f) * horizons[a]
                         };
                         if h < horizon - tolerance {
                             out_band[r * width + col] = 1;
@@ -688,4 +727,91 @@ fn sweep(
                 }
             }
         });
+}
+
+/// A bounding box: rows `row0..row1`, columns `col0..col1`.
+#[derive(Clone, Copy, Debug)]
+struct Window {
+    row0: usize,
+    row1: usize,
+    col0: usize,
+    col1: usize,
+}
+
+impl Window {
+    /// The bounding box of the pixels (flat row-major indices) where `inside` holds.
+    fn of(width: usize, height: usize, inside: impl Fn(usize) -> bool) -> Option<Window> {
+        let (mut row0, mut row1, mut col0, mut col1) = (height, 0, width, 0);
+        for r in 0..height {
+            let first = (0..width).find(|&c| inside(r * width + c));
+            if let Some(c) = first {
+                let last = (c..width)
+                    .rev()
+                    .find(|&c| inside(r * width + c))
+                    .unwrap_or(c);
+                row0 = row0.min(r);
+                row1 = r + 1;
+                col0 = col0.min(c);
+                col1 = col1.max(last + 1);
+            }
+        }
+        (row0 < row1).then_some(Window {
+            row0,
+            row1,
+            col0,
+            col1,
+        })
+    }
+}
+
+#[cfg(test)]
+mod window_tests {
+    use super::*;
+
+    /// The sweep over the valid pixels' bounding box gives bit for bit the flags of the sweep
+    /// over the whole frame (the lines and per-step tables stay at their whole-frame positions),
+    /// for lights in every octant and at the axes, on a masked field with a hole.
+    #[test]
+    fn the_bounding_box_sweep_equals_the_whole_frame_sweep() {
+        let (w, h) = (53, 41);
+        let mut heights = vec![f32::NEG_INFINITY; w * h];
+        for r in 7..33 {
+            for c in 11..47 {
+                let (x, y) = (c as f32 * 0.37, r as f32 * 0.29);
+                let hole = (r - 20) * (r - 20) + (c - 30) * (c - 30) < 9;
+                if !hole {
+                    heights[r * w + c] = 6.0 * x.sin() * y.cos() + 0.2 * c as f32;
+                }
+            }
+        }
+        let bbox = Window::of(w, h, |i| heights[i] != f32::NEG_INFINITY).unwrap();
+        assert_eq!(
+            (bbox.row0, bbox.row1, bbox.col0, bbox.col1),
+            (7, 33, 11, 47)
+        );
+        let whole = Window {
+            row0: 0,
+            row1: h,
+            col0: 0,
+            col1: w,
+        };
+        let mut scratch = SweepScratch::default();
+        let (mut a, mut b) = (vec![0u8; w * h], vec![0u8; w * h]);
+        let mut shadowed = 0;
+        for t in 0..48 {
+            let phi = t as f64 * std::f64::consts::PI / 24.0 + 0.013 * (t % 3) as f64;
+            let slant = 0.35 + 0.02 * t as f64;
+            let l = unit_light([
+                slant.sin() * phi.cos(),
+                slant.sin() * phi.sin(),
+                slant.cos(),
+            ])
+            .unwrap();
+            sweep(&heights, w, h, l, bbox, 0.05, &mut scratch, &mut a);
+            sweep(&heights, w, h, l, whole, 0.05, &mut scratch, &mut b);
+            assert_eq!(a, b, "light {t}: {l:?}");
+            shadowed += a.iter().filter(|&&f| f != 0).count();
+        }
+        assert!(shadowed > 1000, "the field casts shadows: {shadowed}");
+    }
 }

@@ -94,12 +94,14 @@ pub fn detect_tiles(
                 m.residual.reserve(np - m.residual.len());
                 m.unreliable.reserve(np - m.unreliable.len());
                 m.light_status.reserve(np * n - m.light_status.len());
+                m.settled.reserve(np - m.settled.len());
                 merged = Some(m);
             }
             Some(m) => {
                 m.residual.extend_from_slice(&d.residual);
                 m.unreliable.extend_from_slice(&d.unreliable);
                 m.light_status.extend_from_slice(&d.light_status);
+                m.settled.extend_from_slice(&d.settled);
             }
         }
         crate::progress::check_cancelled(progress)
