@@ -388,6 +388,10 @@ struct Scratch {
     weight: Vec<f64>,
     resid: Vec<f64>,
     score: Vec<f64>,
+    /// Lights removed together in one step of the attribution.
+    candidates: Vec<usize>,
+    /// The last score pass's largest score (light, score) and the runner-up score.
+    best: (usize, f64, f64),
 }
 
 impl Scratch {
@@ -397,6 +401,8 @@ impl Scratch {
             weight: vec![1.0; n],
             resid: vec![0.0; n],
             score: vec![0.0; n],
+            candidates: Vec::with_capacity(n),
+            best: (usize::MAX, -1.0, -1.0),
         }
     }
 }
@@ -440,17 +446,41 @@ fn score_pass(test: &Test, s: &mut Scratch, m: &Vector3<f64>, gi: &Matrix3<f64>)
         gi[(0, 2)],
         gi[(1, 2)],
     );
+    let n = s.grey.len();
+    // Slices of one length (no bounds checks): the per-light loop vectorises; the residual sum
+    // of squares follows in a loop of its own, in the same order (identical rounding).
+    let (lx, ly, lz) = (&test.lx[..n], &test.ly[..n], &test.lz[..n]);
     let [qxx, qyy, qzz, qxy, qxz, qyz] = &test.quad;
-    let mut rss = 0.0;
-    for k in 0..s.grey.len() {
-        let e = s.grey[k] - (test.lx[k] * m.x + test.ly[k] * m.y + test.lz[k] * m.z);
+    let (qxx, qyy, qzz) = (&qxx[..n], &qyy[..n], &qzz[..n]);
+    let (qxy, qxz, qyz) = (&qxy[..n], &qxz[..n], &qyz[..n]);
+    let (grey, weight) = (&s.grey[..n], &s.weight[..n]);
+    let (resid, score) = (&mut s.resid[..n], &mut s.score[..n]);
+    for k in 0..n {
+        let e = grey[k] - (lx[k] * m.x + ly[k] * m.y + lz[k] * m.z);
         let h =
             g00 * qxx[k] + g11 * qyy[k] + g22 * qzz[k] + g01 * qxy[k] + g02 * qxz[k] + g12 * qyz[k];
-        let w = s.weight[k];
-        s.resid[k] = e;
-        s.score[k] = w * e * e / (1.0 - h).max(1e-9);
-        rss += w * e * e;
+        resid[k] = e;
+        score[k] = weight[k] * e * e / (1.0 - h).max(1e-9);
     }
+    // The sum, and the largest score with the runner-up (for the next removal).
+    let mut rss = 0.0;
+    let (mut best, mut best_score, mut second) = (usize::MAX, -1.0, -1.0);
+    for (k, ((&w, &e), &sc)) in weight
+        .iter()
+        .zip(resid.iter())
+        .zip(score.iter())
+        .enumerate()
+    {
+        rss += w * e * e;
+        if sc > best_score {
+            second = best_score;
+            best_score = sc;
+            best = k;
+        } else if sc > second {
+            second = sc;
+        }
+    }
+    s.best = (best, best_score, second);
     rss
 }
 
@@ -518,20 +548,17 @@ fn attribute_from(
         && rss / var > test.thresholds[count - 3]
     {
         // The largest deleted residual, and whether it is tied (always so with four lights).
-        let (mut best, mut best_score, mut second) = (usize::MAX, -1.0, -1.0);
-        for (k, &sc) in scratch.score.iter().enumerate() {
-            if scratch.weight[k] > 0.0 && sc > best_score {
-                second = best_score;
-                best_score = sc;
-                best = k;
-            } else if scratch.weight[k] > 0.0 && sc > second {
-                second = sc;
-            }
-        }
+        // The largest score and the runner-up, from the last score pass. Removed lights score
+        // zero (weight 0), so they never lead a positive maximum nor reach a tie with it; a
+        // zero maximum stops the loop below either way.
+        let (mut best, best_score, second) = scratch.best;
         // Prefer keeping lights: a removal must lower the residual by more than the test's
         // per-light threshold (the χ² quantile of one degree of freedom); otherwise the
         // remaining misfit is spread over the lights — model error, not one light's fault.
-        if best == usize::MAX || best_score / var <= test.thresholds[1] {
+        if best == usize::MAX
+            || scratch.weight[best] == 0.0
+            || best_score / var <= test.thresholds[1]
+        {
             break;
         }
         let tie = best_score * (1.0 - 1e-6);
@@ -579,19 +606,29 @@ fn attribute_from(
         count -= 1;
         if !tied {
             let floor = test.min_kept.max(3);
+            // The candidates in light order (removing one changes no other's test), taken
+            // while more than `floor` lights remain.
+            let mut candidates = std::mem::take(&mut scratch.candidates);
+            candidates.clear();
+            let (weight, resid) = (&scratch.weight[..n], &scratch.resid[..n]);
+            let (grey, score) = (&scratch.grey[..n], &scratch.score[..n]);
             for k in 0..n {
+                if resid[k] < 0.0
+                    && grey[k] <= shadow_level
+                    && weight[k] > 0.0
+                    && score[k] / var > test.batch_z2
+                {
+                    candidates.push(k);
+                }
+            }
+            for &k in &candidates {
                 if count <= floor {
                     break;
                 }
-                if scratch.weight[k] > 0.0
-                    && scratch.resid[k] < 0.0
-                    && scratch.grey[k] <= shadow_level
-                    && scratch.score[k] / var > test.batch_z2
-                {
-                    remove(k, scratch, &mut gram, &mut b);
-                    count -= 1;
-                }
+                remove(k, scratch, &mut gram, &mut b);
+                count -= 1;
             }
+            scratch.candidates = candidates;
         }
         match gram.try_inverse() {
             Some(inv) => gram_inv = inv,

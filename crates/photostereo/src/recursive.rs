@@ -353,7 +353,10 @@ pub fn recursive(
                 &params.shadows,
             )?,
         };
-        // 4–5. Usable lights.
+        // 4–5. Usable lights. The shadows per mask pixel as bits (`key_words` per pixel).
+        let shadow_bits = maps.pixel_bits(&capture.pixels);
+        let in_shadow =
+            |p: usize, k: usize| shadow_bits[p * key_words + k / 64] >> (k % 64) & 1 != 0;
         let mut new_status = vec![status::USED; np * n];
         let mut new_consistent = vec![false; np];
         let mut new_few = vec![false; np];
@@ -392,7 +395,7 @@ pub fn recursive(
                             let key = &mut keys[dp * key_words..(dp + 1) * key_words];
                             key.fill(0);
                             for k in 0..n {
-                                if maps.is_shadowed(k, pix) && grey[k] <= dark {
+                                if in_shadow(p, k) && grey[k] <= dark {
                                     key[k / 64] |= 1 << (k % 64);
                                 }
                             }
@@ -406,7 +409,7 @@ pub fn recursive(
                                 && !raw_few[p]
                                 && (0..n).all(|k| {
                                     previous[k] != status::USED
-                                        || !(maps.is_shadowed(k, pix) && grey[k] <= dark)
+                                        || !(in_shadow(p, k) && grey[k] <= dark)
                                 })
                             {
                                 s.copy_from_slice(previous);
@@ -444,7 +447,7 @@ pub fn recursive(
                             }
                             let mut shadowed = 0;
                             for (k, sk) in s.iter_mut().enumerate() {
-                                if maps.is_shadowed(k, pix) && grey[k] <= dark {
+                                if in_shadow(p, k) && grey[k] <= dark {
                                     *sk = status::SHADOW;
                                     shadowed += 1;
                                 }

@@ -107,6 +107,29 @@ impl ShadowMaps {
         self.flags[k * self.width * self.height + pixel] != 0
     }
 
+    /// Per pixel of `pixels` (flat row-major indices), its shadows as bits: bit `k % 64` of
+    /// word `k / 64` of the pixel's `n_lights.div_ceil(64)` words is set when light `k`
+    /// shadows it. Read light by light over runs of pixels, so the maps are walked in order.
+    pub fn pixel_bits(&self, pixels: &[u32]) -> Vec<u64> {
+        let words = self.lights.div_ceil(64);
+        let hw = self.width * self.height;
+        let mut bits = vec![0u64; pixels.len() * words];
+        bits.par_chunks_mut(1024 * words)
+            .zip(pixels.par_chunks(1024))
+            .for_each(|(out, run)| {
+                for k in 0..self.lights {
+                    let flags = &self.flags[k * hw..(k + 1) * hw];
+                    let (word, bit) = (k / 64, 1u64 << (k % 64));
+                    for (j, &i) in run.iter().enumerate() {
+                        if flags[i as usize] != 0 {
+                            out[j * words + word] |= bit;
+                        }
+                    }
+                }
+            });
+        bits
+    }
+
     fn map(&self, k: usize, bits: u8) -> Vec<bool> {
         self.flags_of(k).iter().map(|f| f & bits != 0).collect()
     }
