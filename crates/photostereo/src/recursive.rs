@@ -481,8 +481,9 @@ pub fn recursive(
         // its own decisions stand.
         // From the second iteration, the filter and the settling are redone only near the
         // pixels whose own decisions changed: elsewhere their inputs are the last iteration's,
-        // and so are their results.
-        let redo = (iteration > 1 && params.consensus_radius > 0).then(|| {
+        // and so are their results (distant lights; near-light vectors follow the surface,
+        // and with them the settling's fit).
+        let redo = (iteration > 1 && params.consensus_radius > 0 && !near_lights).then(|| {
             let seeds: Vec<bool> = (0..np)
                 .into_par_iter()
                 .map(|p| {
