@@ -221,7 +221,7 @@ mod tests {
         let (capture, _) = lambert_sphere(40, 15.0, &ring(8, 30.0));
         let (n, np) = (capture.n_lights(), capture.n_pixels());
         let mut rng = Pcg32::new(7, 0);
-        let mut random = |rng: &mut Pcg32| match rng.next_u32() % 10 {
+        let random = |rng: &mut Pcg32| match rng.next_u32() % 10 {
             0..=5 => status::USED,
             6 | 7 => status::SHADOW,
             8 => status::HIGHLIGHT,

@@ -176,16 +176,13 @@ pub fn shadow_maps(
             flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
                 SweepScratch::default,
                 |scratch, (out, l)| {
-                    sweep(
-                        &heights,
+                    let field = Field {
+                        heights: &heights,
                         width,
                         height,
-                        *l,
                         window,
-                        params.cast_tolerance_px,
-                        scratch,
-                        out,
-                    );
+                    };
+                    sweep(&field, *l, params.cast_tolerance_px, scratch, out);
                     let tau = params.attached_tolerance;
                     for row in window.row0..window.row1 {
                         let span = row * width + window.col0..row * width + window.col1;
@@ -242,12 +239,15 @@ pub fn cast_shadows(
     let mut out = vec![0u8; width * height];
     let heights = valid_heights(depth, mask);
     if let Some(window) = Window::of(width, height, |i| heights[i] != f32::NEG_INFINITY) {
-        sweep(
-            &heights,
+        let field = Field {
+            heights: &heights,
             width,
             height,
-            l,
             window,
+        };
+        sweep(
+            &field,
+            l,
             params.cast_tolerance_px,
             &mut SweepScratch::default(),
             &mut out,
@@ -612,16 +612,13 @@ const TILE: usize = 64;
 /// exactly (the lines are independent: parallel over lines). A pixel's horizon is then
 /// interpolated between the two lines that bracket it. An invalid sample (hole, border) resets a
 /// line's horizon to −∞.
-fn sweep(
-    heights: &[f32],
-    width: usize,
-    height: usize,
-    l: [f64; 3],
-    window: Window,
-    tolerance: f64,
-    scratch: &mut SweepScratch,
-    out: &mut [u8],
-) {
+fn sweep(field: &Field, l: [f64; 3], tolerance: f64, scratch: &mut SweepScratch, out: &mut [u8]) {
+    let Field {
+        heights,
+        width,
+        height,
+        window,
+    } = *field;
     out.fill(0);
     let Some(walk) = Walk::new(width, height, l) else {
         return;
@@ -752,6 +749,16 @@ fn sweep(
         });
 }
 
+/// A height field for [`sweep`]: `heights` (−∞ at invalid pixels), its size, and a window
+/// holding every valid pixel.
+#[derive(Clone, Copy)]
+struct Field<'a> {
+    heights: &'a [f32],
+    width: usize,
+    height: usize,
+    window: Window,
+}
+
 /// A bounding box: rows `row0..row1`, columns `col0..col1`.
 #[derive(Clone, Copy, Debug)]
 struct Window {
@@ -830,8 +837,14 @@ mod window_tests {
                 slant.cos(),
             ])
             .unwrap();
-            sweep(&heights, w, h, l, bbox, 0.05, &mut scratch, &mut a);
-            sweep(&heights, w, h, l, whole, 0.05, &mut scratch, &mut b);
+            let field = |window| Field {
+                heights: &heights,
+                width: w,
+                height: h,
+                window,
+            };
+            sweep(&field(bbox), l, 0.05, &mut scratch, &mut a);
+            sweep(&field(whole), l, 0.05, &mut scratch, &mut b);
             assert_eq!(a, b, "light {t}: {l:?}");
             shadowed += a.iter().filter(|&&f| f != 0).count();
         }
