@@ -292,7 +292,8 @@ impl<'a> Text<'a> {
     /// [`Text::f32`]: for the components of unit normals.
     #[inline]
     fn fixed6(&mut self, v: f32) {
-        let scaled = (f64::from(v).abs() * 1e6).round();
+        // Rounded half up by truncation (non-negative here; no libm call).
+        let scaled = f64::from(v).abs() * 1e6 + 0.5;
         // NaN fails the test too.
         if !(scaled < 1e7) {
             return self.f32(v);
@@ -316,6 +317,17 @@ impl<'a> Text<'a> {
     }
 }
 
+/// "00" to "99".
+const PAIRS: [[u8; 2]; 100] = {
+    let mut t = [[0u8; 2]; 100];
+    let mut i = 0;
+    while i < 100 {
+        t[i] = [b'0' + (i / 10) as u8, b'0' + (i % 10) as u8];
+        i += 1;
+    }
+    t
+};
+
 /// The decimal digits of `v`, left-aligned, and their count (1 to 20).
 #[inline]
 fn decimal(mut v: u64) -> ([u8; 20], usize) {
@@ -326,9 +338,17 @@ fn decimal(mut v: u64) -> ([u8; 20], usize) {
         p = p.saturating_mul(10);
     }
     let mut d = [0u8; 20];
-    for k in (0..n).rev() {
-        d[k] = b'0' + (v % 10) as u8;
-        v /= 10;
+    // Two digits at a time from the right.
+    let mut end = n;
+    while end >= 2 {
+        let pair = PAIRS[(v % 100) as usize];
+        d[end - 2] = pair[0];
+        d[end - 1] = pair[1];
+        v /= 100;
+        end -= 2;
+    }
+    if end == 1 {
+        d[0] = b'0' + v as u8;
     }
     (d, n)
 }
@@ -706,6 +726,18 @@ mod tests {
             }
         }
         assert_eq!(f, expected_faces(w, h, &depth));
+    }
+
+    /// Decimal digits as `itoa` gives them.
+    #[test]
+    fn decimal_digits() {
+        let mut cases = vec![0u64, 1, 9, 10, 99, 100, 101, 999_999, 1_000_000, u64::MAX];
+        cases.extend((0..64).map(|k| 1u64 << k));
+        cases.extend((0..20).map(|k| 10u64.pow(k) - 1));
+        for v in cases {
+            let (d, n) = decimal(v);
+            assert_eq!(&d[..n], itoa::Buffer::new().format(v).as_bytes());
+        }
     }
 
     /// Six-decimal text of normal components: rounded to the nearest 1e-6, no "-0", and the
