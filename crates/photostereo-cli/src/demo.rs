@@ -13,7 +13,9 @@ use photostereo::maps::{nice_ceil, tick_label};
 use photostereo::metrics::{evaluate, ErrorStats};
 use photostereo::pipeline::{write_reconstruction, RunOptions};
 use photostereo::progress::Silent;
-use photostereo::scene::{synthesize, write_capture, Brdf, Rig, SceneKind, SynthSpec};
+use photostereo::scene::{
+    spec_scene, synthesize_scene, write_capture, Brdf, Rig, Scene, SceneKind, SynthSpec,
+};
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -75,8 +77,19 @@ pub fn main(a: DemoArgs) -> Result<()> {
     let root = folder.path();
     let (scenes, near) = rayon::join(
         || {
+            // Each scene's surface is built once and rendered under every rig.
+            let built = match rigs.first() {
+                Some(rig) => SceneKind::ALL
+                    .par_iter()
+                    .map(|&kind| spec_scene(&demo_spec(kind, rig, a.size)))
+                    .collect::<photostereo::Result<Vec<Scene>>>()?,
+                None => Vec::new(),
+            };
             jobs.par_iter()
-                .map(|&(rig, kind)| run_scene(rig, kind, root, a.size))
+                .map(|&(rig, kind)| {
+                    let k = SceneKind::ALL.iter().position(|&x| x == kind).unwrap_or(0);
+                    run_scene(rig, kind, &built[k], root, a.size)
+                })
                 .collect::<Result<Vec<_>>>()
         },
         || near_line(a.size),
@@ -213,22 +226,30 @@ type SceneResult = (
     (String, &'static str, photostereo::scene::CaptureStats),
 );
 
-/// Renders one scene under one rig, runs every method, writes the capture, the outputs and the
-/// scene's figure under `root` (the rig's folder must exist).
+/// The demo's rendering of scene `kind` under `rig` at `size` pixels.
+fn demo_spec(kind: SceneKind, rig: &Rig, size: usize) -> SynthSpec {
+    let mut spec = SynthSpec::new(kind, rig.clone());
+    spec.size = size;
+    spec.render.brdf = Brdf::BlinnPhong;
+    spec.render.noise_sigma = DEMO_NOISE;
+    spec.render.seed = DEMO_SEED;
+    spec
+}
+
+/// Renders one scene (`scene`, built from `demo_spec(kind, …)`) under one rig, runs every
+/// method, writes the capture, the outputs and the scene's figure under `root` (the rig's
+/// folder must exist).
 fn run_scene(
     rig: &Rig,
     kind: SceneKind,
+    scene: &Scene,
     root: &std::path::Path,
     size: usize,
 ) -> Result<SceneResult> {
     let mut rows = Vec::new();
     {
-        let mut spec = SynthSpec::new(kind, rig.clone());
-        spec.size = size;
-        spec.render.brdf = Brdf::BlinnPhong;
-        spec.render.noise_sigma = DEMO_NOISE;
-        spec.render.seed = DEMO_SEED;
-        let rendered = synthesize(&spec)?;
+        let spec = demo_spec(kind, rig, size);
+        let rendered = synthesize_scene(&spec, scene)?;
         let scene_dir = root.join(rig.name()).join(kind.name());
         let capture_dir = scene_dir.join("capture");
         make_dirs(root, &capture_dir)?;

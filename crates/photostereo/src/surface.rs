@@ -106,28 +106,38 @@ impl Mesh {
         rows: std::ops::Range<usize>,
         mut f: impl FnMut([u32; 3]),
     ) {
-        let none = u32::MAX;
         for r in rows {
-            for c in 0..width.saturating_sub(1) {
-                let i = r * width + c;
-                let (a, b, cc, d) = (
-                    self.index[i],
-                    self.index[i + 1],
-                    self.index[i + width],
-                    self.index[i + width + 1],
-                );
-                // a = (r, c), b = (r, c+1), cc = (r+1, c), d = (r+1, c+1).
-                match (a != none, b != none, cc != none, d != none) {
-                    (true, true, true, true) => {
-                        f([a, cc, b]);
-                        f([b, cc, d]);
-                    }
-                    (true, true, true, false) => f([a, cc, b]),
-                    (true, true, false, true) => f([a, d, b]),
-                    (true, false, true, true) => f([a, cc, d]),
-                    (false, true, true, true) => f([b, cc, d]),
-                    _ => {}
+            self.for_each_face_in_row(width, r, |t| {
+                f(t.map(|(c, below)| self.index[(r + usize::from(below)) * width + c]))
+            });
+        }
+    }
+
+    /// The triangles of the 2×2 blocks whose top row is `r` (counter-clockwise from +z), each
+    /// corner as (column, whether it is in row `r + 1`).
+    #[inline]
+    fn for_each_face_in_row(&self, width: usize, r: usize, mut f: impl FnMut([(usize, bool); 3])) {
+        let none = u32::MAX;
+        for c in 0..width.saturating_sub(1) {
+            let i = r * width + c;
+            let valid = (
+                self.index[i] != none,
+                self.index[i + 1] != none,
+                self.index[i + width] != none,
+                self.index[i + width + 1] != none,
+            );
+            // a = (r, c), b = (r, c+1), cc = (r+1, c), d = (r+1, c+1).
+            let (a, b, cc, d) = ((c, false), (c + 1, false), (c, true), (c + 1, true));
+            match valid {
+                (true, true, true, true) => {
+                    f([a, cc, b]);
+                    f([b, cc, d]);
                 }
+                (true, true, true, false) => f([a, cc, b]),
+                (true, true, false, true) => f([a, d, b]),
+                (true, false, true, true) => f([a, cc, d]),
+                (false, true, true, true) => f([b, cc, d]),
+                _ => {}
             }
         }
     }
@@ -186,37 +196,38 @@ impl Write for Sink {
 }
 
 impl Sink {
-    /// Writes the bytes that `band(rows, buffer)` appends for each band of `rows` (in bands of
-    /// [`BAND_ROWS`]), in order: groups of two bands per worker thread are formatted in
-    /// parallel while the previous group is written. `bytes_per_row` sizes the buffers.
+    /// Writes the bytes that `band(rows, buffer)` puts at the start of `buffer` for each band
+    /// of `rows` (in bands of [`BAND_ROWS`]), in order; `band` returns how many. Groups of two
+    /// bands per worker thread are formatted in parallel while the previous group is written.
+    /// A buffer keeps its length from band to band (what is beyond the returned count is
+    /// stale), so its bytes are zeroed once, not per band. `bytes_per_row` sizes the buffers.
     fn banded(
         &mut self,
         rows: usize,
         bytes_per_row: usize,
-        band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) + Sync,
+        band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) -> usize + Sync,
     ) -> std::io::Result<()> {
         use rayon::prelude::*;
         let starts: Vec<usize> = (0..rows).step_by(BAND_ROWS).collect();
         let batch = 2 * rayon::current_num_threads().max(1);
-        let mut pending: Vec<Vec<u8>> = (0..batch).map(|_| Vec::new()).collect();
-        let mut spare: Vec<Vec<u8>> = (0..batch).map(|_| Vec::new()).collect();
+        let mut pending: Vec<(Vec<u8>, usize)> = (0..batch).map(|_| (Vec::new(), 0)).collect();
+        let mut spare: Vec<(Vec<u8>, usize)> = (0..batch).map(|_| (Vec::new(), 0)).collect();
         let mut pending_len = 0;
         for group in starts.chunks(batch) {
             let (written, ()) = rayon::join(
                 || {
                     pending[..pending_len]
                         .iter()
-                        .try_for_each(|b| self.write_all(b))
+                        .try_for_each(|(b, n)| self.write_all(&b[..*n]))
                 },
                 || {
                     spare[..group.len()]
                         .par_iter_mut()
                         .zip(group)
-                        .for_each(|(buf, &r0)| {
+                        .for_each(|((buf, n), &r0)| {
                             let r1 = (r0 + BAND_ROWS).min(rows);
-                            buf.clear();
-                            buf.reserve((r1 - r0) * bytes_per_row);
-                            band(r0..r1, buf);
+                            buf.reserve(((r1 - r0) * bytes_per_row).saturating_sub(buf.len()));
+                            *n = band(r0..r1, buf);
                         })
                 },
             );
@@ -226,50 +237,135 @@ impl Sink {
         }
         pending[..pending_len]
             .iter()
-            .try_for_each(|b| self.write_all(b))
+            .try_for_each(|(b, n)| self.write_all(&b[..*n]))
     }
 }
 
-/// A text line built on the stack (one copy into the band's buffer per line, not one per
-/// number).
-struct Line {
-    buf: [u8; 128],
-    len: usize,
+/// A band's text written from the start of its byte buffer at a cursor, mostly by fixed-size
+/// copies (no call per piece): [`Text::room`] makes sure of space for the next pieces (the
+/// buffer is grown, never shrunk, and bytes past the cursor are stale).
+struct Text<'a> {
+    buf: &'a mut Vec<u8>,
+    pos: usize,
 }
 
-impl Line {
-    fn new() -> Line {
-        Line {
-            buf: [0; 128],
-            len: 0,
-        }
+/// Room for the text of one f32 in the shortest round-trip form (`zmij`'s buffer), bytes.
+const F32_TEXT: usize = 24;
+
+impl<'a> Text<'a> {
+    fn new(buf: &'a mut Vec<u8>) -> Text<'a> {
+        Text { buf, pos: 0 }
     }
 
-    /// Appends `s` (short: a number or a separator; the caller keeps a line under 128 bytes).
+    /// Makes room for at least `n` more bytes after the cursor.
     #[inline]
-    fn push(&mut self, s: &[u8]) {
-        for (d, &b) in self.buf[self.len..self.len + s.len()].iter_mut().zip(s) {
-            *d = b;
+    fn room(&mut self, n: usize) {
+        if self.buf.len() < self.pos + n {
+            self.buf.resize(self.pos + n, 0);
         }
-        self.len += s.len();
     }
 
+    /// Writes all `N` bytes of `bytes` and moves the cursor by `len` (≤ `N`): the rest is
+    /// overwritten by what follows.
+    #[inline]
+    fn put<const N: usize>(&mut self, bytes: &[u8; N], len: usize) {
+        self.buf[self.pos..self.pos + N].copy_from_slice(bytes);
+        self.pos += len;
+    }
+
+    #[inline]
+    fn byte(&mut self, b: u8) {
+        self.buf[self.pos] = b;
+        self.pos += 1;
+    }
+
+    /// An f32 as the shortest decimal that reads back as the same value.
     #[inline]
     fn f32(&mut self, v: f32) {
-        self.push(zmij::Buffer::new().format(v).as_bytes());
+        let mut digits = zmij::Buffer::new();
+        let s = digits.format(v).as_bytes();
+        self.buf[self.pos..self.pos + s.len()].copy_from_slice(s);
+        self.pos += s.len();
     }
 
+    /// `v` with six decimals (within 5e-7 of it) where |v| < 9.9999995, else as
+    /// [`Text::f32`]: for the components of unit normals.
     #[inline]
-    fn int(&mut self, v: impl itoa::Integer) {
-        self.push(itoa::Buffer::new().format(v).as_bytes());
+    fn fixed6(&mut self, v: f32) {
+        // Rounded half up by truncation (non-negative here; no libm call).
+        let scaled = f64::from(v).abs() * 1e6 + 0.5;
+        if scaled.is_nan() || scaled >= 1e7 {
+            return self.f32(v);
+        }
+        let mut a = scaled as u32;
+        let mut t = [0u8; 16];
+        let k = usize::from(v < 0.0 && a != 0);
+        t[0] = b'-';
+        for j in (0..6).rev() {
+            t[k + 2 + j] = b'0' + (a % 10) as u8;
+            a /= 10;
+        }
+        t[k] = b'0' + a as u8;
+        t[k + 1] = b'.';
+        self.put(&t, k + 8);
     }
 
-    /// Appends the line to `out` and empties it.
-    #[inline]
-    fn flush_to(&mut self, out: &mut Vec<u8>) {
-        out.extend_from_slice(&self.buf[..self.len]);
-        self.len = 0;
+    /// The number of bytes written.
+    fn finish(self) -> usize {
+        self.pos
     }
+}
+
+/// "00" to "99".
+const PAIRS: [[u8; 2]; 100] = {
+    let mut t = [[0u8; 2]; 100];
+    let mut i = 0;
+    while i < 100 {
+        t[i] = [b'0' + (i / 10) as u8, b'0' + (i % 10) as u8];
+        i += 1;
+    }
+    t
+};
+
+/// The decimal digits of `v`, left-aligned, and their count (1 to 20).
+#[inline]
+fn decimal(mut v: u64) -> ([u8; 20], usize) {
+    let mut n = 1;
+    let mut p = 10u64;
+    while n < 20 && v >= p {
+        n += 1;
+        p = p.saturating_mul(10);
+    }
+    let mut d = [0u8; 20];
+    // Two digits at a time from the right.
+    let mut end = n;
+    while end >= 2 {
+        let pair = PAIRS[(v % 100) as usize];
+        d[end - 2] = pair[0];
+        d[end - 1] = pair[1];
+        v /= 100;
+        end -= 2;
+    }
+    if end == 1 {
+        d[0] = b'0' + v as u8;
+    }
+    (d, n)
+}
+
+/// An OBJ face corner `" K//K"` (vertex K with normal K, 1-based) for vertex index `v`
+/// (0-based), and its length.
+#[inline]
+fn corner(v: u32) -> ([u8; 24], u8) {
+    let (d, n) = decimal(u64::from(v) + 1);
+    let mut t = [0u8; 24];
+    t[0] = b' ';
+    for k in 0..n {
+        t[1 + k] = d[k];
+        t[3 + n + k] = d[k];
+    }
+    t[1 + n] = b'/';
+    t[2 + n] = b'/';
+    (t, (3 + 2 * n) as u8)
 }
 
 /// Writes a binary little-endian PLY mesh of `depth` (NaN = no vertex) with per-vertex
@@ -332,6 +428,7 @@ pub fn write_mesh_ply_camera(
     )
     .map_err(io)?;
     out.banded(height, width * 24, |rows, buf| {
+        buf.clear();
         for i in rows.start * width..rows.end * width {
             let z = depth[i];
             if z.is_finite() {
@@ -341,22 +438,27 @@ pub fn write_mesh_ply_camera(
                 }
             }
         }
+        buf.len()
     })
     .map_err(io)?;
     out.banded(height.saturating_sub(1), width * 26, |rows, buf| {
+        buf.clear();
         mesh.for_each_face_in_rows(width, rows, |t| {
             buf.push(3);
             for v in t {
                 buf.extend_from_slice(&(v as i32).to_le_bytes());
             }
         });
+        buf.len()
     })
     .map_err(io)?;
     out.flush().map_err(io)
 }
 
-/// Writes a Wavefront OBJ mesh of `depth` with `vn` normals (faces `v//vn`, 1-based). Numbers
-/// are written as the shortest decimals that read back as the same f32 values.
+/// Writes a Wavefront OBJ mesh of `depth` with `vn` normals (faces `v//vn`, 1-based). Vertex
+/// coordinates are written as the shortest decimals that read back as the same f32 values;
+/// normals' components with six decimals (each within 5e-7 of the f32 value, so a direction
+/// within 0.00005°).
 #[allow(clippy::needless_range_loop)] // the flat index gives the vertex's column and row too
 pub fn write_mesh_obj(
     path: &Path,
@@ -388,66 +490,100 @@ pub fn write_mesh_obj_camera(
         mesh.faces
     )
     .map_err(io)?;
+    // Vertices: "v X Y Z\n".
     out.banded(height, width * 24, |rows, buf| {
-        let mut line = Line::new();
-        let first = rows.start * width;
-        for (i, &z) in depth[first..rows.end * width].iter().enumerate() {
-            let i = first + i;
-            if z.is_finite() {
-                line.push(b"v ");
+        let mut t = Text::new(buf);
+        for r in rows {
+            // Without a camera, X and Y are the column and minus the row, as integers.
+            let (row, row_len) = decimal(r as u64);
+            let mut y = [b' '; 24];
+            let mut y_len = 1;
+            if r > 0 {
+                y[1] = b'-';
+                y_len = 2;
+            }
+            y[y_len..y_len + row_len].copy_from_slice(&row[..row_len]);
+            y_len += row_len;
+            t.room(width * (2 + 20 + 24 + 1 + F32_TEXT + 1) + 24);
+            for (c, &z) in depth[r * width..(r + 1) * width].iter().enumerate() {
+                if !z.is_finite() {
+                    continue;
+                }
+                t.put(b"v ", 2);
                 match camera {
                     None => {
-                        line.int(i % width);
-                        line.push(b" ");
-                        line.int(-((i / width) as i64));
-                        line.push(b" ");
-                        line.f32(z);
+                        let (col, col_len) = decimal(c as u64);
+                        t.put(&col, col_len);
+                        t.put(&y, y_len);
+                        t.byte(b' ');
+                        t.f32(z);
                     }
                     Some(_) => {
-                        let [x, y, zz] = vertex(i, width, z, camera);
-                        line.f32(x);
-                        line.push(b" ");
-                        line.f32(y);
-                        line.push(b" ");
-                        line.f32(zz);
+                        let [x, yy, zz] = vertex(r * width + c, width, z, camera);
+                        t.f32(x);
+                        t.byte(b' ');
+                        t.f32(yy);
+                        t.byte(b' ');
+                        t.f32(zz);
                     }
                 }
-                line.push(b"\n");
-                line.flush_to(buf);
+                t.byte(b'\n');
             }
         }
+        t.finish()
     })
     .map_err(io)?;
+    // Normals: "vn X Y Z\n".
     out.banded(height, width * 36, |rows, buf| {
-        let mut line = Line::new();
-        for i in rows.start * width..rows.end * width {
-            if depth[i].is_finite() {
-                line.push(b"vn");
-                for v in normals[i] {
-                    line.push(b" ");
-                    line.f32(v);
+        let mut t = Text::new(buf);
+        for r in rows {
+            t.room(width * (3 + 3 * (1 + F32_TEXT)) + 24);
+            for i in r * width..(r + 1) * width {
+                if depth[i].is_finite() {
+                    t.put(b"vn", 2);
+                    for v in normals[i] {
+                        t.byte(b' ');
+                        t.fixed6(v);
+                    }
+                    t.byte(b'\n');
                 }
-                line.push(b"\n");
-                line.flush_to(buf);
             }
         }
+        t.finish()
     })
     .map_err(io)?;
+    // Faces: "f A//A B//B C//C\n". Each vertex's corner text is made once per row it is in
+    // (two rows of blocks use it) and copied into its faces.
+    let longest = 1 + 3 * (3 + 2 * decimal(mesh.vertices as u64).1) + 1;
     out.banded(height.saturating_sub(1), width * 120, |rows, buf| {
-        let mut line = Line::new();
-        mesh.for_each_face_in_rows(width, rows, |t| {
-            line.push(b"f");
-            for v in t {
-                let mut digits = itoa::Buffer::new();
-                let one_based = digits.format(u64::from(v) + 1).as_bytes();
-                line.push(b" ");
-                line.push(one_based);
-                line.push(b"//");
-                line.push(one_based);
-            }
-            line.push(b"\n");
-            line.flush_to(buf);
-        });
+        let mut t = Text::new(buf);
+        let none = ([0u8; 24], 0u8);
+        let corners_of = |r: usize, row: &mut Vec<([u8; 24], u8)>| {
+            row.clear();
+            row.extend(mesh.index[r * width..(r + 1) * width].iter().map(|&v| {
+                if v == u32::MAX {
+                    none
+                } else {
+                    corner(v)
+                }
+            }));
+        };
+        let (mut top, mut bottom) = (Vec::with_capacity(width), Vec::with_capacity(width));
+        corners_of(rows.start, &mut top);
+        for r in rows {
+            corners_of(r + 1, &mut bottom);
+            t.room(2 * width * longest + 24);
+            mesh.for_each_face_in_row(width, r, |f| {
+                t.byte(b'f');
+                for (c, below) in f {
+                    let (text, len) = if below { &bottom[c] } else { &top[c] };
+                    t.put(text, usize::from(*len));
+                }
+                t.byte(b'\n');
+            });
+            std::mem::swap(&mut top, &mut bottom);
+        }
+        t.finish()
     })
     .map_err(io)?;
     out.flush().map_err(io)
@@ -510,7 +646,14 @@ mod tests {
             })
             .collect();
         let normals: Vec<[f32; 3]> = (0..w * h)
-            .map(|i| [0.01 * (i % 5) as f32, -0.02, 1.0])
+            .map(|i| {
+                let a = i as f32 * 0.61;
+                [
+                    0.6 * a.cos(),
+                    -0.8 * a.sin(),
+                    (0.36 + 0.28 * a.sin().powi(2)).sqrt(),
+                ]
+            })
             .collect();
         (w, h, depth, normals)
     }
@@ -546,8 +689,8 @@ mod tests {
         faces
     }
 
-    /// The banded, parallel OBJ writer writes every vertex, normal and face in order, and its
-    /// numbers read back as the same f32 values.
+    /// The banded, parallel OBJ writer writes every vertex, normal and face in order; vertex
+    /// coordinates read back as the same f32 values, normals' components within 5e-7.
     #[test]
     fn obj_matches_the_definition() {
         let (w, h, depth, normals) = fixture();
@@ -560,7 +703,7 @@ mod tests {
             let t: Vec<&str> = line.split_whitespace().collect();
             match t[0] {
                 "v" => v.push([t[1], t[2], t[3]].map(|x| x.parse::<f32>().unwrap())),
-                "vn" => vn.push([t[1], t[2], t[3]].map(|x| x.parse::<f32>().unwrap())),
+                "vn" => vn.push([t[1], t[2], t[3]].map(|x| x.parse::<f64>().unwrap())),
                 "f" => f.push([t[1], t[2], t[3]].map(|x| {
                     let (a, b) = x.split_once("//").unwrap();
                     assert_eq!(a, b);
@@ -574,9 +717,57 @@ mod tests {
         assert_eq!(vn.len(), finite.len());
         for (k, &i) in finite.iter().enumerate() {
             assert_eq!(v[k], [(i % w) as f32, -((i / w) as f32), depth[i]]);
-            assert_eq!(vn[k], normals[i]);
+            for (got, want) in vn[k].iter().zip(normals[i]) {
+                assert!(
+                    (got - f64::from(want)).abs() <= 5e-7 + 1e-15,
+                    "{got} vs {want}"
+                );
+            }
         }
         assert_eq!(f, expected_faces(w, h, &depth));
+    }
+
+    /// Decimal digits as `itoa` gives them.
+    #[test]
+    fn decimal_digits() {
+        let mut cases = vec![0u64, 1, 9, 10, 99, 100, 101, 999_999, 1_000_000, u64::MAX];
+        cases.extend((0..64).map(|k| 1u64 << k));
+        cases.extend((0..20).map(|k| 10u64.pow(k) - 1));
+        for v in cases {
+            let (d, n) = decimal(v);
+            assert_eq!(&d[..n], itoa::Buffer::new().format(v).as_bytes());
+        }
+    }
+
+    /// Six-decimal text of normal components: rounded to the nearest 1e-6, no "-0", and the
+    /// shortest round-trip form where six decimals do not fit one integer digit.
+    #[test]
+    fn fixed_decimals_of_normal_components() {
+        let text = |v: f32| {
+            let mut buf = Vec::new();
+            let mut t = Text::new(&mut buf);
+            t.room(64);
+            t.fixed6(v);
+            let n = t.finish();
+            String::from_utf8(buf[..n].to_vec()).unwrap()
+        };
+        assert_eq!(text(0.0), "0.000000");
+        assert_eq!(text(-0.0), "0.000000");
+        assert_eq!(text(-4e-7), "0.000000");
+        assert_eq!(text(-6e-7), "-0.000001");
+        assert_eq!(text(1.0), "1.000000");
+        assert_eq!(text(-0.70710677), "-0.707107");
+        assert_eq!(text(0.25), "0.250000");
+        assert_eq!(text(9.999999), "9.999999");
+        assert_eq!(text(10.0), "10.0");
+        assert_eq!(text(-123.25), "-123.25");
+        assert_eq!(text(f32::NAN), "NaN");
+        // Every value in a sweep reads back within 5e-7.
+        for k in -20_000..=20_000 {
+            let v = k as f32 * 4.99e-5 + 1.3e-7;
+            let back: f64 = text(v).parse().unwrap();
+            assert!((back - f64::from(v)).abs() <= 5e-7 + 1e-15, "{v}: {back}");
+        }
     }
 
     /// The binary PLY holds the same vertices and faces.

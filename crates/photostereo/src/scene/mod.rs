@@ -25,8 +25,8 @@ pub mod surfaces;
 
 pub use reflectance::Brdf;
 pub use render::{
-    render, synth_to_folder, synthesize, write_capture, CaptureStats, GroundTruth,
-    LightIntensities, RenderOptions, Rendered, SynthSpec,
+    render, spec_scene, synth_to_folder, synthesize, synthesize_scene, write_capture, CaptureStats,
+    GroundTruth, LightIntensities, RenderOptions, Rendered, SynthSpec,
 };
 pub use rigs::Rig;
 pub use shadows::{cast_shadows, ray_march_shadows};

@@ -217,16 +217,26 @@ impl Rendered {
 
 /// Builds the spec's scene and renders it.
 pub fn synthesize(spec: &SynthSpec) -> Result<Rendered> {
-    let scene = match spec.height {
-        None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,
-        Some(h) => Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo)?,
-    };
+    synthesize_scene(spec, &spec_scene(spec)?)
+}
+
+/// The built-in scene that `spec` names (its kind, size, mask and albedo; not its rig).
+pub fn spec_scene(spec: &SynthSpec) -> Result<Scene> {
+    match spec.height {
+        None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo),
+        Some(h) => Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo),
+    }
+}
+
+/// [`synthesize`] with the scene already built (`spec_scene(spec)`, e.g. shared by several
+/// rigs): the same result.
+pub fn synthesize_scene(spec: &SynthSpec, scene: &Scene) -> Result<Rendered> {
     let mut lights = spec.rig.lights()?;
     let intensities = (0..lights.len())
         .map(|k| spec.intensities.of_light(k))
         .collect();
     lights = lights.with_intensities(intensities)?;
-    let mut out = render(&scene, &lights, &spec.render)?;
+    let mut out = render(scene, &lights, &spec.render)?;
     out.rig = spec.rig.name();
     Ok(out)
 }
