@@ -462,6 +462,7 @@ fn alternate(
     let mut last = None;
     let method = params.method;
     let mut lobe = None;
+    let mut lobe_memory = crate::near_lobe::LobeMemory::default();
     for round in 1..=MAX_ROUNDS {
         let t = Instant::now();
         let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
@@ -474,6 +475,7 @@ fn alternate(
                 &mut result.0,
                 &d.noise,
                 d.params.confidence,
+                &mut lobe_memory,
             )?;
             if let Some(diag) = result.2.as_mut() {
                 for (p, &i) in capture.pixels.iter().enumerate() {

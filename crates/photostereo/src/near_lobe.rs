@@ -30,6 +30,7 @@ use crate::lambert::{channel_mean, status, Estimate, CHUNK};
 use crate::lightmodel::{NearLights, PixelLights};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The lobe sharpnesses m tried (about 25 to 400: lobes that fall to half height 13.3° to
 /// 3.4° from their peak).
@@ -66,6 +67,13 @@ pub struct LobeSummary {
     pub refined_pixels: usize,
     /// Their share of the mask.
     pub refined_share: f64,
+    /// Mask pixels fitted: those with [`MIN_LIGHTS`] lights out of shadow whose purely diffuse
+    /// fit fails the χ² test (the others show no highlight and are not fitted).
+    pub fitted_pixels: usize,
+    /// Of those, the pixels whose nearby starts gave no acceptable fit, so that the whole grid
+    /// of trial normals was searched in this round (at most once per pixel and
+    /// reconstruction: a later round starts from that search's basin).
+    pub grid_pixels: usize,
 }
 
 /// One pixel's data: scaled light vectors v_k = b_k l_k, unit half vectors, grey readings and
@@ -144,11 +152,11 @@ fn grid() -> Vec<(f64, f64)> {
 }
 
 /// The best normal for sharpness `m`: the grid about `u`, then a pattern search from the best
-/// node and from `start` (when given). Returns (squared residual, normal, ρ, s).
+/// node and from each of `starts`. Returns (squared residual, normal, ρ, s).
 fn fit_pixel(
     d: &PixelData,
     u: [f64; 3],
-    start: Option<[f64; 3]>,
+    starts: &[[f64; 3]],
     m: f64,
     nodes: &[(f64, f64)],
     refine: bool,
@@ -178,7 +186,10 @@ fn fit_pixel(
     }
     let mut result = search(d, best.1, m);
     let from_broad = (broad < m).then(|| search(d, search(d, best_broad.1, broad).1, m));
-    for other in from_broad.into_iter().chain(start.map(|s| search(d, s, m))) {
+    for other in from_broad
+        .into_iter()
+        .chain(starts.iter().map(|&s| search(d, s, m)))
+    {
         if other.0 < result.0 {
             result = other;
         }
@@ -300,96 +311,189 @@ impl<'a> Scratch<'a> {
     }
 }
 
+/// What the lobe fits of one reconstruction carry from one round of the near-light alternation
+/// to the next: the capture's sharpness m (a property of the material, chosen once) and each
+/// pixel's fitted normal (the start of its next fit: the light vectors move only a little
+/// between rounds).
+#[derive(Clone, Debug, Default)]
+pub struct LobeMemory {
+    /// The sharpness chosen in the first round that had pixels to fit.
+    exponent: Option<f64>,
+    /// Per mask pixel, the last fitted normal; (0, 0, 0) where none.
+    normals: Vec<[f32; 3]>,
+    /// Per mask pixel, whether that fit came out of (or was checked against) the whole grid:
+    /// its basin was then chosen among all, and the next round's search starts in it.
+    searched: Vec<bool>,
+}
+
+/// Distinct starts of the pattern search: two closer than this (radians, 0.1°) are one.
+const SEED_SEPARATION: f64 = 0.1 * std::f64::consts::PI / 180.0;
+
+/// The best of the pattern searches from `seeds` (the first `count`) at sharpness `m`; a seed
+/// within [`SEED_SEPARATION`] of an earlier one is skipped. `(∞, u)` without seeds.
+fn search_seeds(d: &PixelData, seeds: &[[f64; 3]], m: f64, u: [f64; 3]) -> (f64, [f64; 3]) {
+    let mut best = (f64::INFINITY, u);
+    let cos_sep = SEED_SEPARATION.cos();
+    for (i, &seed) in seeds.iter().enumerate() {
+        if seeds[..i].iter().any(|&o| dot(o, seed) > cos_sep) {
+            continue;
+        }
+        let r = search(d, seed, m);
+        if r.0 < best.0 {
+            best = r;
+        }
+    }
+    best
+}
+
+/// `x` as an f64 unit vector, or `None` for the zero vector (no normal).
+#[inline]
+fn seed_of(x: [f32; 3]) -> Option<[f64; 3]> {
+    (x != [0.0; 3]).then(|| unit([x[0] as f64, x[1] as f64, x[2] as f64]))
+}
+
+/// χ² quantiles at `confidence` for 0..=n degrees of freedom (0 for none).
+fn quantiles(confidence: f64, n: usize) -> Vec<f64> {
+    (0..=n)
+        .map(|k| {
+            if k == 0 {
+                0.0
+            } else {
+                crate::stats::chi2_quantile(confidence, k)
+            }
+        })
+        .collect()
+}
+
 /// Refits the pixels of `est` (per mask pixel, statuses in `est.light_status`, the near model's
 /// current surface) with the lobe model and keeps the fit where the lobe is significant (see
 /// the module documentation). Statuses: lights in the fit become USED, or HIGHLIGHT where the
 /// fitted lobe adds more than three σ_p to their reading. Returns the summary and the
 /// per-mask-pixel flags of the refined pixels.
+///
+/// The cost is kept to the pixels that need it: a pixel whose purely diffuse fit passes the χ²
+/// test (N_used − 3 degrees of freedom at `confidence`) shows no highlight and keeps the
+/// method's estimate unfitted; the others are searched first from the normals nearest at hand
+/// (the pixel's fit of the last round in `memory`, the fits of its left and upper neighbours,
+/// the method's own normal), and only when none of those searches reaches a residual the χ²
+/// test accepts (N_used − 4 degrees of freedom) is the whole grid of trial normals searched —
+/// once per pixel and reconstruction: the light vectors move little between rounds, so a later
+/// round searches from the basin the grid chose. The sharpness m is chosen once, in the first
+/// round, and kept in `memory`.
 pub fn refine(
     capture: &Capture,
     near: &NearLights,
     est: &mut Estimate,
     noise: &NoiseModel,
     confidence: f64,
+    memory: &mut LobeMemory,
 ) -> crate::error::Result<(LobeSummary, Vec<bool>)> {
     let n = capture.n_lights();
     let c = capture.channels;
     let np = capture.n_pixels();
     let depth = near.surface();
     let nodes = grid();
-    // 1. The capture's lobe sharpness: the least total residual over evenly spaced pixels.
-    let stride = (np / SAMPLE_PIXELS).max(1);
-    let sample: Vec<usize> = (0..np).step_by(stride).collect();
-    let view = if capture.is_tiled() {
-        std::borrow::Cow::Owned(capture.sampled(&sample)?)
-    } else {
-        std::borrow::Cow::Borrowed(capture)
-    };
-    let statuses = est.light_status.as_deref();
-    let totals: Vec<f64> = sample
-        .par_chunks(64)
-        .map_init(
-            || Scratch::new(capture, near),
-            |s, ps| {
-                let mut t = vec![0f64; LOBE_EXPONENTS.len() + 1];
-                for &p in ps {
-                    let pixel = capture.pixels[p] as usize;
-                    let u = s.load(
-                        near,
-                        &depth,
-                        capture.width,
-                        pixel,
-                        view.pixel_samples(p),
-                        c,
-                        statuses.map(|st| &st[p * n..(p + 1) * n]),
-                    );
-                    if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
-                        continue;
-                    }
-                    t[LOBE_EXPONENTS.len()] += 1.0;
-                    let d = s.data();
-                    let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
-                    let var = noise.variance(level);
-                    for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
-                        t[j] += fit_pixel(&d, u, None, m, &nodes, true).0 / var;
-                    }
-                }
-                t
-            },
-        )
-        .reduce(
-            || vec![0f64; LOBE_EXPONENTS.len() + 1],
-            |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
-        );
-    if totals[LOBE_EXPONENTS.len()] == 0.0 {
-        return Ok((
-            LobeSummary {
-                exponent: None,
-                refined_pixels: 0,
-                refined_share: 0.0,
-            },
-            vec![false; np],
-        ));
+    // Whole-fit acceptance (index: used lights − 4) and the diffuse fit's test (used − 3).
+    let q = quantiles(confidence, n);
+    if memory.normals.len() != np {
+        memory.normals = vec![[0.0; 3]; np];
+        memory.searched = vec![false; np];
     }
-    let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
-        (0, f64::INFINITY),
-        |acc, (j, &t)| {
-            if t < acc.1 {
-                (j, t)
-            } else {
-                acc
-            }
-        },
-    );
-    let m = LOBE_EXPONENTS[best_j];
-    drop(view);
+    let statuses = est.light_status.as_deref();
+    // 1. The capture's lobe sharpness, once: the least total residual over evenly spaced
+    //    pixels whose diffuse fit fails its test. Per pixel the broadest lobe is searched on the
+    //    whole grid and each sharper one from the last one's normal (and the method's).
+    if memory.exponent.is_none() {
+        let stride = (np / SAMPLE_PIXELS).max(1);
+        let sample: Vec<usize> = (0..np).step_by(stride).collect();
+        let view = if capture.is_tiled() {
+            std::borrow::Cow::Owned(capture.sampled(&sample)?)
+        } else {
+            std::borrow::Cow::Borrowed(capture)
+        };
+        let normals = &est.normals;
+        let totals: Vec<f64> = sample
+            .par_chunks(16)
+            .map_init(
+                || Scratch::new(capture, near),
+                |s, ps| {
+                    let mut t = vec![0f64; LOBE_EXPONENTS.len() + 1];
+                    for &p in ps {
+                        let pixel = capture.pixels[p] as usize;
+                        let u = s.load(
+                            near,
+                            &depth,
+                            capture.width,
+                            pixel,
+                            view.pixel_samples(p),
+                            c,
+                            statuses.map(|st| &st[p * n..(p + 1) * n]),
+                        );
+                        let used = s.used.iter().filter(|&&x| x).count();
+                        if used < MIN_LIGHTS {
+                            continue;
+                        }
+                        let d = s.data();
+                        let var = noise.variance(d.g.iter().sum::<f64>() / n.max(1) as f64);
+                        if diffuse_residual(&d) <= q[used - 3] * var {
+                            continue;
+                        }
+                        t[LOBE_EXPONENTS.len()] += 1.0;
+                        let own = seed_of(normals[p]);
+                        let starts = own.as_slice();
+                        let (e, mut prev, _, _) =
+                            fit_pixel(&d, u, starts, LOBE_EXPONENTS[0], &nodes, true);
+                        t[0] += e / var;
+                        for (j, &m) in LOBE_EXPONENTS.iter().enumerate().skip(1) {
+                            let seeds = [prev, own.unwrap_or(prev)];
+                            let (e, nf) = search_seeds(&d, &seeds, m, u);
+                            t[j] += e / var;
+                            prev = nf;
+                        }
+                    }
+                    t
+                },
+            )
+            .reduce(
+                || vec![0f64; LOBE_EXPONENTS.len() + 1],
+                |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
+            );
+        if totals[LOBE_EXPONENTS.len()] == 0.0 {
+            memory.normals.fill([0.0; 3]);
+            return Ok((
+                LobeSummary {
+                    exponent: None,
+                    refined_pixels: 0,
+                    refined_share: 0.0,
+                    fitted_pixels: 0,
+                    grid_pixels: 0,
+                },
+                vec![false; np],
+            ));
+        }
+        let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
+            (0, f64::INFINITY),
+            |acc, (j, &t)| {
+                if t < acc.1 {
+                    (j, t)
+                } else {
+                    acc
+                }
+            },
+        );
+        memory.exponent = Some(LOBE_EXPONENTS[best_j]);
+    }
+    let m = memory.exponent.expect("chosen above");
     // 2. Every pixel with that sharpness.
-    let quantile = crate::stats::chi2_quantile(confidence, 1);
+    let quantile = q[1];
     let mut refined = vec![false; np];
     let mut new_status = est
         .light_status
         .clone()
         .unwrap_or_else(|| vec![status::USED; np * n]);
+    let fitted = AtomicUsize::new(0);
+    let searched_grid = AtomicUsize::new(0);
+    let width = capture.width;
     capture.for_each_tile(|off, tile| {
         let tn = tile.n_pixels();
         est.normals[off..off + tn]
@@ -397,32 +501,71 @@ pub fn refine(
             .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
             .zip(new_status[off * n..(off + tn) * n].par_chunks_mut(CHUNK * n))
             .zip(refined[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.normals[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.searched[off..off + tn].par_chunks_mut(CHUNK))
             .enumerate()
             .for_each_init(
                 || (Scratch::new(capture, near), vec![0f64; c]),
-                |(s, num), (chunk, (((nrm, alb), st), rf))| {
+                |(s, num), (chunk, (((((nrm, alb), st), rf), fits), searched))| {
+                    let first = off + chunk * CHUNK;
                     for dp in 0..nrm.len() {
                         let lp = chunk * CHUNK + dp;
                         let p = off + lp;
                         let pixel = capture.pixels[p] as usize;
                         let samples = tile.pixel_samples(lp);
                         let stp = &mut st[dp * n..(dp + 1) * n];
-                        let u = s.load(near, &depth, capture.width, pixel, samples, c, Some(stp));
-                        if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
+                        let u = s.load(near, &depth, width, pixel, samples, c, Some(stp));
+                        let used = s.used.iter().filter(|&&x| x).count();
+                        let last = std::mem::replace(&mut fits[dp], [0.0; 3]);
+                        let was_searched = std::mem::replace(&mut searched[dp], false);
+                        if used < MIN_LIGHTS {
                             continue;
                         }
                         let d = s.data();
-                        let own = nrm[dp];
-                        let start = (own != [0.0; 3])
-                            .then(|| [own[0] as f64, own[1] as f64, own[2] as f64]);
-                        let (e, nf, rho, spec) = fit_pixel(&d, u, start, m, &nodes, true);
                         let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
                         let var = noise.variance(level);
-                        if !(rho > 0.0 && diffuse_residual(&d) - e > quantile * var) {
+                        let diffuse = diffuse_residual(&d);
+                        if diffuse <= q[used - 3] * var {
+                            continue;
+                        }
+                        fitted.fetch_add(1, Ordering::Relaxed);
+                        // Starts at hand: the last round's fit, the left and upper
+                        // neighbours' fits of this round (in this chunk), the method's normal.
+                        let mut seeds = [[0f64; 3]; 4];
+                        let mut count = 0;
+                        let left = (dp > 0 && capture.pixels[p - 1] as usize + 1 == pixel)
+                            .then(|| fits[dp - 1]);
+                        let up = (pixel >= width)
+                            .then(|| {
+                                capture.pixels[first..p]
+                                    .binary_search(&((pixel - width) as u32))
+                                    .ok()
+                                    .map(|i| fits[i])
+                            })
+                            .flatten();
+                        for x in [Some(last), left, up, Some(nrm[dp])].into_iter().flatten() {
+                            if let Some(v) = seed_of(x) {
+                                seeds[count] = v;
+                                count += 1;
+                            }
+                        }
+                        let (e, mut nf) = search_seeds(&d, &seeds[..count], m, u);
+                        if e > q[used - 4] * var && !(was_searched && last != [0.0; 3]) {
+                            searched_grid.fetch_add(1, Ordering::Relaxed);
+                            searched[dp] = true;
+                            let (eg, ng, _, _) = fit_pixel(&d, u, &[], m, &nodes, true);
+                            if eg < e {
+                                nf = ng;
+                            }
+                        }
+                        let (e, rho, spec) = fit_at(&d, nf, m);
+                        fits[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+                        searched[dp] |= was_searched;
+                        if !(rho > 0.0 && diffuse - e > quantile * var) {
                             continue;
                         }
                         rf[dp] = true;
-                        nrm[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+                        nrm[dp] = fits[dp];
                         // Albedo per channel with the normal and the lobe fixed (the lobe is
                         // the same in every channel of the normalised images).
                         let sd = 3.0 * var.sqrt();
@@ -463,6 +606,8 @@ pub fn refine(
             exponent: Some(m),
             refined_pixels: count,
             refined_share: count as f64 / np.max(1) as f64,
+            fitted_pixels: fitted.into_inner(),
+            grid_pixels: searched_grid.into_inner(),
         },
         refined,
     ))
@@ -558,7 +703,7 @@ mod tests {
                 g: &g,
                 used: &used,
             };
-            let (e, found, r, s) = fit_pixel(&d, u, None, m, &nodes, true);
+            let (e, found, r, s) = fit_pixel(&d, u, &[], m, &nodes, true);
             let err = dot(found, n).clamp(-1.0, 1.0).acos().to_degrees();
             assert!(err < 0.5, "tilt {tilt}°: {err}° off, residual {e}");
             assert!((r - rho).abs() < 0.05 && (s - spec).abs() < 0.05, "{r} {s}");
