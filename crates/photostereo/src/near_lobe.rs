@@ -717,4 +717,71 @@ mod tests {
             assert!(diffuse_residual(&d) > 10.0 * e.max(1e-12));
         }
     }
+
+    /// The fast path of [`refine`] (χ² pre-gate, searches from nearby starts, the grid at most
+    /// once) against the brute force (the whole grid and its searches at every pixel): on a
+    /// near-ring sphere with Blinn–Phong highlights, the refined pixels' fits reach the brute
+    /// force's residual, and most pixels need no grid.
+    #[test]
+    fn the_fast_fit_reaches_the_brute_force_residual() {
+        use crate::scene::near::{synthesize_near, NearRig, NearSpec};
+        let r = synthesize_near(&NearSpec {
+            size: 40,
+            ..NearSpec::new(crate::scene::SceneKind::Sphere, NearRig::Ring)
+        })
+        .unwrap();
+        let capture = r.capture().unwrap();
+        let near = capture.lights.near.clone().unwrap();
+        let params = crate::detect::DetectionParams::default();
+        let detection =
+            crate::tiles::detect_tiles(&capture, &params, &crate::progress::Silent).unwrap();
+        let mut est = crate::lambert::solve_subsets(&capture, None, &crate::progress::Silent);
+        let mut memory = LobeMemory::default();
+        let (summary, refined) = refine(
+            &capture,
+            &near,
+            &mut est,
+            &detection.noise,
+            params.confidence,
+            &mut memory,
+        )
+        .unwrap();
+        let m = summary.exponent.unwrap();
+        assert!(summary.refined_pixels > 100, "{summary:?}");
+        assert!(
+            summary.grid_pixels * 4 < summary.fitted_pixels,
+            "most fits should start nearby: {summary:?}"
+        );
+        let nodes = grid();
+        let depth = near.surface();
+        let statuses = est.light_status.clone().unwrap();
+        let n = capture.n_lights();
+        let mut s = Scratch::new(&capture, &near);
+        let (mut worse, mut total) = (0, 0);
+        for p in (0..capture.n_pixels()).filter(|&p| refined[p]) {
+            let pixel = capture.pixels[p] as usize;
+            let u = s.load(
+                &near,
+                &depth,
+                capture.width,
+                pixel,
+                capture.pixel_samples(p),
+                capture.channels,
+                Some(&statuses[p * n..(p + 1) * n]),
+            );
+            let d = s.data();
+            let fast = est.normals[p];
+            let fast = [fast[0] as f64, fast[1] as f64, fast[2] as f64];
+            let e_fast = fit_at(&d, fast, m).0;
+            let (e_brute, ..) = fit_pixel(&d, u, &[], m, &nodes, true);
+            total += 1;
+            if e_fast > 1.05 * e_brute + 1e-12 {
+                worse += 1;
+            }
+        }
+        assert!(
+            worse * 50 <= total,
+            "{worse} of {total} refined pixels above the brute-force residual"
+        );
+    }
 }

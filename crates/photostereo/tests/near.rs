@@ -105,6 +105,11 @@ fn lambertian_pixels_keep_the_recursive_estimate() {
     let (near, record) = error(&r, &r.capture().unwrap(), Method::Recursive);
     let share = record["highlight_lobe"]["refined_share"].as_f64().unwrap();
     assert!(share < 0.02, "refitted share {share}");
+    // Their diffuse fits pass the χ² test (at its 95% confidence): only the test's false alarms
+    // are fitted at all.
+    let pixels = r.rendered.truth.mask.iter().filter(|&&m| m).count() as f64;
+    let fitted = record["highlight_lobe"]["fitted_pixels"].as_f64().unwrap() / pixels;
+    assert!(fitted < 0.1, "fitted share {fitted}");
     assert!(near < 1.0, "{near}°");
 }
 
