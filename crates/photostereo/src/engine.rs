@@ -463,6 +463,7 @@ fn alternate(
     let method = params.method;
     let mut lobe = None;
     let mut lobe_memory = crate::near_lobe::LobeMemory::default();
+    let mut capture_lobe = None;
     for round in 1..=MAX_ROUNDS {
         let t = Instant::now();
         let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
@@ -482,6 +483,38 @@ fn alternate(
                     if refined[p] {
                         diag.trust[i as usize] = 1.0;
                     }
+                }
+            }
+            // Pixels left with three usable lights: the capture's lobe taken out.
+            if let Some(diag) = result.2.as_ref() {
+                let reliable: Vec<bool> = capture
+                    .pixels
+                    .iter()
+                    .map(|&i| diag.reliable[i as usize])
+                    .collect();
+                if let Some(cl) =
+                    crate::near_lobe::fit_capture_lobe(capture, near, &result.0, &reliable)?
+                {
+                    let moved = crate::near_lobe::correct_exact(
+                        capture,
+                        near,
+                        &mut result.0,
+                        &cl,
+                        &refined,
+                    )?;
+                    let two = crate::near_lobe::correct_two(
+                        capture,
+                        near,
+                        &mut result.0,
+                        &cl,
+                        &reliable,
+                        &refined,
+                    )?;
+                    capture_lobe = Some(serde_json::json!({
+                        "lobe": cl,
+                        "corrected_pixels": moved,
+                        "corrected_two_light_pixels": two,
+                    }));
                 }
             }
             report.time("highlight_lobe", t);
@@ -534,6 +567,7 @@ fn alternate(
             "converged": converged,
             "tolerance_mm": DEPTH_TOLERANCE * d,
             "highlight_lobe": lobe,
+            "capture_lobe": capture_lobe,
         }),
     );
     if !converged {

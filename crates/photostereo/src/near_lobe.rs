@@ -613,6 +613,375 @@ pub fn refine(
     ))
 }
 
+/// The capture's highlight lobe, I_k = b_k (ρ n · l_k + s exp(−m (1 − n · h_k))) with one
+/// sharpness m and one strength s for the whole capture, fitted where the readings are
+/// trusted: at the pixels whose usable lights passed the χ² test with four lit lights or
+/// more, each lit light's excess over the diffuse prediction from the pixel's normal and
+/// albedo (large for the lights the method dropped as highlights, about zero for the others).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct CaptureLobe {
+    /// The sharpness m, one of [`LOBE_EXPONENTS`].
+    pub exponent: f64,
+    /// The strength s, in the units of the intensity-normalised readings.
+    pub strength: f64,
+    /// The (pixel, light) readings the fit used.
+    pub readings: usize,
+}
+
+/// Fits the [`CaptureLobe`] from `est` (per mask pixel; statuses in `est.light_status`) at the
+/// mask pixels flagged in `reliable`; `None` when no highlight was dropped at such a pixel (no
+/// lobe to fit).
+pub fn fit_capture_lobe(
+    capture: &Capture,
+    near: &NearLights,
+    est: &Estimate,
+    reliable: &[bool],
+) -> crate::error::Result<Option<CaptureLobe>> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.as_deref() else {
+        return Ok(None);
+    };
+    let e_len = LOBE_EXPONENTS.len();
+    // Per exponent: Σ e g, Σ g²; then Σ e², readings, dropped highlights.
+    let mut sums = vec![0f64; 2 * e_len + 3];
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        let part: Vec<f64> = (0..tn.div_ceil(CHUNK))
+            .into_par_iter()
+            .map_init(
+                || Scratch::new(capture, near),
+                |s, chunk| {
+                    let mut t = vec![0f64; 2 * e_len + 3];
+                    for lp in chunk * CHUNK..((chunk + 1) * CHUNK).min(tn) {
+                        let p = off + lp;
+                        let st = &statuses[p * n..(p + 1) * n];
+                        let lit = st
+                            .iter()
+                            .filter(|&&x| x == status::USED || x == status::HIGHLIGHT)
+                            .count();
+                        let used = st.iter().filter(|&&x| x == status::USED).count();
+                        let nrm = est.normals[p];
+                        // Passed the test with four lights or more, or one light dropped as a
+                        // highlight from four or more.
+                        if !(used >= 3 && lit >= 4 && (reliable[p] || lit == used + 1))
+                            || nrm == [0.0; 3]
+                        {
+                            continue;
+                        }
+                        let pixel = capture.pixels[p] as usize;
+                        s.load(
+                            near,
+                            &depth,
+                            capture.width,
+                            pixel,
+                            tile.pixel_samples(lp),
+                            c,
+                            Some(st),
+                        );
+                        let nv = unit([nrm[0] as f64, nrm[1] as f64, nrm[2] as f64]);
+                        let rho = est.albedo[p * c..(p + 1) * c]
+                            .iter()
+                            .map(|&a| a as f64)
+                            .sum::<f64>()
+                            / c as f64;
+                        for k in 0..n {
+                            if !(st[k] == status::USED || st[k] == status::HIGHLIGHT) {
+                                continue;
+                            }
+                            let e = s.g[k] - rho * dot(s.v[k], nv).max(0.0);
+                            let x = 1.0 - dot(s.h[k], nv);
+                            for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
+                                let g = s.b[k] * (-m * x).exp();
+                                t[2 * j] += e * g;
+                                t[2 * j + 1] += g * g;
+                            }
+                            t[2 * e_len] += e * e;
+                            t[2 * e_len + 1] += 1.0;
+                            if st[k] == status::HIGHLIGHT {
+                                t[2 * e_len + 2] += 1.0;
+                            }
+                        }
+                    }
+                    t
+                },
+            )
+            // In chunk order: the sums do not depend on the threads' timing.
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![0f64; 2 * e_len + 3], |a, b| {
+                a.iter().zip(&b).map(|(x, y)| x + y).collect()
+            });
+        for (a, b) in sums.iter_mut().zip(&part) {
+            *a += b;
+        }
+        Ok(())
+    })?;
+    if sums[2 * e_len + 2] == 0.0 {
+        return Ok(None);
+    }
+    // Per m the least-squares s ≥ 0, and the m of the least residual.
+    let mut best: Option<(f64, f64, f64)> = None;
+    for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
+        let (eg, gg) = (sums[2 * j], sums[2 * j + 1]);
+        if gg <= 0.0 {
+            continue;
+        }
+        let strength = (eg / gg).max(0.0);
+        let cost = sums[2 * e_len] - 2.0 * strength * eg + strength * strength * gg;
+        if best.is_none_or(|b| cost < b.0) {
+            best = Some((cost, m, strength));
+        }
+    }
+    Ok(best.and_then(|(_, m, strength)| {
+        (strength > 0.0).then_some(CaptureLobe {
+            exponent: m,
+            strength,
+            readings: sums[2 * e_len + 1] as usize,
+        })
+    }))
+}
+
+/// Damped fixed-point iterations of [`correct_exact`]: at most this many.
+const EXACT_ITERATIONS: usize = 50;
+
+/// Pixels with exactly three usable lights have no redundancy: the χ² test cannot see a
+/// highlight among them, and a highlighted light bends the normal toward itself. There the
+/// capture's lobe ([`fit_capture_lobe`]) is taken out of the readings before the three-light
+/// solve: n ← normalise(n + solve(I − b s exp(−m (1 − n · h)))), from the method's normal until
+/// it moves less than 0.01°. Pixels whose lights the lobe does not reach keep their normal.
+/// Pixels flagged in `fitted` (per mask pixel: refitted by [`refine`], whose statuses then
+/// mark the lights its own lobe reaches) are left alone. Returns the number of pixels whose
+/// normal moved by more than 0.1°.
+pub fn correct_exact(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    lobe: &CaptureLobe,
+    fitted: &[bool],
+) -> crate::error::Result<usize> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.clone() else {
+        return Ok(0);
+    };
+    let (m, strength) = (lobe.exponent, lobe.strength);
+    let moved = AtomicUsize::new(0);
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        est.normals[off..off + tn]
+            .par_chunks_mut(CHUNK)
+            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+            .enumerate()
+            .for_each_init(
+                || (Scratch::new(capture, near), vec![0f64; n], vec![0f64; c]),
+                |(s, corrected, num), (chunk, (nrm, alb))| {
+                    for dp in 0..nrm.len() {
+                        let lp = chunk * CHUNK + dp;
+                        let p = off + lp;
+                        let st = &statuses[p * n..(p + 1) * n];
+                        if st.iter().filter(|&&x| x == status::USED).count() != 3
+                            || nrm[dp] == [0.0; 3]
+                            || fitted[p]
+                        {
+                            continue;
+                        }
+                        let pixel = capture.pixels[p] as usize;
+                        let samples = tile.pixel_samples(lp);
+                        s.load(near, &depth, capture.width, pixel, samples, c, Some(st));
+                        for k in 0..n {
+                            s.used[k] = st[k] == status::USED;
+                        }
+                        let start = unit([nrm[dp][0] as f64, nrm[dp][1] as f64, nrm[dp][2] as f64]);
+                        let mut nv = start;
+                        for _ in 0..EXACT_ITERATIONS {
+                            for k in 0..n {
+                                corrected[k] = s.g[k]
+                                    - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                            }
+                            let Some(x) =
+                                crate::lambert::solve_with(&s.v, Some(&s.used), corrected)
+                            else {
+                                break;
+                            };
+                            let next = unit(add3(nv, unit([x[0], x[1], x[2]])));
+                            let step = dot(next, nv);
+                            nv = next;
+                            if step > (0.01f64).to_radians().cos() {
+                                break;
+                            }
+                        }
+                        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+                            continue;
+                        }
+                        moved.fetch_add(1, Ordering::Relaxed);
+                        nrm[dp] = [nv[0] as f32, nv[1] as f32, nv[2] as f32];
+                        num.fill(0.0);
+                        let mut den = 0f64;
+                        for k in (0..n).filter(|&k| s.used[k]) {
+                            let a = dot(s.v[k], nv).max(0.0);
+                            let l = strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                            for (ch, x) in num.iter_mut().enumerate() {
+                                *x += a * (samples[k * c + ch] as f64 - l);
+                            }
+                            den += a * a;
+                        }
+                        for ch in 0..c {
+                            alb[dp * c + ch] = if den > 0.0 {
+                                (num[ch] / den).max(0.0) as f32
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
+                },
+            );
+        Ok(())
+    })?;
+    Ok(moved.into_inner())
+}
+
+/// The unit normals n with n · l₁ = a and n · l₂ = b (unit l₁, l₂): the root closer to `hint`;
+/// with no real root (readings too bright or too dark for any normal) the nearest point of the
+/// plane of l₁ and l₂'s solutions. `None` when l₁ ∥ l₂.
+fn two_source(l1: [f64; 3], l2: [f64; 3], a: f64, b: f64, hint: [f64; 3]) -> Option<[f64; 3]> {
+    let cos = dot(l1, l2);
+    let det = 1.0 - cos * cos;
+    if det < 1e-6 {
+        return None;
+    }
+    let alpha = (a - b * cos) / det;
+    let beta = (b - a * cos) / det;
+    let in_plane = add3(scale(l1, alpha), scale(l2, beta));
+    let cr = cross(l1, l2);
+    let gamma = ((1.0 - dot(in_plane, in_plane)) / dot(cr, cr))
+        .max(0.0)
+        .sqrt();
+    let p = add3(in_plane, scale(cr, gamma));
+    let q = add3(in_plane, scale(cr, -gamma));
+    let best = if dot(p, hint) >= dot(q, hint) { p } else { q };
+    (norm(best) > 1e-9).then(|| unit(best))
+}
+
+/// Pixels left with two usable lights (completed by the method from two lights and the
+/// neighbours' albedo ρ̂, the median grey albedo of the nearest pixels that passed the χ² test
+/// in `reliable`): the same correction as [`correct_exact`] with two-source photometric stereo
+/// of known albedo, n ← normalise(n + two_source((I − b s exp(−m (1 − n · h))) / (ρ̂ b))), the
+/// root nearer the current normal; pixels flagged in `fitted` are left alone. Returns the
+/// number of pixels whose normal moved by more than 0.1°.
+pub fn correct_two(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    lobe: &CaptureLobe,
+    reliable: &[bool],
+    fitted: &[bool],
+) -> crate::error::Result<usize> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let (w, h) = (capture.width, capture.height);
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.clone() else {
+        return Ok(0);
+    };
+    let used_count = |p: usize| {
+        statuses[p * n..(p + 1) * n]
+            .iter()
+            .filter(|&&x| x == status::USED)
+            .count()
+    };
+    let todo: Vec<usize> = (0..capture.n_pixels())
+        .filter(|&p| used_count(p) == 2 && est.normals[p] != [0.0; 3] && !fitted[p])
+        .collect();
+    if todo.is_empty() {
+        return Ok(0);
+    }
+    // Grey albedo of the pixels that passed the test with three lights or more, full frame.
+    let mut albedo_map = vec![f32::NAN; w * h];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        if reliable[p] && used_count(p) >= 3 && est.normals[p] != [0.0; 3] {
+            albedo_map[i as usize] = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() / c as f32;
+        }
+    }
+    let view = if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(&todo)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    };
+    let (m, strength) = (lobe.exponent, lobe.strength);
+    let mut s = Scratch::new(capture, near);
+    let mut window = Vec::new();
+    let mut moved = 0;
+    for (j, &p) in todo.iter().enumerate() {
+        let pixel = capture.pixels[p] as usize;
+        let (row, col) = (pixel / w, pixel % w);
+        let mut rho = f64::NAN;
+        for radius in [2usize, 4, 8, 16, 32] {
+            window.clear();
+            for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
+                for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
+                    let a = albedo_map[r * w + cc];
+                    if a.is_finite() && a > 0.0 {
+                        window.push(a as f64);
+                    }
+                }
+            }
+            if window.len() >= 5 {
+                rho = crate::metrics::median(&mut window);
+                break;
+            }
+        }
+        if !rho.is_finite() {
+            continue;
+        }
+        let samples = view.pixel_samples(if capture.is_tiled() { j } else { p });
+        let st = &statuses[p * n..(p + 1) * n];
+        s.load(near, &depth, w, pixel, samples, c, Some(st));
+        let lights: Vec<usize> = (0..n).filter(|&k| st[k] == status::USED).collect();
+        let (k1, k2) = (lights[0], lights[1]);
+        let dir = |k: usize| scale(s.v[k], 1.0 / s.b[k].max(1e-300));
+        let nrm = est.normals[p];
+        let start = unit([nrm[0] as f64, nrm[1] as f64, nrm[2] as f64]);
+        let mut nv = start;
+        for _ in 0..EXACT_ITERATIONS {
+            let read = |k: usize, nv: [f64; 3]| {
+                (s.g[k] - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp()) / (rho * s.b[k])
+            };
+            let Some(x) = two_source(dir(k1), dir(k2), read(k1, nv), read(k2, nv), nv) else {
+                break;
+            };
+            let next = unit(add3(nv, x));
+            let step = dot(next, nv);
+            nv = next;
+            if step > (0.01f64).to_radians().cos() {
+                break;
+            }
+        }
+        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+            continue;
+        }
+        moved += 1;
+        est.normals[p] = [nv[0] as f32, nv[1] as f32, nv[2] as f32];
+        for ch in 0..c {
+            let (mut num, mut den) = (0f64, 0f64);
+            for &k in &lights {
+                let a = dot(s.v[k], nv).max(0.0);
+                let l = strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                num += a * (samples[k * c + ch] as f64 - l);
+                den += a * a;
+            }
+            est.albedo[p * c + ch] = if den > 0.0 {
+                (num / den).max(0.0) as f32
+            } else {
+                0.0
+            };
+        }
+    }
+    Ok(moved)
+}
+
 /// Two unit vectors orthogonal to unit `n` and to each other.
 #[inline]
 fn basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
