@@ -485,37 +485,32 @@ fn alternate(
                     }
                 }
             }
-            // Pixels left with three usable lights: the capture's lobe taken out.
+            // Pixels left without a spare light: the capture's lobe taken out.
             if let Some(diag) = result.2.as_ref() {
                 let reliable: Vec<bool> = capture
                     .pixels
                     .iter()
                     .map(|&i| diag.reliable[i as usize])
                     .collect();
-                if let Some(cl) =
-                    crate::near_lobe::fit_capture_lobe(capture, near, &result.0, &reliable)?
-                {
-                    let moved = crate::near_lobe::correct_exact(
-                        capture,
-                        near,
-                        &mut result.0,
-                        &cl,
-                        &refined,
-                    )?;
-                    let two = crate::near_lobe::correct_two(
-                        capture,
-                        near,
-                        &mut result.0,
-                        &cl,
-                        &reliable,
-                        &refined,
-                    )?;
-                    capture_lobe = Some(serde_json::json!({
-                        "lobe": cl,
-                        "corrected_pixels": moved,
-                        "corrected_two_light_pixels": two,
-                    }));
-                }
+                let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
+                    let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
+                    let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
+                    Ok(crate::integrate::perspective::normals_from_z(
+                        capture.width,
+                        capture.height,
+                        &s.depth.values,
+                        &capture.mask,
+                        &near.camera,
+                    ))
+                };
+                capture_lobe = crate::near_lobe::correct_without_spare(
+                    capture,
+                    near,
+                    &mut result.0,
+                    &reliable,
+                    &refined,
+                    surface,
+                )?;
             }
             report.time("highlight_lobe", t);
             lobe = Some(summary);

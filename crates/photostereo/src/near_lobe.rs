@@ -22,6 +22,14 @@
 //! lights, below that of the best purely diffuse fit by more than the χ² quantile of one
 //! degree of freedom at the detector's confidence times the pixel's variance: a Lambertian
 //! pixel keeps the method's estimate. Lights in the method's shadow maps stay out of the fit.
+//!
+//! Pixels with fewer than [`MIN_LIGHTS`] lights out of shadow — every pixel of a four-light
+//! rig — cannot fit a lobe of their own, and those left with three usable lights (one light in
+//! shadow) or two have no spare reading for the χ² test to see a highlight with. There the
+//! capture's lobe — one m and one strength s, fitted where four lights or more are lit and the
+//! method has judged the readings ([`fit_capture_lobe`]) — is taken out of the readings before
+//! the exact solve ([`correct_without_spare`]).
+//!
 //! Frames and units as in [`crate::lightmodel`].
 
 use crate::capture::Capture;
@@ -867,7 +875,7 @@ fn two_source(l1: [f64; 3], l2: [f64; 3], a: f64, b: f64, hint: [f64; 3]) -> Opt
 
 /// Pixels left with two usable lights (completed by the method from two lights and the
 /// neighbours' albedo ρ̂, the median grey albedo of the nearest pixels that passed the χ² test
-/// in `reliable`): the same correction as [`correct_exact`] with two-source photometric stereo
+/// in `reliable`, however far they are): the same correction as [`correct_exact`] with two-source photometric stereo
 /// of known albedo, n ← normalise(n + two_source((I − b s exp(−m (1 − n · h))) / (ρ̂ b))), the
 /// root nearer the current normal; pixels flagged in `fitted` are left alone. Returns the
 /// number of pixels whose normal moved by more than 0.1°.
@@ -878,6 +886,7 @@ pub fn correct_two(
     lobe: &CaptureLobe,
     reliable: &[bool],
     fitted: &[bool],
+    hints: &[[f32; 3]],
 ) -> crate::error::Result<usize> {
     let n = capture.n_lights();
     let c = capture.channels;
@@ -918,7 +927,10 @@ pub fn correct_two(
         let pixel = capture.pixels[p] as usize;
         let (row, col) = (pixel / w, pixel % w);
         let mut rho = f64::NAN;
-        for radius in [2usize, 4, 8, 16, 32] {
+        // Growing windows, as far as the nearest judged pixels are (a cast shadow is wider
+        // in pixels the finer the image).
+        let radii = std::iter::successors(Some(2usize), |&r| (r < w.max(h)).then_some(2 * r));
+        for radius in radii {
             window.clear();
             for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
                 for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
@@ -944,7 +956,13 @@ pub fn correct_two(
         let dir = |k: usize| scale(s.v[k], 1.0 / s.b[k].max(1e-300));
         let nrm = est.normals[p];
         let start = unit([nrm[0] as f64, nrm[1] as f64, nrm[2] as f64]);
-        let mut nv = start;
+        // The root is chosen by the surface's normal first, then by the iterate.
+        let hint = hints[pixel];
+        let mut nv = if hint == [0.0; 3] || hint.iter().any(|x| !x.is_finite()) {
+            start
+        } else {
+            unit([hint[0] as f64, hint[1] as f64, hint[2] as f64])
+        };
         for _ in 0..EXACT_ITERATIONS {
             let read = |k: usize, nv: [f64; 3]| {
                 (s.g[k] - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp()) / (rho * s.b[k])
@@ -980,6 +998,45 @@ pub fn correct_two(
         }
     }
     Ok(moved)
+}
+
+/// What [`correct_without_spare`] did, for `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpareSummary {
+    /// The capture's lobe.
+    pub lobe: CaptureLobe,
+    /// Pixels with three usable lights whose normal moved ([`correct_exact`]).
+    pub corrected_pixels: usize,
+    /// Pixels with two usable lights whose normal moved ([`correct_two`]).
+    pub corrected_two_light_pixels: usize,
+}
+
+/// The near model's answer to pixels without a spare light (the four-light rig's pixels in one
+/// light's shadow): [`fit_capture_lobe`] from the pixels `reliable` flags, then
+/// [`correct_exact`], then [`correct_two`] with the roots chosen by the normals of
+/// `surface(est)` (full frame: the surface of the corrected normals, whose three-light pixels
+/// no longer lean toward their highlights), leaving the pixels `fitted` by [`refine`] alone.
+/// `None` when no highlight was dropped at a trusted pixel (then nothing changes).
+pub fn correct_without_spare(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    reliable: &[bool],
+    fitted: &[bool],
+    surface: impl FnOnce(&Estimate) -> crate::error::Result<Vec<[f32; 3]>>,
+) -> crate::error::Result<Option<SpareSummary>> {
+    let Some(lobe) = fit_capture_lobe(capture, near, est, reliable)? else {
+        return Ok(None);
+    };
+    let corrected_pixels = correct_exact(capture, near, est, &lobe, fitted)?;
+    let hints = surface(est)?;
+    let corrected_two_light_pixels =
+        correct_two(capture, near, est, &lobe, reliable, fitted, &hints)?;
+    Ok(Some(SpareSummary {
+        lobe,
+        corrected_pixels,
+        corrected_two_light_pixels,
+    }))
 }
 
 /// Two unit vectors orthogonal to unit `n` and to each other.
