@@ -13,6 +13,8 @@ use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::SceneKind;
 use std::collections::BTreeMap;
 
+// One full-frame index serves the truth's and the reconstruction's maps alike.
+#[allow(clippy::needless_range_loop)]
 fn main() -> photostereo::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let size: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(128);

@@ -694,8 +694,8 @@ pub fn fit_capture_lobe(
                             .map(|&a| a as f64)
                             .sum::<f64>()
                             / c as f64;
-                        for k in 0..n {
-                            if !(st[k] == status::USED || st[k] == status::HIGHLIGHT) {
+                        for (k, &sk) in st.iter().enumerate() {
+                            if !(sk == status::USED || sk == status::HIGHLIGHT) {
                                 continue;
                             }
                             let e = s.g[k] - rho * dot(s.v[k], nv).max(0.0);
@@ -799,14 +799,14 @@ pub fn correct_exact(
                         let pixel = capture.pixels[p] as usize;
                         let samples = tile.pixel_samples(lp);
                         s.load(near, &depth, capture.width, pixel, samples, c, Some(st));
-                        for k in 0..n {
-                            s.used[k] = st[k] == status::USED;
+                        for (u, &sk) in s.used.iter_mut().zip(st) {
+                            *u = sk == status::USED;
                         }
                         let start = unit([nrm[dp][0] as f64, nrm[dp][1] as f64, nrm[dp][2] as f64]);
                         let mut nv = start;
                         for _ in 0..EXACT_ITERATIONS {
-                            for k in 0..n {
-                                corrected[k] = s.g[k]
+                            for (k, x) in corrected.iter_mut().enumerate() {
+                                *x = s.g[k]
                                     - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
                             }
                             let Some(x) =
