@@ -164,3 +164,25 @@ def test_a_led_behind_the_object_is_refused(ring):
             camera=near["camera"],
             distance=near["distance"],
         )
+
+
+def test_a_missing_distance_names_the_python_keyword(tmp_path):
+    # A near-light folder without mean_distance.txt: the message names the file and the Python
+    # keyword that replaces it (distance=), not the command line's flag.
+    folder = pathlib.Path(
+        ps.synth("bumps", tmp_path / "scene", rig="near-square", size=32, brdf="lambert")
+    )
+    (folder / "mean_distance.txt").unlink()
+    for call in (
+        lambda: ps.load_capture(folder),
+        lambda: ps.run(folder, tmp_path / "out", method="l2"),
+    ):
+        with pytest.raises(ps.PhotostereoError) as e:
+            call()
+        message = str(e.value)
+        assert "mean_distance.txt" in message and "distance=" in message, message
+        assert "--distance" not in message, message
+    assert not (tmp_path / "out").exists()
+    # With the keyword the same folder runs.
+    rec = ps.reconstruct(ps.load_capture(folder, distance=300.0), method="l2")
+    assert rec.report["near"]["mean_distance_mm"] == pytest.approx(300.0)

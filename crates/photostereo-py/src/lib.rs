@@ -39,8 +39,23 @@ create_exception!(
 fn py_err(e: photostereo::Error) -> PyErr {
     match e {
         photostereo::Error::Cancelled => PyKeyboardInterrupt::new_err("cancelled"),
-        other => PhotostereoError::new_err(other.to_string()),
+        other => PhotostereoError::new_err(python_spelling(&other.to_string())),
     }
+}
+
+/// The command line's flags that the library's messages name, as the Python keywords that
+/// replace them.
+const PYTHON_KEYWORDS: &[(&str, &str)] = &[("--distance", "distance=")];
+
+/// `message` with each command-line flag of [`PYTHON_KEYWORDS`] spelt as its Python keyword
+/// (the library's file errors say what a command-line user passes: a missing
+/// `mean_distance.txt` asks for `--distance`, which in Python is `distance=`).
+fn python_spelling(message: &str) -> String {
+    PYTHON_KEYWORDS
+        .iter()
+        .fold(message.to_string(), |m, (flag, keyword)| {
+            m.replace(flag, keyword)
+        })
 }
 
 fn bad(message: impl Into<String>) -> PyErr {

@@ -462,6 +462,8 @@ fn alternate(
     let mut last = None;
     let method = params.method;
     let mut lobe = None;
+    let mut lobe_memory = crate::near_lobe::LobeMemory::default();
+    let mut capture_lobe = None;
     for round in 1..=MAX_ROUNDS {
         let t = Instant::now();
         let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
@@ -474,6 +476,7 @@ fn alternate(
                 &mut result.0,
                 &d.noise,
                 d.params.confidence,
+                &mut lobe_memory,
             )?;
             if let Some(diag) = result.2.as_mut() {
                 for (p, &i) in capture.pixels.iter().enumerate() {
@@ -481,6 +484,33 @@ fn alternate(
                         diag.trust[i as usize] = 1.0;
                     }
                 }
+            }
+            // Pixels left without a spare light: the capture's lobe taken out.
+            if let Some(diag) = result.2.as_ref() {
+                let reliable: Vec<bool> = capture
+                    .pixels
+                    .iter()
+                    .map(|&i| diag.reliable[i as usize])
+                    .collect();
+                let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
+                    let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
+                    let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
+                    Ok(crate::integrate::perspective::normals_from_z(
+                        capture.width,
+                        capture.height,
+                        &s.depth.values,
+                        &capture.mask,
+                        &near.camera,
+                    ))
+                };
+                capture_lobe = crate::near_lobe::correct_without_spare(
+                    capture,
+                    near,
+                    &mut result.0,
+                    &reliable,
+                    &refined,
+                    surface,
+                )?;
             }
             report.time("highlight_lobe", t);
             lobe = Some(summary);
@@ -532,6 +562,7 @@ fn alternate(
             "converged": converged,
             "tolerance_mm": DEPTH_TOLERANCE * d,
             "highlight_lobe": lobe,
+            "capture_lobe": capture_lobe,
         }),
     );
     if !converged {

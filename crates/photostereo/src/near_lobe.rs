@@ -22,6 +22,14 @@
 //! lights, below that of the best purely diffuse fit by more than the χ² quantile of one
 //! degree of freedom at the detector's confidence times the pixel's variance: a Lambertian
 //! pixel keeps the method's estimate. Lights in the method's shadow maps stay out of the fit.
+//!
+//! Pixels with fewer than [`MIN_LIGHTS`] lights out of shadow — every pixel of a four-light
+//! rig — cannot fit a lobe of their own, and those left with three usable lights (one light in
+//! shadow) or two have no spare reading for the χ² test to see a highlight with. There the
+//! capture's lobe — one m and one strength s, fitted where four lights or more are lit and the
+//! method has judged the readings ([`fit_capture_lobe`]) — is taken out of the readings before
+//! the exact solve ([`correct_without_spare`]).
+//!
 //! Frames and units as in [`crate::lightmodel`].
 
 use crate::capture::Capture;
@@ -30,6 +38,7 @@ use crate::lambert::{channel_mean, status, Estimate, CHUNK};
 use crate::lightmodel::{NearLights, PixelLights};
 use rayon::prelude::*;
 use serde::Serialize;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// The lobe sharpnesses m tried (about 25 to 400: lobes that fall to half height 13.3° to
 /// 3.4° from their peak).
@@ -66,6 +75,13 @@ pub struct LobeSummary {
     pub refined_pixels: usize,
     /// Their share of the mask.
     pub refined_share: f64,
+    /// Mask pixels fitted: those with [`MIN_LIGHTS`] lights out of shadow whose purely diffuse
+    /// fit fails the χ² test (the others show no highlight and are not fitted).
+    pub fitted_pixels: usize,
+    /// Of those, the pixels whose nearby starts gave no acceptable fit, so that the whole grid
+    /// of trial normals was searched in this round (at most once per pixel and
+    /// reconstruction: a later round starts from that search's basin).
+    pub grid_pixels: usize,
 }
 
 /// One pixel's data: scaled light vectors v_k = b_k l_k, unit half vectors, grey readings and
@@ -144,11 +160,11 @@ fn grid() -> Vec<(f64, f64)> {
 }
 
 /// The best normal for sharpness `m`: the grid about `u`, then a pattern search from the best
-/// node and from `start` (when given). Returns (squared residual, normal, ρ, s).
+/// node and from each of `starts`. Returns (squared residual, normal, ρ, s).
 fn fit_pixel(
     d: &PixelData,
     u: [f64; 3],
-    start: Option<[f64; 3]>,
+    starts: &[[f64; 3]],
     m: f64,
     nodes: &[(f64, f64)],
     refine: bool,
@@ -178,7 +194,10 @@ fn fit_pixel(
     }
     let mut result = search(d, best.1, m);
     let from_broad = (broad < m).then(|| search(d, search(d, best_broad.1, broad).1, m));
-    for other in from_broad.into_iter().chain(start.map(|s| search(d, s, m))) {
+    for other in from_broad
+        .into_iter()
+        .chain(starts.iter().map(|&s| search(d, s, m)))
+    {
         if other.0 < result.0 {
             result = other;
         }
@@ -300,96 +319,189 @@ impl<'a> Scratch<'a> {
     }
 }
 
+/// What the lobe fits of one reconstruction carry from one round of the near-light alternation
+/// to the next: the capture's sharpness m (a property of the material, chosen once) and each
+/// pixel's fitted normal (the start of its next fit: the light vectors move only a little
+/// between rounds).
+#[derive(Clone, Debug, Default)]
+pub struct LobeMemory {
+    /// The sharpness chosen in the first round that had pixels to fit.
+    exponent: Option<f64>,
+    /// Per mask pixel, the last fitted normal; (0, 0, 0) where none.
+    normals: Vec<[f32; 3]>,
+    /// Per mask pixel, whether that fit came out of (or was checked against) the whole grid:
+    /// its basin was then chosen among all, and the next round's search starts in it.
+    searched: Vec<bool>,
+}
+
+/// Distinct starts of the pattern search: two closer than this (radians, 0.1°) are one.
+const SEED_SEPARATION: f64 = 0.1 * std::f64::consts::PI / 180.0;
+
+/// The best of the pattern searches from `seeds` (the first `count`) at sharpness `m`; a seed
+/// within [`SEED_SEPARATION`] of an earlier one is skipped. `(∞, u)` without seeds.
+fn search_seeds(d: &PixelData, seeds: &[[f64; 3]], m: f64, u: [f64; 3]) -> (f64, [f64; 3]) {
+    let mut best = (f64::INFINITY, u);
+    let cos_sep = SEED_SEPARATION.cos();
+    for (i, &seed) in seeds.iter().enumerate() {
+        if seeds[..i].iter().any(|&o| dot(o, seed) > cos_sep) {
+            continue;
+        }
+        let r = search(d, seed, m);
+        if r.0 < best.0 {
+            best = r;
+        }
+    }
+    best
+}
+
+/// `x` as an f64 unit vector, or `None` for the zero vector (no normal).
+#[inline]
+fn seed_of(x: [f32; 3]) -> Option<[f64; 3]> {
+    (x != [0.0; 3]).then(|| unit([x[0] as f64, x[1] as f64, x[2] as f64]))
+}
+
+/// χ² quantiles at `confidence` for 0..=n degrees of freedom (0 for none).
+fn quantiles(confidence: f64, n: usize) -> Vec<f64> {
+    (0..=n)
+        .map(|k| {
+            if k == 0 {
+                0.0
+            } else {
+                crate::stats::chi2_quantile(confidence, k)
+            }
+        })
+        .collect()
+}
+
 /// Refits the pixels of `est` (per mask pixel, statuses in `est.light_status`, the near model's
 /// current surface) with the lobe model and keeps the fit where the lobe is significant (see
 /// the module documentation). Statuses: lights in the fit become USED, or HIGHLIGHT where the
 /// fitted lobe adds more than three σ_p to their reading. Returns the summary and the
 /// per-mask-pixel flags of the refined pixels.
+///
+/// The cost is kept to the pixels that need it: a pixel whose purely diffuse fit passes the χ²
+/// test (N_used − 3 degrees of freedom at `confidence`) shows no highlight and keeps the
+/// method's estimate unfitted; the others are searched first from the normals nearest at hand
+/// (the pixel's fit of the last round in `memory`, the fits of its left and upper neighbours,
+/// the method's own normal), and only when none of those searches reaches a residual the χ²
+/// test accepts (N_used − 4 degrees of freedom) is the whole grid of trial normals searched —
+/// once per pixel and reconstruction: the light vectors move little between rounds, so a later
+/// round searches from the basin the grid chose. The sharpness m is chosen once, in the first
+/// round, and kept in `memory`.
 pub fn refine(
     capture: &Capture,
     near: &NearLights,
     est: &mut Estimate,
     noise: &NoiseModel,
     confidence: f64,
+    memory: &mut LobeMemory,
 ) -> crate::error::Result<(LobeSummary, Vec<bool>)> {
     let n = capture.n_lights();
     let c = capture.channels;
     let np = capture.n_pixels();
     let depth = near.surface();
     let nodes = grid();
-    // 1. The capture's lobe sharpness: the least total residual over evenly spaced pixels.
-    let stride = (np / SAMPLE_PIXELS).max(1);
-    let sample: Vec<usize> = (0..np).step_by(stride).collect();
-    let view = if capture.is_tiled() {
-        std::borrow::Cow::Owned(capture.sampled(&sample)?)
-    } else {
-        std::borrow::Cow::Borrowed(capture)
-    };
-    let statuses = est.light_status.as_deref();
-    let totals: Vec<f64> = sample
-        .par_chunks(64)
-        .map_init(
-            || Scratch::new(capture, near),
-            |s, ps| {
-                let mut t = vec![0f64; LOBE_EXPONENTS.len() + 1];
-                for &p in ps {
-                    let pixel = capture.pixels[p] as usize;
-                    let u = s.load(
-                        near,
-                        &depth,
-                        capture.width,
-                        pixel,
-                        view.pixel_samples(p),
-                        c,
-                        statuses.map(|st| &st[p * n..(p + 1) * n]),
-                    );
-                    if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
-                        continue;
-                    }
-                    t[LOBE_EXPONENTS.len()] += 1.0;
-                    let d = s.data();
-                    let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
-                    let var = noise.variance(level);
-                    for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
-                        t[j] += fit_pixel(&d, u, None, m, &nodes, true).0 / var;
-                    }
-                }
-                t
-            },
-        )
-        .reduce(
-            || vec![0f64; LOBE_EXPONENTS.len() + 1],
-            |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
-        );
-    if totals[LOBE_EXPONENTS.len()] == 0.0 {
-        return Ok((
-            LobeSummary {
-                exponent: None,
-                refined_pixels: 0,
-                refined_share: 0.0,
-            },
-            vec![false; np],
-        ));
+    // Whole-fit acceptance (index: used lights − 4) and the diffuse fit's test (used − 3).
+    let q = quantiles(confidence, n);
+    if memory.normals.len() != np {
+        memory.normals = vec![[0.0; 3]; np];
+        memory.searched = vec![false; np];
     }
-    let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
-        (0, f64::INFINITY),
-        |acc, (j, &t)| {
-            if t < acc.1 {
-                (j, t)
-            } else {
-                acc
-            }
-        },
-    );
-    let m = LOBE_EXPONENTS[best_j];
-    drop(view);
+    let statuses = est.light_status.as_deref();
+    // 1. The capture's lobe sharpness, once: the least total residual over evenly spaced
+    //    pixels whose diffuse fit fails its test. Per pixel the broadest lobe is searched on the
+    //    whole grid and each sharper one from the last one's normal (and the method's).
+    if memory.exponent.is_none() {
+        let stride = (np / SAMPLE_PIXELS).max(1);
+        let sample: Vec<usize> = (0..np).step_by(stride).collect();
+        let view = if capture.is_tiled() {
+            std::borrow::Cow::Owned(capture.sampled(&sample)?)
+        } else {
+            std::borrow::Cow::Borrowed(capture)
+        };
+        let normals = &est.normals;
+        let totals: Vec<f64> = sample
+            .par_chunks(16)
+            .map_init(
+                || Scratch::new(capture, near),
+                |s, ps| {
+                    let mut t = vec![0f64; LOBE_EXPONENTS.len() + 1];
+                    for &p in ps {
+                        let pixel = capture.pixels[p] as usize;
+                        let u = s.load(
+                            near,
+                            &depth,
+                            capture.width,
+                            pixel,
+                            view.pixel_samples(p),
+                            c,
+                            statuses.map(|st| &st[p * n..(p + 1) * n]),
+                        );
+                        let used = s.used.iter().filter(|&&x| x).count();
+                        if used < MIN_LIGHTS {
+                            continue;
+                        }
+                        let d = s.data();
+                        let var = noise.variance(d.g.iter().sum::<f64>() / n.max(1) as f64);
+                        if diffuse_residual(&d) <= q[used - 3] * var {
+                            continue;
+                        }
+                        t[LOBE_EXPONENTS.len()] += 1.0;
+                        let own = seed_of(normals[p]);
+                        let starts = own.as_slice();
+                        let (e, mut prev, _, _) =
+                            fit_pixel(&d, u, starts, LOBE_EXPONENTS[0], &nodes, true);
+                        t[0] += e / var;
+                        for (j, &m) in LOBE_EXPONENTS.iter().enumerate().skip(1) {
+                            let seeds = [prev, own.unwrap_or(prev)];
+                            let (e, nf) = search_seeds(&d, &seeds, m, u);
+                            t[j] += e / var;
+                            prev = nf;
+                        }
+                    }
+                    t
+                },
+            )
+            .reduce(
+                || vec![0f64; LOBE_EXPONENTS.len() + 1],
+                |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
+            );
+        if totals[LOBE_EXPONENTS.len()] == 0.0 {
+            memory.normals.fill([0.0; 3]);
+            return Ok((
+                LobeSummary {
+                    exponent: None,
+                    refined_pixels: 0,
+                    refined_share: 0.0,
+                    fitted_pixels: 0,
+                    grid_pixels: 0,
+                },
+                vec![false; np],
+            ));
+        }
+        let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
+            (0, f64::INFINITY),
+            |acc, (j, &t)| {
+                if t < acc.1 {
+                    (j, t)
+                } else {
+                    acc
+                }
+            },
+        );
+        memory.exponent = Some(LOBE_EXPONENTS[best_j]);
+    }
+    let m = memory.exponent.expect("chosen above");
     // 2. Every pixel with that sharpness.
-    let quantile = crate::stats::chi2_quantile(confidence, 1);
+    let quantile = q[1];
     let mut refined = vec![false; np];
     let mut new_status = est
         .light_status
         .clone()
         .unwrap_or_else(|| vec![status::USED; np * n]);
+    let fitted = AtomicUsize::new(0);
+    let searched_grid = AtomicUsize::new(0);
+    let width = capture.width;
     capture.for_each_tile(|off, tile| {
         let tn = tile.n_pixels();
         est.normals[off..off + tn]
@@ -397,32 +509,71 @@ pub fn refine(
             .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
             .zip(new_status[off * n..(off + tn) * n].par_chunks_mut(CHUNK * n))
             .zip(refined[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.normals[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.searched[off..off + tn].par_chunks_mut(CHUNK))
             .enumerate()
             .for_each_init(
                 || (Scratch::new(capture, near), vec![0f64; c]),
-                |(s, num), (chunk, (((nrm, alb), st), rf))| {
+                |(s, num), (chunk, (((((nrm, alb), st), rf), fits), searched))| {
+                    let first = off + chunk * CHUNK;
                     for dp in 0..nrm.len() {
                         let lp = chunk * CHUNK + dp;
                         let p = off + lp;
                         let pixel = capture.pixels[p] as usize;
                         let samples = tile.pixel_samples(lp);
                         let stp = &mut st[dp * n..(dp + 1) * n];
-                        let u = s.load(near, &depth, capture.width, pixel, samples, c, Some(stp));
-                        if s.used.iter().filter(|&&x| x).count() < MIN_LIGHTS {
+                        let u = s.load(near, &depth, width, pixel, samples, c, Some(stp));
+                        let used = s.used.iter().filter(|&&x| x).count();
+                        let last = std::mem::replace(&mut fits[dp], [0.0; 3]);
+                        let was_searched = std::mem::replace(&mut searched[dp], false);
+                        if used < MIN_LIGHTS {
                             continue;
                         }
                         let d = s.data();
-                        let own = nrm[dp];
-                        let start = (own != [0.0; 3])
-                            .then(|| [own[0] as f64, own[1] as f64, own[2] as f64]);
-                        let (e, nf, rho, spec) = fit_pixel(&d, u, start, m, &nodes, true);
                         let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
                         let var = noise.variance(level);
-                        if !(rho > 0.0 && diffuse_residual(&d) - e > quantile * var) {
+                        let diffuse = diffuse_residual(&d);
+                        if diffuse <= q[used - 3] * var {
+                            continue;
+                        }
+                        fitted.fetch_add(1, Ordering::Relaxed);
+                        // Starts at hand: the last round's fit, the left and upper
+                        // neighbours' fits of this round (in this chunk), the method's normal.
+                        let mut seeds = [[0f64; 3]; 4];
+                        let mut count = 0;
+                        let left = (dp > 0 && capture.pixels[p - 1] as usize + 1 == pixel)
+                            .then(|| fits[dp - 1]);
+                        let up = (pixel >= width)
+                            .then(|| {
+                                capture.pixels[first..p]
+                                    .binary_search(&((pixel - width) as u32))
+                                    .ok()
+                                    .map(|i| fits[i])
+                            })
+                            .flatten();
+                        for x in [Some(last), left, up, Some(nrm[dp])].into_iter().flatten() {
+                            if let Some(v) = seed_of(x) {
+                                seeds[count] = v;
+                                count += 1;
+                            }
+                        }
+                        let (e, mut nf) = search_seeds(&d, &seeds[..count], m, u);
+                        if e > q[used - 4] * var && !(was_searched && last != [0.0; 3]) {
+                            searched_grid.fetch_add(1, Ordering::Relaxed);
+                            searched[dp] = true;
+                            let (eg, ng, _, _) = fit_pixel(&d, u, &[], m, &nodes, true);
+                            if eg < e {
+                                nf = ng;
+                            }
+                        }
+                        let (e, rho, spec) = fit_at(&d, nf, m);
+                        fits[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+                        searched[dp] |= was_searched;
+                        if !(rho > 0.0 && diffuse - e > quantile * var) {
                             continue;
                         }
                         rf[dp] = true;
-                        nrm[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+                        nrm[dp] = fits[dp];
                         // Albedo per channel with the normal and the lobe fixed (the lobe is
                         // the same in every channel of the normalised images).
                         let sd = 3.0 * var.sqrt();
@@ -463,9 +614,429 @@ pub fn refine(
             exponent: Some(m),
             refined_pixels: count,
             refined_share: count as f64 / np.max(1) as f64,
+            fitted_pixels: fitted.into_inner(),
+            grid_pixels: searched_grid.into_inner(),
         },
         refined,
     ))
+}
+
+/// The capture's highlight lobe, I_k = b_k (ρ n · l_k + s exp(−m (1 − n · h_k))) with one
+/// sharpness m and one strength s for the whole capture, fitted where the readings are
+/// trusted: at the pixels whose usable lights passed the χ² test with four lit lights or
+/// more, each lit light's excess over the diffuse prediction from the pixel's normal and
+/// albedo (large for the lights the method dropped as highlights, about zero for the others).
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct CaptureLobe {
+    /// The sharpness m, one of [`LOBE_EXPONENTS`].
+    pub exponent: f64,
+    /// The strength s, in the units of the intensity-normalised readings.
+    pub strength: f64,
+    /// The (pixel, light) readings the fit used.
+    pub readings: usize,
+}
+
+/// Fits the [`CaptureLobe`] from `est` (per mask pixel; statuses in `est.light_status`) at the
+/// mask pixels flagged in `reliable`; `None` when no highlight was dropped at such a pixel (no
+/// lobe to fit).
+pub fn fit_capture_lobe(
+    capture: &Capture,
+    near: &NearLights,
+    est: &Estimate,
+    reliable: &[bool],
+) -> crate::error::Result<Option<CaptureLobe>> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.as_deref() else {
+        return Ok(None);
+    };
+    let e_len = LOBE_EXPONENTS.len();
+    // Per exponent: Σ e g, Σ g²; then Σ e², readings, dropped highlights.
+    let mut sums = vec![0f64; 2 * e_len + 3];
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        let part: Vec<f64> = (0..tn.div_ceil(CHUNK))
+            .into_par_iter()
+            .map_init(
+                || Scratch::new(capture, near),
+                |s, chunk| {
+                    let mut t = vec![0f64; 2 * e_len + 3];
+                    for lp in chunk * CHUNK..((chunk + 1) * CHUNK).min(tn) {
+                        let p = off + lp;
+                        let st = &statuses[p * n..(p + 1) * n];
+                        let lit = st
+                            .iter()
+                            .filter(|&&x| x == status::USED || x == status::HIGHLIGHT)
+                            .count();
+                        let used = st.iter().filter(|&&x| x == status::USED).count();
+                        let nrm = est.normals[p];
+                        // Passed the test with four lights or more, or one light dropped as a
+                        // highlight from four or more.
+                        if !(used >= 3 && lit >= 4 && (reliable[p] || lit == used + 1))
+                            || nrm == [0.0; 3]
+                        {
+                            continue;
+                        }
+                        let pixel = capture.pixels[p] as usize;
+                        s.load(
+                            near,
+                            &depth,
+                            capture.width,
+                            pixel,
+                            tile.pixel_samples(lp),
+                            c,
+                            Some(st),
+                        );
+                        let nv = unit([nrm[0] as f64, nrm[1] as f64, nrm[2] as f64]);
+                        let rho = est.albedo[p * c..(p + 1) * c]
+                            .iter()
+                            .map(|&a| a as f64)
+                            .sum::<f64>()
+                            / c as f64;
+                        for (k, &sk) in st.iter().enumerate() {
+                            if !(sk == status::USED || sk == status::HIGHLIGHT) {
+                                continue;
+                            }
+                            let e = s.g[k] - rho * dot(s.v[k], nv).max(0.0);
+                            let x = 1.0 - dot(s.h[k], nv);
+                            for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
+                                let g = s.b[k] * (-m * x).exp();
+                                t[2 * j] += e * g;
+                                t[2 * j + 1] += g * g;
+                            }
+                            t[2 * e_len] += e * e;
+                            t[2 * e_len + 1] += 1.0;
+                            if st[k] == status::HIGHLIGHT {
+                                t[2 * e_len + 2] += 1.0;
+                            }
+                        }
+                    }
+                    t
+                },
+            )
+            // In chunk order: the sums do not depend on the threads' timing.
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![0f64; 2 * e_len + 3], |a, b| {
+                a.iter().zip(&b).map(|(x, y)| x + y).collect()
+            });
+        for (a, b) in sums.iter_mut().zip(&part) {
+            *a += b;
+        }
+        Ok(())
+    })?;
+    if sums[2 * e_len + 2] == 0.0 {
+        return Ok(None);
+    }
+    // Per m the least-squares s ≥ 0, and the m of the least residual.
+    let mut best: Option<(f64, f64, f64)> = None;
+    for (j, &m) in LOBE_EXPONENTS.iter().enumerate() {
+        let (eg, gg) = (sums[2 * j], sums[2 * j + 1]);
+        if gg <= 0.0 {
+            continue;
+        }
+        let strength = (eg / gg).max(0.0);
+        let cost = sums[2 * e_len] - 2.0 * strength * eg + strength * strength * gg;
+        if best.is_none_or(|b| cost < b.0) {
+            best = Some((cost, m, strength));
+        }
+    }
+    Ok(best.and_then(|(_, m, strength)| {
+        (strength > 0.0).then_some(CaptureLobe {
+            exponent: m,
+            strength,
+            readings: sums[2 * e_len + 1] as usize,
+        })
+    }))
+}
+
+/// Damped fixed-point iterations of [`correct_exact`]: at most this many.
+const EXACT_ITERATIONS: usize = 50;
+
+/// Pixels with exactly three usable lights have no redundancy: the χ² test cannot see a
+/// highlight among them, and a highlighted light bends the normal toward itself. There the
+/// capture's lobe ([`fit_capture_lobe`]) is taken out of the readings before the three-light
+/// solve: n ← normalise(n + solve(I − b s exp(−m (1 − n · h)))), from the method's normal until
+/// it moves less than 0.01°. Pixels whose lights the lobe does not reach keep their normal.
+/// Pixels flagged in `fitted` (per mask pixel: refitted by [`refine`], whose statuses then
+/// mark the lights its own lobe reaches) are left alone. Returns the number of pixels whose
+/// normal moved by more than 0.1°.
+pub fn correct_exact(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    lobe: &CaptureLobe,
+    fitted: &[bool],
+) -> crate::error::Result<usize> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.clone() else {
+        return Ok(0);
+    };
+    let (m, strength) = (lobe.exponent, lobe.strength);
+    let moved = AtomicUsize::new(0);
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        est.normals[off..off + tn]
+            .par_chunks_mut(CHUNK)
+            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+            .enumerate()
+            .for_each_init(
+                || (Scratch::new(capture, near), vec![0f64; n], vec![0f64; c]),
+                |(s, corrected, num), (chunk, (nrm, alb))| {
+                    for dp in 0..nrm.len() {
+                        let lp = chunk * CHUNK + dp;
+                        let p = off + lp;
+                        let st = &statuses[p * n..(p + 1) * n];
+                        if st.iter().filter(|&&x| x == status::USED).count() != 3
+                            || nrm[dp] == [0.0; 3]
+                            || fitted[p]
+                        {
+                            continue;
+                        }
+                        let pixel = capture.pixels[p] as usize;
+                        let samples = tile.pixel_samples(lp);
+                        s.load(near, &depth, capture.width, pixel, samples, c, Some(st));
+                        for (u, &sk) in s.used.iter_mut().zip(st) {
+                            *u = sk == status::USED;
+                        }
+                        let start = unit([nrm[dp][0] as f64, nrm[dp][1] as f64, nrm[dp][2] as f64]);
+                        let mut nv = start;
+                        for _ in 0..EXACT_ITERATIONS {
+                            for (k, x) in corrected.iter_mut().enumerate() {
+                                *x = s.g[k]
+                                    - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                            }
+                            let Some(x) =
+                                crate::lambert::solve_with(&s.v, Some(&s.used), corrected)
+                            else {
+                                break;
+                            };
+                            let next = unit(add3(nv, unit([x[0], x[1], x[2]])));
+                            let step = dot(next, nv);
+                            nv = next;
+                            if step > (0.01f64).to_radians().cos() {
+                                break;
+                            }
+                        }
+                        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+                            continue;
+                        }
+                        moved.fetch_add(1, Ordering::Relaxed);
+                        nrm[dp] = [nv[0] as f32, nv[1] as f32, nv[2] as f32];
+                        num.fill(0.0);
+                        let mut den = 0f64;
+                        for k in (0..n).filter(|&k| s.used[k]) {
+                            let a = dot(s.v[k], nv).max(0.0);
+                            let l = strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                            for (ch, x) in num.iter_mut().enumerate() {
+                                *x += a * (samples[k * c + ch] as f64 - l);
+                            }
+                            den += a * a;
+                        }
+                        for ch in 0..c {
+                            alb[dp * c + ch] = if den > 0.0 {
+                                (num[ch] / den).max(0.0) as f32
+                            } else {
+                                0.0
+                            };
+                        }
+                    }
+                },
+            );
+        Ok(())
+    })?;
+    Ok(moved.into_inner())
+}
+
+/// The unit normals n with n · l₁ = a and n · l₂ = b (unit l₁, l₂): the root closer to `hint`;
+/// with no real root (readings too bright or too dark for any normal) the nearest point of the
+/// plane of l₁ and l₂'s solutions. `None` when l₁ ∥ l₂.
+fn two_source(l1: [f64; 3], l2: [f64; 3], a: f64, b: f64, hint: [f64; 3]) -> Option<[f64; 3]> {
+    let cos = dot(l1, l2);
+    let det = 1.0 - cos * cos;
+    if det < 1e-6 {
+        return None;
+    }
+    let alpha = (a - b * cos) / det;
+    let beta = (b - a * cos) / det;
+    let in_plane = add3(scale(l1, alpha), scale(l2, beta));
+    let cr = cross(l1, l2);
+    let gamma = ((1.0 - dot(in_plane, in_plane)) / dot(cr, cr))
+        .max(0.0)
+        .sqrt();
+    let p = add3(in_plane, scale(cr, gamma));
+    let q = add3(in_plane, scale(cr, -gamma));
+    let best = if dot(p, hint) >= dot(q, hint) { p } else { q };
+    (norm(best) > 1e-9).then(|| unit(best))
+}
+
+/// Pixels left with two usable lights (completed by the method from two lights and the
+/// neighbours' albedo ρ̂, the median grey albedo of the nearest pixels that passed the χ² test
+/// in `reliable`, however far they are): the same correction as [`correct_exact`] with two-source photometric stereo
+/// of known albedo, n ← normalise(n + two_source((I − b s exp(−m (1 − n · h))) / (ρ̂ b))), the
+/// root nearer the current normal; pixels flagged in `fitted` are left alone. Returns the
+/// number of pixels whose normal moved by more than 0.1°.
+pub fn correct_two(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    lobe: &CaptureLobe,
+    reliable: &[bool],
+    fitted: &[bool],
+    hints: &[[f32; 3]],
+) -> crate::error::Result<usize> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let (w, h) = (capture.width, capture.height);
+    let depth = near.surface();
+    let Some(statuses) = est.light_status.clone() else {
+        return Ok(0);
+    };
+    let used_count = |p: usize| {
+        statuses[p * n..(p + 1) * n]
+            .iter()
+            .filter(|&&x| x == status::USED)
+            .count()
+    };
+    let todo: Vec<usize> = (0..capture.n_pixels())
+        .filter(|&p| used_count(p) == 2 && est.normals[p] != [0.0; 3] && !fitted[p])
+        .collect();
+    if todo.is_empty() {
+        return Ok(0);
+    }
+    // Grey albedo of the pixels that passed the test with three lights or more, full frame.
+    let mut albedo_map = vec![f32::NAN; w * h];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        if reliable[p] && used_count(p) >= 3 && est.normals[p] != [0.0; 3] {
+            albedo_map[i as usize] = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() / c as f32;
+        }
+    }
+    let view = if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(&todo)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    };
+    let (m, strength) = (lobe.exponent, lobe.strength);
+    let mut s = Scratch::new(capture, near);
+    let mut window = Vec::new();
+    let mut moved = 0;
+    for (j, &p) in todo.iter().enumerate() {
+        let pixel = capture.pixels[p] as usize;
+        let (row, col) = (pixel / w, pixel % w);
+        let mut rho = f64::NAN;
+        // Growing windows, as far as the nearest judged pixels are (a cast shadow is wider
+        // in pixels the finer the image).
+        let radii = std::iter::successors(Some(2usize), |&r| (r < w.max(h)).then_some(2 * r));
+        for radius in radii {
+            window.clear();
+            for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
+                for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
+                    let a = albedo_map[r * w + cc];
+                    if a.is_finite() && a > 0.0 {
+                        window.push(a as f64);
+                    }
+                }
+            }
+            if window.len() >= 5 {
+                rho = crate::metrics::median(&mut window);
+                break;
+            }
+        }
+        if !rho.is_finite() {
+            continue;
+        }
+        let samples = view.pixel_samples(if capture.is_tiled() { j } else { p });
+        let st = &statuses[p * n..(p + 1) * n];
+        s.load(near, &depth, w, pixel, samples, c, Some(st));
+        let lights: Vec<usize> = (0..n).filter(|&k| st[k] == status::USED).collect();
+        let (k1, k2) = (lights[0], lights[1]);
+        let dir = |k: usize| scale(s.v[k], 1.0 / s.b[k].max(1e-300));
+        let nrm = est.normals[p];
+        let start = unit([nrm[0] as f64, nrm[1] as f64, nrm[2] as f64]);
+        // The root is chosen by the surface's normal first, then by the iterate.
+        let hint = hints[pixel];
+        let mut nv = if hint == [0.0; 3] || hint.iter().any(|x| !x.is_finite()) {
+            start
+        } else {
+            unit([hint[0] as f64, hint[1] as f64, hint[2] as f64])
+        };
+        for _ in 0..EXACT_ITERATIONS {
+            let read = |k: usize, nv: [f64; 3]| {
+                (s.g[k] - strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp()) / (rho * s.b[k])
+            };
+            let Some(x) = two_source(dir(k1), dir(k2), read(k1, nv), read(k2, nv), nv) else {
+                break;
+            };
+            let next = unit(add3(nv, x));
+            let step = dot(next, nv);
+            nv = next;
+            if step > (0.01f64).to_radians().cos() {
+                break;
+            }
+        }
+        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+            continue;
+        }
+        moved += 1;
+        est.normals[p] = [nv[0] as f32, nv[1] as f32, nv[2] as f32];
+        for ch in 0..c {
+            let (mut num, mut den) = (0f64, 0f64);
+            for &k in &lights {
+                let a = dot(s.v[k], nv).max(0.0);
+                let l = strength * s.b[k] * (-m * (1.0 - dot(s.h[k], nv))).exp();
+                num += a * (samples[k * c + ch] as f64 - l);
+                den += a * a;
+            }
+            est.albedo[p * c + ch] = if den > 0.0 {
+                (num / den).max(0.0) as f32
+            } else {
+                0.0
+            };
+        }
+    }
+    Ok(moved)
+}
+
+/// What [`correct_without_spare`] did, for `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct SpareSummary {
+    /// The capture's lobe.
+    pub lobe: CaptureLobe,
+    /// Pixels with three usable lights whose normal moved ([`correct_exact`]).
+    pub corrected_pixels: usize,
+    /// Pixels with two usable lights whose normal moved ([`correct_two`]).
+    pub corrected_two_light_pixels: usize,
+}
+
+/// The near model's answer to pixels without a spare light (the four-light rig's pixels in one
+/// light's shadow): [`fit_capture_lobe`] from the pixels `reliable` flags, then
+/// [`correct_exact`], then [`correct_two`] with the roots chosen by the normals of
+/// `surface(est)` (full frame: the surface of the corrected normals, whose three-light pixels
+/// no longer lean toward their highlights), leaving the pixels `fitted` by [`refine`] alone.
+/// `None` when no highlight was dropped at a trusted pixel (then nothing changes).
+pub fn correct_without_spare(
+    capture: &Capture,
+    near: &NearLights,
+    est: &mut Estimate,
+    reliable: &[bool],
+    fitted: &[bool],
+    surface: impl FnOnce(&Estimate) -> crate::error::Result<Vec<[f32; 3]>>,
+) -> crate::error::Result<Option<SpareSummary>> {
+    let Some(lobe) = fit_capture_lobe(capture, near, est, reliable)? else {
+        return Ok(None);
+    };
+    let corrected_pixels = correct_exact(capture, near, est, &lobe, fitted)?;
+    let hints = surface(est)?;
+    let corrected_two_light_pixels =
+        correct_two(capture, near, est, &lobe, reliable, fitted, &hints)?;
+    Ok(Some(SpareSummary {
+        lobe,
+        corrected_pixels,
+        corrected_two_light_pixels,
+    }))
 }
 
 /// Two unit vectors orthogonal to unit `n` and to each other.
@@ -558,7 +1129,7 @@ mod tests {
                 g: &g,
                 used: &used,
             };
-            let (e, found, r, s) = fit_pixel(&d, u, None, m, &nodes, true);
+            let (e, found, r, s) = fit_pixel(&d, u, &[], m, &nodes, true);
             let err = dot(found, n).clamp(-1.0, 1.0).acos().to_degrees();
             assert!(err < 0.5, "tilt {tilt}°: {err}° off, residual {e}");
             assert!((r - rho).abs() < 0.05 && (s - spec).abs() < 0.05, "{r} {s}");
@@ -571,5 +1142,72 @@ mod tests {
             );
             assert!(diffuse_residual(&d) > 10.0 * e.max(1e-12));
         }
+    }
+
+    /// The fast path of [`refine`] (χ² pre-gate, searches from nearby starts, the grid at most
+    /// once) against the brute force (the whole grid and its searches at every pixel): on a
+    /// near-ring sphere with Blinn–Phong highlights, the refined pixels' fits reach the brute
+    /// force's residual, and most pixels need no grid.
+    #[test]
+    fn the_fast_fit_reaches_the_brute_force_residual() {
+        use crate::scene::near::{synthesize_near, NearRig, NearSpec};
+        let r = synthesize_near(&NearSpec {
+            size: 40,
+            ..NearSpec::new(crate::scene::SceneKind::Sphere, NearRig::Ring)
+        })
+        .unwrap();
+        let capture = r.capture().unwrap();
+        let near = capture.lights.near.clone().unwrap();
+        let params = crate::detect::DetectionParams::default();
+        let detection =
+            crate::tiles::detect_tiles(&capture, &params, &crate::progress::Silent).unwrap();
+        let mut est = crate::lambert::solve_subsets(&capture, None, &crate::progress::Silent);
+        let mut memory = LobeMemory::default();
+        let (summary, refined) = refine(
+            &capture,
+            &near,
+            &mut est,
+            &detection.noise,
+            params.confidence,
+            &mut memory,
+        )
+        .unwrap();
+        let m = summary.exponent.unwrap();
+        assert!(summary.refined_pixels > 100, "{summary:?}");
+        assert!(
+            summary.grid_pixels * 4 < summary.fitted_pixels,
+            "most fits should start nearby: {summary:?}"
+        );
+        let nodes = grid();
+        let depth = near.surface();
+        let statuses = est.light_status.clone().unwrap();
+        let n = capture.n_lights();
+        let mut s = Scratch::new(&capture, &near);
+        let (mut worse, mut total) = (0, 0);
+        for p in (0..capture.n_pixels()).filter(|&p| refined[p]) {
+            let pixel = capture.pixels[p] as usize;
+            let u = s.load(
+                &near,
+                &depth,
+                capture.width,
+                pixel,
+                capture.pixel_samples(p),
+                capture.channels,
+                Some(&statuses[p * n..(p + 1) * n]),
+            );
+            let d = s.data();
+            let fast = est.normals[p];
+            let fast = [fast[0] as f64, fast[1] as f64, fast[2] as f64];
+            let e_fast = fit_at(&d, fast, m).0;
+            let (e_brute, ..) = fit_pixel(&d, u, &[], m, &nodes, true);
+            total += 1;
+            if e_fast > 1.05 * e_brute + 1e-12 {
+                worse += 1;
+            }
+        }
+        assert!(
+            worse * 50 <= total,
+            "{worse} of {total} refined pixels above the brute-force residual"
+        );
     }
 }

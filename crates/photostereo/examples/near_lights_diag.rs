@@ -1,0 +1,136 @@
+//! Where the near model's error lies (issue 13): the recursive method in the near model on one
+//! `synth` near scene, its mean angular error split by what the ground truth says of each pixel
+//! (how many lights are truly lit, whether one is highlighted) and by whether the method's
+//! usable lights are the truly lit, unhighlighted ones.
+//!
+//! `cargo run --release -p photostereo --example near_lights_diag [SIZE] [SCENE] [RIG]`
+
+use photostereo::engine::{reconstruct_with_truth, Method, Params};
+use photostereo::lambert::status;
+use photostereo::metrics::angular_error_deg;
+use photostereo::progress::Silent;
+use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
+use photostereo::scene::SceneKind;
+use std::collections::BTreeMap;
+
+// One full-frame index serves the truth's and the reconstruction's maps alike.
+#[allow(clippy::needless_range_loop)]
+fn main() -> photostereo::Result<()> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let size: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(128);
+    let scene: SceneKind = args.get(1).map_or("blocks", |s| s).parse()?;
+    let rig = args
+        .get(2)
+        .and_then(|s| NearRig::parse(s))
+        .unwrap_or(NearRig::Square);
+    let spec = NearSpec {
+        size,
+        ..NearSpec::new(scene, rig)
+    };
+    let r = synthesize_near(&spec)?;
+    let truth = &r.rendered.truth;
+    let params = Params {
+        method: Method::Recursive,
+        ..Params::default()
+    };
+    let t = std::time::Instant::now();
+    let rec = reconstruct_with_truth(&r.capture()?, &params, None, &Silent)?;
+    println!("seconds {:.2}", t.elapsed().as_secs_f64());
+    println!("timings {:?}", rec.report.timings_s);
+    if let Some(near) = rec.report.extra.get("near") {
+        println!("lobe {}", near["highlight_lobe"]);
+        println!("capture lobe {}", near["capture_lobe"]);
+        for r in near["rounds"].as_array().into_iter().flatten() {
+            println!("round {r}");
+        }
+    }
+    let n = rec.n_lights;
+    let hw = rec.width * rec.height;
+    // (lit lights, highlighted) -> (pixels, error sum, pixels with the right set, their error sum)
+    let mut table: BTreeMap<(usize, bool), (usize, f64, usize, f64)> = BTreeMap::new();
+    // The integrated surface's own normals, per class.
+    let surface_normals = photostereo::integrate::perspective::normals_from_z(
+        rec.width,
+        rec.height,
+        rec.depth().unwrap(),
+        &rec.mask,
+        &rec.camera.unwrap(),
+    );
+    let mut surf: BTreeMap<(usize, bool), f64> = BTreeMap::new();
+    let (mut total, mut count) = (0f64, 0usize);
+    for i in 0..hw {
+        if !truth.mask[i] {
+            continue;
+        }
+        let e = angular_error_deg(rec.normals[i], truth.normals[i]);
+        let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
+        let hl = (0..n).any(|k| truth.highlight[k][i]);
+        let right = (0..n).all(|k| {
+            let good = !truth.shadow[k][i] && !truth.highlight[k][i];
+            (rec.light_status[k * hw + i] == status::USED) == good
+        });
+        *surf.entry((lit, hl)).or_default() +=
+            angular_error_deg(surface_normals[i], truth.normals[i]);
+        let row = table.entry((lit, hl)).or_default();
+        row.0 += 1;
+        row.1 += e;
+        if right {
+            row.2 += 1;
+            row.3 += e;
+        }
+        total += e;
+        count += 1;
+    }
+    // A picture when asked (`DIAG_PNG=path`): the error (white = 30° or more) beside the truth's
+    // classes (red: highlighted lights, green: lit lights, blue: the method's usable lights).
+    if let Ok(path) = std::env::var("DIAG_PNG") {
+        let w = rec.width;
+        let mut img = vec![0u8; 2 * hw * 3];
+        for i in 0..hw {
+            let (row, col) = (i / w, i % w);
+            let a = (row * 2 * w + col) * 3;
+            let b = a + w * 3;
+            if !truth.mask[i] {
+                continue;
+            }
+            let e = (angular_error_deg(rec.normals[i], truth.normals[i]) / 30.0).min(1.0);
+            img[a..a + 3].fill((255.0 * e) as u8);
+            let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
+            let hl = (0..n).filter(|&k| truth.highlight[k][i]).count();
+            let used = (0..n)
+                .filter(|&k| rec.light_status[k * hw + i] == status::USED)
+                .count();
+            img[b] = (hl * 120).min(255) as u8;
+            img[b + 1] = (lit * 60).min(255) as u8;
+            img[b + 2] = (used * 60).min(255) as u8;
+        }
+        // Three times larger, to be seen.
+        let (sw, sh) = (6 * w, 3 * rec.height);
+        let big: Vec<u8> = (0..sw * sh * 3)
+            .map(|j| {
+                let (px, ch) = (j / 3, j % 3);
+                let (r, c) = (px / sw / 3, px % sw / 3);
+                img[(r * 2 * w + c) * 3 + ch]
+            })
+            .collect();
+        photostereo::imageio::write_png8(std::path::Path::new(&path), sw, sh, 3, &big)?;
+    }
+    println!(
+        "{} {}: mean {:.3} deg over {count} pixels",
+        scene.name(),
+        rig.name(),
+        total / count as f64
+    );
+    println!("lit highlighted | pixels | share of error sum | mean | right set | mean (right) | mean (wrong) | surface mean");
+    for ((lit, hl), (p, s, rp, rs)) in &table {
+        println!(
+            "{lit} {hl} | {p} | {:.1}% | {:.2} | {rp} | {:.2} | {:.2} | {:.2}",
+            100.0 * s / total,
+            s / *p as f64,
+            rs / (*rp).max(1) as f64,
+            (s - rs) / (p - rp).max(1) as f64,
+            surf[&(*lit, *hl)] / *p as f64
+        );
+    }
+    Ok(())
+}
