@@ -595,13 +595,7 @@ pub fn refine(
                                 status::USED
                             };
                         }
-                        for ch in 0..c {
-                            alb[dp * c + ch] = if den > 0.0 {
-                                (num[ch] / den).max(0.0) as f32
-                            } else {
-                                0.0
-                            };
-                        }
+                        albedo_from_sums(num, den, &mut alb[dp * c..(dp + 1) * c]);
                     }
                 },
             );
@@ -836,13 +830,7 @@ pub fn correct_exact(
                             }
                             den += a * a;
                         }
-                        for ch in 0..c {
-                            alb[dp * c + ch] = if den > 0.0 {
-                                (num[ch] / den).max(0.0) as f32
-                            } else {
-                                0.0
-                            };
-                        }
+                        albedo_from_sums(num, den, &mut alb[dp * c..(dp + 1) * c]);
                     }
                 },
             );
@@ -1087,6 +1075,18 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
         scale(a, 1.0 / l)
     } else {
         [0.0, 0.0, 1.0]
+    }
+}
+
+/// Per-channel albedo from the normal equations of a fixed normal: `num[ch] / den` (the
+/// readings' projections on the shading over its square), clamped at zero; zero when `den` is 0.
+fn albedo_from_sums(num: &[f64], den: f64, out: &mut [f32]) {
+    for (o, &x) in out.iter_mut().zip(num) {
+        *o = if den > 0.0 {
+            (x / den).max(0.0) as f32
+        } else {
+            0.0
+        };
     }
 }
 
