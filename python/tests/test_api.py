@@ -176,8 +176,10 @@ def test_run_writes_the_output_folder_like_the_command_line(cli, diligent, tmp_p
                           np.load(tmp_path / "cli" / "normals.npy"))
     on_disk = json.loads((tmp_path / "py" / "report.json").read_text())
     assert on_disk["input"] == report["input"] and report["method"] == "l2"
-    with pytest.raises(ps.PhotostereoError, match="already exists"):
+    with pytest.raises(ps.PhotostereoError, match="already exists") as exists:
         ps.run(folder, tmp_path / "py", method="l2")
+    # The library's advice is spelt in Python's keywords, not the command line's flags.
+    assert "force=True" in str(exists.value) and "--force" not in str(exists.value)
     with pytest.raises(TypeError, match="unexpected keyword"):
         ps.run(folder, tmp_path / "x", metod="l2")
 

@@ -45,7 +45,15 @@ fn py_err(e: photostereo::Error) -> PyErr {
 
 /// The command line's flags that the library's messages name, as the Python keywords that
 /// replace them.
-const PYTHON_KEYWORDS: &[(&str, &str)] = &[("--distance", "distance=")];
+const PYTHON_KEYWORDS: &[(&str, &str)] = &[
+    ("--distance", "distance="),
+    (
+        "pass --force to replace it",
+        "pass force=True to replace it",
+    ),
+    ("--lights FILE", "lights="),
+    ("pass --lights", "pass lights="),
+];
 
 /// `message` with each command-line flag of [`PYTHON_KEYWORDS`] spelt as its Python keyword
 /// (the library's file errors say what a command-line user passes: a missing
