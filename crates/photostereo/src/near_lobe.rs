@@ -808,14 +808,11 @@ pub fn correct_exact(
                             else {
                                 break;
                             };
-                            let next = unit(add3(nv, unit([x[0], x[1], x[2]])));
-                            let step = dot(next, nv);
-                            nv = next;
-                            if step > (0.01f64).to_radians().cos() {
+                            if step_settles(&mut nv, unit([x[0], x[1], x[2]])) {
                                 break;
                             }
                         }
-                        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+                        if !turned_away(nv, start) {
                             continue;
                         }
                         moved.fetch_add(1, Ordering::Relaxed);
@@ -958,14 +955,11 @@ pub fn correct_two(
             let Some(x) = two_source(dir(k1), dir(k2), read(k1, nv), read(k2, nv), nv) else {
                 break;
             };
-            let next = unit(add3(nv, x));
-            let step = dot(next, nv);
-            nv = next;
-            if step > (0.01f64).to_radians().cos() {
+            if step_settles(&mut nv, x) {
                 break;
             }
         }
-        if nv[2] <= 0.0 || dot(nv, start) > (0.1f64).to_radians().cos() {
+        if !turned_away(nv, start) {
             continue;
         }
         moved += 1;
@@ -1076,6 +1070,21 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
     } else {
         [0.0, 0.0, 1.0]
     }
+}
+
+/// One damped step of the corrected-normal iteration: `nv` moves to the unit mean of itself and
+/// `target` (unit); true when it moved by less than 0.01° (settled).
+fn step_settles(nv: &mut [f64; 3], target: [f64; 3]) -> bool {
+    let next = unit(add3(*nv, target));
+    let step = dot(next, *nv);
+    *nv = next;
+    step > (0.01f64).to_radians().cos()
+}
+
+/// Whether a corrected normal `nv` faces the camera and turned more than 0.1° from `start`
+/// (worth writing back).
+fn turned_away(nv: [f64; 3], start: [f64; 3]) -> bool {
+    nv[2] > 0.0 && dot(nv, start) <= (0.1f64).to_radians().cos()
 }
 
 /// Per-channel albedo from the normal equations of a fixed normal: `num[ch] / den` (the
