@@ -1161,6 +1161,21 @@ impl<'a> Attributor<'a> {
         }
     }
 
+    /// [`Attributor::test_at`], or where the pixel's near-light vectors are singular the answer
+    /// of [`Attributor::run_at`] and [`Attributor::settle_at`] there: a NaN statistic and the
+    /// count of USED lights in `status` (nothing changed).
+    fn test_or_count<'s>(
+        &'s self,
+        near: &'s mut Option<NearTest<'a>>,
+        pixel: usize,
+        status: &[u8],
+    ) -> std::result::Result<&'s Test, (f64, usize)> {
+        self.test_at(near, pixel).ok_or_else(|| {
+            let count = status.iter().filter(|&&x| x == status::USED).count();
+            (f64::NAN, count)
+        })
+    }
+
     /// [`Attributor::run`] at full-frame pixel `pixel`: with near lights, with that pixel's
     /// light vectors at the current surface (NaN statistic, nothing changed, where they are
     /// singular); with distant lights exactly `run`.
@@ -1172,9 +1187,9 @@ impl<'a> Attributor<'a> {
         scratch: &mut AttributionScratch<'a>,
     ) -> (f64, usize) {
         let AttributionScratch(s, near) = scratch;
-        let Some(test) = self.test_at(near, pixel) else {
-            let count = status.iter().filter(|&&x| x == status::USED).count();
-            return (f64::NAN, count);
+        let test = match self.test_or_count(near, pixel, status) {
+            Ok(test) => test,
+            Err(singular) => return singular,
         };
         self.run_with(test, grey, status, s)
     }
@@ -1226,9 +1241,9 @@ impl<'a> Attributor<'a> {
         scratch: &mut AttributionScratch<'a>,
     ) -> (f64, usize) {
         let AttributionScratch(s, near) = scratch;
-        let Some(test) = self.test_at(near, pixel) else {
-            let count = status.iter().filter(|&&x| x == status::USED).count();
-            return (f64::NAN, count);
+        let test = match self.test_or_count(near, pixel, status) {
+            Ok(test) => test,
+            Err(singular) => return singular,
         };
         let n = grey.len();
         let level = grey.iter().sum::<f64>() / n as f64;
