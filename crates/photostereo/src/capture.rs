@@ -49,6 +49,32 @@ pub struct Capture {
     pub sources: Vec<PathBuf>,
     /// Remarks made while loading (path resolution, renormalised lights…).
     pub notes: Vec<String>,
+    /// The capture-wide statistics once measured (noise level, dark floor, κ): every method
+    /// run on this capture reads them instead of measuring them again. A clone or any capture
+    /// derived from this one starts without them.
+    statistics: Statistics,
+}
+
+/// The capture-wide statistics of one [`Capture`], each measured on first use
+/// ([`crate::detect::image_noise`], [`crate::detect::dark_floor`],
+/// [`crate::detect::estimate_kappa`]). They are a function of the samples, lights and mask, which
+/// the library never changes in place once a capture is built (the one capture whose samples
+/// change, the tile view of [`Capture::for_each_tile`], forgets them with each tile); cloning
+/// gives an empty memo, so a derived capture measures its own.
+#[derive(Debug, Default)]
+pub(crate) struct Statistics {
+    /// Sensor noise of the channel-mean images (`None`: too few interior pixels).
+    pub image_noise: std::sync::OnceLock<Option<f64>>,
+    /// The dark floor, in intensity-normalised units.
+    pub dark_floor: std::sync::OnceLock<f64>,
+    /// κ measured for given (σ₀, floor, shadow σ's), keyed by their bits.
+    pub kappa: std::sync::Mutex<Vec<([u64; 3], f64)>>,
+}
+
+impl Clone for Statistics {
+    fn clone(&self) -> Self {
+        Statistics::default()
+    }
 }
 
 /// Where a capture's files are: the images, their lights and an optional mask.
@@ -600,6 +626,7 @@ impl CaptureFiles {
             sparse: None,
             sources: self.images.clone(),
             notes: self.notes.clone(),
+            statistics: Statistics::default(),
         })
     }
 
@@ -712,6 +739,7 @@ impl CaptureFiles {
             sparse: None,
             sources: self.images.clone(),
             notes: self.notes.clone(),
+            statistics: Statistics::default(),
         };
         Ok(capture)
     }
@@ -974,6 +1002,11 @@ fn interleave(planes: &[Vec<f32>], n_pixels: usize, channels: usize) -> Vec<f32>
 }
 
 impl Capture {
+    /// The memo of this capture's statistics (see [`Statistics`]).
+    pub(crate) fn statistics(&self) -> &Statistics {
+        &self.statistics
+    }
+
     /// Builds a capture from decoded images (all of one size and channel count), their lights
     /// and an optional mask (`height * width`, row-major). Images are divided by the lights'
     /// intensities as when loading files.
@@ -1065,6 +1098,7 @@ impl Capture {
             sparse: None,
             sources: Vec::new(),
             notes: Vec::new(),
+            statistics: Statistics::default(),
         }
     }
 
@@ -1263,6 +1297,7 @@ impl Capture {
                 continue;
             }
             store.read_tile(t, &mut raw, &mut view.samples)?;
+            view.statistics = Statistics::default();
             view.pixels.clear();
             view.pixels.extend_from_slice(&self.pixels[range.clone()]);
             f(range.start, &view)?;
@@ -1324,6 +1359,7 @@ impl Capture {
             sparse: None,
             sources: Vec::new(),
             notes: Vec::new(),
+            statistics: Statistics::default(),
         }
     }
 
@@ -1342,6 +1378,7 @@ impl Capture {
             sparse: None,
             sources: Vec::new(),
             notes: self.notes.clone(),
+            statistics: Statistics::default(),
         }
     }
 

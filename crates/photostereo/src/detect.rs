@@ -844,6 +844,14 @@ pub const DEFAULT_RELATIVE_NOISE: f64 = 0.01;
 /// as shadow). Never negative. The noise model caps it at `shadow_sigmas · σ₀`: on a capture
 /// where no image leaves any part of the object in shadow the quantile is a lit reading.
 pub fn dark_floor(capture: &Capture) -> f64 {
+    *capture
+        .statistics()
+        .dark_floor
+        .get_or_init(|| measure_dark_floor(capture))
+}
+
+/// [`dark_floor`], measured.
+fn measure_dark_floor(capture: &Capture) -> f64 {
     let np = capture.n_pixels();
     if np == 0 {
         return 0.0;
@@ -877,6 +885,29 @@ pub fn dark_floor(capture: &Capture) -> f64 {
 /// Pixels with fewer than four readings above the shadow level do not count; with fewer than
 /// 100 pixels counted, κ is 0.
 pub fn estimate_kappa(capture: &Capture, sigma0: f64, floor: f64, params: &DetectionParams) -> f64 {
+    let key = [
+        sigma0.to_bits(),
+        floor.to_bits(),
+        params.shadow_sigmas.to_bits(),
+    ];
+    let memo = &capture.statistics().kappa;
+    let known = |memo: &std::sync::Mutex<Vec<([u64; 3], f64)>>| {
+        memo.lock()
+            .ok()
+            .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|&(_, v)| v))
+    };
+    if let Some(kappa) = known(memo) {
+        return kappa;
+    }
+    let kappa = measure_kappa(capture, sigma0, floor, params.shadow_sigmas);
+    if let Ok(mut m) = memo.lock() {
+        m.push((key, kappa));
+    }
+    kappa
+}
+
+/// [`estimate_kappa`], measured (`shadow_sigmas`: [`DetectionParams::shadow_sigmas`]).
+fn measure_kappa(capture: &Capture, sigma0: f64, floor: f64, shadow_sigmas: f64) -> f64 {
     let n = capture.n_lights();
     let np = capture.n_pixels();
     if n < 4 || np == 0 {
@@ -890,13 +921,16 @@ pub fn estimate_kappa(capture: &Capture, sigma0: f64, floor: f64, params: &Detec
         .map(|d| Vector3::from(*d))
         .collect();
     let stride = np.div_ceil(8192).max(1);
-    let dark = floor + params.shadow_sigmas * sigma0;
+    let dark = floor + shadow_sigmas * sigma0;
     let mut k2: Vec<f64> = (0..np)
         .into_par_iter()
         .step_by(stride)
         .map_init(
-            || (vec![0f64; n], vec![false; n], Vec::with_capacity(n)),
-            |(grey, keep, u), p| {
+            || {
+                let buffers = (vec![0f64; n], vec![false; n], Vec::with_capacity(n));
+                (buffers, Vec::with_capacity(n))
+            },
+            |((grey, keep, u), a), p| {
                 channel_mean(capture.pixel_samples(p), c, grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
                 for (k, g) in keep.iter_mut().zip(grey.iter()) {
@@ -928,12 +962,9 @@ pub fn estimate_kappa(capture: &Capture, sigma0: f64, floor: f64, params: &Detec
                         };
                         u.push((k, z));
                     }
-                    let mut a: Vec<f64> = u
-                        .iter()
-                        .filter(|(k, _)| keep[*k])
-                        .map(|(_, z)| z.abs())
-                        .collect();
-                    scale = 1.4826 * crate::metrics::median(&mut a);
+                    a.clear();
+                    a.extend(u.iter().filter(|(k, _)| keep[*k]).map(|(_, z)| z.abs()));
+                    scale = 1.4826 * crate::metrics::median(a);
                     if round == 0 {
                         for &(k, z) in u.iter() {
                             if keep[k] && z.abs() > 3.0 * scale {
@@ -984,6 +1015,16 @@ pub(crate) fn interior_neighbourhoods(capture: &Capture) -> Vec<[u32; 9]> {
 /// Sensor noise of the channel-mean images (see [`NoiseEstimate::Images`]); `None` when fewer
 /// than 100 object pixels have their whole 3×3 neighbourhood in the mask.
 pub fn image_noise(capture: &Capture) -> Option<f64> {
+    *capture
+        .statistics()
+        .image_noise
+        .get_or_init(|| measure_image_noise(capture))
+}
+
+/// [`image_noise`], measured: for each sampled interior pixel the 3×3 Laplacian-like kernel of
+/// every light at once (each neighbour's samples read once, in memory order), then the robust
+/// scale of each light's values and the median over the lights.
+fn measure_image_noise(capture: &Capture) -> Option<f64> {
     let interior = interior_neighbourhoods(capture);
     if interior.len() < 100 {
         return None;
@@ -992,23 +1033,35 @@ pub fn image_noise(capture: &Capture) -> Option<f64> {
     let n = capture.n_lights();
     let c = capture.channels;
     const KERNEL: [f64; 9] = [1.0, -2.0, 1.0, -2.0, 4.0, -2.0, 1.0, -2.0, 1.0];
+    let sampled: Vec<&[u32; 9]> = interior.iter().step_by(stride).collect();
+    // Pixel-major: values[i * n + k] is |kernel| of light k at sampled pixel i.
+    let mut values = vec![0f64; sampled.len() * n];
+    values
+        .par_chunks_mut(n)
+        .zip(sampled.par_iter())
+        .for_each(|(out, nb)| {
+            out.fill(0.0);
+            for (q, m) in nb.iter().zip(KERNEL) {
+                let samples = capture.pixel_samples(*q as usize);
+                for (acc, s) in out.iter_mut().zip(samples.chunks_exact(c)) {
+                    *acc += m * s.iter().map(|&v| v as f64).sum::<f64>() / c as f64;
+                }
+            }
+            for v in out.iter_mut() {
+                *v = v.abs();
+            }
+        });
+    let m = sampled.len();
     let mut per_light: Vec<f64> = (0..n)
         .into_par_iter()
-        .map(|k| {
-            let mut values: Vec<f64> = interior
-                .iter()
-                .step_by(stride)
-                .map(|nb| {
-                    let mut acc = 0.0;
-                    for (q, m) in nb.iter().zip(KERNEL) {
-                        let s = &capture.pixel_samples(*q as usize)[k * c..(k + 1) * c];
-                        acc += m * s.iter().map(|&v| v as f64).sum::<f64>() / c as f64;
-                    }
-                    acc.abs()
-                })
-                .collect();
-            1.4826 * crate::metrics::median(&mut values) / 6.0
-        })
+        .map_init(
+            || Vec::with_capacity(m),
+            |column, k| {
+                column.clear();
+                column.extend((0..m).map(|i| values[i * n + k]));
+                1.4826 * crate::metrics::median(column) / 6.0
+            },
+        )
         .collect();
     Some(crate::metrics::median(&mut per_light))
 }
