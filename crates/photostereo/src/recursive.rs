@@ -313,7 +313,17 @@ pub fn recursive(
         drop((trust, est_full, masked_trust));
         let (depth, surface_normals) = match capture.lights.near.as_deref() {
             None => {
-                let depth = integrate(w, h, &normals_full, &capture.mask, &weights, integration)?;
+                // The last iteration's surface starts the solve: the normals changed at few
+                // pixels since, so the solver needs a fraction of its iterations.
+                let depth = integrate(
+                    w,
+                    h,
+                    &normals_full,
+                    &capture.mask,
+                    &weights,
+                    (!last_depth.is_empty()).then_some(&last_depth[..]),
+                    integration,
+                )?;
                 let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
                 (depth, surface_normals)
             }
@@ -778,11 +788,13 @@ fn integrate(
     normals: &[[f32; 3]],
     mask: &[bool],
     weights: &[f32],
+    initial: Option<&[f32]>,
     integration: &IntegrationParams,
 ) -> Result<crate::integrate::Depth> {
     let g = gradients_from_normals(w, h, normals, Some(mask), integration.max_slope)?;
     let problem = IntegrationProblem {
         weights: Some(weights),
+        initial,
         ..IntegrationProblem::new(w, h, &g.p, &g.q, &g.mask)
     };
     integration.method.integrator().integrate(&problem, &Silent)

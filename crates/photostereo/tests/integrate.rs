@@ -300,6 +300,60 @@ fn paths_as_initial_guess_gives_the_same_solution_in_fewer_iterations() {
 }
 
 #[test]
+fn a_warm_start_from_a_nearby_surface_gives_the_same_solution_in_fewer_iterations() {
+    // The recursive method's case: the problem of the last iteration with the gradients changed
+    // in a small patch; its solution starts the new solve.
+    let (p, q, _) = gradients(peaks);
+    let mask = irregular_mask();
+    let last = Poisson::default()
+        .integrate(&IntegrationProblem::new(W, H, &p, &q, &mask), &Silent)
+        .unwrap();
+    let (mut p2, mut q2) = (p.clone(), q.clone());
+    for r in 20..26 {
+        for c in 30..36 {
+            p2[r * W + c] += 0.3;
+            q2[r * W + c] -= 0.2;
+        }
+    }
+    let problem = IntegrationProblem::new(W, H, &p2, &q2, &mask);
+    let cold = Poisson::default().integrate(&problem, &Silent).unwrap();
+    // Outside the mask the start is NaN, as in a depth map: ignored.
+    let warm = Poisson::default()
+        .integrate(
+            &IntegrationProblem {
+                initial: Some(&last.values),
+                ..problem
+            },
+            &Silent,
+        )
+        .unwrap();
+    let (_, range) = rmse_and_range(&cold.values, &vec![0.0; W * H], &mask);
+    let max = cold
+        .values
+        .iter()
+        .zip(&warm.values)
+        .filter(|(a, _)| a.is_finite())
+        .map(|(a, b)| (a - b).abs())
+        .fold(0f32, f32::max);
+    assert!(
+        max as f64 <= 1e-5 * range.max(1.0),
+        "max diff {max}, range {range}"
+    );
+    assert!(warm
+        .values
+        .iter()
+        .zip(&mask)
+        .all(|(v, &m)| v.is_finite() == m));
+    assert!(
+        warm.stats.iterations < cold.stats.iterations,
+        "warm {} vs cold {} iterations",
+        warm.stats.iterations,
+        cold.stats.iterations
+    );
+    assert!(warm.stats.relative_residual <= Poisson::default().tolerance);
+}
+
+#[test]
 fn a_zero_weight_hole_with_garbage_gradients_is_filled_close_to_the_surface() {
     let (mut p, mut q, z) = gradients(sphere_cap);
     let mask = circle_mask();

@@ -283,6 +283,11 @@ pub struct IntegrationProblem<'a> {
     /// Per-pixel reliability in 0..1 (1 when absent).
     pub weights: Option<&'a [f32]>,
     pub prior: Option<Prior<'a>>,
+    /// A starting point for iterative solvers (`height * width`, the depth's units; values
+    /// outside the mask and non-finite ones are ignored), e.g. the last depth when a similar
+    /// problem is solved again. It changes the solution only within the solver's tolerance;
+    /// direct solvers ignore it.
+    pub initial: Option<&'a [f32]>,
 }
 
 impl<'a> IntegrationProblem<'a> {
@@ -296,6 +301,7 @@ impl<'a> IntegrationProblem<'a> {
             mask,
             weights: None,
             prior: None,
+            initial: None,
         }
     }
 

@@ -145,7 +145,13 @@ impl Integrator for Poisson {
         let has_prior = problem.prior.is_some_and(|pr| pr.lambda > 0.0);
         let components = Components::of(w, h, problem.mask);
         let x0 = match self.initial_guess {
-            InitialGuess::Zero => None,
+            InitialGuess::Zero => problem.initial.map(|start| {
+                start
+                    .par_iter()
+                    .zip(problem.mask.par_iter())
+                    .map(|(&v, &m)| if m && v.is_finite() { v as f64 } else { 0.0 })
+                    .collect::<Vec<f64>>()
+            }),
             InitialGuess::Paths => {
                 let filled_problem = IntegrationProblem {
                     p: &p,
