@@ -37,6 +37,8 @@ pub struct Capture {
     pub pixels: Vec<u32>,
     /// Intensity-normalised samples, `[pixel][light][channel]`; empty when the samples are in
     /// a tiled [`SampleStore`] (`store`), which [`Capture::for_each_tile`] reads tile by tile.
+    /// After changing them in place once a method has run, call
+    /// [`Capture::forget_statistics`].
     pub samples: Vec<f32>,
     /// The tiled store, when the samples did not fit the memory budget as `f32`.
     pub store: Option<Arc<SampleStore>>,
@@ -1007,6 +1009,14 @@ impl Capture {
         &self.statistics
     }
 
+    /// Forgets the capture-wide statistics measured so far (noise level, dark floor, κ), which
+    /// every method run on this capture otherwise reuses: call it after changing `samples`,
+    /// `lights` or the mask in place. (Clones and captures derived by the library's functions
+    /// always measure their own.)
+    pub fn forget_statistics(&mut self) {
+        self.statistics = Statistics::default();
+    }
+
     /// Builds a capture from decoded images (all of one size and channel count), their lights
     /// and an optional mask (`height * width`, row-major). Images are divided by the lights'
     /// intensities as when loading files.
@@ -1297,7 +1307,7 @@ impl Capture {
                 continue;
             }
             store.read_tile(t, &mut raw, &mut view.samples)?;
-            view.statistics = Statistics::default();
+            view.forget_statistics();
             view.pixels.clear();
             view.pixels.extend_from_slice(&self.pixels[range.clone()]);
             f(range.start, &view)?;

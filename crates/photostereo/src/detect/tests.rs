@@ -166,3 +166,55 @@ fn noise_level_is_estimated_from_a_noisy_capture() {
     let hit = bad.iter().filter(|&&p| det.unreliable[p]).count() as f64 / bad.len() as f64;
     assert!(bad.len() > 500 && hit > 0.99, "hits {hit}");
 }
+
+#[test]
+fn capture_statistics_are_measured_once_and_not_shared_with_derived_captures() {
+    // Lights 0–4 with noise σ, lights 5–7 with 3σ: the image noise is a median over the lights,
+    // so the capture of lights 5–7 alone has about three times the capture's.
+    let dirs = ring(8, 35.0);
+    let (mut capture, _) = lambert_sphere(64, 28.0, &dirs);
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let sigma = 0.004;
+    let mut rng = crate::rng::Pcg32::new(5, 0);
+    for (i, v) in capture.samples.iter_mut().enumerate() {
+        let k = (i / c) % n;
+        let s = if k < 5 { sigma } else { 3.0 * sigma };
+        *v += (s * rng.next_normal()) as f32;
+    }
+    let whole = image_noise(&capture).unwrap();
+    // The remembered figures are the measured ones, for every key of κ.
+    assert_eq!(Some(whole), measure_image_noise(&capture));
+    assert_eq!(dark_floor(&capture), measure_dark_floor(&capture));
+    let floor = dark_floor(&capture);
+    let params = DetectionParams::default();
+    for shadow_sigmas in [params.shadow_sigmas, 1.0] {
+        let p = DetectionParams {
+            shadow_sigmas,
+            ..params.clone()
+        };
+        let kappa = estimate_kappa(&capture, whole, floor, &p);
+        assert_eq!(kappa, measure_kappa(&capture, whole, floor, shadow_sigmas));
+        assert_eq!(kappa, estimate_kappa(&capture, whole, floor, &p));
+    }
+    // A derived capture measures its own.
+    let noisy = capture.select_lights(&[5, 6, 7]).unwrap();
+    let derived = image_noise(&noisy).unwrap();
+    assert_eq!(Some(derived), measure_image_noise(&noisy));
+    assert!(derived > 2.0 * whole, "lights 5–7: {derived}, all: {whole}");
+    // So does a clone whose samples then change.
+    let mut scaled = capture.clone();
+    for v in scaled.samples.iter_mut() {
+        *v *= 2.0;
+    }
+    let twice = image_noise(&scaled).unwrap();
+    assert!((twice / whole - 2.0).abs() < 1e-6, "{twice} vs 2 × {whole}");
+    // And a capture told to forget after an in-place change.
+    let mut changed = capture.clone();
+    assert_eq!(image_noise(&changed), Some(whole));
+    for v in changed.samples.iter_mut() {
+        *v *= 0.5;
+    }
+    changed.forget_statistics();
+    let half = image_noise(&changed).unwrap();
+    assert!((half / whole - 0.5).abs() < 1e-6, "{half} vs {whole} / 2");
+}
