@@ -286,6 +286,10 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
             }
             for _ in 0..50 {
                 let m = 0.5 * (t0 + t1);
+                // Adjacent floats: every further halving gives t0 or t1 again.
+                if m == t0 || m == t1 {
+                    break;
+                }
                 if phi(m) <= 0.0 {
                     t1 = m;
                 } else {
