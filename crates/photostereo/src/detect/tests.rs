@@ -166,3 +166,67 @@ fn noise_level_is_estimated_from_a_noisy_capture() {
     let hit = bad.iter().filter(|&&p| det.unreliable[p]).count() as f64 / bad.len() as f64;
     assert!(bad.len() > 500 && hit > 0.99, "hits {hit}");
 }
+
+/// A light whose readings carry six times the others' relative error gets a noise factor well
+/// above 1; the others stay near 1 (the typical light's scale is the reference).
+#[test]
+fn light_noise_factors_find_the_inconsistent_light() {
+    let dirs = ring(8, 40.0);
+    let (mut capture, _) = lambert_sphere(64, 28.0, &dirs);
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let mut rng = crate::rng::Pcg32::new(7, 1);
+    for p in 0..capture.n_pixels() {
+        for k in 0..n {
+            let share = if k == 3 { 0.06 } else { 0.01 };
+            let f = 1.0 + share * rng.next_normal();
+            for ch in 0..c {
+                capture.samples[(p * n + k) * c + ch] *= f as f32;
+            }
+        }
+    }
+    let params = DetectionParams::default();
+    let noise = NoiseModel {
+        sigma0: 1e-4,
+        kappa: 0.01,
+        estimated: false,
+        kappa_estimated: false,
+        floor: 0.0,
+        light_factor: Vec::new(),
+    };
+    let f = light_noise_factors(&capture, &noise, &params);
+    assert_eq!(f.len(), n);
+    assert!(f[3] > 3.0 && f[3] < 9.0, "{f:?}");
+    for (k, &x) in f.iter().enumerate().filter(|&(k, _)| k != 3) {
+        assert!((1.0..1.5).contains(&x), "light {k}: {f:?}");
+    }
+    // The weighted test flags fewer pixels than the unweighted one: the extra error of light 3
+    // is expected under its own factor.
+    let weighted = NoiseModel {
+        light_factor: f,
+        ..noise.clone()
+    };
+    let plain = detect_with_noise(&capture, &params, noise, &Silent).unwrap();
+    let det = detect_with_noise(&capture, &params, weighted, &Silent).unwrap();
+    assert!(
+        det.unreliable_share() < 0.5 * plain.unreliable_share(),
+        "{} vs {}",
+        det.unreliable_share(),
+        plain.unreliable_share()
+    );
+}
+
+/// With four lights the standardised residuals of a pixel are equal in size: no light can be
+/// told apart and every factor is 1.
+#[test]
+fn light_noise_factors_are_one_with_four_lights() {
+    let (capture, _) = lambert_sphere(48, 20.0, &square4());
+    let noise = NoiseModel {
+        sigma0: 1e-3,
+        kappa: 0.01,
+        estimated: false,
+        kappa_estimated: false,
+        floor: 0.0,
+        light_factor: Vec::new(),
+    };
+    assert!(light_noise_factors(&capture, &noise, &DetectionParams::default()).is_empty());
+}
