@@ -44,8 +44,10 @@ pub struct DetectionParams {
     /// intensities known to about 1% and directions to about half a degree each change a
     /// reading by about 1% of its level. `None`: measured on the capture itself
     /// ([`estimate_kappa`]: the median over pixels of each pixel's robust residual scale, the
-    /// typical pixel's model error; near zero on renders with sensor noise only, 1.7–8.8% on
-    /// DiLiGenT, 3–7% on psmImages). The engine reports the measured value either way.
+    /// typical pixel's model error, with the lights' noise factors weighting the fit when
+    /// `light_noise` is on; near zero on renders with sensor noise only, 1.4–4.2% on DiLiGenT
+    /// (1.7–8.8% unweighted: bear's inconsistent images), 3–5% on psmImages). The engine reports
+    /// the measured value either way.
     pub relative_noise: Option<f64>,
     /// Confidence of the χ² test (default 0.95, the paper's 2σ for four lights).
     pub confidence: f64,
@@ -1083,12 +1085,16 @@ fn robust_fit(
 /// ([`NoiseModel::light_factor`]), measured like [`estimate_kappa`]: over a regular sample of
 /// at most 8192 mask pixels, the robust all-light fit of each pixel; for every reading above the
 /// absolute shadow level (`floor + shadow_sigmas · σ₀`) its standardised residual in units of
-/// the model's σ_p, zₖₚ. Light k's scale sₖ is 1.4826 × the median of |zₖₚ| over the pixels (the
-/// median ignores a light's highlights, a minority of its pixels); c_k = max(1, sₖ / s̃) with s̃
-/// the median of the sₖ over the lights: a light is as good as the typical light unless its
-/// readings are measured to disagree more. With four lights the standardised residuals of a
-/// pixel are equal in size and every factor is 1. Empty (every factor 1) with near lights (the
-/// vectors follow the surface), fewer than five lights, or fewer than 100 readings for a light.
+/// the model's σ_p, zₖₚ. Light k's scale sₖ is the lower quartile of |zₖₚ| over the pixels
+/// divided by that of a standard normal, 0.3186 (the quartile ignores a light's highlights
+/// while they cover less than three quarters of its pixels). With s̃ the larger of 1 and the
+/// median of the sₖ over the lights, and ŝ = 1.4826 × the median absolute deviation of the sₖ
+/// from s̃, c_k = sₖ / s̃ for the lights beyond the fence s̃ + 3ŝ and 1 for the others: a light
+/// is as good as the typical light (or the model) unless its readings are measured to disagree
+/// clearly more. With four lights the
+/// standardised residuals of a pixel are equal in size and no light can be singled out.
+/// Empty (every factor 1) with near lights (the vectors follow the surface), fewer than five
+/// lights, or fewer than 100 readings for a light.
 pub fn light_noise_factors(
     capture: &Capture,
     noise: &NoiseModel,
@@ -1146,16 +1152,20 @@ pub fn light_noise_factors(
     if per_light.iter().any(|v| v.len() < 100) {
         return Vec::new();
     }
+    // The lower quartile of |z| of a standard normal.
+    const Q25_ABS_NORMAL: f64 = 0.318_639_363_964_375;
     let scales: Vec<f64> = per_light
         .into_iter()
-        .map(|mut v| 1.4826 * crate::metrics::median(&mut v))
+        .map(|mut v| crate::metrics::quantile(&mut v, 0.25) / Q25_ABS_NORMAL)
         .collect();
-    let typical = crate::metrics::median(&mut scales.clone());
-    if !(typical > 0.0 && typical.is_finite()) {
+    // The reference: the typical light, or the noise model itself where the typical light fits
+    // better than the model says (a factor below 1 is never given).
+    let typical = crate::metrics::median(&mut scales.clone()).max(1.0);
+    if !typical.is_finite() {
         return Vec::new();
     }
     // A light is an outlier among the lights when its scale lies beyond 3 robust spreads
-    // (1.4826 × the median absolute deviation of the scales) above the typical one.
+    // (1.4826 × the median absolute deviation of the scales) above the reference.
     let mut dev: Vec<f64> = scales.iter().map(|&s| (s - typical).abs()).collect();
     let fence = typical + 3.0 * 1.4826 * crate::metrics::median(&mut dev);
     scales

@@ -168,7 +168,7 @@ fn noise_level_is_estimated_from_a_noisy_capture() {
 }
 
 /// A light whose readings carry six times the others' relative error gets a noise factor well
-/// above 1; the others stay near 1 (the typical light's scale is the reference).
+/// above 1; the others stay at 1.
 #[test]
 fn light_noise_factors_find_the_inconsistent_light() {
     let dirs = ring(8, 40.0);
@@ -195,9 +195,12 @@ fn light_noise_factors_find_the_inconsistent_light() {
     };
     let f = light_noise_factors(&capture, &noise, &params);
     assert_eq!(f.len(), n);
-    assert!(f[3] > 3.0 && f[3] < 9.0, "{f:?}");
+    // Light 3's readings err by 6% of themselves where the model allows 1% of the pixel's
+    // level: its factor is several times 1 (not the full 6: a reading is mostly below the
+    // level and the fit absorbs part of its error); the others are as the model says.
+    assert!(f[3] > 2.0 && f[3] < 9.0, "{f:?}");
     for (k, &x) in f.iter().enumerate().filter(|&(k, _)| k != 3) {
-        assert!((1.0..1.5).contains(&x), "light {k}: {f:?}");
+        assert_eq!(x, 1.0, "light {k}: {f:?}");
     }
     // The weighted test flags fewer pixels than the unweighted one: the extra error of light 3
     // is expected under its own factor.
