@@ -45,7 +45,7 @@ pub struct DetectionParams {
     /// reading by about 1% of its level. `None`: measured on the capture itself
     /// ([`estimate_kappa`]: the median over pixels of each pixel's robust residual scale, the
     /// typical pixel's model error, with the lights' noise factors weighting the fit when
-    /// `light_noise` is on; near zero on renders with sensor noise only, 1.4–4.2% on DiLiGenT
+    /// `light_noise` is on; near zero on renders with sensor noise only, 1.3–4.0% on DiLiGenT
     /// (1.7–8.8% unweighted: bear's inconsistent images), 3–5% on psmImages). The engine reports
     /// the measured value either way.
     pub relative_noise: Option<f64>,
