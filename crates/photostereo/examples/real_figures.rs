@@ -78,6 +78,10 @@ fn main() {
                     Some(k.parse().unwrap())
                 };
             }
+            // PS_LIGHT_NOISE=0 turns the per-light noise factors off.
+            if let Ok(v) = std::env::var("PS_LIGHT_NOISE") {
+                params.detection.light_noise = v != "0";
+            }
             let t = Instant::now();
             let rec = reconstruct(&capture, &params, &Silent).unwrap();
             let secs = t.elapsed().as_secs_f64();
@@ -112,6 +116,16 @@ fn main() {
                     d["noise"]["kappa"].as_f64().unwrap_or(f64::NAN),
                     d["noise"]["sigma0"].as_f64().unwrap_or(f64::NAN),
                 );
+                if let Some(f) = d["noise"]["light_factor"].as_array() {
+                    let f: Vec<f64> = f.iter().filter_map(|x| x.as_f64()).collect();
+                    let above = f.iter().filter(|&&x| x > 1.0).count();
+                    let max = f.iter().cloned().fold(1.0, f64::max);
+                    line += &format!(" factors>1 {above}/{} max {max:.2}", f.len());
+                    if std::env::var("PS_FACTORS").is_ok() {
+                        let list: Vec<String> = f.iter().map(|x| format!("{x:.2}")).collect();
+                        eprintln!("{object} factors {}", list.join(" "));
+                    }
+                }
             }
             if rec.statuses_decided && method != Method::L2 {
                 // Per mask pixel estimate and statuses from the full-frame outputs.

@@ -59,7 +59,7 @@ pub struct Capture {
 
 /// The capture-wide statistics of one [`Capture`], each measured on first use
 /// ([`crate::detect::image_noise`], [`crate::detect::dark_floor`],
-/// [`crate::detect::estimate_kappa`]). They are a function of the samples, lights and mask, which
+/// [`crate::detect::estimate_kappa_weighted`], [`crate::detect::light_noise_factors`]). They are a function of the samples, lights and mask, which
 /// the library never changes in place once a capture is built (the one capture whose samples
 /// change, the tile view of [`Capture::for_each_tile`], forgets them with each tile); cloning
 /// gives an empty memo, so a derived capture measures its own.
@@ -69,8 +69,31 @@ pub(crate) struct Statistics {
     pub image_noise: std::sync::OnceLock<Option<f64>>,
     /// The dark floor, in intensity-normalised units.
     pub dark_floor: std::sync::OnceLock<f64>,
-    /// κ measured for given (σ₀, floor, shadow σ's), keyed by their bits.
-    pub kappa: std::sync::Mutex<Vec<([u64; 3], f64)>>,
+    /// Statistics that depend on further arguments (κ for given σ₀, floor, shadow σ's and
+    /// light factors; the light factors for a noise model), keyed by a tag and the arguments'
+    /// bits.
+    keyed: std::sync::Mutex<Vec<(Vec<u64>, Vec<f64>)>>,
+}
+
+impl Statistics {
+    /// The values remembered under `key`, or those `measure` gives, then remembered. Measuring
+    /// runs outside the lock (two threads asking at once may both measure; both get the same
+    /// values).
+    pub fn remember(&self, key: Vec<u64>, measure: impl FnOnce() -> Vec<f64>) -> Vec<f64> {
+        let known = self
+            .keyed
+            .lock()
+            .ok()
+            .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone()));
+        if let Some(values) = known {
+            return values;
+        }
+        let values = measure();
+        if let Ok(mut m) = self.keyed.lock() {
+            m.push((key, values.clone()));
+        }
+        values
+    }
 }
 
 impl Clone for Statistics {

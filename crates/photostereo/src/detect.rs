@@ -44,8 +44,10 @@ pub struct DetectionParams {
     /// intensities known to about 1% and directions to about half a degree each change a
     /// reading by about 1% of its level. `None`: measured on the capture itself
     /// ([`estimate_kappa`]: the median over pixels of each pixel's robust residual scale, the
-    /// typical pixel's model error; near zero on renders with sensor noise only, 1.7–8.8% on
-    /// DiLiGenT, 3–7% on psmImages). The engine reports the measured value either way.
+    /// typical pixel's model error, with the lights' noise factors weighting the fit when
+    /// `light_noise` is on; near zero on renders with sensor noise only, 1.3–4.0% on DiLiGenT
+    /// (1.7–8.8% unweighted: bear's inconsistent images), 3–5% on psmImages). The engine reports
+    /// the measured value either way.
     pub relative_noise: Option<f64>,
     /// Confidence of the χ² test (default 0.95, the paper's 2σ for four lights).
     pub confidence: f64,
@@ -73,6 +75,10 @@ pub struct DetectionParams {
     /// Rounds of noise re-estimation from the pixels' retained lights, for
     /// [`NoiseEstimate::Residuals`] (default 1).
     pub noise_refinements: usize,
+    /// Measure a noise factor per light ([`light_noise_factors`], distant lights): a light whose
+    /// readings disagree with the others' fit more than the typical light's gets its own larger
+    /// κ_k (default true). The test is then weighted least squares with those factors.
+    pub light_noise: bool,
 }
 
 impl Default for DetectionParams {
@@ -88,6 +94,7 @@ impl Default for DetectionParams {
             attribute: true,
             noise_estimate: NoiseEstimate::Images,
             noise_refinements: 1,
+            light_noise: true,
         }
     }
 }
@@ -161,8 +168,9 @@ impl DetectionParams {
     }
 }
 
-/// Noise of the grey (channel-mean) intensities: σ_p² = σ₀² + (κ · level)².
-#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+/// Noise of the grey (channel-mean) intensities: σ_p² = σ₀² + (κ · level)², times the light's
+/// factor squared for light k's reading (`light_factor`, 1 for every light unless measured).
+#[derive(Clone, Debug, Serialize, PartialEq)]
 pub struct NoiseModel {
     /// Floor σ₀.
     pub sigma0: f64,
@@ -175,6 +183,13 @@ pub struct NoiseModel {
     /// The capture's dark floor: what a shadowed reading reads (ambient light, sensor offset),
     /// in the units of the intensity-normalised channel means ([`dark_floor`]).
     pub floor: f64,
+    /// Per light k, the factor c_k ≥ 1 of its noise: light k's reading has the standard
+    /// deviation c_k · σ_p, i.e. its model error is κ_k = c_k · κ (with σ₀ scaled alike). Measured
+    /// on the capture by [`light_noise_factors`] (an image that disagrees with the others, e.g.
+    /// a light whose calibration is off, gets its own larger κ instead of inflating every
+    /// light's); empty means 1 for every light (given, or near lights).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub light_factor: Vec<f64>,
 }
 
 impl NoiseModel {
@@ -185,6 +200,12 @@ impl NoiseModel {
         self.floor
             + params.shadow_sigmas * self.variance(level).sqrt()
             + params.shadow_ratio * level
+    }
+
+    /// κ_k = c_k · κ per light (the factors of [`NoiseModel::light_factor`]); empty when every
+    /// light has the capture's κ.
+    pub fn light_kappa(&self) -> Vec<f64> {
+        self.light_factor.iter().map(|c| c * self.kappa).collect()
     }
 
     /// σ_p² at a pixel of mean intensity `level`.
@@ -239,6 +260,7 @@ impl Detection {
                 estimated: params.sigma.is_none(),
                 kappa_estimated: false,
                 floor: dark_floor(capture).min(params.shadow_sigmas * sigma0),
+                light_factor: Vec::new(),
             },
             threshold: f64::INFINITY,
             params: params.clone(),
@@ -273,6 +295,11 @@ struct Test {
     /// z² of the batch-removal test.
     batch_z2: f64,
     min_kept: usize,
+    /// Per light 1 / c_k ([`NoiseModel::light_factor`]; empty: all 1). The test then works on
+    /// the readings and light vectors divided by c_k — weighted least squares with weights
+    /// 1 / c_k², whose statistic is χ² under the per-light noise — and `directions` (with the
+    /// copies and the normal matrix) hold the divided vectors.
+    inv_factor: Vec<f64>,
 }
 
 impl Test {
@@ -321,7 +348,29 @@ impl Test {
             thresholds,
             batch_z2: z * z,
             min_kept,
+            inv_factor: Vec::new(),
         })
+    }
+
+    /// The test of a capture under a noise model: [`Test::new`] with the light vectors divided
+    /// by the model's per-light factors (when it has them).
+    fn with_noise(capture: &Capture, params: &DetectionParams, noise: &NoiseModel) -> Result<Self> {
+        let mut test = Test::new(capture, params)?;
+        let n = test.directions.len();
+        if noise.light_factor.len() == n && noise.light_factor.iter().any(|&c| c != 1.0) {
+            test.inv_factor = noise.light_factor.iter().map(|&c| 1.0 / c).collect();
+            let dirs: Vec<[f64; 3]> = capture.lights.directions.clone();
+            if !test.set_directions(&dirs) {
+                return Err(Error::invalid("singular light matrix"));
+            }
+        }
+        Ok(test)
+    }
+
+    /// 1 / c_k of light k.
+    #[inline]
+    fn inv_factor(&self, k: usize) -> f64 {
+        self.inv_factor.get(k).copied().unwrap_or(1.0)
     }
 }
 
@@ -332,7 +381,7 @@ impl Test {
     fn set_directions(&mut self, dirs: &[[f64; 3]]) -> bool {
         let mut gram = Matrix3::zeros();
         for (k, d) in dirs.iter().enumerate() {
-            let l = Vector3::from(*d);
+            let l = Vector3::from(*d) * self.inv_factor(k);
             self.directions[k] = l;
             self.lx[k] = l.x;
             self.ly[k] = l.y;
@@ -384,6 +433,9 @@ impl<'a> NearTest<'a> {
 /// Per-thread scratch space: no allocation per pixel.
 struct Scratch {
     grey: Vec<f64>,
+    /// The readings divided by their lights' noise factors (the test's weighted readings;
+    /// `grey` itself where the factors are all 1).
+    sgrey: Vec<f64>,
     /// 1.0 for kept lights, 0.0 for removed ones (branch-free loops).
     weight: Vec<f64>,
     resid: Vec<f64>,
@@ -398,6 +450,7 @@ impl Scratch {
     fn new(n: usize) -> Self {
         Scratch {
             grey: vec![0.0; n],
+            sgrey: vec![0.0; n],
             weight: vec![1.0; n],
             resid: vec![0.0; n],
             score: vec![0.0; n],
@@ -473,7 +526,7 @@ fn score_pass_portable(test: &Test, s: &mut Scratch, m: &Vector3<f64>, gi: &Matr
     let [qxx, qyy, qzz, qxy, qxz, qyz] = &test.quad;
     let (qxx, qyy, qzz) = (&qxx[..n], &qyy[..n], &qzz[..n]);
     let (qxy, qxz, qyz) = (&qxy[..n], &qxz[..n], &qyz[..n]);
-    let (grey, weight) = (&s.grey[..n], &s.weight[..n]);
+    let (grey, weight) = (&s.sgrey[..n], &s.weight[..n]);
     let (resid, score) = (&mut s.resid[..n], &mut s.score[..n]);
     for k in 0..n {
         let e = grey[k] - (lx[k] * m.x + ly[k] * m.y + lz[k] * m.z);
@@ -531,6 +584,18 @@ fn attribute_from(
     let level = scratch.grey.iter().sum::<f64>() / n as f64;
     let var = noise.variance(level);
     let sigma = var.sqrt();
+    if test.inv_factor.is_empty() {
+        scratch.sgrey.copy_from_slice(&scratch.grey);
+    } else {
+        for ((sg, &g), &f) in scratch
+            .sgrey
+            .iter_mut()
+            .zip(&scratch.grey)
+            .zip(&test.inv_factor)
+        {
+            *sg = g * f;
+        }
+    }
     let mut count = scratch.weight.iter().filter(|&&w| w > 0.0).count();
     let (mut gram, mut gram_inv) = (test.gram, test.gram_inv);
     if count < n {
@@ -546,14 +611,14 @@ fn attribute_from(
     }
     let mut b = Vector3::zeros();
     for k in 0..n {
-        b += test.directions[k] * (scratch.grey[k] * scratch.weight[k]);
+        b += test.directions[k] * (scratch.sgrey[k] * scratch.weight[k]);
     }
     let mut m = gram_inv * b;
     if !params.attribute {
         // The test alone: the residual sum of squares, O(N).
         let mut rss = 0.0;
         for k in 0..n {
-            let e = scratch.grey[k] - (test.lx[k] * m.x + test.ly[k] * m.y + test.lz[k] * m.z);
+            let e = scratch.sgrey[k] - (test.lx[k] * m.x + test.ly[k] * m.y + test.lz[k] * m.z);
             rss += scratch.weight[k] * e * e;
         }
         return (rss / var, rss, count);
@@ -610,7 +675,7 @@ fn attribute_from(
                 s.weight[k] = 0.0;
                 let l = test.directions[k];
                 *gram -= l * l.transpose();
-                *b -= l * s.grey[k];
+                *b -= l * s.sgrey[k];
                 // A shadow reads at the shadow level (also where the fit predicts a negative
                 // value: an attached shadow); a brighter-than-predicted reading is a highlight;
                 // a darker one above the shadow level is lit but off the model: rejected.
@@ -816,6 +881,9 @@ pub fn noise_model(
             noise.kappa = k;
             noise.kappa_estimated = false;
         }
+        if params.light_noise {
+            noise.light_factor = light_noise_factors(capture, &noise, params);
+        }
         return Ok(noise);
     };
     // The quantile measures lit readings when no image leaves part of the object in shadow:
@@ -825,13 +893,23 @@ pub fn noise_model(
         Some(k) => (k, false),
         None => (estimate_kappa(capture, sigma0, floor, params), true),
     };
-    Ok(NoiseModel {
+    let mut noise = NoiseModel {
         sigma0,
         kappa,
         estimated: params.sigma.is_none(),
         kappa_estimated,
         floor,
-    })
+        light_factor: Vec::new(),
+    };
+    if params.light_noise {
+        noise.light_factor = light_noise_factors(capture, &noise, params);
+        if kappa_estimated && !noise.light_factor.is_empty() {
+            // κ of the lights of factor 1, the inconsistent lights weighted down.
+            noise.kappa =
+                estimate_kappa_weighted(capture, sigma0, floor, params, &noise.light_factor);
+        }
+    }
+    Ok(noise)
 }
 
 /// Default κ (see [`DetectionParams::relative_noise`]).
@@ -885,94 +963,82 @@ fn measure_dark_floor(capture: &Capture) -> f64 {
 /// Pixels with fewer than four readings above the shadow level do not count; with fewer than
 /// 100 pixels counted, κ is 0.
 pub fn estimate_kappa(capture: &Capture, sigma0: f64, floor: f64, params: &DetectionParams) -> f64 {
-    let key = [
+    estimate_kappa_weighted(capture, sigma0, floor, params, &[])
+}
+
+/// [`estimate_kappa`] under per-light noise factors c_k ([`NoiseModel::light_factor`]; empty:
+/// all 1): the fit is weighted least squares (readings and light vectors divided by c_k), so
+/// that κ is the model error of a light of factor 1 — a few inconsistent images then do not
+/// inflate it. Measured once per capture and arguments (the capture's statistics memo).
+pub fn estimate_kappa_weighted(
+    capture: &Capture,
+    sigma0: f64,
+    floor: f64,
+    params: &DetectionParams,
+    factors: &[f64],
+) -> f64 {
+    let mut key = vec![
+        KAPPA_KEY,
         sigma0.to_bits(),
         floor.to_bits(),
         params.shadow_sigmas.to_bits(),
     ];
-    let memo = &capture.statistics().kappa;
-    let known = |memo: &std::sync::Mutex<Vec<([u64; 3], f64)>>| {
-        memo.lock()
-            .ok()
-            .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|&(_, v)| v))
-    };
-    if let Some(kappa) = known(memo) {
-        return kappa;
-    }
-    let kappa = measure_kappa(capture, sigma0, floor, params.shadow_sigmas);
-    if let Ok(mut m) = memo.lock() {
-        m.push((key, kappa));
-    }
-    kappa
+    key.extend(factors.iter().map(|f| f.to_bits()));
+    capture.statistics().remember(key, || {
+        vec![measure_kappa(
+            capture,
+            sigma0,
+            floor,
+            params.shadow_sigmas,
+            factors,
+        )]
+    })[0]
 }
 
-/// [`estimate_kappa`], measured (`shadow_sigmas`: [`DetectionParams::shadow_sigmas`]).
-fn measure_kappa(capture: &Capture, sigma0: f64, floor: f64, shadow_sigmas: f64) -> f64 {
+/// The first word of the memo keys of κ and of the light factors.
+const KAPPA_KEY: u64 = 1;
+const LIGHT_FACTORS_KEY: u64 = 2;
+
+/// [`estimate_kappa_weighted`], measured (`shadow_sigmas`: [`DetectionParams::shadow_sigmas`]).
+fn measure_kappa(
+    capture: &Capture,
+    sigma0: f64,
+    floor: f64,
+    shadow_sigmas: f64,
+    factors: &[f64],
+) -> f64 {
     let n = capture.n_lights();
     let np = capture.n_pixels();
     if n < 4 || np == 0 {
         return 0.0;
     }
     let c = capture.channels;
-    let dirs: Vec<Vector3<f64>> = capture
-        .lights
-        .directions
-        .iter()
-        .map(|d| Vector3::from(*d))
-        .collect();
+    let weighted = factors.len() == n;
+    let mut dirs = distant_directions(capture);
+    if weighted {
+        for (d, &f) in dirs.iter_mut().zip(factors) {
+            *d /= f;
+        }
+    }
     let stride = np.div_ceil(8192).max(1);
     let dark = floor + shadow_sigmas * sigma0;
     let mut k2: Vec<f64> = (0..np)
         .into_par_iter()
         .step_by(stride)
         .map_init(
-            || {
-                let buffers = (vec![0f64; n], vec![false; n], Vec::with_capacity(n));
-                (buffers, Vec::with_capacity(n))
-            },
-            |((grey, keep, u), a), p| {
+            || (vec![0f64; n], vec![false; n], Vec::with_capacity(n)),
+            |(grey, keep, u), p| {
                 channel_mean(capture.pixel_samples(p), c, grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
                 for (k, g) in keep.iter_mut().zip(grey.iter()) {
                     *k = *g > dark;
                 }
-                let mut scale = f64::NAN;
-                for round in 0..2 {
-                    let count = keep.iter().filter(|&&k| k).count();
-                    if count < 4 || level <= 0.0 {
-                        return None;
-                    }
-                    let mut gram = Matrix3::zeros();
-                    let mut b = Vector3::zeros();
-                    for k in (0..n).filter(|&k| keep[k]) {
-                        gram += dirs[k] * dirs[k].transpose();
-                        b += dirs[k] * grey[k];
-                    }
-                    let gi = gram.try_inverse()?;
-                    let m = gi * b;
-                    u.clear();
-                    for k in 0..n {
-                        let h = dirs[k].dot(&(gi * dirs[k]));
-                        let e = grey[k] - dirs[k].dot(&m);
-                        // Kept readings: standardised residual; others: prediction error.
-                        let z = if keep[k] {
-                            e / (1.0 - h).max(1e-9).sqrt()
-                        } else {
-                            e / (1.0 + h).sqrt()
-                        };
-                        u.push((k, z));
-                    }
-                    a.clear();
-                    a.extend(u.iter().filter(|(k, _)| keep[*k]).map(|(_, z)| z.abs()));
-                    scale = 1.4826 * crate::metrics::median(a);
-                    if round == 0 {
-                        for &(k, z) in u.iter() {
-                            if keep[k] && z.abs() > 3.0 * scale {
-                                keep[k] = false;
-                            }
-                        }
+                if weighted {
+                    for (g, &f) in grey.iter_mut().zip(factors) {
+                        *g /= f;
                     }
                 }
+                let scale = robust_fit(&dirs, grey, keep, u)?;
                 Some((scale * scale - sigma0 * sigma0) / (level * level))
             },
         )
@@ -982,6 +1048,186 @@ fn measure_kappa(capture: &Capture, sigma0: f64, floor: f64, shadow_sigmas: f64)
         return 0.0;
     }
     crate::metrics::median(&mut k2).max(0.0).sqrt()
+}
+
+/// The capture's light vectors (distant lights).
+fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
+    capture
+        .lights
+        .directions
+        .iter()
+        .map(|d| Vector3::from(*d))
+        .collect()
+}
+
+/// The robust all-light fit of one pixel behind [`estimate_kappa`] and [`light_noise_factors`]:
+/// the readings flagged in `keep` (those above the shadow level) are fitted by least squares,
+/// the readings beyond 3 robust scales dropped, and the fit repeated once. Fills `u` with
+/// (light, standardised residual) for every light — eₖ / √(1 − hₖ) for the kept readings, the
+/// prediction error eₖ / √(1 + hₖ) for the others — and `keep` with the readings kept, and
+/// returns the robust scale of the kept ones
+/// (1.4826 × their median absolute standardised residual). `None` when fewer than four readings
+/// are kept, the pixel is black or the kept lights do not determine a normal.
+fn robust_fit(
+    dirs: &[Vector3<f64>],
+    grey: &[f64],
+    keep: &mut [bool],
+    u: &mut Vec<(usize, f64)>,
+) -> Option<f64> {
+    let n = dirs.len();
+    let level = grey.iter().sum::<f64>() / n as f64;
+    let mut scale = f64::NAN;
+    for round in 0..2 {
+        let count = keep.iter().filter(|&&k| k).count();
+        if count < 4 || level <= 0.0 {
+            return None;
+        }
+        let mut gram = Matrix3::zeros();
+        let mut b = Vector3::zeros();
+        for k in (0..n).filter(|&k| keep[k]) {
+            gram += dirs[k] * dirs[k].transpose();
+            b += dirs[k] * grey[k];
+        }
+        let gi = gram.try_inverse()?;
+        let m = gi * b;
+        u.clear();
+        for k in 0..n {
+            let h = dirs[k].dot(&(gi * dirs[k]));
+            let e = grey[k] - dirs[k].dot(&m);
+            // Kept readings: standardised residual; others: prediction error.
+            let z = if keep[k] {
+                e / (1.0 - h).max(1e-9).sqrt()
+            } else {
+                e / (1.0 + h).sqrt()
+            };
+            u.push((k, z));
+        }
+        let mut a: Vec<f64> = u
+            .iter()
+            .filter(|(k, _)| keep[*k])
+            .map(|(_, z)| z.abs())
+            .collect();
+        scale = 1.4826 * crate::metrics::median(&mut a);
+        if round == 0 {
+            for &(k, z) in u.iter() {
+                if keep[k] && z.abs() > 3.0 * scale {
+                    keep[k] = false;
+                }
+            }
+        }
+    }
+    Some(scale)
+}
+
+/// Per-light noise factors c_k ≥ 1 of a capture under the noise model `noise`
+/// ([`NoiseModel::light_factor`]), measured like [`estimate_kappa`]: over a regular sample of
+/// at most 8192 mask pixels, the robust all-light fit of each pixel; for every reading above the
+/// absolute shadow level (`floor + shadow_sigmas · σ₀`) its standardised residual in units of
+/// the model's σ_p, zₖₚ. Light k's scale sₖ is the lower quartile of |zₖₚ| over the pixels
+/// divided by that of a standard normal, 0.3186 (the quartile ignores a light's highlights
+/// while they cover less than three quarters of its pixels). With s̃ the larger of 1 and the
+/// median of the sₖ over the lights, and ŝ = 1.4826 × the median absolute deviation of the sₖ
+/// from s̃, c_k = sₖ / s̃ for the lights beyond the fence s̃ + 3ŝ and 1 for the others: a light
+/// is as good as the typical light (or the model) unless its readings are measured to disagree
+/// clearly more. With four lights the
+/// standardised residuals of a pixel are equal in size and no light can be singled out.
+/// Empty (every factor 1) with near lights (the vectors follow the surface), fewer than five
+/// lights, or fewer than 100 readings for a light.
+pub fn light_noise_factors(
+    capture: &Capture,
+    noise: &NoiseModel,
+    params: &DetectionParams,
+) -> Vec<f64> {
+    let key = vec![
+        LIGHT_FACTORS_KEY,
+        noise.sigma0.to_bits(),
+        noise.kappa.to_bits(),
+        noise.floor.to_bits(),
+        params.shadow_sigmas.to_bits(),
+    ];
+    capture
+        .statistics()
+        .remember(key, || measure_light_noise_factors(capture, noise, params))
+}
+
+/// [`light_noise_factors`], measured.
+fn measure_light_noise_factors(
+    capture: &Capture,
+    noise: &NoiseModel,
+    params: &DetectionParams,
+) -> Vec<f64> {
+    let n = capture.n_lights();
+    let np = capture.n_pixels();
+    if n < 5 || np == 0 || capture.lights.near.is_some() {
+        return Vec::new();
+    }
+    let c = capture.channels;
+    let dirs = distant_directions(capture);
+    let stride = np.div_ceil(8192).max(1);
+    let dark = noise.floor + params.shadow_sigmas * noise.sigma0;
+    // Per light, the |z| of its readings; collected per thread and concatenated.
+    let per_light: Vec<Vec<f64>> = (0..np)
+        .into_par_iter()
+        .step_by(stride)
+        .fold(
+            || {
+                (
+                    vec![Vec::new(); n],
+                    vec![0f64; n],
+                    vec![false; n],
+                    Vec::with_capacity(n),
+                )
+            },
+            |(mut acc, mut grey, mut keep, mut u), p| {
+                channel_mean(capture.pixel_samples(p), c, &mut grey);
+                let level = grey.iter().sum::<f64>() / n as f64;
+                for (k, g) in keep.iter_mut().zip(grey.iter()) {
+                    *k = *g > dark;
+                }
+                if robust_fit(&dirs, &grey, &mut keep, &mut u).is_some() {
+                    let sigma = noise.variance(level).sqrt();
+                    for &(k, z) in u.iter() {
+                        if grey[k] > dark {
+                            acc[k].push(z.abs() / sigma);
+                        }
+                    }
+                }
+                (acc, grey, keep, u)
+            },
+        )
+        .map(|(acc, ..)| acc)
+        .reduce(
+            || vec![Vec::new(); n],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    x.extend(y);
+                }
+                a
+            },
+        );
+    if per_light.iter().any(|v| v.len() < 100) {
+        return Vec::new();
+    }
+    // The lower quartile of |z| of a standard normal.
+    const Q25_ABS_NORMAL: f64 = 0.318_639_363_964_375;
+    let scales: Vec<f64> = per_light
+        .into_iter()
+        .map(|mut v| crate::metrics::quantile(&mut v, 0.25) / Q25_ABS_NORMAL)
+        .collect();
+    // The reference: the typical light, or the noise model itself where the typical light fits
+    // better than the model says (a factor below 1 is never given).
+    let typical = crate::metrics::median(&mut scales.clone()).max(1.0);
+    if !typical.is_finite() {
+        return Vec::new();
+    }
+    // A light is an outlier among the lights when its scale lies beyond 3 robust spreads
+    // (1.4826 × the median absolute deviation of the scales) above the reference.
+    let mut dev: Vec<f64> = scales.iter().map(|&s| (s - typical).abs()).collect();
+    let fence = typical + 3.0 * 1.4826 * crate::metrics::median(&mut dev);
+    scales
+        .iter()
+        .map(|&s| if s > fence { s / typical } else { 1.0 })
+        .collect()
 }
 
 /// The mask pixels whose whole 3×3 neighbourhood lies in the mask, each as the nine mask-pixel
@@ -1090,6 +1336,7 @@ fn residual_noise_model(capture: &Capture, params: &DetectionParams) -> Result<N
         estimated: true,
         kappa_estimated: true,
         floor: 0.0,
+        light_factor: Vec::new(),
     };
     // Refinements look at a regular sample of at most REFINE_SAMPLES pixels: the estimate needs
     // a few thousand residuals, not all of them.
@@ -1124,6 +1371,7 @@ fn residual_noise_model(capture: &Capture, params: &DetectionParams) -> Result<N
             estimated: true,
             kappa_estimated: true,
             floor: noise.floor,
+            light_factor: Vec::new(),
         };
     }
     Ok(noise)
@@ -1148,7 +1396,7 @@ pub fn detect_with_noise(
     progress: &dyn Progress,
 ) -> Result<Detection> {
     params.validate()?;
-    let test = Test::new(capture, params)?;
+    let test = Test::with_noise(capture, params, &noise)?;
     let n = capture.n_lights();
     let Sweep {
         residual,
@@ -1190,7 +1438,7 @@ impl<'a> Attributor<'a> {
         noise: NoiseModel,
     ) -> Result<Self> {
         Ok(Attributor {
-            test: Test::new(capture, params)?,
+            test: Test::with_noise(capture, params, &noise)?,
             params,
             noise,
             capture,
@@ -1306,7 +1554,7 @@ impl<'a> Attributor<'a> {
             if st == status::USED {
                 let l = test.directions[k];
                 gram += l * l.transpose();
-                b += l * grey[k];
+                b += l * (grey[k] * test.inv_factor(k));
                 count += 1;
             }
         }
@@ -1315,15 +1563,15 @@ impl<'a> Attributor<'a> {
         };
         let m = gram_inv * b;
         let mut rss = 0.0;
-        for ((&g, l), &w) in grey.iter().zip(&test.directions).zip(&s.weight) {
-            let e = g - l.dot(&m);
+        for (k, ((&g, l), &w)) in grey.iter().zip(&test.directions).zip(&s.weight).enumerate() {
+            let e = g * test.inv_factor(k) - l.dot(&m);
             rss += w * e * e;
         }
         let shadow_level = self.noise.shadow_level(self.params, level);
         for k in (0..n).filter(|&k| s.weight[k] == 0.0) {
             status[k] = if grey[k] <= shadow_level {
                 status::SHADOW
-            } else if grey[k] > test.directions[k].dot(&m) {
+            } else if grey[k] * test.inv_factor(k) > test.directions[k].dot(&m) {
                 status::HIGHLIGHT
             } else {
                 status::REJECTED

@@ -291,11 +291,13 @@ pub fn reconstruct_with_truth(
             "detection".into(),
             serde_json::json!({
                 "noise": d.noise,
+                "light_kappa": d.noise.light_kappa(),
                 "threshold_chi2": d.threshold,
                 "confidence": d.params.confidence,
                 "unreliable_share": d.unreliable_share(),
-                "kappa_measured": crate::detect::estimate_kappa(
-                    &*crate::tiles::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params
+                "kappa_measured": crate::detect::estimate_kappa_weighted(
+                    &*crate::tiles::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
+                    &d.noise.light_factor,
                 ),
                 "shadow_labels": match estimate.light_status.as_ref() {
                     Some(s) => Some(tiled_shadow_labels(capture, &estimate, s)?),
@@ -632,6 +634,13 @@ fn estimate(
             })?;
             let est = if capture.is_tiled() {
                 let mut est = crate::tiles::solve_tiles(capture, Some(&d.usable()), progress)?;
+                if !d.noise.light_factor.is_empty() && capture.lights.near.is_none() {
+                    // The lights' noise factors weight the fit, as in memory.
+                    let ids: Vec<usize> = (0..capture.n_pixels()).collect();
+                    let view = capture.sampled(&ids)?;
+                    let f = &d.noise.light_factor;
+                    crate::lambert::resolve_subsets_at(&view, &d.light_status, &ids, &mut est, f);
+                }
                 est.light_status = Some(d.light_status.clone());
                 est
             } else {

@@ -100,24 +100,49 @@ pub fn solve_subsets(
 /// pixels keep their values): each pixel's result is exactly `solve_subsets`'s, so an estimate
 /// is brought up to date by re-solving the pixels whose usable lights changed. `capture` must
 /// answer `pixel_samples` for `ids` (a [`Capture::sampled`] view of a tiled capture).
+///
+/// `factors` (one per light, or empty for none): the lights' noise factors c_k of
+/// [`crate::detect::NoiseModel::light_factor`]; the normal is then the weighted least-squares
+/// fit with weights 1 / c_k² (the albedo fit keeps equal weights).
 pub fn resolve_subsets_at(
     capture: &Capture,
     light_status: &[u8],
     ids: &[usize],
     est: &mut Estimate,
+    factors: &[f64],
 ) {
     debug_assert!(capture.lights.near.is_none());
     let (n, c) = (capture.n_lights(), capture.channels);
+    let weighted = factors.len() == n;
+    // Weighted least squares is least squares on the vectors and readings divided by c_k.
+    let scaled: Vec<[f64; 3]> = capture
+        .lights
+        .directions
+        .iter()
+        .enumerate()
+        .map(|(k, d)| {
+            let f = if weighted { 1.0 / factors[k] } else { 1.0 };
+            [d[0] * f, d[1] * f, d[2] * f]
+        })
+        .collect();
     let parts: Vec<(Vec<[f32; 3]>, Vec<f32>)> = ids
         .par_chunks(CHUNK)
         .map_init(
-            || (SubsetCache::new(capture), vec![0f64; n], vec![false; n]),
+            || {
+                let cache = SubsetCache::with_directions(&scaled);
+                (cache, vec![0f64; n], vec![false; n])
+            },
             |(cache, grey, used), chunk| {
                 let mut normals = vec![[0f32; 3]; chunk.len()];
                 let mut albedo = vec![0f32; chunk.len() * c];
                 for (j, &p) in chunk.iter().enumerate() {
                     let samples = capture.pixel_samples(p);
                     channel_mean(samples, c, grey);
+                    if weighted {
+                        for (g, &f) in grey.iter_mut().zip(factors) {
+                            *g /= f;
+                        }
+                    }
                     for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
                         *u = st == status::USED;
                     }
@@ -370,11 +395,15 @@ pub struct SubsetCache<'a> {
 impl<'a> SubsetCache<'a> {
     /// An empty cache for the capture's lights.
     pub fn new(capture: &'a Capture) -> Self {
-        let words = capture.n_lights().div_ceil(64);
+        Self::with_directions(&capture.lights.directions)
+    }
+
+    /// An empty cache for the light vectors `directions` (e.g. divided by per-light factors).
+    pub fn with_directions(directions: &'a [[f64; 3]]) -> Self {
         SubsetCache {
-            directions: &capture.lights.directions,
+            directions,
             map: HashMap::new(),
-            key: vec![0; words],
+            key: vec![0; directions.len().div_ceil(64)],
         }
     }
 

@@ -255,7 +255,7 @@ pub fn recursive(
     let detect_start = Instant::now();
     let (detection, attributor) = if n >= 4 {
         let detection = crate::tiles::detect_tiles(capture, detection_params, progress)?;
-        let attributor = Attributor::new(capture, detection_params, detection.noise)?;
+        let attributor = Attributor::new(capture, detection_params, detection.noise.clone())?;
         (detection, Some(attributor))
     } else {
         (
@@ -265,9 +265,25 @@ pub fn recursive(
     };
     let detect_seconds = detect_start.elapsed().as_secs_f64();
     let unreliable = detection.unreliable.clone();
-    let noise = detection.noise;
+    let noise = detection.noise.clone();
     let mut light_status = detection.light_status.clone();
     let mut est = crate::tiles::solve_statuses(capture, &light_status)?;
+    if !noise.light_factor.is_empty() && capture.lights.near.is_none() {
+        // Lights with their own noise factors: the estimate is the weighted fit the test made.
+        let ids: Vec<usize> = (0..np).collect();
+        let view = if capture.is_tiled() {
+            std::borrow::Cow::Owned(capture.sampled(&ids)?)
+        } else {
+            std::borrow::Cow::Borrowed(capture)
+        };
+        crate::lambert::resolve_subsets_at(
+            &view,
+            &light_status,
+            &ids,
+            &mut est,
+            &noise.light_factor,
+        );
+    }
     // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
     let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
     let mut few = vec![false; np];
@@ -571,7 +587,13 @@ pub fn recursive(
             } else {
                 std::borrow::Cow::Borrowed(capture)
             };
-            crate::lambert::resolve_subsets_at(&view, &new_status, &ids, &mut est);
+            crate::lambert::resolve_subsets_at(
+                &view,
+                &new_status,
+                &ids,
+                &mut est,
+                &noise.light_factor,
+            );
         }
         drop(changed);
         light_status = new_status;

@@ -87,7 +87,7 @@ pub fn detect_tiles(
     progress.begin("detecting", np as u64);
     let tp = TileProgress(progress);
     capture.for_each_tile(|_, tile| {
-        let d = detect_with_noise(tile, params, noise, &tp)?;
+        let d = detect_with_noise(tile, params, noise.clone(), &tp)?;
         match &mut merged {
             None => {
                 let mut m = d;

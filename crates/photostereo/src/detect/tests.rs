@@ -193,8 +193,17 @@ fn capture_statistics_are_measured_once_and_not_shared_with_derived_captures() {
             ..params.clone()
         };
         let kappa = estimate_kappa(&capture, whole, floor, &p);
-        assert_eq!(kappa, measure_kappa(&capture, whole, floor, shadow_sigmas));
+        assert_eq!(
+            kappa,
+            measure_kappa(&capture, whole, floor, shadow_sigmas, &[])
+        );
         assert_eq!(kappa, estimate_kappa(&capture, whole, floor, &p));
+        // Other light factors are another key.
+        let factors = [1.0, 1.0, 1.0, 1.0, 1.0, 3.0, 3.0, 3.0];
+        let weighted = estimate_kappa_weighted(&capture, whole, floor, &p, &factors);
+        let measured = measure_kappa(&capture, whole, floor, shadow_sigmas, &factors);
+        assert_eq!(weighted, measured);
+        assert_ne!(weighted, kappa);
     }
     // A derived capture measures its own.
     let noisy = capture.select_lights(&[5, 6, 7]).unwrap();
@@ -217,4 +226,71 @@ fn capture_statistics_are_measured_once_and_not_shared_with_derived_captures() {
     changed.forget_statistics();
     let half = image_noise(&changed).unwrap();
     assert!((half / whole - 0.5).abs() < 1e-6, "{half} vs {whole} / 2");
+}
+
+/// A light whose readings carry six times the others' relative error gets a noise factor well
+/// above 1; the others stay at 1.
+#[test]
+fn light_noise_factors_find_the_inconsistent_light() {
+    let dirs = ring(8, 40.0);
+    let (mut capture, _) = lambert_sphere(64, 28.0, &dirs);
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let mut rng = crate::rng::Pcg32::new(7, 1);
+    for p in 0..capture.n_pixels() {
+        for k in 0..n {
+            let share = if k == 3 { 0.06 } else { 0.01 };
+            let f = 1.0 + share * rng.next_normal();
+            for ch in 0..c {
+                capture.samples[(p * n + k) * c + ch] *= f as f32;
+            }
+        }
+    }
+    let params = DetectionParams::default();
+    let noise = NoiseModel {
+        sigma0: 1e-4,
+        kappa: 0.01,
+        estimated: false,
+        kappa_estimated: false,
+        floor: 0.0,
+        light_factor: Vec::new(),
+    };
+    let f = light_noise_factors(&capture, &noise, &params);
+    assert_eq!(f.len(), n);
+    // Light 3's readings err by 6% of themselves where the model allows 1% of the pixel's
+    // level: its factor is several times 1 (not the full 6: a reading is mostly below the
+    // level and the fit absorbs part of its error); the others are as the model says.
+    assert!(f[3] > 2.0 && f[3] < 9.0, "{f:?}");
+    for (k, &x) in f.iter().enumerate().filter(|&(k, _)| k != 3) {
+        assert_eq!(x, 1.0, "light {k}: {f:?}");
+    }
+    // The weighted test flags fewer pixels than the unweighted one: the extra error of light 3
+    // is expected under its own factor.
+    let weighted = NoiseModel {
+        light_factor: f,
+        ..noise.clone()
+    };
+    let plain = detect_with_noise(&capture, &params, noise, &Silent).unwrap();
+    let det = detect_with_noise(&capture, &params, weighted, &Silent).unwrap();
+    assert!(
+        det.unreliable_share() < 0.5 * plain.unreliable_share(),
+        "{} vs {}",
+        det.unreliable_share(),
+        plain.unreliable_share()
+    );
+}
+
+/// With four lights the standardised residuals of a pixel are equal in size: no light can be
+/// told apart and every factor is 1.
+#[test]
+fn light_noise_factors_are_one_with_four_lights() {
+    let (capture, _) = lambert_sphere(48, 20.0, &square4());
+    let noise = NoiseModel {
+        sigma0: 1e-3,
+        kappa: 0.01,
+        estimated: false,
+        kappa_estimated: false,
+        floor: 0.0,
+        light_factor: Vec::new(),
+    };
+    assert!(light_noise_factors(&capture, &noise, &DetectionParams::default()).is_empty());
 }

@@ -18,13 +18,21 @@ pub struct BarskyPetrou {
 
 impl BarskyPetrou {
     /// The estimate from a detection already run with attribution (its per-light statuses say
-    /// which lights each pixel keeps): least squares over the kept lights.
+    /// which lights each pixel keeps): least squares over the kept lights, weighted by the
+    /// lights' noise factors where the noise model has them (distant lights; the fit the test
+    /// made).
     pub fn from_detection(
         capture: &Capture,
         detection: &Detection,
         progress: &dyn Progress,
     ) -> Estimate {
         let mut est = solve_subsets(capture, Some(&detection.usable()), progress);
+        let factors = &detection.noise.light_factor;
+        if !factors.is_empty() && capture.lights.near.is_none() && !capture.is_tiled() {
+            let ids: Vec<usize> = (0..capture.n_pixels()).collect();
+            let status = &detection.light_status;
+            crate::lambert::resolve_subsets_at(capture, status, &ids, &mut est, factors);
+        }
         est.light_status = Some(detection.light_status.clone());
         est
     }
