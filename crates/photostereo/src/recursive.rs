@@ -271,18 +271,7 @@ pub fn recursive(
     if !noise.light_factor.is_empty() && capture.lights.near.is_none() {
         // Lights with their own noise factors: the estimate is the weighted fit the test made.
         let ids: Vec<usize> = (0..np).collect();
-        let view = if capture.is_tiled() {
-            std::borrow::Cow::Owned(capture.sampled(&ids)?)
-        } else {
-            std::borrow::Cow::Borrowed(capture)
-        };
-        crate::lambert::resolve_subsets_at(
-            &view,
-            &light_status,
-            &ids,
-            &mut est,
-            &noise.light_factor,
-        );
+        resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
     }
     // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
     let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
@@ -582,18 +571,7 @@ pub fn recursive(
             let ids: Vec<usize> = (0..np)
                 .filter(|&p| changed[p] || few[p] || new_few[p])
                 .collect();
-            let view = if capture.is_tiled() {
-                std::borrow::Cow::Owned(capture.sampled(&ids)?)
-            } else {
-                std::borrow::Cow::Borrowed(capture)
-            };
-            crate::lambert::resolve_subsets_at(
-                &view,
-                &new_status,
-                &ids,
-                &mut est,
-                &noise.light_factor,
-            );
+            resolve_at(capture, &new_status, &ids, &mut est, &noise.light_factor)?;
         }
         drop(changed);
         light_status = new_status;
@@ -672,6 +650,25 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// Solves the mask pixels `ids` of `est` again with their usable lights in `statuses`
+/// ([`crate::lambert::resolve_subsets_at`], lights weighted by `factors`), reading their
+/// samples from a sampled view when the capture is tiled.
+fn resolve_at(
+    capture: &Capture,
+    statuses: &[u8],
+    ids: &[usize],
+    est: &mut Estimate,
+    factors: &[f64],
+) -> Result<()> {
+    let view = if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(ids)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    };
+    crate::lambert::resolve_subsets_at(&view, statuses, ids, est, factors);
+    Ok(())
 }
 
 /// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
