@@ -306,6 +306,10 @@ pub fn recursive(
             &solved_two,
             integration.unreliable_weight,
         );
+        let mut masked_trust = masked_trust;
+        if near_lights {
+            exact_trust(capture, &light_status, &few, &mut masked_trust);
+        }
         let trust = capture.scatter(&masked_trust, 1, 0.0);
         let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
@@ -462,6 +466,11 @@ pub fn recursive(
                             } else {
                                 cons[dp] = true;
                                 n - shadowed
+                            };
+                            let count = if near_lights && count == 3 {
+                                exact_dark_as_shadow(s, grey, dark)
+                            } else {
+                                count
                             };
                             if count < 3 {
                                 fw[dp] = true;
@@ -620,6 +629,10 @@ pub fn recursive(
         &solved_two,
         integration.unreliable_weight,
     );
+    let mut final_trust = final_trust;
+    if near_lights {
+        exact_trust(capture, &light_status, &few, &mut final_trust);
+    }
     let diagnostics = RecursiveDiagnostics {
         trust: capture.scatter(&final_trust, 1, 0.0),
         shadows: last_maps.expect("at least one iteration"),
@@ -855,7 +868,11 @@ fn fill_from_neighbours(
         let surf = surface_normals[pix];
         // Median albedo of the nearest reliable pixels (growing windows).
         let mut rho = f64::NAN;
-        for radius in [2usize, 4, 8, 16, 32] {
+        // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is
+        // wider in pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
+        let widest = if lights.is_near() { w.max(h) } else { 32 };
+        let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
+        for radius in radii {
             samples.clear();
             for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
                 for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
@@ -953,6 +970,56 @@ fn two_source_normal(
         .max_by(|x, y| score(x).total_cmp(&score(y)))?;
     let best = best.normalize();
     (best.z > 0.0).then(|| [best.x as f32, best.y as f32, best.z as f32])
+}
+
+/// Near lights, a pixel left with exactly three usable lights: nothing can test them, and a
+/// reading at the shadow level `dark` among them says only that the light does not reach the
+/// point (a cast shadow of a point light reads as dark as an attached one, whatever the normal),
+/// not that n · l is zero, which the exact solve would make it. Such readings are marked
+/// SHADOW; returns the usable lights left.
+fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize {
+    let mut count = 0;
+    for (s, &g) in status_row.iter_mut().zip(grey) {
+        if *s == status::USED {
+            if g <= dark {
+                *s = status::SHADOW;
+            } else {
+                count += 1;
+            }
+        }
+    }
+    count
+}
+
+/// Near lights: the integration trust of the pixels whose normal is exactly determined (three
+/// usable lights, nothing left for the χ² test, so no evidence beyond the noise level) is the
+/// precision of that solve relative to the solve with every light, both under the same noise:
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹), v the pixel's scaled light vectors at the current
+/// surface (0.5 for a four-light square), in place of 1 or the weight of unreliable pixels.
+/// Pixels `few` (completed from two lights or the surface) keep theirs.
+fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
+    let n = capture.n_lights();
+    let mut lights = crate::lightmodel::PixelLights::of(capture);
+    let inverse_trace = |g: nalgebra::Matrix3<f64>| g.try_inverse().map(|i| i.trace());
+    for (p, t) in trust.iter_mut().enumerate() {
+        let st = &light_status[p * n..(p + 1) * n];
+        if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {
+            continue;
+        }
+        let v = lights.at(capture.pixels[p] as usize);
+        let (mut all, mut used) = (nalgebra::Matrix3::zeros(), nalgebra::Matrix3::zeros());
+        for (k, l) in v.iter().enumerate() {
+            let l = nalgebra::Vector3::from(*l);
+            let o = l * l.transpose();
+            all += o;
+            if st[k] == status::USED {
+                used += o;
+            }
+        }
+        if let (Some(a), Some(u)) = (inverse_trace(all), inverse_trace(used)) {
+            *t = (a / u).clamp(0.0, 1.0) as f32;
+        }
+    }
 }
 
 /// Marks the brightest unused lights as used until three are.
