@@ -145,8 +145,9 @@ pub struct RecursiveDiagnostics {
     /// Pixels whose usable lights pass the χ² test (or were never unreliable), full frame.
     pub reliable: Vec<bool>,
     /// Per-pixel integration trust of the final estimate, full frame, by the rule the
-    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal); the
-    /// input of [`weighted_normals`] for the exported depth.
+    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal; with
+    /// near lights, exactly determined pixels by their solve's relative precision); the input
+    /// of [`weighted_normals`] for the exported depth.
     pub trust: Vec<f32>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,
