@@ -13,6 +13,9 @@ use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::SceneKind;
 use std::collections::BTreeMap;
 
+/// (lit lights, highlighted, usable lights, usable in true shadow, highlighted usable).
+type DetailKey = (usize, bool, usize, usize, usize);
+
 // One full-frame index serves the truth's and the reconstruction's maps alike.
 #[allow(clippy::needless_range_loop)]
 fn main() -> photostereo::Result<()> {
@@ -62,8 +65,7 @@ fn main() -> photostereo::Result<()> {
     let (mut total, mut count) = (0f64, 0usize);
     // (lit, highlighted, usable, usable in true shadow, highlighted usable) -> (pixels, error
     // sum, surface error sum, trust sum)
-    let mut detail: BTreeMap<(usize, bool, usize, usize, usize), (usize, f64, f64, f64)> =
-        BTreeMap::new();
+    let mut detail: BTreeMap<DetailKey, (usize, f64, f64, f64)> = BTreeMap::new();
     for i in 0..hw {
         if !truth.mask[i] {
             continue;
