@@ -397,7 +397,8 @@ pub const DEPTH_TOLERANCE: f64 = 1e-3;
 /// image point leaves that box (widened by the pixel the bilinear look-up reaches): the image
 /// of the segment is a segment walked in one direction, so it never comes back, and outside
 /// the box no depth can hide the light. The flags are those of the whole frame's march, bit
-/// for bit (`near_window_tests`).
+/// for bit (`near_window_tests`). A step skips the look-up where the least depth of the
+/// 8 × 8 pixel cell it falls in cannot hide the light.
 pub fn near_shadow_maps(
     near: &NearLights,
     depth: &[f32],
@@ -419,12 +420,13 @@ pub fn near_shadow_maps(
     let ok = |i: usize| mask[i] && depth[i].is_finite() && depth[i] > 0.0;
     let window = crate::shadows::Window::of(width, height, ok);
     Ok(near_shadow_maps_in(
-        near, depth, normals, mask, width, height, params, window,
+        near, depth, normals, mask, width, height, params, window, true,
     ))
 }
 
 /// [`near_shadow_maps`] over `window` (`None`: no pixel with a depth), which must hold every
-/// pixel with a depth; checked inputs.
+/// pixel with a depth; checked inputs. `cell_skip`: a step skips the look-up where no depth it
+/// could read is near enough to hide the light (the flags do not change).
 #[allow(clippy::too_many_arguments)]
 fn near_shadow_maps_in(
     near: &NearLights,
@@ -435,6 +437,7 @@ fn near_shadow_maps_in(
     height: usize,
     params: &crate::shadows::ShadowParams,
     window: Option<crate::shadows::Window>,
+    cell_skip: bool,
 ) -> crate::shadows::ShadowMaps {
     use crate::shadows::ShadowMaps;
     use rayon::prelude::*;
@@ -460,6 +463,25 @@ fn near_shadow_maps_in(
         .fold(f64::INFINITY, f64::min);
     let cam = &near.camera;
     let f = cam.fx.min(cam.fy);
+    // Per cell of CELL × CELL pixels, the least depth the look-up below can read from an image
+    // position in the cell (its pixels and the next row and column: the 2×2 block and the
+    // nearest pixel of a position lie there); ∞ where none has a depth.
+    const CELL: usize = 8;
+    let (cells_w, cells_h) = (width.div_ceil(CELL), height.div_ceil(CELL));
+    let cell_min: Vec<f64> = (0..cells_w * cells_h)
+        .map(|j| {
+            let (cr, cc) = (j / cells_w * CELL, j % cells_w * CELL);
+            let mut m = f64::INFINITY;
+            for r in cr..(cr + CELL + 1).min(height) {
+                for c in cc..(cc + CELL + 1).min(width) {
+                    if ok(r * width + c) {
+                        m = m.min(depth[r * width + c] as f64);
+                    }
+                }
+            }
+            m
+        })
+        .collect();
     // The surface's depth at image position (col, row): bilinear over mask pixels, nearest
     // where the 2×2 block leaves the mask; None outside it.
     let surface_at = |c: f64, r: f64| -> Option<f64> {
@@ -514,6 +536,18 @@ fn near_shadow_maps_in(
                 let Some((c, r)) = cam.project(p) else { break };
                 if c < c_lo || c > c_hi || r < r_lo || r > r_hi {
                     break;
+                }
+                // No depth the look-up can read here is nearer than the ray by the tolerance
+                // (with a margin far above the rounding of its bilinear mean): nothing to read.
+                if cell_skip && c >= 0.0 && r >= 0.0 {
+                    let (cc, cr) = (c as usize / CELL, r as usize / CELL);
+                    if cc < cells_w
+                        && cr < cells_h
+                        && cell_min[cr * cells_w + cc] > pz - tol + 1e-9 * pz
+                    {
+                        t += pz / f;
+                        continue;
+                    }
                 }
                 match surface_at(c, r) {
                     Some(zs) if zs < pz - tol => {
@@ -660,8 +694,8 @@ mod near_window_tests {
     use crate::shadows::{ShadowMaps, ShadowParams, Window};
 
     /// The march over the bounding box of the pixels with a depth, stopping where it leaves the
-    /// box, gives bit for bit the flags of the march over the whole frame that stops only at
-    /// the image's edge: on blocks standing on a masked, tilted ground with a hole, off the
+    /// box and skipping the look-ups of cells too far from the camera, gives bit for bit the flags of the march over the whole frame that stops only at
+    /// the image's edge and reads the depth at every step: on blocks standing on a masked, tilted ground with a hole, off the
     /// image's centre, walls along the box's edges, for LEDs on every side of the lens, near it and wide of it, level with
     /// the camera and toward the object.
     #[test]
@@ -713,8 +747,17 @@ mod near_window_tests {
             col0: 0,
             col1: w,
         };
-        let reference =
-            near_shadow_maps_in(&near, &depth, &normals, &mask, w, h, &params, Some(whole));
+        let reference = near_shadow_maps_in(
+            &near,
+            &depth,
+            &normals,
+            &mask,
+            w,
+            h,
+            &params,
+            Some(whole),
+            false,
+        );
         let cast = |m: &ShadowMaps| {
             m.flags
                 .iter()
