@@ -1001,25 +1001,82 @@ fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize
 fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
     let n = capture.n_lights();
     let mut lights = crate::lightmodel::PixelLights::of(capture);
-    let inverse_trace = |g: nalgebra::Matrix3<f64>| g.try_inverse().map(|i| i.trace());
     for (p, t) in trust.iter_mut().enumerate() {
         let st = &light_status[p * n..(p + 1) * n];
         if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {
             continue;
         }
-        let v = lights.at(capture.pixels[p] as usize);
-        let (mut all, mut used) = (nalgebra::Matrix3::zeros(), nalgebra::Matrix3::zeros());
-        for (k, l) in v.iter().enumerate() {
-            let l = nalgebra::Vector3::from(*l);
-            let o = l * l.transpose();
-            all += o;
-            if st[k] == status::USED {
-                used += o;
+        if let Some(r) = relative_precision(lights.at(capture.pixels[p] as usize), st) {
+            *t = r as f32;
+        }
+    }
+}
+
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹) over light vectors `v` (USED in `st`), in [0, 1]:
+/// the precision of the least-squares normal from the used lights relative to all of them,
+/// under the same noise. `None` when either sum has no inverse (near 0 when nearly singular).
+fn relative_precision(v: &[[f64; 3]], st: &[u8]) -> Option<f64> {
+    let (mut all, mut used) = (nalgebra::Matrix3::zeros(), nalgebra::Matrix3::zeros());
+    for (l, &sk) in v.iter().zip(st) {
+        let l = nalgebra::Vector3::from(*l);
+        let o = l * l.transpose();
+        all += o;
+        if sk == status::USED {
+            used += o;
+        }
+    }
+    let a = all.try_inverse()?.trace();
+    let u = used.try_inverse()?.trace();
+    Some((a / u).clamp(0.0, 1.0))
+}
+
+#[cfg(test)]
+mod exact_tests {
+    use super::*;
+
+    /// Three lights of a symmetric four-light square at any slant: Sherman–Morrison gives
+    /// tr(G₃⁻¹) = 2 tr(G₄⁻¹), a relative precision of exactly one half; every light kept, 1.
+    #[test]
+    fn three_of_a_square_have_half_the_precision_of_four() {
+        for slant in [15f64, 35.0, 60.0] {
+            let (s, c) = (slant.to_radians().sin(), slant.to_radians().cos());
+            let v: Vec<[f64; 3]> = (0..4)
+                .map(|k| {
+                    let phi = (45.0 + 90.0 * k as f64).to_radians();
+                    [s * phi.cos(), s * phi.sin(), c]
+                })
+                .collect();
+            for drop in 0..4 {
+                let mut st = [status::USED; 4];
+                st[drop] = status::SHADOW;
+                let r = relative_precision(&v, &st).unwrap();
+                assert!((r - 0.5).abs() < 1e-12, "slant {slant}, light {drop}: {r}");
             }
+            let r = relative_precision(&v, &[status::USED; 4]).unwrap();
+            assert!((r - 1.0).abs() < 1e-12);
+            // Two lights: singular (no inverse, or one so large that nothing is left).
+            let st = [status::USED, status::USED, status::SHADOW, status::SHADOW];
+            let r = relative_precision(&v, &st);
+            assert!(r.is_none_or(|r| r < 1e-9), "{r:?}");
         }
-        if let (Some(a), Some(u)) = (inverse_trace(all), inverse_trace(used)) {
-            *t = (a / u).clamp(0.0, 1.0) as f32;
-        }
+    }
+
+    /// Readings at or under the shadow level leave the usable set; lights already removed
+    /// keep their labels.
+    #[test]
+    fn dark_readings_of_an_exact_set_become_shadows() {
+        let mut st = [status::USED, status::USED, status::HIGHLIGHT, status::USED];
+        let count = exact_dark_as_shadow(&mut st, &[0.5, 0.01, 0.9, 0.02], 0.02);
+        assert_eq!(count, 1);
+        assert_eq!(
+            st,
+            [
+                status::USED,
+                status::SHADOW,
+                status::HIGHLIGHT,
+                status::SHADOW
+            ]
+        );
     }
 }
 
