@@ -13,6 +13,9 @@ use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::SceneKind;
 use std::collections::BTreeMap;
 
+/// (lit lights, highlighted, usable lights, usable in true shadow, highlighted usable).
+type DetailKey = (usize, bool, usize, usize, usize);
+
 // One full-frame index serves the truth's and the reconstruction's maps alike.
 #[allow(clippy::needless_range_loop)]
 fn main() -> photostereo::Result<()> {
@@ -56,8 +59,13 @@ fn main() -> photostereo::Result<()> {
         &rec.mask,
         &rec.camera.unwrap(),
     );
-    let mut surf: BTreeMap<(usize, bool), f64> = BTreeMap::new();
+    let mut surf: BTreeMap<(usize, bool), (f64, usize)> = BTreeMap::new();
+    // Per class: the integration trust's sum and the pixels per count of usable lights.
+    let mut trust: BTreeMap<(usize, bool), (f64, [usize; 5])> = BTreeMap::new();
     let (mut total, mut count) = (0f64, 0usize);
+    // (lit, highlighted, usable, usable in true shadow, highlighted usable) -> (pixels, error
+    // sum, surface error sum, trust sum)
+    let mut detail: BTreeMap<DetailKey, (usize, f64, f64, f64)> = BTreeMap::new();
     for i in 0..hw {
         if !truth.mask[i] {
             continue;
@@ -69,8 +77,32 @@ fn main() -> photostereo::Result<()> {
             let good = !truth.shadow[k][i] && !truth.highlight[k][i];
             (rec.light_status[k * hw + i] == status::USED) == good
         });
-        *surf.entry((lit, hl)).or_default() +=
-            angular_error_deg(surface_normals[i], truth.normals[i]);
+        // The surface's normal where it has one (not at its NaN pixels).
+        let se = angular_error_deg(surface_normals[i], truth.normals[i]);
+        let sf = surf.entry((lit, hl)).or_default();
+        if se.is_finite() {
+            sf.0 += se;
+            sf.1 += 1;
+        }
+        let used = (0..n)
+            .filter(|&k| rec.light_status[k * hw + i] == status::USED)
+            .count();
+        let in_shadow = (0..n)
+            .filter(|&k| rec.light_status[k * hw + i] == status::USED && truth.shadow[k][i])
+            .count();
+        let hl_used = (0..n)
+            .filter(|&k| rec.light_status[k * hw + i] == status::USED && truth.highlight[k][i])
+            .count();
+        let d = detail
+            .entry((lit, hl, used, in_shadow, hl_used))
+            .or_default();
+        d.0 += 1;
+        d.1 += e;
+        d.2 += if se.is_finite() { se } else { 0.0 };
+        d.3 += rec.trust[i] as f64;
+        let tr = trust.entry((lit, hl)).or_default();
+        tr.0 += rec.trust[i] as f64;
+        tr.1[used.min(4)] += 1;
         let row = table.entry((lit, hl)).or_default();
         row.0 += 1;
         row.1 += e;
@@ -121,16 +153,30 @@ fn main() -> photostereo::Result<()> {
         rig.name(),
         total / count as f64
     );
-    println!("lit highlighted | pixels | share of error sum | mean | right set | mean (right) | mean (wrong) | surface mean");
+    println!("lit highlighted | pixels | share of error sum | mean | right set | mean (right) | mean (wrong) | surface mean | mean trust | pixels by usable lights 0..4+");
     for ((lit, hl), (p, s, rp, rs)) in &table {
         println!(
-            "{lit} {hl} | {p} | {:.1}% | {:.2} | {rp} | {:.2} | {:.2} | {:.2}",
+            "{lit} {hl} | {p} | {:.1}% | {:.2} | {rp} | {:.2} | {:.2} | {:.2} | {:.2} | {:?}",
             100.0 * s / total,
             s / *p as f64,
             rs / (*rp).max(1) as f64,
             (s - rs) / (p - rp).max(1) as f64,
-            surf[&(*lit, *hl)] / *p as f64
+            surf[&(*lit, *hl)].0 / surf[&(*lit, *hl)].1.max(1) as f64,
+            trust[&(*lit, *hl)].0 / *p as f64,
+            trust[&(*lit, *hl)].1
         );
+    }
+    println!("lit highlighted usable shadowed-usable highlighted-usable | pixels | mean | surface mean | mean trust");
+    for ((lit, hl, u, su, hu), (p, e, se, t)) in &detail {
+        if *p >= 50 {
+            let p = *p as f64;
+            println!(
+                "{lit} {hl} {u} {su} {hu} | {p} | {:.2} | {:.2} | {:.2}",
+                e / p,
+                se / p,
+                t / p
+            );
+        }
     }
     Ok(())
 }

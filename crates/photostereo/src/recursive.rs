@@ -145,8 +145,9 @@ pub struct RecursiveDiagnostics {
     /// Pixels whose usable lights pass the χ² test (or were never unreliable), full frame.
     pub reliable: Vec<bool>,
     /// Per-pixel integration trust of the final estimate, full frame, by the rule the
-    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal); the
-    /// input of [`weighted_normals`] for the exported depth.
+    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal; with
+    /// near lights, exactly determined pixels by their solve's relative precision); the input
+    /// of [`weighted_normals`] for the exported depth.
     pub trust: Vec<f32>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,
@@ -311,6 +312,10 @@ pub fn recursive(
             &solved_two,
             integration.unreliable_weight,
         );
+        let mut masked_trust = masked_trust;
+        if near_lights {
+            exact_trust(capture, &light_status, &few, &mut masked_trust);
+        }
         let trust = capture.scatter(&masked_trust, 1, 0.0);
         let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
@@ -478,6 +483,11 @@ pub fn recursive(
                                 cons[dp] = true;
                                 n - shadowed
                             };
+                            let count = if near_lights && count == 3 {
+                                exact_dark_as_shadow(s, grey, dark)
+                            } else {
+                                count
+                            };
                             if count < 3 {
                                 fw[dp] = true;
                                 cons[dp] = false;
@@ -630,6 +640,10 @@ pub fn recursive(
         &solved_two,
         integration.unreliable_weight,
     );
+    let mut final_trust = final_trust;
+    if near_lights {
+        exact_trust(capture, &light_status, &few, &mut final_trust);
+    }
     let diagnostics = RecursiveDiagnostics {
         trust: capture.scatter(&final_trust, 1, 0.0),
         shadows: last_maps.expect("at least one iteration"),
@@ -886,7 +900,11 @@ fn fill_from_neighbours(
         let surf = surface_normals[pix];
         // Median albedo of the nearest reliable pixels (growing windows).
         let mut rho = f64::NAN;
-        for radius in [2usize, 4, 8, 16, 32] {
+        // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is
+        // wider in pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
+        let widest = if lights.is_near() { w.max(h) } else { 32 };
+        let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
+        for radius in radii {
             samples.clear();
             for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
                 for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
@@ -984,6 +1002,113 @@ fn two_source_normal(
         .max_by(|x, y| score(x).total_cmp(&score(y)))?;
     let best = best.normalize();
     (best.z > 0.0).then(|| [best.x as f32, best.y as f32, best.z as f32])
+}
+
+/// Near lights, a pixel left with exactly three usable lights: nothing can test them, and a
+/// reading at the shadow level `dark` among them says only that the light does not reach the
+/// point (a cast shadow of a point light reads as dark as an attached one, whatever the normal),
+/// not that n · l is zero, which the exact solve would make it. Such readings are marked
+/// SHADOW; returns the usable lights left.
+fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize {
+    let mut count = 0;
+    for (s, &g) in status_row.iter_mut().zip(grey) {
+        if *s == status::USED {
+            if g <= dark {
+                *s = status::SHADOW;
+            } else {
+                count += 1;
+            }
+        }
+    }
+    count
+}
+
+/// Near lights: the integration trust of the pixels whose normal is exactly determined (three
+/// usable lights, nothing left for the χ² test, so no evidence beyond the noise level) is the
+/// precision of that solve relative to the solve with every light, both under the same noise:
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹), v the pixel's scaled light vectors at the current
+/// surface (0.5 for a four-light square), in place of 1 or the weight of unreliable pixels.
+/// Pixels `few` (completed from two lights or the surface) keep theirs.
+fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
+    let n = capture.n_lights();
+    let mut lights = crate::lightmodel::PixelLights::of(capture);
+    for (p, t) in trust.iter_mut().enumerate() {
+        let st = &light_status[p * n..(p + 1) * n];
+        if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {
+            continue;
+        }
+        if let Some(r) = relative_precision(lights.at(capture.pixels[p] as usize), st) {
+            *t = r as f32;
+        }
+    }
+}
+
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹) over light vectors `v` (USED in `st`), in [0, 1]:
+/// the precision of the least-squares normal from the used lights relative to all of them,
+/// under the same noise. `None` when either sum has no inverse (near 0 when nearly singular).
+fn relative_precision(v: &[[f64; 3]], st: &[u8]) -> Option<f64> {
+    let (mut all, mut used) = (nalgebra::Matrix3::zeros(), nalgebra::Matrix3::zeros());
+    for (l, &sk) in v.iter().zip(st) {
+        let l = nalgebra::Vector3::from(*l);
+        let o = l * l.transpose();
+        all += o;
+        if sk == status::USED {
+            used += o;
+        }
+    }
+    let a = all.try_inverse()?.trace();
+    let u = used.try_inverse()?.trace();
+    Some((a / u).clamp(0.0, 1.0))
+}
+
+#[cfg(test)]
+mod exact_tests {
+    use super::*;
+
+    /// Three lights of a symmetric four-light square at any slant: Sherman–Morrison gives
+    /// tr(G₃⁻¹) = 2 tr(G₄⁻¹), a relative precision of exactly one half; every light kept, 1.
+    #[test]
+    fn three_of_a_square_have_half_the_precision_of_four() {
+        for slant in [15f64, 35.0, 60.0] {
+            let (s, c) = (slant.to_radians().sin(), slant.to_radians().cos());
+            let v: Vec<[f64; 3]> = (0..4)
+                .map(|k| {
+                    let phi = (45.0 + 90.0 * k as f64).to_radians();
+                    [s * phi.cos(), s * phi.sin(), c]
+                })
+                .collect();
+            for drop in 0..4 {
+                let mut st = [status::USED; 4];
+                st[drop] = status::SHADOW;
+                let r = relative_precision(&v, &st).unwrap();
+                assert!((r - 0.5).abs() < 1e-12, "slant {slant}, light {drop}: {r}");
+            }
+            let r = relative_precision(&v, &[status::USED; 4]).unwrap();
+            assert!((r - 1.0).abs() < 1e-12);
+            // Two lights: singular (no inverse, or one so large that nothing is left).
+            let st = [status::USED, status::USED, status::SHADOW, status::SHADOW];
+            let r = relative_precision(&v, &st);
+            assert!(r.is_none_or(|r| r < 1e-9), "{r:?}");
+        }
+    }
+
+    /// Readings at or under the shadow level leave the usable set; lights already removed
+    /// keep their labels.
+    #[test]
+    fn dark_readings_of_an_exact_set_become_shadows() {
+        let mut st = [status::USED, status::USED, status::HIGHLIGHT, status::USED];
+        let count = exact_dark_as_shadow(&mut st, &[0.5, 0.01, 0.9, 0.02], 0.02);
+        assert_eq!(count, 1);
+        assert_eq!(
+            st,
+            [
+                status::USED,
+                status::SHADOW,
+                status::HIGHLIGHT,
+                status::SHADOW
+            ]
+        );
+    }
 }
 
 /// Marks the brightest unused lights as used until three are.

@@ -761,16 +761,20 @@ struct Field<'a> {
 
 /// A bounding box: rows `row0..row1`, columns `col0..col1`.
 #[derive(Clone, Copy, Debug)]
-struct Window {
-    row0: usize,
-    row1: usize,
-    col0: usize,
-    col1: usize,
+pub(crate) struct Window {
+    pub(crate) row0: usize,
+    pub(crate) row1: usize,
+    pub(crate) col0: usize,
+    pub(crate) col1: usize,
 }
 
 impl Window {
     /// The bounding box of the pixels (flat row-major indices) where `inside` holds.
-    fn of(width: usize, height: usize, inside: impl Fn(usize) -> bool) -> Option<Window> {
+    pub(crate) fn of(
+        width: usize,
+        height: usize,
+        inside: impl Fn(usize) -> bool,
+    ) -> Option<Window> {
         let (mut row0, mut row1, mut col0, mut col1) = (height, 0, width, 0);
         for r in 0..height {
             let first = (0..width).find(|&c| inside(r * width + c));
