@@ -231,14 +231,40 @@ pub fn solve_with(dirs: &[[f64; 3]], used: Option<&[bool]>, grey: &[f64]) -> Opt
         b += v * grey[k];
         count += 1;
     }
-    if count < 3 {
-        return None;
-    }
-    let eig = nalgebra::SymmetricEigen::new(g).eigenvalues;
-    if eig.min() <= 1e-8 * eig.max() {
+    if count < 3 || !spans_three_dimensions(&g) {
         return None;
     }
     Some(g.try_inverse()? * b)
+}
+
+/// Whether the Gram matrix G = Σ l lᵀ of some light vectors has its smallest eigenvalue above
+/// 1e-8 times its largest: the lights span three dimensions (not coplanar). The eigenvalues of
+/// the symmetric 3×3 matrix in closed form (the trigonometric solution of its characteristic
+/// cubic), not by iteration: this runs once per pixel and subset.
+#[inline]
+pub fn spans_three_dimensions(g: &Matrix3<f64>) -> bool {
+    let (min, max) = symmetric_eigen_range(g);
+    min > 1e-8 * max
+}
+
+/// The smallest and largest eigenvalue of a symmetric 3×3 matrix, in closed form.
+fn symmetric_eigen_range(a: &Matrix3<f64>) -> (f64, f64) {
+    let off = a[(0, 1)] * a[(0, 1)] + a[(0, 2)] * a[(0, 2)] + a[(1, 2)] * a[(1, 2)];
+    let q = (a[(0, 0)] + a[(1, 1)] + a[(2, 2)]) / 3.0;
+    let d = [a[(0, 0)] - q, a[(1, 1)] - q, a[(2, 2)] - q];
+    let p2 = d[0] * d[0] + d[1] * d[1] + d[2] * d[2] + 2.0 * off;
+    if p2 <= 0.0 {
+        // A multiple of the identity.
+        return (q, q);
+    }
+    let p = (p2 / 6.0).sqrt();
+    // B = (A − q I) / p; r = det(B) / 2 lies in [−1, 1] up to rounding.
+    let b = (a - Matrix3::identity() * q) / p;
+    let r = (b.determinant() / 2.0).clamp(-1.0, 1.0);
+    let phi = r.acos() / 3.0;
+    let largest = q + 2.0 * p * phi.cos();
+    let smallest = q + 2.0 * p * (phi + 2.0 * std::f64::consts::FRAC_PI_3).cos();
+    (smallest, largest)
 }
 
 /// Mean over channels of each light's sample, into `grey` (length N).
@@ -348,12 +374,8 @@ impl SubsetSolver {
                 count += 1;
             }
         }
-        if count < 3 {
-            return None;
-        }
         // Refuse subsets whose smallest eigenvalue is negligible (coplanar lights).
-        let eig = nalgebra::SymmetricEigen::new(g).eigenvalues;
-        if eig.min() <= 1e-8 * eig.max() {
+        if count < 3 || !spans_three_dimensions(&g) {
             return None;
         }
         let inv = g.try_inverse()?;
@@ -512,4 +534,62 @@ pub fn shadow_label_counts(
             },
         )
         .reduce(|| (0, 0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2))
+}
+
+#[cfg(test)]
+mod eigen_tests {
+    use super::*;
+
+    /// The closed-form eigenvalue range agrees with nalgebra's iterative solver on Gram matrices
+    /// of random light sets (3 to 12 lights), of coplanar sets (rank 2) and of nearly coplanar
+    /// ones, and the coplanarity verdict is the same.
+    #[test]
+    fn closed_form_eigenvalues_match_the_iterative_solver() {
+        let mut rng = crate::rng::Pcg32::new(11, 3);
+        let mut unit = |z_scale: f64| {
+            let v = [
+                rng.next_normal(),
+                rng.next_normal(),
+                rng.next_normal() * z_scale,
+            ];
+            let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            [v[0] / n, v[1] / n, v[2] / n]
+        };
+        let mut checked = 0;
+        for case in 0..3000 {
+            let count = 3 + case % 10;
+            // Every third set is coplanar (z = 0) or nearly so.
+            let z_scale = match case % 3 {
+                0 => 1.0,
+                1 => 0.0,
+                _ => 1e-5,
+            };
+            let dirs: Vec<[f64; 3]> = (0..count).map(|_| unit(z_scale)).collect();
+            let mut g = Matrix3::<f64>::zeros();
+            for d in &dirs {
+                let v = Vector3::from(*d);
+                g += v * v.transpose();
+            }
+            let eig = nalgebra::SymmetricEigen::new(g).eigenvalues;
+            let (min, max) = symmetric_eigen_range(&g);
+            assert!(
+                (max - eig.max()).abs() <= 1e-12 * eig.max(),
+                "{max} vs {eig}"
+            );
+            assert!(
+                (min - eig.min()).abs() <= 1e-12 * eig.max(),
+                "{min} vs {eig}"
+            );
+            assert_eq!(
+                spans_three_dimensions(&g),
+                eig.min() > 1e-8 * eig.max(),
+                "case {case}: {eig}"
+            );
+            checked += 1;
+        }
+        assert_eq!(checked, 3000);
+        // Multiples of the identity.
+        let (min, max) = symmetric_eigen_range(&(Matrix3::identity() * 2.5));
+        assert_eq!((min, max), (2.5, 2.5));
+    }
 }
