@@ -1026,8 +1026,11 @@ fn measure_kappa(
         .into_par_iter()
         .step_by(stride)
         .map_init(
-            || (vec![0f64; n], vec![false; n], Vec::with_capacity(n)),
-            |(grey, keep, u), p| {
+            || {
+                let buffers = (vec![0f64; n], vec![false; n], Vec::with_capacity(n));
+                (buffers, Vec::with_capacity(n))
+            },
+            |((grey, keep, u), scratch), p| {
                 channel_mean(capture.pixel_samples(p), c, grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
                 for (k, g) in keep.iter_mut().zip(grey.iter()) {
@@ -1038,7 +1041,7 @@ fn measure_kappa(
                         *g /= f;
                     }
                 }
-                let scale = robust_fit(&dirs, grey, keep, u)?;
+                let scale = robust_fit(&dirs, grey, keep, u, scratch)?;
                 Some((scale * scale - sigma0 * sigma0) / (level * level))
             },
         )
@@ -1073,6 +1076,7 @@ fn robust_fit(
     grey: &[f64],
     keep: &mut [bool],
     u: &mut Vec<(usize, f64)>,
+    scratch: &mut Vec<f64>,
 ) -> Option<f64> {
     let n = dirs.len();
     let level = grey.iter().sum::<f64>() / n as f64;
@@ -1102,12 +1106,9 @@ fn robust_fit(
             };
             u.push((k, z));
         }
-        let mut a: Vec<f64> = u
-            .iter()
-            .filter(|(k, _)| keep[*k])
-            .map(|(_, z)| z.abs())
-            .collect();
-        scale = 1.4826 * crate::metrics::median(&mut a);
+        scratch.clear();
+        scratch.extend(u.iter().filter(|(k, _)| keep[*k]).map(|(_, z)| z.abs()));
+        scale = 1.4826 * crate::metrics::median(scratch);
         if round == 0 {
             for &(k, z) in u.iter() {
                 if keep[k] && z.abs() > 3.0 * scale {
@@ -1171,20 +1172,16 @@ fn measure_light_noise_factors(
         .step_by(stride)
         .fold(
             || {
-                (
-                    vec![Vec::new(); n],
-                    vec![0f64; n],
-                    vec![false; n],
-                    Vec::with_capacity(n),
-                )
+                let buffers = (vec![0f64; n], vec![false; n], Vec::with_capacity(n));
+                (vec![Vec::new(); n], buffers, Vec::with_capacity(n))
             },
-            |(mut acc, mut grey, mut keep, mut u), p| {
+            |(mut acc, (mut grey, mut keep, mut u), mut scratch), p| {
                 channel_mean(capture.pixel_samples(p), c, &mut grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
                 for (k, g) in keep.iter_mut().zip(grey.iter()) {
                     *k = *g > dark;
                 }
-                if robust_fit(&dirs, &grey, &mut keep, &mut u).is_some() {
+                if robust_fit(&dirs, &grey, &mut keep, &mut u, &mut scratch).is_some() {
                     let sigma = noise.variance(level).sqrt();
                     for &(k, z) in u.iter() {
                         if grey[k] > dark {
@@ -1192,7 +1189,7 @@ fn measure_light_noise_factors(
                         }
                     }
                 }
-                (acc, grey, keep, u)
+                (acc, (grey, keep, u), scratch)
             },
         )
         .map(|(acc, ..)| acc)
