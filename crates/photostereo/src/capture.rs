@@ -393,6 +393,8 @@ impl CaptureFiles {
         let mut capture = if layout == Layout::InMemory {
             self.load_in_memory(progress, mask)?
         } else {
+            // Within a budget, freed full-frame maps go back to the system at once.
+            crate::limits::return_freed_memory();
             let dir = options.spill_dir.clone().unwrap_or_else(std::env::temp_dir);
             self.load_tiled(
                 progress,
@@ -1334,6 +1336,54 @@ impl Capture {
             view.pixels.clear();
             view.pixels.extend_from_slice(&self.pixels[range.clone()]);
             f(range.start, &view)?;
+        }
+        Ok(())
+    }
+
+    /// Runs `f` on the mask pixels `ids` (ascending global indices) one tile at a time, with
+    /// the tile's share of `ids` and a view whose `pixel_samples(p)` answers for those `p`
+    /// (the `f32` values a capture held whole gives). The view has the capture's lights,
+    /// channels and frame size but no mask or pixel list; a capture held whole is passed as it
+    /// is with all of `ids`. Memory: one tile's samples at most, however many pixels `ids`
+    /// names (the per-pixel re-solves of a large capture stay within the budget).
+    pub fn for_ids_by_tile(
+        &self,
+        ids: &[usize],
+        mut f: impl FnMut(&[usize], &Capture) -> Result<()>,
+    ) -> Result<()> {
+        let Some(store) = &self.store else {
+            return f(ids, self);
+        };
+        debug_assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids must ascend");
+        let stride = self.n_lights() * self.channels;
+        let tiling = store.tiling();
+        let mut raw = Vec::new();
+        let mut tile = Vec::new();
+        let mut view = Capture {
+            memory: None,
+            ..self.clone_without_samples_and_mask()
+        };
+        let mut j = 0;
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            let first = j;
+            while j < ids.len() && ids[j] < range.end {
+                j += 1;
+            }
+            if j == first {
+                continue;
+            }
+            let sub = &ids[first..j];
+            store.read_tile(t, &mut raw, &mut tile)?;
+            view.samples.clear();
+            for &p in sub {
+                let local = p - range.start;
+                view.samples
+                    .extend_from_slice(&tile[local * stride..(local + 1) * stride]);
+            }
+            view.sparse = Some(Arc::new(sub.iter().map(|&p| p as u32).collect()));
+            view.forget_statistics();
+            f(sub, &view)?;
         }
         Ok(())
     }

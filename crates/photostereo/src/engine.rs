@@ -637,9 +637,11 @@ fn estimate(
                 if !d.noise.light_factor.is_empty() && capture.lights.near.is_none() {
                     // The lights' noise factors weight the fit, as in memory.
                     let ids: Vec<usize> = (0..capture.n_pixels()).collect();
-                    let view = capture.sampled(&ids)?;
                     let f = &d.noise.light_factor;
-                    crate::lambert::resolve_subsets_at(&view, &d.light_status, &ids, &mut est, f);
+                    capture.for_ids_by_tile(&ids, |sub, view| {
+                        crate::lambert::resolve_subsets_at(view, &d.light_status, sub, &mut est, f);
+                        Ok(())
+                    })?;
                 }
                 est.light_status = Some(d.light_status.clone());
                 est

@@ -544,27 +544,25 @@ pub fn recursive(
                 new_few[p] = few[p];
             }
             if let Some(att) = attributor.as_ref() {
-                let view = if capture.is_tiled() {
-                    std::borrow::Cow::Owned(capture.sampled(&moved)?)
-                } else {
-                    std::borrow::Cow::Borrowed(capture)
-                };
                 let mut scratch = att.scratch();
                 let mut grey = vec![0f64; n];
-                for &p in &moved {
-                    channel_mean(view.pixel_samples(p), c, &mut grey);
-                    let pix = capture.pixels[p] as usize;
-                    let s = &mut new_status[p * n..(p + 1) * n];
-                    let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
-                    if count > 3 && stat <= att.threshold(count) {
-                        new_consistent[p] = true;
-                        new_few[p] = false;
-                    } else {
-                        // The neighbours' set does not fit this pixel's readings: the
-                        // pixel's own decisions stand (the test disposes).
-                        s.copy_from_slice(&raw_status[p * n..(p + 1) * n]);
+                capture.for_ids_by_tile(&moved, |sub, view| {
+                    for &p in sub {
+                        channel_mean(view.pixel_samples(p), c, &mut grey);
+                        let pix = capture.pixels[p] as usize;
+                        let s = &mut new_status[p * n..(p + 1) * n];
+                        let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
+                        if count > 3 && stat <= att.threshold(count) {
+                            new_consistent[p] = true;
+                            new_few[p] = false;
+                        } else {
+                            // The neighbours' set does not fit this pixel's readings: the
+                            // pixel's own decisions stand (the test disposes).
+                            s.copy_from_slice(&raw_status[p * n..(p + 1) * n]);
+                        }
                     }
-                }
+                    Ok(())
+                })?;
             }
         }
         let changed: Vec<bool> = (0..np)
@@ -591,21 +589,16 @@ pub fn recursive(
         if params.fallback == Fallback::Neighbours {
             solved_two.fill(false);
             let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();
-            let view = if capture.is_tiled() {
-                std::borrow::Cow::Owned(capture.sampled(&few_ids)?)
-            } else {
-                std::borrow::Cow::Borrowed(capture)
-            };
             fill_from_neighbours(
                 capture,
-                &view,
+                &few_ids,
                 &mut est,
                 &light_status,
                 &few,
                 &consistent,
                 &surface_normals,
                 &mut solved_two,
-            );
+            )?;
         }
         let shadowed_share =
             maps.flags.iter().filter(|&&f| f != 0).count() as f64 / (n * np).max(1) as f64;
@@ -676,13 +669,10 @@ fn resolve_at(
     est: &mut Estimate,
     factors: &[f64],
 ) -> Result<()> {
-    let view = if capture.is_tiled() {
-        std::borrow::Cow::Owned(capture.sampled(ids)?)
-    } else {
-        std::borrow::Cow::Borrowed(capture)
-    };
-    crate::lambert::resolve_subsets_at(&view, statuses, ids, est, factors);
-    Ok(())
+    capture.for_ids_by_tile(ids, |sub, view| {
+        crate::lambert::resolve_subsets_at(view, statuses, sub, est, factors);
+        Ok(())
+    })
 }
 
 /// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
@@ -866,24 +856,27 @@ fn near_surface(
     Ok((s.depth, shading))
 }
 
-/// The [`Fallback::Neighbours`] completion of the pixels with fewer than three usable lights;
-/// `samples_of` answers `pixel_samples` for those pixels (the capture itself, or a sampled view
-/// of a tiled one).
+/// The [`Fallback::Neighbours`] completion of the pixels `few_ids` (ascending), those with
+/// fewer than three usable lights; their samples are read a tile at a time.
 #[allow(clippy::too_many_arguments)]
 fn fill_from_neighbours(
     capture: &Capture,
-    samples_of: &Capture,
+    few_ids: &[usize],
     est: &mut Estimate,
     light_status: &[u8],
     few: &[bool],
     reliable: &[bool],
     surface_normals: &[[f32; 3]],
     solved: &mut [bool],
-) {
+) -> Result<()> {
     let n = capture.n_lights();
     let c = capture.channels;
     let (w, h) = (capture.width, capture.height);
-    // Grey albedo of the reliable pixels, full frame (NaN elsewhere).
+    if few_ids.is_empty() {
+        return Ok(());
+    }
+    // Grey albedo of the reliable pixels, full frame (NaN elsewhere), from the estimate before
+    // any pixel is completed.
     let mut albedo_map = vec![f32::NAN; w * h];
     for (p, &i) in capture.pixels.iter().enumerate() {
         if reliable[p] && !few[p] && est.normals[p] != [0.0; 3] {
@@ -894,81 +887,87 @@ fn fill_from_neighbours(
     let mut dirs = vec![[0f64; 3]; n];
     let mut grey = vec![0f64; n];
     let mut samples = Vec::new();
-    for p in (0..capture.n_pixels()).filter(|&p| few[p]) {
-        let pix = capture.pixels[p] as usize;
-        let (row, col) = (pix / w, pix % w);
-        let surf = surface_normals[pix];
-        // Median albedo of the nearest reliable pixels (growing windows).
-        let mut rho = f64::NAN;
-        // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is
-        // wider in pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
-        let widest = if lights.is_near() { w.max(h) } else { 32 };
-        let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
-        for radius in radii {
-            samples.clear();
-            for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
-                for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
-                    let a = albedo_map[r * w + cc];
-                    if a.is_finite() && a > 0.0 {
-                        samples.push(a as f64);
+    let mut used: Vec<usize> = Vec::with_capacity(n);
+    let mut flags = vec![false; n];
+    capture.for_ids_by_tile(few_ids, |sub, samples_of| {
+        for &p in sub {
+            let pix = capture.pixels[p] as usize;
+            let (row, col) = (pix / w, pix % w);
+            let surf = surface_normals[pix];
+            // Median albedo of the nearest reliable pixels (growing windows).
+            let mut rho = f64::NAN;
+            // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is
+            // wider in pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
+            let widest = if lights.is_near() { w.max(h) } else { 32 };
+            let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
+            for radius in radii {
+                samples.clear();
+                for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
+                    for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
+                        let a = albedo_map[r * w + cc];
+                        if a.is_finite() && a > 0.0 {
+                            samples.push(a as f64);
+                        }
                     }
                 }
+                if samples.len() >= 5 {
+                    rho = crate::metrics::median(&mut samples);
+                    break;
+                }
             }
-            if samples.len() >= 5 {
-                rho = crate::metrics::median(&mut samples);
-                break;
-            }
-        }
-        let used: Vec<usize> = (0..n)
-            .filter(|&k| light_status[p * n + k] == status::USED)
-            .collect();
-        channel_mean(samples_of.pixel_samples(p), c, &mut grey);
-        dirs.copy_from_slice(lights.at(pix));
-        let two = if used.len() == 2 && rho.is_finite() && !lights.is_near() {
-            two_source_normal(
-                dirs[used[0]],
-                dirs[used[1]],
-                grey[used[0]] / rho,
-                grey[used[1]] / rho,
-                surf,
-            )
-        } else if used.len() == 2 && rho.is_finite() {
-            // Scaled near-light vectors v = b·l: n · l = I / (ρ b).
-            let unit = |v: [f64; 3]| {
-                let b = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                ([v[0] / b, v[1] / b, v[2] / b], b)
+            used.clear();
+            used.extend((0..n).filter(|&k| light_status[p * n + k] == status::USED));
+            channel_mean(samples_of.pixel_samples(p), c, &mut grey);
+            dirs.copy_from_slice(lights.at(pix));
+            let two = if used.len() == 2 && rho.is_finite() && !lights.is_near() {
+                two_source_normal(
+                    dirs[used[0]],
+                    dirs[used[1]],
+                    grey[used[0]] / rho,
+                    grey[used[1]] / rho,
+                    surf,
+                )
+            } else if used.len() == 2 && rho.is_finite() {
+                // Scaled near-light vectors v = b·l: n · l = I / (ρ b).
+                let unit = |v: [f64; 3]| {
+                    let b = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    ([v[0] / b, v[1] / b, v[2] / b], b)
+                };
+                let ((l1, b1), (l2, b2)) = (unit(dirs[used[0]]), unit(dirs[used[1]]));
+                two_source_normal(
+                    l1,
+                    l2,
+                    grey[used[0]] / (rho * b1),
+                    grey[used[1]] / (rho * b2),
+                    surf,
+                )
+            } else {
+                None
             };
-            let ((l1, b1), (l2, b2)) = (unit(dirs[used[0]]), unit(dirs[used[1]]));
-            two_source_normal(
-                l1,
-                l2,
-                grey[used[0]] / (rho * b1),
-                grey[used[1]] / (rho * b2),
-                surf,
-            )
-        } else {
-            None
-        };
-        solved[p] = two.is_some();
-        let nrm = match two {
-            Some(v) => v,
-            None if surf != [0.0; 3] => surf,
-            None => continue,
-        };
-        let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
-        let flags: Vec<bool> = (0..n).map(|k| used.contains(&k)).collect();
-        let mut out_n = [0f32; 3];
-        write_normal_albedo_with(
-            &dirs,
-            c,
-            samples_of.pixel_samples(p),
-            &m,
-            Some(&flags),
-            &mut out_n,
-            &mut est.albedo[p * c..(p + 1) * c],
-        );
-        est.normals[p] = nrm;
-    }
+            solved[p] = two.is_some();
+            let nrm = match two {
+                Some(v) => v,
+                None if surf != [0.0; 3] => surf,
+                None => continue,
+            };
+            let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
+            for (k, f) in flags.iter_mut().enumerate() {
+                *f = used.contains(&k);
+            }
+            let mut out_n = [0f32; 3];
+            write_normal_albedo_with(
+                &dirs,
+                c,
+                samples_of.pixel_samples(p),
+                &m,
+                Some(&flags),
+                &mut out_n,
+                &mut est.albedo[p * c..(p + 1) * c],
+            );
+            est.normals[p] = nrm;
+        }
+        Ok(())
+    })
 }
 
 /// The unit normals n with n·l₁ = a and n·l₂ = b (two-source photometric stereo with known
