@@ -440,17 +440,10 @@ fn near_shadow_maps_in(
     cell_skip: bool,
 ) -> crate::shadows::ShadowMaps {
     use crate::shadows::ShadowMaps;
-    use rayon::prelude::*;
     let hw = width * height;
     let n = near.len();
-    let mut flags = vec![0u8; n * hw];
     let Some(window) = window else {
-        return ShadowMaps {
-            width,
-            height,
-            lights: n,
-            flags,
-        };
+        return ShadowMaps::empty(width, height, n);
     };
     let ok = |i: usize| mask[i] && depth[i].is_finite() && depth[i] > 0.0;
     // Beyond these image positions the look-up below finds no depth (its 2×2 block and its
@@ -508,7 +501,7 @@ fn near_shadow_maps_in(
             ok(i).then(|| depth[i] as f64)
         }
     };
-    flags.par_chunks_mut(hw).enumerate().for_each(|(k, out)| {
+    ShadowMaps::build(width, height, n, |k, out| {
         let s = near.positions[k];
         let rows = window.row0..window.row1;
         let pixels = rows.flat_map(|r| (window.col0..window.col1).map(move |c| r * width + c));
@@ -559,13 +552,7 @@ fn near_shadow_maps_in(
                 t += pz / f;
             }
         }
-    });
-    ShadowMaps {
-        width,
-        height,
-        lights: n,
-        flags,
-    }
+    })
 }
 
 #[inline]
@@ -758,15 +745,10 @@ mod near_window_tests {
             Some(whole),
             false,
         );
-        let cast = |m: &ShadowMaps| {
-            m.flags
-                .iter()
-                .filter(|&&f| f & ShadowMaps::CAST != 0)
-                .count()
-        };
+        let cast = |m: &ShadowMaps| m.count(ShadowMaps::CAST);
         for k in 0..near.len() {
             let (a, b) = (bbox.flags_of(k), reference.flags_of(k));
-            let differ = a.iter().zip(b).filter(|(x, y)| x != y).count();
+            let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
             assert_eq!(differ, 0, "light {k}: {differ} flags differ");
         }
         assert!(
@@ -785,6 +767,6 @@ mod near_window_tests {
             &params,
         )
         .unwrap();
-        assert!(none.flags.iter().all(|&f| f == 0));
+        assert_eq!(none.count(ShadowMaps::ATTACHED | ShadowMaps::CAST), 0);
     }
 }

@@ -601,7 +601,7 @@ pub fn recursive(
             )?;
         }
         let shadowed_share =
-            maps.flags.iter().filter(|&&f| f != 0).count() as f64 / (n * np).max(1) as f64;
+            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
         let record = IterationRecord {
             iteration,
             changed_pixels,

@@ -62,16 +62,22 @@ impl ShadowParams {
     }
 }
 
-/// Per-light shadow flags of a height field: `(lights, height, width)` bytes, row-major per
-/// light, each a combination of [`ShadowMaps::ATTACHED`] and [`ShadowMaps::CAST`]; 0 outside
-/// the mask.
+/// Per-light shadow flags of a height field: for each light and pixel a combination of
+/// [`ShadowMaps::ATTACHED`] and [`ShadowMaps::CAST`], 0 outside the mask. Held as two bit
+/// planes per light (2 bits per pixel and light: 6 bytes per pixel under 24 lights), so that a
+/// large capture's maps stay a small part of its memory.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShadowMaps {
     pub width: usize,
     pub height: usize,
     pub lights: usize,
-    /// `flags[(k * height + row) * width + col]` for light k.
-    pub flags: Vec<u8>,
+    /// 64-bit words per light plane: `(width * height).div_ceil(64)`.
+    words: usize,
+    /// Bit `i % 64` of word `k * words + i / 64`: pixel `i` (row-major) in light `k`'s
+    /// attached shadow.
+    attached: Vec<u64>,
+    /// The same for the cast shadow.
+    cast: Vec<u64>,
 }
 
 impl ShadowMaps {
@@ -80,10 +86,68 @@ impl ShadowMaps {
     /// Bit set when the height field hides the light.
     pub const CAST: u8 = 2;
 
+    /// Maps without any shadow.
+    pub fn empty(width: usize, height: usize, lights: usize) -> ShadowMaps {
+        let words = (width * height).div_ceil(64);
+        ShadowMaps {
+            width,
+            height,
+            lights,
+            words,
+            attached: vec![0; words * lights],
+            cast: vec![0; words * lights],
+        }
+    }
+
+    /// Maps made light by light, in parallel: `flags_of_light(k, out)` writes light `k`'s
+    /// flags into `out` (`width * height` bytes, zero on entry). One such byte map per worker
+    /// thread is held at a time; the result keeps the bits.
+    pub fn build(
+        width: usize,
+        height: usize,
+        lights: usize,
+        flags_of_light: impl Fn(usize, &mut [u8]) + Sync,
+    ) -> ShadowMaps {
+        let mut maps = ShadowMaps::empty(width, height, lights);
+        let (hw, words) = (width * height, maps.words);
+        if hw == 0 {
+            return maps;
+        }
+        maps.attached
+            .par_chunks_mut(words)
+            .zip(maps.cast.par_chunks_mut(words))
+            .enumerate()
+            .with_max_len(1)
+            .for_each_init(Vec::new, |out: &mut Vec<u8>, (k, (att, cast))| {
+                out.clear();
+                out.resize(hw, 0);
+                flags_of_light(k, out);
+                for (w, chunk) in out.chunks(64).enumerate() {
+                    let (mut a, mut c) = (0u64, 0u64);
+                    for (b, &f) in chunk.iter().enumerate() {
+                        a |= ((f & Self::ATTACHED != 0) as u64) << b;
+                        c |= ((f & Self::CAST != 0) as u64) << b;
+                    }
+                    att[w] = a;
+                    cast[w] = c;
+                }
+            });
+        maps
+    }
+
+    /// The flags of pixel `pixel` (flat row-major index) under light `k`.
+    #[inline]
+    pub fn flag(&self, k: usize, pixel: usize) -> u8 {
+        let (w, b) = (k * self.words + pixel / 64, pixel % 64);
+        ((self.attached[w] >> b & 1) as u8 * Self::ATTACHED)
+            | ((self.cast[w] >> b & 1) as u8 * Self::CAST)
+    }
+
     /// The flags of light `k` (`height * width`, row-major).
-    pub fn flags_of(&self, k: usize) -> &[u8] {
-        let n = self.width * self.height;
-        &self.flags[k * n..(k + 1) * n]
+    pub fn flags_of(&self, k: usize) -> Vec<u8> {
+        (0..self.width * self.height)
+            .map(|i| self.flag(k, i))
+            .collect()
     }
 
     /// Attached-shadow map of light `k`.
@@ -104,7 +168,23 @@ impl ShadowMaps {
     /// True when pixel `pixel` (flat row-major index) is in either shadow of light `k`.
     #[inline]
     pub fn is_shadowed(&self, k: usize, pixel: usize) -> bool {
-        self.flags[k * self.width * self.height + pixel] != 0
+        self.flag(k, pixel) != 0
+    }
+
+    /// How many (pixel, light) pairs carry any of the flags in `bits`.
+    pub fn count(&self, bits: u8) -> usize {
+        let planes = |v: &[u64]| v.iter().map(|w| w.count_ones() as usize).sum::<usize>();
+        match bits & (Self::ATTACHED | Self::CAST) {
+            0 => 0,
+            Self::ATTACHED => planes(&self.attached),
+            Self::CAST => planes(&self.cast),
+            _ => self
+                .attached
+                .iter()
+                .zip(&self.cast)
+                .map(|(a, c)| (a | c).count_ones() as usize)
+                .sum(),
+        }
     }
 
     /// Per pixel of `pixels` (flat row-major indices), its shadows as bits: bit `k % 64` of
@@ -112,16 +192,16 @@ impl ShadowMaps {
     /// shadows it. Read light by light over runs of pixels, so the maps are walked in order.
     pub fn pixel_bits(&self, pixels: &[u32]) -> Vec<u64> {
         let words = self.lights.div_ceil(64);
-        let hw = self.width * self.height;
         let mut bits = vec![0u64; pixels.len() * words];
         bits.par_chunks_mut(1024 * words)
             .zip(pixels.par_chunks(1024))
             .for_each(|(out, run)| {
                 for k in 0..self.lights {
-                    let flags = &self.flags[k * hw..(k + 1) * hw];
+                    let plane = k * self.words;
                     let (word, bit) = (k / 64, 1u64 << (k % 64));
                     for (j, &i) in run.iter().enumerate() {
-                        if flags[i as usize] != 0 {
+                        let (w, b) = (plane + i as usize / 64, i % 64);
+                        if (self.attached[w] | self.cast[w]) >> b & 1 != 0 {
                             out[j * words + word] |= bit;
                         }
                     }
@@ -131,7 +211,9 @@ impl ShadowMaps {
     }
 
     fn map(&self, k: usize, bits: u8) -> Vec<bool> {
-        self.flags_of(k).iter().map(|f| f & bits != 0).collect()
+        (0..self.width * self.height)
+            .map(|i| self.flag(k, i) & bits != 0)
+            .collect()
     }
 }
 
@@ -164,53 +246,46 @@ pub fn shadow_maps(
         .map(|(k, l)| unit_light(*l).map_err(|m| Error::invalid(format!("light {}: {m}", k + 1))))
         .collect::<Result<Vec<_>>>()?;
     let n = width * height;
-    let mut flags = vec![0u8; n * lights.len()];
-    if n > 0 {
-        let heights = valid_heights(depth, mask);
-        // Flags are zero outside the mask: only the bounding box of the valid pixels is visited
-        // (mask pixels with a non-finite height take their attached flag there too).
-        let window = Window::of(width, height, |i| {
-            heights[i] != f32::NEG_INFINITY || mask[i]
-        });
-        if let Some(window) = window {
-            flags.par_chunks_mut(n).zip(units.par_iter()).for_each_init(
-                SweepScratch::default,
-                |scratch, (out, l)| {
-                    let field = Field {
-                        heights: &heights,
-                        width,
-                        height,
-                        window,
-                    };
-                    sweep(&field, *l, params.cast_tolerance_px, scratch, out);
-                    let tau = params.attached_tolerance;
-                    for row in window.row0..window.row1 {
-                        let span = row * width + window.col0..row * width + window.col1;
-                        for ((o, nrm), &inside) in out[span.clone()]
-                            .iter_mut()
-                            .zip(&normals[span.clone()])
-                            .zip(&mask[span])
-                        {
-                            // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
-                            let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
-                            let s =
-                                l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
-                            if inside && s <= tau {
-                                f |= ShadowMaps::ATTACHED;
-                            }
-                            *o = f;
-                        }
-                    }
-                },
-            );
-        }
+    if n == 0 {
+        return Ok(ShadowMaps::empty(width, height, lights.len()));
     }
-    Ok(ShadowMaps {
-        width,
-        height,
-        lights: lights.len(),
-        flags,
-    })
+    let heights = valid_heights(depth, mask);
+    // Flags are zero outside the mask: only the bounding box of the valid pixels is visited
+    // (mask pixels with a non-finite height take their attached flag there too).
+    let window = Window::of(width, height, |i| {
+        heights[i] != f32::NEG_INFINITY || mask[i]
+    });
+    let Some(window) = window else {
+        return Ok(ShadowMaps::empty(width, height, lights.len()));
+    };
+    Ok(ShadowMaps::build(width, height, lights.len(), |k, out| {
+        let l = units[k];
+        let field = Field {
+            heights: &heights,
+            width,
+            height,
+            window,
+        };
+        let mut scratch = SweepScratch::default();
+        sweep(&field, l, params.cast_tolerance_px, &mut scratch, out);
+        let tau = params.attached_tolerance;
+        for row in window.row0..window.row1 {
+            let span = row * width + window.col0..row * width + window.col1;
+            for ((o, nrm), &inside) in out[span.clone()]
+                .iter_mut()
+                .zip(&normals[span.clone()])
+                .zip(&mask[span])
+            {
+                // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
+                let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
+                let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                if inside && s <= tau {
+                    f |= ShadowMaps::ATTACHED;
+                }
+                *o = f;
+            }
+        }
+    }))
 }
 
 /// Cast-shadow map of one light by a horizon sweep (see the module notes for holes).

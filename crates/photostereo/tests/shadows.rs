@@ -261,10 +261,26 @@ fn shadow_maps_match_single_light_sweeps_and_respect_the_mask() {
             }
         }
     }
-    assert!(maps.flags.contains(&ShadowMaps::CAST));
-    assert!(maps
-        .flags
-        .contains(&(ShadowMaps::ATTACHED | ShadowMaps::CAST)));
+    let all: Vec<u8> = (0..maps.lights).flat_map(|k| maps.flags_of(k)).collect();
+    assert!(all.contains(&ShadowMaps::CAST));
+    assert!(all.contains(&(ShadowMaps::ATTACHED | ShadowMaps::CAST)));
+    // The bit planes count and answer per pixel as the flags do.
+    let count = |bits: u8| all.iter().filter(|&&x| x & bits != 0).count();
+    for bits in [
+        ShadowMaps::ATTACHED,
+        ShadowMaps::CAST,
+        ShadowMaps::ATTACHED | ShadowMaps::CAST,
+    ] {
+        assert_eq!(maps.count(bits), count(bits));
+    }
+    let pixels: Vec<u32> = (0..(f.width * f.height) as u32).step_by(7).collect();
+    let bits = maps.pixel_bits(&pixels);
+    for (j, &i) in pixels.iter().enumerate() {
+        for k in 0..maps.lights {
+            let set = bits[j] >> k & 1 != 0;
+            assert_eq!(set, maps.flag(k, i as usize) != 0, "pixel {i} light {k}");
+        }
+    }
 }
 
 /// Normals of the field by central differences (∂f/∂col = −n_x/n_z, ∂f/∂row = +n_y/n_z).
