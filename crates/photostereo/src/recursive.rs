@@ -24,8 +24,8 @@ use crate::detect::{Attributor, Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::integrate::{
-    gradients_from_normals, normals_from_depth, weighted_normals, IntegrationParams,
-    IntegrationProblem,
+    gradients_from_normals, normal_from_depth_at, normals_from_depth, weighted_normals,
+    IntegrationParams, IntegrationProblem,
 };
 use crate::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
@@ -321,37 +321,48 @@ pub fn recursive(
         let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
         // Full-frame maps are dropped as soon as they have served (large captures).
         drop((trust, est_full, masked_trust));
-        let (depth, surface_normals) = match capture.lights.near.as_deref() {
+        let (depth, near_normals, shading) = match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few
-                // pixels since, so the solver needs a fraction of its iterations.
+                // pixels since, so the solver needs a fraction of its iterations. The normal
+                // map is dropped once its gradients are taken.
                 let depth = integrate(
                     w,
                     h,
-                    &normals_full,
+                    normals_full,
                     &capture.mask,
                     &weights,
                     (!last_depth.is_empty()).then_some(&last_depth[..]),
                     integration,
                 )?;
-                let surface_normals = normals_from_depth(w, h, &depth.values, &capture.mask);
-                (depth, surface_normals)
+                // Attached shadows from the estimate where it is trusted (there the integrated
+                // normal was the estimate itself), from the surface elsewhere.
+                let mut shading = normals_from_depth(w, h, &depth.values, &capture.mask);
+                for (p, &i) in capture.pixels.iter().enumerate() {
+                    if weights[i as usize] >= 1.0 {
+                        shading[i as usize] = est.normals[p];
+                    }
+                }
+                (depth, None, shading)
             }
             // Near lights: the surface in mm through the camera, and the light vectors follow
             // it (ALGORITHMS.md §9).
-            Some(near) => near_surface(capture, near, &normals_full, &weights, integration)?,
+            Some(near) => {
+                let (depth, surface_normals) =
+                    near_surface(capture, near, &normals_full, &weights, integration)?;
+                let shading: Vec<[f32; 3]> = (0..w * h)
+                    .map(|i| {
+                        if weights[i] >= 1.0 {
+                            normals_full[i]
+                        } else {
+                            surface_normals[i]
+                        }
+                    })
+                    .collect();
+                (depth, Some(surface_normals), shading)
+            }
         };
-        // Attached shadows from the estimate where it is trusted, from the surface elsewhere.
-        let shading: Vec<[f32; 3]> = (0..w * h)
-            .map(|i| {
-                if weights[i] >= 1.0 {
-                    normals_full[i]
-                } else {
-                    surface_normals[i]
-                }
-            })
-            .collect();
-        drop((normals_full, weights));
+        drop(weights);
         // 3. Shadows of every light (of point lights with a near model).
         let maps = match capture.lights.near.as_deref() {
             None => shadow_maps(
@@ -373,6 +384,7 @@ pub fn recursive(
                 &params.shadows,
             )?,
         };
+        drop(shading);
         // 4–5. Usable lights. The shadows per mask pixel as bits (`key_words` per pixel).
         let shadow_bits = maps.pixel_bits(&capture.pixels);
         let in_shadow =
@@ -596,7 +608,10 @@ pub fn recursive(
                 &light_status,
                 &few,
                 &consistent,
-                &surface_normals,
+                &|i: usize| match &near_normals {
+                    Some(map) => map[i],
+                    None => normal_from_depth_at(i, w, h, &depth.values, &capture.mask),
+                },
                 &mut solved_two,
             )?;
         }
@@ -808,13 +823,14 @@ fn pixel_trust(
 fn integrate(
     w: usize,
     h: usize,
-    normals: &[[f32; 3]],
+    normals: Vec<[f32; 3]>,
     mask: &[bool],
     weights: &[f32],
     initial: Option<&[f32]>,
     integration: &IntegrationParams,
 ) -> Result<crate::integrate::Depth> {
-    let g = gradients_from_normals(w, h, normals, Some(mask), integration.max_slope)?;
+    let g = gradients_from_normals(w, h, &normals, Some(mask), integration.max_slope)?;
+    drop(normals);
     let problem = IntegrationProblem {
         weights: Some(weights),
         initial,
@@ -866,7 +882,7 @@ fn fill_from_neighbours(
     light_status: &[u8],
     few: &[bool],
     reliable: &[bool],
-    surface_normals: &[[f32; 3]],
+    surface_normal: &dyn Fn(usize) -> [f32; 3],
     solved: &mut [bool],
 ) -> Result<()> {
     let n = capture.n_lights();
@@ -893,7 +909,7 @@ fn fill_from_neighbours(
         for &p in sub {
             let pix = capture.pixels[p] as usize;
             let (row, col) = (pix / w, pix % w);
-            let surf = surface_normals[pix];
+            let surf = surface_normal(pix);
             // Median albedo of the nearest reliable pixels (growing windows).
             let mut rho = f64::NAN;
             // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is

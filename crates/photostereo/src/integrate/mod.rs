@@ -208,25 +208,34 @@ pub fn normals_from_depth(
     depth: &[f32],
     mask: &[bool],
 ) -> Vec<[f32; 3]> {
-    let ok = |i: usize| mask[i] && depth[i].is_finite();
     let mut out = vec![[0f32; 3]; width * height];
     out.par_chunks_mut(width).enumerate().for_each(|(r, row)| {
         for (c, o) in row.iter_mut().enumerate() {
-            let i = r * width + c;
-            if !ok(i) {
-                continue;
-            }
-            let d = |a: usize| depth[a] as f64;
-            let slope = |pair: Option<(usize, usize, f64)>| {
-                pair.map_or(0.0, |(a, b, steps)| (d(b) - d(a)) / steps)
-            };
-            let [along_cols, along_rows] = difference_pairs(i, width, height, ok);
-            let (p, q) = (slope(along_cols), slope(along_rows));
-            let norm = (p * p + q * q + 1.0).sqrt();
-            *o = [(-p / norm) as f32, (q / norm) as f32, (1.0 / norm) as f32];
+            *o = normal_from_depth_at(r * width + c, width, height, depth, mask);
         }
     });
     out
+}
+
+/// [`normals_from_depth`] at one pixel `i` (row-major): the same value, without the map.
+pub fn normal_from_depth_at(
+    i: usize,
+    width: usize,
+    height: usize,
+    depth: &[f32],
+    mask: &[bool],
+) -> [f32; 3] {
+    let ok = |i: usize| mask[i] && depth[i].is_finite();
+    if !ok(i) {
+        return [0.0; 3];
+    }
+    let d = |a: usize| depth[a] as f64;
+    let slope =
+        |pair: Option<(usize, usize, f64)>| pair.map_or(0.0, |(a, b, steps)| (d(b) - d(a)) / steps);
+    let [along_cols, along_rows] = difference_pairs(i, width, height, ok);
+    let (p, q) = (slope(along_cols), slope(along_rows));
+    let norm = (p * p + q * q + 1.0).sqrt();
+    [(-p / norm) as f32, (q / norm) as f32, (1.0 / norm) as f32]
 }
 
 /// The pixels a finite difference at pixel `i` (row-major, `width × height`) takes along the
