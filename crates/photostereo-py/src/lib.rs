@@ -800,8 +800,8 @@ fn reconstruction_dict<'py>(
     let albedo =
         Array3::from_shape_vec((h, w, c), std::mem::take(&mut rec.albedo)).map_err(shape_err)?;
     d.set_item("albedo", albedo.into_pyarray(py))?;
-    let status = Array3::from_shape_vec((n, h, w), std::mem::take(&mut rec.light_status))
-        .map_err(shape_err)?;
+    let status =
+        Array3::from_shape_vec((n, h, w), rec.light_status.to_full()).map_err(shape_err)?;
     d.set_item("light_status", status.into_pyarray(py))?;
     let hw = |v| Array2::from_shape_vec((h, w), v).map_err(shape_err);
     d.set_item("mask", hw(std::mem::take(&mut rec.mask))?.into_pyarray(py))?;

@@ -75,7 +75,7 @@ fn main() -> photostereo::Result<()> {
         let hl = (0..n).any(|k| truth.highlight[k][i]);
         let right = (0..n).all(|k| {
             let good = !truth.shadow[k][i] && !truth.highlight[k][i];
-            (rec.light_status[k * hw + i] == status::USED) == good
+            (rec.light_status.get(k, i) == status::USED) == good
         });
         // The surface's normal where it has one (not at its NaN pixels).
         let se = angular_error_deg(surface_normals[i], truth.normals[i]);
@@ -85,13 +85,13 @@ fn main() -> photostereo::Result<()> {
             sf.1 += 1;
         }
         let used = (0..n)
-            .filter(|&k| rec.light_status[k * hw + i] == status::USED)
+            .filter(|&k| rec.light_status.get(k, i) == status::USED)
             .count();
         let in_shadow = (0..n)
-            .filter(|&k| rec.light_status[k * hw + i] == status::USED && truth.shadow[k][i])
+            .filter(|&k| rec.light_status.get(k, i) == status::USED && truth.shadow[k][i])
             .count();
         let hl_used = (0..n)
-            .filter(|&k| rec.light_status[k * hw + i] == status::USED && truth.highlight[k][i])
+            .filter(|&k| rec.light_status.get(k, i) == status::USED && truth.highlight[k][i])
             .count();
         let d = detail
             .entry((lit, hl, used, in_shadow, hl_used))
@@ -130,7 +130,7 @@ fn main() -> photostereo::Result<()> {
             let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
             let hl = (0..n).filter(|&k| truth.highlight[k][i]).count();
             let used = (0..n)
-                .filter(|&k| rec.light_status[k * hw + i] == status::USED)
+                .filter(|&k| rec.light_status.get(k, i) == status::USED)
                 .count();
             img[b] = (hl * 120).min(255) as u8;
             img[b + 1] = (lit * 60).min(255) as u8;

@@ -131,7 +131,6 @@ fn main() {
                 // Per mask pixel estimate and statuses from the full-frame outputs.
                 let np = capture.n_pixels();
                 let n = capture.n_lights();
-                let hw = w * h;
                 let c = capture.channels;
                 let est = Estimate {
                     normals: capture
@@ -149,7 +148,7 @@ fn main() {
                 let mut st = vec![0u8; np * n];
                 for (p, &i) in capture.pixels.iter().enumerate() {
                     for k in 0..n {
-                        st[p * n + k] = rec.light_status[k * hw + i as usize];
+                        st[p * n + k] = rec.light_status.get(k, i as usize);
                     }
                 }
                 let sl = shadow_labels(&capture, &est, &st);

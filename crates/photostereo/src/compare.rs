@@ -19,8 +19,8 @@ use crate::groundtruth::read_normal_map;
 use crate::indicators::{raw_scale, status_intensities, StatusIntensities};
 use crate::lambert::status;
 use crate::maps::{
-    colour_bar, even_ticks, hstack, light_counts, nice_ceil, nice_steps, shaded_depth_panel,
-    tick_label, titled, Grid, View, RAKING_LIGHT,
+    colour_bar, even_ticks, hstack, nice_ceil, nice_steps, shaded_depth_panel, tick_label, titled,
+    Grid, View, RAKING_LIGHT,
 };
 use crate::pipeline::{write_reconstruction, LightSubset, RunOptions};
 use crate::progress::Progress;
@@ -245,8 +245,6 @@ pub fn compare_capture(
         }
         None => most_raking_light(capture),
     };
-    let (w, h) = (capture.width, capture.height);
-    let hw = w * h;
     let mut results = Vec::new();
     let mut kept = Vec::new();
     for &method in &options.methods {
@@ -265,11 +263,13 @@ pub fn compare_capture(
         kept.push(Kept {
             normals: rec.normals.clone(),
             depth: rec.depth().map(<[f32]>::to_vec),
-            shadow: rec.light_status[k * hw..(k + 1) * hw]
+            shadow: rec
+                .light_status
+                .plane(k)
                 .iter()
                 .map(|&s| s == status::SHADOW)
                 .collect(),
-            highlights: light_counts(&rec.light_status, n, &rec.mask, Some(status::HIGHLIGHT)),
+            highlights: rec.light_status.counts(Some(status::HIGHLIGHT)),
             error: rec.error_map.clone(),
         });
         results.push(MethodResult {

@@ -21,7 +21,7 @@ use crate::detect::{Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
 use crate::integrate::{surface_from_normals, weighted_normals, IntegrationParams, Surface};
-use crate::lambert::{status, Estimate};
+use crate::lambert::Estimate;
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::{check_cancelled, Progress, Silent};
 use crate::recursive::{Recursive, RecursiveDiagnostics, RecursiveParams};
@@ -175,7 +175,8 @@ pub struct Reconstruction {
     /// (H, W): the mask used.
     pub mask: Vec<bool>,
     /// (N, H, W): which lights each pixel's estimate used ([`status`]); all USED for `l2`.
-    pub light_status: Vec<u8>,
+    /// Held per mask pixel; [`StatusMap::plane`] and [`StatusMap::to_full`] give the frame.
+    pub light_status: crate::statusmap::StatusMap,
     /// Whether `light_status` holds the method's own decisions (false for `l2`, which uses
     /// every light, and for `coleman-jain` without detection: nothing to write).
     pub statuses_decided: bool,
@@ -273,7 +274,7 @@ pub fn reconstruct_with_truth(
             .notes
             .push("detection skipped: it needs at least four lights".into());
     }
-    let (estimate, detection, diagnostics) = match capture.lights.near.as_deref() {
+    let (mut estimate, detection, diagnostics) = match capture.lights.near.as_deref() {
         None => estimate(capture, params, truth, can_detect, progress, &mut report)?,
         Some(near) => alternate(
             capture,
@@ -335,7 +336,13 @@ pub fn reconstruct_with_truth(
         None
     };
     let statuses_decided = estimate.light_status.is_some() || detection.is_some();
-    let light_status = full_frame_statuses(capture, estimate.light_status.as_deref());
+    let light_status = crate::statusmap::StatusMap::new(
+        capture.width,
+        capture.height,
+        capture.n_lights(),
+        capture.pixels.clone(),
+        estimate.light_status.take(),
+    );
     crate::indicators::record(capture, &light_status, statuses_decided, &mut report);
     let recursive = diagnostics.map(|d| {
         let few = d.fewer_than_three.iter().filter(|&&f| f).count();
@@ -667,20 +674,6 @@ fn estimate(
     };
     report.time("estimate", t);
     Ok(result)
-}
-
-/// (N, H, W) statuses from per-mask-pixel ones (`n_pixels * N`, pixel-major); every light
-/// USED when the method decided none.
-fn full_frame_statuses(capture: &Capture, light_status: Option<&[u8]>) -> Vec<u8> {
-    let n = capture.n_lights();
-    let hw = capture.width * capture.height;
-    let mut full = vec![status::OUTSIDE; n * hw];
-    for (p, &i) in capture.pixels.iter().enumerate() {
-        for k in 0..n {
-            full[k * hw + i as usize] = light_status.map_or(status::USED, |s| s[p * n + k]);
-        }
-    }
-    full
 }
 
 /// [`crate::lambert::shadow_labels`] summed over the tiles.

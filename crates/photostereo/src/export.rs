@@ -594,6 +594,52 @@ pub fn write_npy_u8(path: &Path, shape: &[usize], data: &[u8]) -> Result<()> {
         .map_err(|e| Error::file(path, format!("writing .npy failed: {e}")))
 }
 
+/// Writes a uint8 `.npy` array of the given shape (C order) plane by plane: `plane(k, out)`
+/// fills `out` with the `k`-th of the `shape[0]` planes (`shape[1..]` elements each), so that
+/// only one plane is held at a time. The file is the one [`write_npy_u8`] writes.
+pub fn write_npy_u8_planes(
+    path: &Path,
+    shape: &[usize],
+    mut plane: impl FnMut(usize, &mut Vec<u8>),
+) -> Result<()> {
+    use std::io::Write;
+    let io = |e: std::io::Error| Error::file(path, format!("writing .npy failed: {e}"));
+    let (&planes, rest) = shape
+        .split_first()
+        .ok_or_else(|| Error::invalid("a plane-wise array needs at least one dimension"))?;
+    let per_plane: usize = rest.iter().product();
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape_text = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
+    // NPY format 1.0: magic, version, header length (u16, little-endian), then the header
+    // dictionary padded with spaces and ended by a newline to a multiple of 64 bytes.
+    let mut header = format!("{{'descr': '|u1', 'fortran_order': False, 'shape': {shape_text}}}");
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
+    header.push('\n');
+    let mut file = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    file.write_all(b"\x93NUMPY\x01\x00").map_err(io)?;
+    file.write_all(&(header.len() as u16).to_le_bytes())
+        .map_err(io)?;
+    file.write_all(header.as_bytes()).map_err(io)?;
+    let mut buf = Vec::with_capacity(per_plane);
+    for k in 0..planes {
+        buf.clear();
+        plane(k, &mut buf);
+        if buf.len() != per_plane {
+            return Err(Error::invalid(format!(
+                "plane {k} of {shape:?}: {} values, expected {per_plane}",
+                buf.len()
+            )));
+        }
+        file.write_all(&buf).map_err(io)?;
+    }
+    file.flush().map_err(io)
+}
+
 /// Writes a bool `.npy` array of the given shape (C order).
 pub fn write_npy_bool(path: &Path, shape: &[usize], data: &[bool]) -> Result<()> {
     // A view of the caller's data: no second copy of the array.
@@ -613,6 +659,36 @@ pub fn write_json<T: serde::Serialize>(path: &Path, value: &T) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn plane_wise_npy_is_the_file_of_the_whole_array() {
+        let dir = tempfile::tempdir().unwrap();
+        for shape in [
+            vec![3usize, 2, 5],
+            vec![1, 4, 4],
+            vec![7],
+            vec![2, 33, 17, 3],
+        ] {
+            let total: usize = shape.iter().product();
+            let data: Vec<u8> = (0..total).map(|i| (i * 37 % 251) as u8).collect();
+            let (a, b) = (dir.path().join("whole.npy"), dir.path().join("planes.npy"));
+            write_npy_u8(&a, &shape, &data).unwrap();
+            let per = total / shape[0];
+            write_npy_u8_planes(&b, &shape, |k, out| {
+                out.extend_from_slice(&data[k * per..(k + 1) * per])
+            })
+            .unwrap();
+            assert_eq!(
+                std::fs::read(&a).unwrap(),
+                std::fs::read(&b).unwrap(),
+                "{shape:?}"
+            );
+        }
+        // A plane of the wrong size is an error, not a malformed file.
+        let c = dir.path().join("short.npy");
+        let e = write_npy_u8_planes(&c, &[2, 3], |_, out| out.push(0)).unwrap_err();
+        assert!(e.to_string().contains("expected 3"), "{e}");
+    }
 
     #[test]
     fn leftover_names_and_marker_hosts() {

@@ -21,6 +21,7 @@
 use crate::capture::Capture;
 use crate::lambert::status;
 use crate::report::Report;
+use crate::statusmap::StatusMap;
 use serde::Serialize;
 
 /// Means per channel and their mean (grey).
@@ -133,19 +134,21 @@ impl Sums {
 ///
 /// # Panics
 /// When `light_status` is not N·H·W long.
-pub fn status_intensities(capture: &Capture, light_status: &[u8]) -> StatusIntensities {
+pub fn status_intensities(capture: &Capture, light_status: &StatusMap) -> StatusIntensities {
     let n = capture.n_lights();
     let c = capture.channels;
-    let hw = capture.width * capture.height;
-    assert_eq!(light_status.len(), n * hw, "light_status must be (N, H, W)");
+    assert_eq!(
+        light_status.lights, n,
+        "light_status must have the capture's lights"
+    );
     let scales: Vec<[f64; 3]> = (0..n).map(|k| raw_scale(capture, k)).collect();
     let (mut hl, mut sh, mut all) = (Sums::new(), Sums::new(), Sums::new());
-    let _ = capture.for_each_tile(|_, tile| {
-        for (p, &pix) in tile.pixels.iter().enumerate() {
+    let _ = capture.for_each_tile(|off, tile| {
+        for p in 0..tile.n_pixels() {
             let samples = tile.pixel_samples(p);
             let (mut any_h, mut any_s) = (false, false);
             for k in 0..n {
-                let st = light_status[k * hw + pix as usize];
+                let st = light_status.code(off + p, k);
                 let class = match st {
                     status::HIGHLIGHT => {
                         any_h = true;
@@ -185,7 +188,7 @@ pub fn status_intensities(capture: &Capture, light_status: &[u8]) -> StatusInten
 /// method that classifies no light: its classes are then empty by construction).
 pub fn record(
     capture: &Capture,
-    light_status: &[u8],
+    light_status: &StatusMap,
     decided: bool,
     report: &mut Report,
 ) -> StatusIntensities {
@@ -237,6 +240,16 @@ mod tests {
         .unwrap()
     }
 
+    fn frame_statuses(cap: &Capture, full: &[u8]) -> StatusMap {
+        StatusMap::from_frame(
+            cap.width,
+            cap.height,
+            cap.n_lights(),
+            cap.pixels.clone(),
+            full,
+        )
+    }
+
     #[test]
     fn means_are_raw_values_over_the_classified_pairs() {
         let intens = vec![[2.0, 1.0, 0.5], [1.0; 3], [1.0; 3], [4.0, 4.0, 4.0]];
@@ -251,7 +264,7 @@ mod tests {
         st[0] = status::HIGHLIGHT;
         st[3 * hw + 4] = status::HIGHLIGHT;
         st[hw + 1] = status::SHADOW;
-        let s = status_intensities(&cap, &st);
+        let s = status_intensities(&cap, &frame_statuses(&cap, &st));
         assert_eq!(s.highlights.pairs, 2);
         assert_eq!(s.highlights.pixels, 2);
         assert_eq!(s.shadows.pairs, 1);
@@ -287,7 +300,7 @@ mod tests {
             st[k * hw + 5] = status::OUTSIDE;
         }
         st[2] = status::HIGHLIGHT;
-        let s = status_intensities(&cap, &st);
+        let s = status_intensities(&cap, &frame_statuses(&cap, &st));
         let m = s.highlights.mean_intensity.unwrap();
         assert!((m.grey - 0.12).abs() < 1e-6, "{}", m.grey);
         assert_eq!(m.channels.len(), 1);

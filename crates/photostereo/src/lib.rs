@@ -73,6 +73,7 @@ pub mod rng;
 pub mod scene;
 pub mod shadows;
 pub mod stats;
+pub mod statusmap;
 pub mod store;
 pub mod surface;
 pub mod tiles;

@@ -16,6 +16,7 @@ use crate::engine::Reconstruction;
 use crate::error::Result;
 use crate::figure::{colormap, text_width, Canvas};
 use crate::lambert::status;
+use crate::statusmap::StatusMap;
 use std::path::Path;
 
 /// Text colour.
@@ -499,42 +500,20 @@ fn round_sig(v: f32) -> f32 {
     (v / p).round() * p
 }
 
-/// Per pixel, the number of lights whose status is `which` (None: any status but USED), NaN
-/// outside the mask. `light_status` is (N, H, W).
-pub fn light_counts(light_status: &[u8], n: usize, mask: &[bool], which: Option<u8>) -> Vec<f32> {
-    let hw = mask.len();
-    let mut counts: Vec<f32> = mask
-        .iter()
-        .map(|&m| if m { 0.0 } else { f32::NAN })
-        .collect();
-    for k in 0..n {
-        for (i, &s) in light_status[k * hw..(k + 1) * hw].iter().enumerate() {
-            let hit = match which {
-                Some(w) => s == w,
-                None => s != status::USED && s != status::OUTSIDE,
-            };
-            if hit && mask[i] {
-                counts[i] += 1.0;
-            }
-        }
-    }
-    counts
-}
-
 /// Three panels side by side, one colour scale: per pixel the number of lights the method
 /// put in shadow, in highlight, and dropped for any reason, of the capture's `n` lights; the
 /// bar is labelled in lights and in shares of `n`.
 pub fn unusable_lights_figure(
-    light_status: &[u8],
-    n: usize,
+    light_status: &StatusMap,
     mask: &[bool],
     width: usize,
     height: usize,
     method: &str,
 ) -> Canvas {
-    let shadow = light_counts(light_status, n, mask, Some(status::SHADOW));
-    let highlight = light_counts(light_status, n, mask, Some(status::HIGHLIGHT));
-    let any = light_counts(light_status, n, mask, None);
+    let n = light_status.lights;
+    let shadow = light_status.counts(Some(status::SHADOW));
+    let highlight = light_status.counts(Some(status::HIGHLIGHT));
+    let any = light_status.counts(None);
     // The scale ends at the 99th percentile of the unusable count (a few pixels with every
     // light dropped would otherwise squeeze the rest into the bottom colours); above it clips.
     let mut finite: Vec<f32> = any.iter().copied().filter(|v| v.is_finite()).collect();
@@ -611,7 +590,6 @@ pub fn write_unreliable(dir: &Path, rec: &Reconstruction, residual: &[f32]) -> R
 pub fn write_unusable_lights(dir: &Path, rec: &Reconstruction) -> Result<()> {
     unusable_lights_figure(
         &rec.light_status,
-        rec.n_lights,
         &rec.mask,
         rec.width,
         rec.height,
@@ -675,25 +653,6 @@ mod tests {
         assert_eq!(nice_steps(30.0), 3);
         assert_eq!(nice_steps(2.5), 5);
         assert_eq!(nice_steps(100.0), 2);
-    }
-
-    #[test]
-    fn counts_per_pixel() {
-        let mask = vec![true, true, false];
-        let st = vec![
-            status::SHADOW,
-            status::USED,
-            status::OUTSIDE,
-            status::HIGHLIGHT,
-            status::SHADOW,
-            status::OUTSIDE,
-        ];
-        assert_eq!(
-            light_counts(&st, 2, &mask, Some(status::SHADOW))[..2],
-            [1.0, 1.0]
-        );
-        assert_eq!(light_counts(&st, 2, &mask, None)[..2], [2.0, 1.0]);
-        assert!(light_counts(&st, 2, &mask, None)[2].is_nan());
     }
 
     #[test]

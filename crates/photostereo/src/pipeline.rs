@@ -5,9 +5,7 @@
 use crate::capture::CaptureFiles;
 use crate::engine::{reconstruct_with_truth, Params, Reconstruction};
 use crate::error::{Error, Result};
-use crate::export::{
-    write_albedo, write_json, write_normals, write_npy_f32, write_npy_u8, OutputFolder,
-};
+use crate::export::{write_albedo, write_json, write_normals, write_npy_f32, OutputFolder};
 use crate::figure::write_error_map;
 use crate::groundtruth::read_normal_map;
 use crate::imageio::write_png8;
@@ -108,10 +106,11 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         &rec.mask,
     )?;
     if rec.statuses_decided {
-        write_npy_u8(
+        // Light by light: one frame of bytes at a time, not the (N, H, W) array.
+        crate::export::write_npy_u8_planes(
             &dir.join("light_status.npy"),
             &[rec.n_lights, h, w],
-            &rec.light_status,
+            |k, plane| rec.light_status.write_plane(k, plane),
         )?;
     }
     if let (Some(residual), Some(unreliable)) = (&rec.residual, &rec.unreliable) {

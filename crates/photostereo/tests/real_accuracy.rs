@@ -95,7 +95,6 @@ fn attached_shadows_are_labelled_shadows() {
     let lights = ring_lights(8, 60.0);
     let (capture, _) = lambert_capture(&scene, &lights).unwrap();
     let n = capture.n_lights();
-    let hw = capture.width * capture.height;
     for method in [Method::ColemanJain, Method::BarskyPetrou, Method::Recursive] {
         let rec = run(&capture, method);
         let (mut zeros, mut wrong) = (0, 0);
@@ -105,7 +104,7 @@ fn attached_shadows_are_labelled_shadows() {
                 let l = capture.lights.directions[k];
                 let facing = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
                 let reading = capture.pixel_samples(p)[k * capture.channels];
-                let s = rec.light_status[k * hw + i as usize];
+                let s = rec.light_status.get(k, i as usize);
                 if facing < 0.0 && reading == 0.0 && s != status::USED {
                     zeros += 1;
                     wrong += usize::from(s != status::SHADOW);
