@@ -1355,10 +1355,8 @@ impl Capture {
             return f(ids, self);
         };
         debug_assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids must ascend");
-        let stride = self.n_lights() * self.channels;
         let tiling = store.tiling();
         let mut raw = Vec::new();
-        let mut tile = Vec::new();
         let mut view = Capture {
             memory: None,
             ..self.clone_without_samples_and_mask()
@@ -1374,14 +1372,10 @@ impl Capture {
                 continue;
             }
             let sub = &ids[first..j];
-            store.read_tile(t, &mut raw, &mut tile)?;
-            view.samples.clear();
-            for &p in sub {
-                let local = p - range.start;
-                view.samples
-                    .extend_from_slice(&tile[local * stride..(local + 1) * stride]);
-            }
-            view.sparse = Some(Arc::new(sub.iter().map(|&p| p as u32).collect()));
+            // The view holds the whole tile (no copy of the selected pixels' samples) and
+            // answers for the tile's pixels.
+            store.read_tile(t, &mut raw, &mut view.samples)?;
+            view.sparse = Some(Arc::new((range.start as u32..range.end as u32).collect()));
             view.forget_statistics();
             f(sub, &view)?;
         }

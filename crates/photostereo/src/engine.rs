@@ -20,7 +20,9 @@ use crate::capture::Capture;
 use crate::detect::{Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
-use crate::integrate::{surface_from_normals, weighted_normals, IntegrationParams, Surface};
+use crate::integrate::{
+    gradients_from_normals, surface_from_gradients, weighted_normals, IntegrationParams, Surface,
+};
 use crate::lambert::Estimate;
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::{check_cancelled, Progress, Silent};
@@ -274,7 +276,7 @@ pub fn reconstruct_with_truth(
             .notes
             .push("detection skipped: it needs at least four lights".into());
     }
-    let (mut estimate, detection, diagnostics) = match capture.lights.near.as_deref() {
+    let (mut estimate, detection, mut diagnostics) = match capture.lights.near.as_deref() {
         None => estimate(capture, params, truth, can_detect, progress, &mut report)?,
         Some(near) => alternate(
             capture,
@@ -309,7 +311,11 @@ pub fn reconstruct_with_truth(
     }
     let (w, h) = (capture.width, capture.height);
     let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
-    let trust = integration_trust(capture, params, diagnostics.as_ref(), detection.as_ref());
+    // The recursive method's trust map is moved out of its diagnostics, not copied.
+    let trust = match diagnostics.as_mut() {
+        Some(d) => std::mem::take(&mut d.trust),
+        None => integration_trust(capture, params, None, detection.as_ref()),
+    };
     let surface = if params.integrate && capture.lights.perspective().is_some() {
         let t = Instant::now();
         let surface = near_integration(capture, params, &normals, &trust, progress)?;
@@ -319,11 +325,17 @@ pub fn reconstruct_with_truth(
     } else if params.integrate {
         let t = Instant::now();
         let (weighted, weights) = weighted_normals(&normals, &capture.mask, Some(&trust));
-        let surface = surface_from_normals(
+        // The weighted copy of the normal map is dropped once its gradients are taken.
+        let gradients = gradients_from_normals(
             w,
             h,
             &weighted,
             Some(&capture.mask),
+            params.integration.max_slope,
+        )?;
+        drop(weighted);
+        let surface = surface_from_gradients(
+            gradients,
             Some(&weights),
             params.integration.method.integrator().as_ref(),
             params.integration.max_slope,

@@ -254,7 +254,7 @@ pub fn recursive(
     // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
     // starts reliable and only the geometric shadows of the surface prune lights.
     let detect_start = Instant::now();
-    let (detection, attributor) = if n >= 4 {
+    let (mut detection, attributor) = if n >= 4 {
         let detection = crate::tiles::detect_tiles(capture, detection_params, progress)?;
         let attributor = Attributor::new(capture, detection_params, detection.noise.clone())?;
         (detection, Some(attributor))
@@ -267,7 +267,9 @@ pub fn recursive(
     let detect_seconds = detect_start.elapsed().as_secs_f64();
     let unreliable = detection.unreliable.clone();
     let noise = detection.noise.clone();
-    let mut light_status = detection.light_status.clone();
+    // The detector's statuses start the recursion: moved, not copied (the result's statuses
+    // are the estimate's; the detection keeps its residuals and flags).
+    let mut light_status = std::mem::take(&mut detection.light_status);
     let mut est = crate::tiles::solve_statuses(capture, &light_status)?;
     if !noise.light_factor.is_empty() && capture.lights.near.is_none() {
         // Lights with their own noise factors: the estimate is the weighted fit the test made.
@@ -452,7 +454,8 @@ pub fn recursive(
                             // In the first iteration, a pixel the surface shadows nowhere (where
                             // the reading agrees) starts the attribution from every light, as
                             // the detector did: its decisions are the detector's (distant lights).
-                            let detected = &detection.light_status[p * n..(p + 1) * n];
+                            // (In the first iteration the current statuses are the detector's.)
+                            let detected = &light_status[p * n..(p + 1) * n];
                             if iteration == 1
                                 && !near_lights
                                 && unreliable[p]
@@ -585,16 +588,17 @@ pub fn recursive(
         // 6. Re-estimate. With distant lights a pixel's least-squares result depends only on
         // its usable lights: only pixels whose set changed are solved again, and those the
         // neighbour fill below rewrote in the last iteration or rewrites in this one.
+        // The last statuses have served: replaced before the re-estimate, not kept beside it.
+        light_status = new_status;
         if near_lights {
-            est = crate::tiles::solve_statuses(capture, &new_status)?;
+            est = crate::tiles::solve_statuses(capture, &light_status)?;
         } else {
             let ids: Vec<usize> = (0..np)
                 .filter(|&p| changed[p] || few[p] || new_few[p])
                 .collect();
-            resolve_at(capture, &new_status, &ids, &mut est, &noise.light_factor)?;
+            drop(changed);
+            resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
         }
-        drop(changed);
-        light_status = new_status;
         consistent = new_consistent;
         few = new_few;
         highlight = new_highlight;

@@ -635,6 +635,19 @@ pub fn surface_from_normals(
     progress: &dyn Progress,
 ) -> Result<Surface> {
     let g = gradients_from_normals(width, height, normals, mask, max_slope)?;
+    surface_from_gradients(g, weights, integrator, max_slope, progress)
+}
+
+/// [`surface_from_normals`] from gradients already taken (`max_slope` the cap they were
+/// taken with): the caller can drop its normal map before the integrator runs.
+pub fn surface_from_gradients(
+    g: Gradients,
+    weights: Option<&[f32]>,
+    integrator: &dyn Integrator,
+    max_slope: f32,
+    progress: &dyn Progress,
+) -> Result<Surface> {
+    let (width, height) = (g.width, g.height);
     let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
     let problem = IntegrationProblem {
         weights,
