@@ -312,8 +312,12 @@ pub fn reconstruct_with_truth(
     let (w, h) = (capture.width, capture.height);
     let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
     // The recursive method's trust map is moved out of its diagnostics, not copied.
+    // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
-        Some(d) => std::mem::take(&mut d.trust),
+        Some(d) => {
+            drop(std::mem::take(&mut d.depth));
+            std::mem::take(&mut d.trust)
+        }
         None => integration_trust(capture, params, None, detection.as_ref()),
     };
     let surface = if params.integrate && capture.lights.perspective().is_some() {

@@ -648,12 +648,13 @@ pub fn surface_from_gradients(
     progress: &dyn Progress,
 ) -> Result<Surface> {
     let (width, height) = (g.width, g.height);
-    let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
     let problem = IntegrationProblem {
         weights,
         ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
     };
     let depth = integrator.integrate(&problem, progress)?;
+    // The curl map is made after the solve: not held beside the integrator's work arrays.
+    let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
     Ok(Surface {
         depth,
         curl,
