@@ -310,7 +310,7 @@ pub fn reconstruct_with_truth(
         );
     }
     let (w, h) = (capture.width, capture.height);
-    let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
+    let full_normals = || capture.scatter(&estimate.normals, 1, [0.0; 3]);
     // The recursive method's trust map is moved out of its diagnostics, not copied.
     // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
@@ -322,13 +322,15 @@ pub fn reconstruct_with_truth(
     };
     let surface = if params.integrate && capture.lights.perspective().is_some() {
         let t = Instant::now();
-        let surface = near_integration(capture, params, &normals, &trust, progress)?;
+        let surface = near_integration(capture, params, &full_normals(), &trust, progress)?;
         report.extra.insert("integration".into(), surface.summary());
         report.time("integrate", t);
         Some(surface)
     } else if params.integrate {
         let t = Instant::now();
-        let (weighted, weights) = weighted_normals(&normals, &capture.mask, Some(&trust));
+        // The output's normal map is made after the solve: during it only the gradients,
+        // the weights and the integrator's arrays are held whole.
+        let (weighted, weights) = weighted_normals(&full_normals(), &capture.mask, Some(&trust));
         // The weighted copy of the normal map is dropped once its gradients are taken.
         let gradients = gradients_from_normals(
             w,
@@ -351,6 +353,7 @@ pub fn reconstruct_with_truth(
     } else {
         None
     };
+    let normals = full_normals();
     let statuses_decided = estimate.light_status.is_some() || detection.is_some();
     let light_status = crate::statusmap::StatusMap::new(
         capture.width,
