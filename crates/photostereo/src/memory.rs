@@ -17,16 +17,21 @@ use crate::error::{Error, Result};
 use crate::limits::human_bytes;
 use crate::store::SampleType;
 
-/// Bytes per frame pixel of the full-frame stages, independent of the light count: the
-/// recursive method's maps (estimate scattered to the frame, weights, trust, shading and surface
-/// normals, depth), the integrator's work arrays (about 47), the outputs and the exported maps.
-pub const FRAME_BYTES_PER_PIXEL: u64 = 160;
-/// Bytes per frame pixel and light: the full-frame light statuses of the result (1) and the
-/// shadow maps of one surface (1).
-pub const FRAME_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// Bytes per frame pixel of the full-frame stages, independent of the light count and of the
+/// mask: at their largest, the final integration's gradients, weights and trust and the
+/// integrator's work arrays; elsewhere the depth, one normal map, the recursion's maps and the
+/// exported maps. Set on measured peaks (README, Memory) with a margin of about 40%.
+pub const FRAME_BYTES_PER_PIXEL: u64 = 70;
+/// Bits per frame pixel and light: the shadow maps of one surface (2, as bit planes) and a
+/// margin for the light-by-light planes of the outputs.
+pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 4;
+/// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
+/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
+/// shadow bits and the attribution's keys.
+pub const MASK_BYTES_PER_PIXEL: u64 = 80;
 /// Bytes per mask pixel and light held for the whole capture: the recursive method's light
-/// statuses (current, new, usable flags, the detector's own).
-pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// statuses (the current, the new and the last iteration's own).
+pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 3;
 /// Bytes per mask pixel, per light and channel, of one tile in use: its `f32` view (4), its
 /// stored bytes while read and while loaded (2 × stored size, at most 8).
 pub const TILE_BYTES_PER_SAMPLE: u64 = 12;
@@ -126,8 +131,9 @@ pub fn size_flag(bytes: u64) -> String {
 /// The full-frame stages' bytes (see the constants).
 pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
-    s.frame() * (FRAME_BYTES_PER_PIXEL + FRAME_BYTES_PER_PIXEL_LIGHT * n)
-        + s.pixels as u64 * MASK_BYTES_PER_PIXEL_LIGHT * n
+    s.frame() * FRAME_BYTES_PER_PIXEL
+        + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
+        + s.pixels as u64 * (MASK_BYTES_PER_PIXEL + MASK_BYTES_PER_PIXEL_LIGHT * n)
         + FIXED_BYTES
 }
 
