@@ -57,6 +57,26 @@ fn assert_same_samples(whole: &Capture, tiled: &Capture) {
         })
         .unwrap();
     assert!(tiles > 3, "only {tiles} tiles");
+    // A scattered subset of the pixels, read a tile at a time, answers as the whole capture.
+    let ids: Vec<usize> = (0..whole.n_pixels())
+        .filter(|p| p % 7 == 3 || p % 11 == 0)
+        .collect();
+    let (mut seen, mut calls) = (Vec::new(), 0);
+    tiled
+        .for_ids_by_tile(&ids, |sub, view| {
+            for &p in sub {
+                assert!(view.pixel_samples(p) == whole.pixel_samples(p), "pixel {p}");
+            }
+            seen.extend_from_slice(sub);
+            calls += 1;
+            Ok(())
+        })
+        .unwrap();
+    assert_eq!(seen, ids);
+    assert!(
+        calls > 3 && calls <= tiles,
+        "{calls} calls for {tiles} tiles"
+    );
 }
 
 fn max_normal_difference(a: &Reconstruction, b: &Reconstruction) -> f32 {
