@@ -127,8 +127,8 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         crate::maps::write_unusable_lights(dir, rec)?;
     }
     if let Some(r) = &rec.recursive {
-        let maps: Vec<Vec<bool>> = (0..r.shadows.lights).map(|k| r.shadows.union(k)).collect();
-        crate::shadows::shadow_montage_outlined(&maps, Some(&rec.mask), w, h)
+        r.shadows
+            .montage_outlined(Some(&rec.mask))
             .save(&dir.join("shadows.png"))?;
         let bytes = |m: &[bool]| {
             m.iter()

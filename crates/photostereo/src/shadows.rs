@@ -444,34 +444,59 @@ pub fn shadow_montage_outlined(
     width: usize,
     height: usize,
 ) -> Canvas {
-    let Some(m) = mask.filter(|m| m.len() == width * height) else {
-        return montage(maps, None, width, height);
-    };
-    let v = crate::maps::View::of_mask(m, width, height, usize::MAX);
-    let (cw, ch) = (v.x1 - v.x0, v.y1 - v.y0);
-    let crop = |full: &[bool]| -> Vec<bool> {
-        (v.y0..v.y1)
-            .flat_map(|r| (v.x0..v.x1).map(move |c| r * width + c))
-            .map(|i| full.get(i).copied().unwrap_or(false))
-            .collect()
-    };
-    let cropped: Vec<Vec<bool>> = maps.iter().map(|map| crop(map)).collect();
-    montage(&cropped, Some(&crop(m)), cw, ch)
+    let shadowed = |k: usize, i: usize| maps[k].get(i).copied().unwrap_or(false);
+    montage_of(maps.len(), &shadowed, mask, width, height)
 }
 
-fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usize) -> Canvas {
+impl ShadowMaps {
+    /// [`shadow_montage_outlined`] of the union of each light's shadows, read from the bit
+    /// planes (no per-light map is made).
+    pub fn montage_outlined(&self, mask: Option<&[bool]>) -> Canvas {
+        let shadowed = |k: usize, i: usize| self.is_shadowed(k, i);
+        montage_of(self.lights, &shadowed, mask, self.width, self.height)
+    }
+}
+
+/// The montage of `lights` maps of a `width × height` frame, `shadowed(k, i)` answering for
+/// light `k` at pixel `i` (row-major); with a mask, cropped to the object's bounding box.
+fn montage_of(
+    lights: usize,
+    shadowed: &dyn Fn(usize, usize) -> bool,
+    mask: Option<&[bool]>,
+    width: usize,
+    height: usize,
+) -> Canvas {
+    let Some(m) = mask.filter(|m| m.len() == width * height) else {
+        return montage(lights, shadowed, None, width, (0, 0, width, height));
+    };
+    let v = crate::maps::View::of_mask(m, width, height, usize::MAX);
+    let window = (v.x0, v.y0, v.x1 - v.x0, v.y1 - v.y0);
+    montage(lights, shadowed, Some(m), width, window)
+}
+
+/// The montage proper over the window `(x0, y0, width, height)` of a frame `frame_width`
+/// pixels wide: `shadowed(k, i)` and `mask` are read at frame indices.
+fn montage(
+    lights: usize,
+    shadowed: &dyn Fn(usize, usize) -> bool,
+    mask: Option<&[bool]>,
+    frame_width: usize,
+    (wx, wy, width, height): (usize, usize, usize, usize),
+) -> Canvas {
+    // Frame index of window pixel (r, c).
+    let at = |r: usize, c: usize| (wy + r) * frame_width + wx + c;
     const TILE_MAX: usize = 128;
     const GAP: usize = 6;
     const LABEL_H: usize = 11;
     let background = [200, 200, 210];
-    if maps.is_empty() || width == 0 || height == 0 {
+    if lights == 0 || width == 0 || height == 0 {
         return Canvas::new(1, 1, background);
     }
     let factor = width.max(height).div_ceil(TILE_MAX).max(1);
     let (tw, th) = (width.div_ceil(factor), height.div_ceil(factor));
-    let cols = (maps.len() as f64).sqrt().ceil() as usize;
-    let rows = maps.len().div_ceil(cols);
-    let cell_w = tw.max(text_width(&maps.len().to_string(), 1)) + GAP;
+    let cols = (lights as f64).sqrt().ceil() as usize;
+    let rows = lights.div_ceil(cols);
+    let cell_w = tw.max(text_width(&lights.to_string(), 1)) + GAP;
     let cell_h = th + LABEL_H + GAP;
     const LEGEND: &str = "black: shadow  white: lit  red: object outline";
     let legend_h = if mask.is_some() { LABEL_H + GAP } else { 0 };
@@ -489,7 +514,7 @@ fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usiz
                 for r in y * factor..((y + 1) * factor).min(height) {
                     for c in x * factor..((x + 1) * factor).min(width) {
                         total += 1;
-                        n += m.get(r * width + c).copied().unwrap_or(false) as usize;
+                        n += m.get(at(r, c)).copied().unwrap_or(false) as usize;
                     }
                 }
                 v[y * tw + x] = (n, total);
@@ -497,7 +522,12 @@ fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usiz
         }
         v
     });
-    let object_pixels = mask.map(|m| m.iter().filter(|&&b| b).count());
+    let object_pixels = mask.map(|m| {
+        (0..height)
+            .flat_map(|r| (0..width).map(move |c| (r, c)))
+            .filter(|&(r, c)| m[at(r, c)])
+            .count()
+    });
     let outline = |x: usize, y: usize, v: &[(usize, usize)]| {
         let (n, total) = v[y * tw + x];
         if n == 0 {
@@ -514,15 +544,18 @@ fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usiz
             || out(x, y - 1)
             || out(x, y + 1)
     };
-    for (k, map) in maps.iter().enumerate() {
+    for k in 0..lights {
         let x0 = GAP + (k % cols) * cell_w;
         let y0 = GAP + (k / cols) * cell_h;
         let mut label = (k + 1).to_string();
         if let (Some(m), Some(total)) = (mask, object_pixels) {
-            let shadowed = map.iter().zip(m).filter(|(&s, &o)| s && o).count();
+            let in_shadow = (0..height)
+                .flat_map(|r| (0..width).map(move |c| at(r, c)))
+                .filter(|&i| m[i] && shadowed(k, i))
+                .count();
             let with_share = format!(
                 "{label} {:.0}%",
-                100.0 * shadowed as f64 / total.max(1) as f64
+                100.0 * in_shadow as f64 / total.max(1) as f64
             );
             if text_width(&with_share, 1) <= tw {
                 label = with_share;
@@ -542,16 +575,16 @@ fn montage(maps: &[Vec<bool>], mask: Option<&[bool]>, width: usize, height: usiz
                         continue;
                     }
                 }
-                let (mut shadowed, mut total) = (0usize, 0usize);
+                let (mut dark, mut total) = (0usize, 0usize);
                 for r in y * factor..((y + 1) * factor).min(height) {
                     for c in x * factor..((x + 1) * factor).min(width) {
                         total += 1;
-                        if map.get(r * width + c).copied().unwrap_or(false) {
-                            shadowed += 1;
+                        if shadowed(k, at(r, c)) {
+                            dark += 1;
                         }
                     }
                 }
-                let g = 255 - (255 * shadowed / total.max(1)) as u8;
+                let g = 255 - (255 * dark / total.max(1)) as u8;
                 canvas.put(x0 + x, ty + y, [g, g, g]);
             }
         }

@@ -273,6 +273,15 @@ fn shadow_maps_match_single_light_sweeps_and_respect_the_mask() {
     ] {
         assert_eq!(maps.count(bits), count(bits));
     }
+    // The montage read from the bit planes is the one drawn from per-light union maps.
+    let unions: Vec<Vec<bool>> = (0..maps.lights).map(|k| maps.union(k)).collect();
+    let drawn = shadow_montage_outlined(&unions, Some(&f.mask), f.width, f.height);
+    let from_bits = maps.montage_outlined(Some(&f.mask));
+    assert_eq!(
+        (drawn.width, drawn.height),
+        (from_bits.width, from_bits.height)
+    );
+    assert!(drawn.data == from_bits.data);
     let pixels: Vec<u32> = (0..(f.width * f.height) as u32).step_by(7).collect();
     let bits = maps.pixel_bits(&pixels);
     for (j, &i) in pixels.iter().enumerate() {
