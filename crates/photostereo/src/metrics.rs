@@ -115,6 +115,35 @@ pub fn evaluate(
     Ok((map, stats))
 }
 
+/// The median of the finite positive values of a `width × height` map (row-major) in the
+/// smallest square window around (`row`, `col`) that holds at least five of them: radii 2, 4,
+/// 8, … while below `widest`. NaN when none does. `scratch` holds the window's values.
+pub fn median_in_growing_window(
+    map: &[f32],
+    width: usize,
+    height: usize,
+    (row, col): (usize, usize),
+    widest: usize,
+    scratch: &mut Vec<f64>,
+) -> f64 {
+    let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
+    for radius in radii {
+        scratch.clear();
+        for r in row.saturating_sub(radius)..(row + radius + 1).min(height) {
+            for c in col.saturating_sub(radius)..(col + radius + 1).min(width) {
+                let a = map[r * width + c];
+                if a.is_finite() && a > 0.0 {
+                    scratch.push(a as f64);
+                }
+            }
+        }
+        if scratch.len() >= 5 {
+            return median(scratch);
+        }
+    }
+    f64::NAN
+}
+
 /// Median of a non-empty slice (reorders it).
 pub fn median(v: &mut [f64]) -> f64 {
     let n = v.len();
@@ -247,6 +276,62 @@ pub fn quantile(v: &mut [f64], q: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn growing_window_medians_match_a_direct_search() {
+        // 40×30 map: NaN and non-positive values here and there, a valid island far away.
+        let (w, h) = (40usize, 30usize);
+        let map: Vec<f32> = (0..w * h)
+            .map(|i| {
+                let (r, c) = (i / w, i % w);
+                if r < 12 && c < 15 {
+                    f32::NAN
+                } else if (r + c) % 5 == 0 {
+                    -1.0
+                } else {
+                    (1 + (r * 7 + c * 3) % 11) as f32
+                }
+            })
+            .collect();
+        let direct = |row: usize, col: usize, widest: usize| -> f64 {
+            let mut radius = 2;
+            loop {
+                let mut v: Vec<f64> = Vec::new();
+                for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
+                    for c in col.saturating_sub(radius)..(col + radius + 1).min(w) {
+                        let a = map[r * w + c];
+                        if a.is_finite() && a > 0.0 {
+                            v.push(a as f64);
+                        }
+                    }
+                }
+                if v.len() >= 5 {
+                    v.sort_by(f64::total_cmp);
+                    let m = v.len() / 2;
+                    return if v.len() % 2 == 1 {
+                        v[m]
+                    } else {
+                        (v[m - 1] + v[m]) / 2.0
+                    };
+                }
+                if radius >= widest {
+                    return f64::NAN;
+                }
+                radius *= 2;
+            }
+        };
+        let mut scratch = Vec::new();
+        for (row, col, widest) in [(0, 0, 32), (0, 0, 4), (5, 5, 8), (20, 30, 32), (29, 39, 2)] {
+            let got = median_in_growing_window(&map, w, h, (row, col), widest, &mut scratch);
+            let want = direct(row, col, widest);
+            assert!(
+                got == want || (got.is_nan() && want.is_nan()),
+                "{row},{col}: {got} vs {want}"
+            );
+        }
+        // Deep inside the NaN block with a small reach: nothing found.
+        assert!(median_in_growing_window(&map, w, h, (0, 0), 4, &mut scratch).is_nan());
+    }
 
     #[test]
     fn known_angles() {

@@ -911,25 +911,16 @@ pub fn correct_two(
     for (j, &p) in todo.iter().enumerate() {
         let pixel = capture.pixels[p] as usize;
         let (row, col) = (pixel / w, pixel % w);
-        let mut rho = f64::NAN;
         // Growing windows, as far as the nearest judged pixels are (a cast shadow is wider
         // in pixels the finer the image).
-        let radii = std::iter::successors(Some(2usize), |&r| (r < w.max(h)).then_some(2 * r));
-        for radius in radii {
-            window.clear();
-            for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
-                for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
-                    let a = albedo_map[r * w + cc];
-                    if a.is_finite() && a > 0.0 {
-                        window.push(a as f64);
-                    }
-                }
-            }
-            if window.len() >= 5 {
-                rho = crate::metrics::median(&mut window);
-                break;
-            }
-        }
+        let rho = crate::metrics::median_in_growing_window(
+            &albedo_map,
+            w,
+            h,
+            (row, col),
+            w.max(h),
+            &mut window,
+        );
         if !rho.is_finite() {
             continue;
         }

@@ -914,27 +914,18 @@ fn fill_from_neighbours(
             let pix = capture.pixels[p] as usize;
             let (row, col) = (pix / w, pix % w);
             let surf = surface_normal(pix);
-            // Median albedo of the nearest reliable pixels (growing windows).
-            let mut rho = f64::NAN;
-            // Near lights: as far as the nearest reliable pixels are (a point light's cast shadow is
-            // wider in pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
+            // Median albedo of the nearest reliable pixels (growing windows). Near lights: as
+            // far as the nearest reliable pixels are (a point light's cast shadow is wider in
+            // pixels the finer the image), as [`crate::near_lobe::correct_two`] does.
             let widest = if lights.is_near() { w.max(h) } else { 32 };
-            let radii = std::iter::successors(Some(2usize), |&r| (r < widest).then_some(2 * r));
-            for radius in radii {
-                samples.clear();
-                for r in row.saturating_sub(radius)..(row + radius + 1).min(h) {
-                    for cc in col.saturating_sub(radius)..(col + radius + 1).min(w) {
-                        let a = albedo_map[r * w + cc];
-                        if a.is_finite() && a > 0.0 {
-                            samples.push(a as f64);
-                        }
-                    }
-                }
-                if samples.len() >= 5 {
-                    rho = crate::metrics::median(&mut samples);
-                    break;
-                }
-            }
+            let rho = crate::metrics::median_in_growing_window(
+                &albedo_map,
+                w,
+                h,
+                (row, col),
+                widest,
+                &mut samples,
+            );
             used.clear();
             used.extend((0..n).filter(|&k| light_status[p * n + k] == status::USED));
             channel_mean(samples_of.pixel_samples(p), c, &mut grey);
