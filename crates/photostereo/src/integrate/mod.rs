@@ -655,6 +655,13 @@ pub(crate) struct Components {
     pub count: usize,
 }
 
+/// A view of [`Components`]' labels (`MAX` outside the mask).
+pub(crate) enum LabelSlice<'a> {
+    Whole,
+    Small(&'a [u8]),
+    Large(&'a [u32]),
+}
+
 /// Per-pixel component labels (`MAX` outside the mask).
 enum Labels {
     Whole,
@@ -731,50 +738,28 @@ impl Components {
         }
     }
 
+    /// The labels.
+    pub fn labels(&self) -> LabelSlice<'_> {
+        match &self.labels {
+            Labels::Whole => LabelSlice::Whole,
+            Labels::Small(l) => LabelSlice::Small(l),
+            Labels::Large(l) => LabelSlice::Large(l),
+        }
+    }
+
     /// Whether the mask covers the whole grid (one component, no labels).
     pub fn is_whole_grid(&self) -> bool {
         matches!(self.labels, Labels::Whole)
     }
 
-    /// The mean of `value(i)` over each component's pixels (labelled masks). Summed over
-    /// threads when the components are few, else in one pass.
-    fn labelled_means(&self, value: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
-        const BLOCK: usize = 1 << 16;
-        let k = self.count;
-        let n = match &self.labels {
-            Labels::Whole => 0,
-            Labels::Small(l) => l.len(),
-            Labels::Large(l) => l.len(),
-        };
-        let sums = |lo: usize, hi: usize, sum: &mut [f64], cnt: &mut [f64]| {
-            for j in lo..hi {
-                if let Some(l) = self.label(j) {
-                    sum[l] += value(j);
-                    cnt[l] += 1.0;
-                }
-            }
-        };
-        let (sum, cnt) = if k <= 64 {
-            (0..n.div_ceil(BLOCK))
-                .into_par_iter()
-                .map(|t| {
-                    let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
-                    sums(t * BLOCK, ((t + 1) * BLOCK).min(n), &mut sum, &mut cnt);
-                    (sum, cnt)
-                })
-                .collect::<Vec<_>>()
-                .into_iter()
-                .fold((vec![0f64; k], vec![0f64; k]), |mut a, b| {
-                    a.0.iter_mut().zip(&b.0).for_each(|(x, y)| *x += y);
-                    a.1.iter_mut().zip(&b.1).for_each(|(x, y)| *x += y);
-                    a
-                })
-        } else {
-            let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
-            sums(0, n, &mut sum, &mut cnt);
-            (sum, cnt)
-        };
-        sum.iter().zip(&cnt).map(|(s, &c)| s / c.max(1.0)).collect()
+    /// The means of `a` (and of `b` when given) over each component's pixels (labelled masks),
+    /// in one pass. Summed over threads when the components are few, else in one thread.
+    fn labelled_means<T: Sample, U: Sample>(&self, a: &[T], b: Option<&[U]>) -> [Vec<f64>; 2] {
+        match &self.labels {
+            Labels::Whole => unreachable!("labelled means of a whole grid"),
+            Labels::Small(l) => labelled_means_of(l, self.count, a, b),
+            Labels::Large(l) => labelled_means_of(l, self.count, a, b),
+        }
     }
 
     /// The mean of `f` over each component (sums in f64).
@@ -788,23 +773,161 @@ impl Components {
                 .sum::<f64>();
             return vec![sum / f.len().max(1) as f64];
         }
-        self.labelled_means(|i| f[i].to_f64())
+        let [m, _] = self.labelled_means::<T, T>(f, None);
+        m
+    }
+
+    /// Subtracts each component's mean from `f` (values outside the mask are left alone) and
+    /// returns the means of `other` over each component, taken in the same pass (labelled
+    /// masks; empty on the whole grid).
+    pub fn remove_means_and_measure<T: Sample, U: Sample>(
+        &self,
+        f: &mut [T],
+        other: Option<&[U]>,
+    ) -> Vec<f64> {
+        if self.is_whole_grid() {
+            let mean = self.means(f)[0];
+            f.par_iter_mut()
+                .for_each(|v| *v = T::from_f64(v.to_f64() - mean));
+            return Vec::new();
+        }
+        let [mean, other_means] = self.labelled_means(f, other);
+        fn subtract<L: LabelInt, T: Sample>(labels: &[L], f: &mut [T], mean: &[f64]) {
+            f.par_chunks_mut(1 << 14)
+                .zip(labels.par_chunks(1 << 14))
+                .for_each(|(fs, ls)| {
+                    for (v, &l) in fs.iter_mut().zip(ls) {
+                        if let Some(l) = l.get() {
+                            *v = T::from_f64(v.to_f64() - mean[l]);
+                        }
+                    }
+                });
+        }
+        match &self.labels {
+            Labels::Whole => {}
+            Labels::Small(l) => subtract(l, f, &mean),
+            Labels::Large(l) => subtract(l, f, &mean),
+        }
+        other_means
     }
 
     /// Subtracts each component's mean from `f` (values outside the mask are left alone).
     pub fn remove_means<T: Sample>(&self, f: &mut [T]) {
-        let mean = self.means(f);
-        if self.is_whole_grid() {
-            f.par_iter_mut()
-                .for_each(|v| *v = T::from_f64(v.to_f64() - mean[0]));
-            return;
-        }
-        f.par_iter_mut().enumerate().for_each(|(i, v)| {
-            if let Some(l) = self.label(i) {
-                *v = T::from_f64(v.to_f64() - mean[l]);
-            }
-        });
+        self.remove_means_and_measure::<T, T>(f, None);
     }
+}
+
+/// A stored component label (`MAX` outside the mask).
+trait LabelInt: Copy + Send + Sync {
+    fn get(self) -> Option<usize>;
+}
+
+impl LabelInt for u8 {
+    #[inline]
+    fn get(self) -> Option<usize> {
+        (self != u8::MAX).then_some(self as usize)
+    }
+}
+
+impl LabelInt for u32 {
+    #[inline]
+    fn get(self) -> Option<usize> {
+        (self != u32::MAX).then_some(self as usize)
+    }
+}
+
+/// Per-component means of `a` and `b` (see [`Components::labelled_means`]).
+fn labelled_means_of<L: LabelInt, T: Sample, U: Sample>(
+    labels: &[L],
+    k: usize,
+    a: &[T],
+    b: Option<&[U]>,
+) -> [Vec<f64>; 2] {
+    const BLOCK: usize = 1 << 16;
+    let nb = usize::from(b.is_some());
+    // Sums of a, of b, and counts, per component.
+    let sums = |lo: usize, hi: usize| {
+        let mut acc = vec![[0f64; 3]; k];
+        let ls = &labels[lo..hi];
+        match b {
+            Some(b) => {
+                for ((&l, &x), &y) in ls.iter().zip(&a[lo..hi]).zip(&b[lo..hi]) {
+                    if let Some(l) = l.get() {
+                        let s = &mut acc[l];
+                        s[0] += x.to_f64();
+                        s[1] += y.to_f64();
+                        s[2] += 1.0;
+                    }
+                }
+            }
+            None => {
+                for (&l, &x) in ls.iter().zip(&a[lo..hi]) {
+                    if let Some(l) = l.get() {
+                        let s = &mut acc[l];
+                        s[0] += x.to_f64();
+                        s[2] += 1.0;
+                    }
+                }
+            }
+        }
+        acc
+    };
+    let n = labels.len();
+    if k == 1 {
+        // One component (the common masked case): branch-free sums in independent lanes.
+        const LANES: usize = 8;
+        let part = |lo: usize, hi: usize| {
+            let mut acc = [[0f64; LANES]; 3];
+            let (ls, xs) = (&labels[lo..hi], &a[lo..hi]);
+            let ys = b.map(|b| &b[lo..hi]);
+            for (j, (lc, xc)) in ls.chunks(LANES).zip(xs.chunks(LANES)).enumerate() {
+                for (q, (&l, &x)) in lc.iter().zip(xc).enumerate() {
+                    // Selects, not products: values outside the mask may be NaN.
+                    let on = l.get().is_some();
+                    acc[0][q] += if on { x.to_f64() } else { 0.0 };
+                    acc[2][q] += if on { 1.0 } else { 0.0 };
+                    if let Some(ys) = ys {
+                        acc[1][q] += if on { ys[j * LANES + q].to_f64() } else { 0.0 };
+                    }
+                }
+            }
+            acc.map(|l| l.iter().sum::<f64>())
+        };
+        let t = (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|t| part(t * BLOCK, ((t + 1) * BLOCK).min(n)))
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold([0f64; 3], |x, y| [x[0] + y[0], x[1] + y[1], x[2] + y[2]]);
+        let c = t[2].max(1.0);
+        return [
+            vec![t[0] / c],
+            if nb > 0 { vec![t[1] / c] } else { Vec::new() },
+        ];
+    }
+    let acc = if k <= 64 {
+        (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|t| sums(t * BLOCK, ((t + 1) * BLOCK).min(n)))
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![[0f64; 3]; k], |mut acc, part| {
+                for (x, y) in acc.iter_mut().zip(&part) {
+                    for j in 0..3 {
+                        x[j] += y[j];
+                    }
+                }
+                acc
+            })
+    } else {
+        sums(0, n)
+    };
+    let mean = |j: usize| {
+        acc.iter()
+            .map(|s| s[j] / s[2].max(1.0))
+            .collect::<Vec<f64>>()
+    };
+    [mean(0), if nb > 0 { mean(1) } else { Vec::new() }]
 }
 
 /// A stored value (f32 or f64) whose sums are taken in f64.
@@ -949,7 +1072,16 @@ pub(crate) fn fill_unreliable<'a>(
             None,
             &mut r,
         );
-        pcg(&mut hier, &mut r, b_norm2.sqrt(), &mut x, None, 1e-6, 200, &Silent);
+        pcg(
+            &mut hier,
+            &mut r,
+            b_norm2.sqrt(),
+            &mut x,
+            None,
+            1e-6,
+            200,
+            &Silent,
+        );
         x
     };
     let p = solve_in_place(problem.p);

@@ -24,7 +24,7 @@
 //! CG iterate, residual and direction, the V-cycle's work); sums, dot products and each cell's
 //! `A x` are taken in f64.
 
-use super::Components;
+use super::{Components, LabelSlice};
 use crate::progress::Progress;
 use rayon::prelude::*;
 
@@ -94,6 +94,10 @@ pub(crate) struct Scratch {
     ex: Vec<f32>,
     inv: Vec<f32>,
     zeros: Vec<f32>,
+    active: Vec<bool>,
+    /// The row whose operator the computed rows hold (`usize::MAX`: none), so that a row
+    /// computed for one colour of a sweep is reused by the other.
+    row: usize,
 }
 
 impl Scratch {
@@ -105,6 +109,8 @@ impl Scratch {
             ex: vec![0.0; w],
             inv: vec![0.0; w],
             zeros: vec![0.0; w],
+            active: vec![false; w],
+            row: usize::MAX,
         }
     }
 }
@@ -124,27 +130,26 @@ impl SharedMut {
 }
 
 /// `1 / d` of the cells of one row (`d = e + s + ex + e_left + s_up`, summed in that order);
-/// 0 where the cell is not `active` or `d = 0`.
+/// 0 where the cell is not `active` or `d = 0`. Vectorisable.
 #[inline]
 fn inverse_diagonal(
     e: &[f32],
     s: &[f32],
     su: &[f32],
     ex: &[f32],
-    active: impl Fn(usize) -> bool,
+    active: &[bool],
     inv: &mut [f32],
 ) {
-    for (c, v) in inv.iter_mut().enumerate() {
-        if !active(c) {
-            *v = 0.0;
-            continue;
-        }
-        let mut d = e[c] + s[c] + ex[c];
-        if c > 0 {
-            d += e[c - 1];
-        }
-        d += su[c];
-        *v = if d > 0.0 { 1.0 / d } else { 0.0 };
+    let w = inv.len();
+    for (((d, &ev), &sv), &xv) in inv.iter_mut().zip(e).zip(s).zip(ex) {
+        *d = ev + sv + xv;
+    }
+    for (d, &el) in inv[1..].iter_mut().zip(&e[..w - 1]) {
+        *d += el;
+    }
+    for ((d, &sv), &a) in inv.iter_mut().zip(su).zip(active) {
+        let v = *d + sv;
+        *d = if a && v > 0.0 { 1.0 / v } else { 0.0 };
     }
 }
 
@@ -249,6 +254,18 @@ impl<'a> Level<'a> {
     pub fn rows<'s>(&'s self, r: usize, sc: &'s mut Scratch) -> Rows<'s> {
         let (w, h) = (self.w, self.h);
         let lo = r * w;
+        if sc.row == r && !matches!(self.kind, Kind::Stored { .. }) {
+            return Rows {
+                e: &sc.e[..w],
+                s: &sc.s[..w],
+                su: &sc.su[..w],
+                ex: &sc.ex[..w],
+                inv: &sc.inv[..w],
+            };
+        }
+        if !matches!(self.kind, Kind::Stored { .. }) {
+            sc.row = r;
+        }
         match &self.kind {
             Kind::Stored {
                 east,
@@ -288,56 +305,68 @@ impl<'a> Level<'a> {
                     &mut sc.inv[..w],
                 );
                 let me = *min_edge;
-                // Edges of row r (east), to row r + 1 (south) and from row r − 1 (su).
-                let below = (r + 1 < h).then(|| lo + w);
-                let above = (r > 0).then(|| lo - w);
+                // Edges of row r (east), to row r + 1 (south) and from row r − 1 (su), in
+                // vectorisable passes over the row.
+                let below = (r + 1 < h).then(|| &mask[lo + w..lo + 2 * w]);
+                let above = (r > 0).then(|| &mask[lo - w..lo]);
                 match weights {
                     None => {
                         let one = 1f32.max(me);
-                        let on = |a: bool, b: bool| if a && b { one } else { 0.0 };
-                        for c in 0..w - 1 {
-                            e[c] = on(m[c], m[c + 1]);
+                        let on = |a: bool, b: bool| if a & b { one } else { 0.0 };
+                        for ((v, &a), &b) in e[..w - 1].iter_mut().zip(&m[..w - 1]).zip(&m[1..]) {
+                            *v = on(a, b);
                         }
                         match below {
-                            Some(b) => {
-                                for (c, v) in s.iter_mut().enumerate() {
-                                    *v = on(m[c], mask[b + c]);
+                            Some(md) => {
+                                for ((v, &a), &b) in s.iter_mut().zip(m).zip(md) {
+                                    *v = on(a, b);
                                 }
                             }
                             None => s.fill(0.0),
                         }
                         match above {
-                            Some(a) => {
-                                for (c, v) in su.iter_mut().enumerate() {
-                                    *v = on(mask[a + c], m[c]);
+                            Some(mu) => {
+                                for ((v, &a), &b) in su.iter_mut().zip(mu).zip(m) {
+                                    *v = on(a, b);
                                 }
                             }
                             None => su.fill(0.0),
                         }
                     }
                     Some(ws) => {
-                        let edge = |i: usize, j: usize| {
-                            if mask[i] && mask[j] {
-                                ws[i].min(ws[j]).max(me)
+                        let wr = &ws[lo..lo + w];
+                        let edge = |a: bool, b: bool, wa: f32, wb: f32| {
+                            if a & b {
+                                wa.min(wb).max(me)
                             } else {
                                 0.0
                             }
                         };
-                        for c in 0..w - 1 {
-                            e[c] = edge(lo + c, lo + c + 1);
+                        for ((v, (&a, &b)), (&wa, &wb)) in e[..w - 1]
+                            .iter_mut()
+                            .zip(m[..w - 1].iter().zip(&m[1..]))
+                            .zip(wr[..w - 1].iter().zip(&wr[1..]))
+                        {
+                            *v = edge(a, b, wa, wb);
                         }
                         match below {
-                            Some(b) => {
-                                for (c, v) in s.iter_mut().enumerate() {
-                                    *v = edge(lo + c, b + c);
+                            Some(md) => {
+                                let wd = &ws[lo + w..lo + 2 * w];
+                                for ((v, (&a, &b)), (&wa, &wb)) in
+                                    s.iter_mut().zip(m.iter().zip(md)).zip(wr.iter().zip(wd))
+                                {
+                                    *v = edge(a, b, wa, wb);
                                 }
                             }
                             None => s.fill(0.0),
                         }
                         match above {
-                            Some(a) => {
-                                for (c, v) in su.iter_mut().enumerate() {
-                                    *v = edge(a + c, lo + c);
+                            Some(mu) => {
+                                let wu = &ws[lo - w..lo];
+                                for ((v, (&a, &b)), (&wa, &wb)) in
+                                    su.iter_mut().zip(mu.iter().zip(m)).zip(wu.iter().zip(wr))
+                                {
+                                    *v = edge(a, b, wa, wb);
                                 }
                             }
                             None => su.fill(0.0),
@@ -345,17 +374,12 @@ impl<'a> Level<'a> {
                     }
                 }
                 e[w - 1] = 0.0;
+                let lambda = *lambda;
                 for (v, &mv) in ex.iter_mut().zip(m) {
-                    *v = if mv { *lambda } else { 0.0 };
+                    *v = if mv { lambda } else { 0.0 };
                 }
-                inverse_diagonal(e, s, su, ex, |c| m[c], inv);
-                Rows {
-                    e,
-                    s,
-                    su,
-                    ex,
-                    inv,
-                }
+                inverse_diagonal(e, s, su, ex, m, inv);
+                Rows { e, s, su, ex, inv }
             }
             Kind::Fill {
                 mask,
@@ -403,14 +427,12 @@ impl<'a> Level<'a> {
                 for &i in pins[from..].iter().take_while(|&&i| i < lo + w) {
                     ex[i - lo] = 1.0;
                 }
-                inverse_diagonal(e, s, su, ex, |c| hole(lo + c), inv);
-                Rows {
-                    e,
-                    s,
-                    su,
-                    ex,
-                    inv,
+                let active = &mut sc.active[..w];
+                for (c, a) in active.iter_mut().enumerate() {
+                    *a = hole(lo + c);
                 }
+                inverse_diagonal(e, s, su, ex, active, inv);
+                Rows { e, s, su, ex, inv }
             }
         }
     }
@@ -676,21 +698,26 @@ impl<'a> Level<'a> {
         // never writes. (From zero, the first-colour update reads nothing.) Pass 2 writes only
         // second-colour cells of deferred rows (distinct rows per block) and reads only
         // first-colour cells, which pass 2 never writes.
+        // Two scratches, one per row parity: row r − 1's operator, computed for its first
+        // colour, is still there for its second.
         (0..blocks).into_par_iter().for_each_init(
-            || (Scratch::new(w), vec![0f32; w]),
+            || ([Scratch::new(w), Scratch::new(w)], vec![0f32; w]),
             |(sc, tmp), t| {
                 let (r0, r1) = bounds(t);
                 let xs = unsafe { std::slice::from_raw_parts_mut(ptr.get(), w * h) };
                 for r in r0..r1 {
                     // A block's first and last rows are read by the neighbouring blocks.
                     let shared = (r == r0 && r0 > 0) || (r + 1 == r1 && r1 < h);
-                    self.gs_row(b, xs, r, first, from_zero, !shared, zeros, sc, tmp);
+                    let s = &mut sc[r % 2];
+                    self.gs_row(b, xs, r, first, from_zero, !shared, zeros, s, tmp);
                     if r > r0 && !deferred(r - 1, r0, r1) {
-                        self.gs_row(b, xs, r - 1, second, false, true, zeros, sc, tmp);
+                        let s = &mut sc[(r - 1) % 2];
+                        self.gs_row(b, xs, r - 1, second, false, true, zeros, s, tmp);
                     }
                 }
                 if !deferred(r1 - 1, r0, r1) {
-                    self.gs_row(b, xs, r1 - 1, second, false, true, zeros, sc, tmp);
+                    let s = &mut sc[(r1 - 1) % 2];
+                    self.gs_row(b, xs, r1 - 1, second, false, true, zeros, s, tmp);
                 }
             },
         );
@@ -792,7 +819,9 @@ impl CoarseSolver {
         let cells: Vec<usize> = (0..h)
             .flat_map(|r| {
                 let inv = level.rows(r, &mut sc).inv.to_vec();
-                (0..w).filter(move |&c| inv[c] > 0.0).map(move |c| r * w + c)
+                (0..w)
+                    .filter(move |&c| inv[c] > 0.0)
+                    .map(move |c| r * w + c)
             })
             .collect();
         let m = cells.len();
@@ -899,7 +928,6 @@ impl CoarseSolver {
         }
     }
 }
-
 
 /// Work vectors of one level (empty on the finest level, whose right-hand side and iterate
 /// are the caller's).
@@ -1063,39 +1091,77 @@ pub(crate) fn par_zeros<T: Default + Copy + Send + Sync>(n: usize) -> Vec<T> {
     (0..n).into_par_iter().map(|_| T::default()).collect()
 }
 
-/// One CG update in a single pass: `x += α p`, `r −= α (A p − shift(i))` (f32 storage, f64
-/// arithmetic). Returns `‖r‖²` (of the stored values).
-fn cg_update(
-    x: &mut [f32],
-    r: &mut [f32],
-    ap: &[f32],
-    p: &[f32],
+/// What [`cg_update`] adds back to `A p` at each cell.
+enum Shift<'s> {
+    /// The same value everywhere.
+    Const(f64),
+    /// One value per component (labels: `MAX` outside the mask, where the shift is 0).
+    Small(&'s [u8], &'s [f64]),
+    Large(&'s [u32], &'s [f64]),
+}
+
+/// One chunk of [`cg_update`], with the shift of the chunk's `k`-th cell from `shift(k)`.
+#[inline(always)]
+fn cg_update_chunk(
+    xs: &mut [f32],
+    rs: &mut [f32],
+    aps: &[f32],
+    ps: &[f32],
     alpha: f64,
-    shift: impl Fn(usize) -> f64 + Sync,
+    shift: impl Fn(usize) -> f64,
 ) -> f64 {
+    let mut acc = [0f64; LANES];
+    for (j, (((xc, rc), ac), pc)) in xs
+        .chunks_mut(LANES)
+        .zip(rs.chunks_mut(LANES))
+        .zip(aps.chunks(LANES))
+        .zip(ps.chunks(LANES))
+        .enumerate()
+    {
+        for k in 0..xc.len() {
+            xc[k] = (xc[k] as f64 + alpha * pc[k] as f64) as f32;
+            let rv = (rc[k] as f64 - alpha * (ac[k] as f64 - shift(j * LANES + k))) as f32;
+            rc[k] = rv;
+            acc[k] += rv as f64 * rv as f64;
+        }
+    }
+    acc.iter().sum::<f64>()
+}
+
+/// One CG update in a single pass: `x += α p`, `r −= α (A p − shift)` (f32 storage, f64
+/// arithmetic). Returns `‖r‖²` (of the stored values).
+fn cg_update(x: &mut [f32], r: &mut [f32], ap: &[f32], p: &[f32], alpha: f64, shift: Shift) -> f64 {
     x.par_chunks_mut(CHUNK)
         .zip(r.par_chunks_mut(CHUNK))
         .zip(ap.par_chunks(CHUNK))
         .zip(p.par_chunks(CHUNK))
         .enumerate()
         .map(|(t, (((xs, rs), aps), ps))| {
-            let mut acc = [0f64; LANES];
-            for (j, (((xc, rc), ac), pc)) in xs
-                .chunks_mut(LANES)
-                .zip(rs.chunks_mut(LANES))
-                .zip(aps.chunks(LANES))
-                .zip(ps.chunks(LANES))
-                .enumerate()
-            {
-                let i0 = t * CHUNK + j * LANES;
-                for k in 0..xc.len() {
-                    xc[k] = (xc[k] as f64 + alpha * pc[k] as f64) as f32;
-                    let rv = (rc[k] as f64 - alpha * (ac[k] as f64 - shift(i0 + k))) as f32;
-                    rc[k] = rv;
-                    acc[k] += rv as f64 * rv as f64;
+            let lo = t * CHUNK;
+            let hi = lo + xs.len();
+            match shift {
+                Shift::Const(v) => cg_update_chunk(xs, rs, aps, ps, alpha, |_| v),
+                Shift::Small(labels, values) => {
+                    let l = &labels[lo..hi];
+                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                        if l[k] == u8::MAX {
+                            0.0
+                        } else {
+                            values[l[k] as usize]
+                        }
+                    })
+                }
+                Shift::Large(labels, values) => {
+                    let l = &labels[lo..hi];
+                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                        if l[k] == u32::MAX {
+                            0.0
+                        } else {
+                            values[l[k] as usize]
+                        }
+                    })
                 }
             }
-            acc.iter().sum::<f64>()
         })
         .collect::<Vec<f64>>()
         .into_iter()
@@ -1147,11 +1213,13 @@ pub(crate) fn pcg(
     // `(rᵀ ẑ, m)` where ẑ = z − m·1 is z with its null-space part removed: on a labelled mask
     // the per-component means are subtracted from z here (m = 0); on the whole grid m is z's
     // mean, subtracted on the fly by the callers.
-    // Also returns `Σ r` (whole grid).
-    let dot_rz = |r: &[f32], z: &mut [f32]| -> (f64, f64, f64) {
-        if let Some(c) = null_space.filter(|c| !c.is_whole_grid()) {
-            c.remove_means(z);
-        }
+    // Also returns `Σ r` and, on a labelled mask, r's mean over each component (taken in the
+    // pass that takes z's).
+    let dot_rz = |r: &[f32], z: &mut [f32]| -> (f64, f64, f64, Vec<f64>) {
+        let r_means = match null_space.filter(|c| !c.is_whole_grid()) {
+            Some(c) => c.remove_means_and_measure(z, Some(r)),
+            None => Vec::new(),
+        };
         let (rz, z_sum, r_sum) = z
             .par_chunks(CHUNK)
             .zip(r.par_chunks(CHUNK))
@@ -1162,13 +1230,13 @@ pub(crate) fn pcg(
         match null_space {
             Some(c) if c.is_whole_grid() => {
                 let m = z_sum / n as f64;
-                (rz - m * r_sum, m, r_sum)
+                (rz - m * r_sum, m, r_sum, r_means)
             }
-            _ => (rz, 0.0, r_sum),
+            _ => (rz, 0.0, r_sum, r_means),
         }
     };
     hierarchy.vcycle(r, &mut zap);
-    let (mut rz, z_mean, mut r_sum) = dot_rz(r, &mut zap);
+    let (mut rz, z_mean, mut r_sum, mut r_means) = dot_rz(r, &mut zap);
     let mut p: Vec<f32> = zap
         .par_iter()
         .map(|&v| (v as f64 - z_mean) as f32)
@@ -1185,21 +1253,24 @@ pub(crate) fn pcg(
         // rounding of the stored r leaves a small null-space part in it at each step, which CG
         // cannot reduce; it is removed at the next step (so it never accumulates).
         let rr = match null_space {
-            None => cg_update(x, r, &zap, &p, alpha, |_| 0.0),
+            None => cg_update(x, r, &zap, &p, alpha, Shift::Const(0.0)),
             Some(c) if c.is_whole_grid() => {
                 let shift = ap_sum / n as f64 - r_sum / n as f64 / alpha;
-                cg_update(x, r, &zap, &p, alpha, |_| shift)
+                cg_update(x, r, &zap, &p, alpha, Shift::Const(shift))
             }
             Some(c) => {
-                let (ap_means, r_means) = (c.means(&zap), c.means(r));
+                let ap_means = c.means(&zap);
                 let shift: Vec<f64> = ap_means
                     .iter()
                     .zip(&r_means)
                     .map(|(a, m)| a - m / alpha)
                     .collect();
-                cg_update(x, r, &zap, &p, alpha, |i| {
-                    c.label(i).map_or(0.0, |l| shift[l])
-                })
+                let by = match c.labels() {
+                    LabelSlice::Small(l) => Shift::Small(l, &shift),
+                    LabelSlice::Large(l) => Shift::Large(l, &shift),
+                    LabelSlice::Whole => unreachable!("a labelled mask"),
+                };
+                cg_update(x, r, &zap, &p, alpha, by)
             }
         };
         progress.advance(1);
@@ -1208,8 +1279,8 @@ pub(crate) fn pcg(
             break;
         }
         hierarchy.vcycle(r, &mut zap);
-        let (rz_new, z_mean, new_r_sum) = dot_rz(r, &mut zap);
-        r_sum = new_r_sum;
+        let (rz_new, z_mean, new_r_sum, new_r_means) = dot_rz(r, &mut zap);
+        (r_sum, r_means) = (new_r_sum, new_r_means);
         let beta = rz_new / rz;
         rz = rz_new;
         let z_mean = z_mean as f32;
@@ -1362,8 +1433,7 @@ mod tests {
             let extra: Vec<f32> = (0..w * h)
                 .map(|i| if mask[i] { 0.01 * hash01(i, 4) } else { 0.0 })
                 .collect();
-            let level =
-                Level::from_parts(w, h, east.clone(), south.clone(), |i| extra[i], &mask);
+            let level = Level::from_parts(w, h, east.clone(), south.clone(), |i| extra[i], &mask);
             let b: Vec<f32> = (0..w * h)
                 .map(|i| if mask[i] { hash01(i, 5) - 0.5 } else { 0.0 })
                 .collect();
@@ -1511,7 +1581,14 @@ mod tests {
             extra[i] = 1.0;
         }
         let stored = Level::from_parts(w, h, east, south, |i| extra[i], &hole);
-        let level = Level::fill(w, h, &mask, &weights, below, pins.into_iter().rev().collect());
+        let level = Level::fill(
+            w,
+            h,
+            &mask,
+            &weights,
+            below,
+            pins.into_iter().rev().collect(),
+        );
         assert_same_rows(&level, &stored, "fill");
     }
 
@@ -1528,7 +1605,9 @@ mod tests {
             })
             .collect();
         // Weights that f32 cannot sum exactly: the operator must stay exactly singular anyway.
-        let level = unit_laplacian(w, h, &mask, false, |k| 0.2 + hash01(k / 2, 11 + k as u64 % 2));
+        let level = unit_laplacian(w, h, &mask, false, |k| {
+            0.2 + hash01(k / 2, 11 + k as u64 % 2)
+        });
         let truth: Vec<f64> = (0..w * h)
             .map(|i| {
                 let (r, c) = ((i / w) as f64, (i % w) as f64);

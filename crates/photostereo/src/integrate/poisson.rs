@@ -2,8 +2,8 @@
 
 use super::multigrid::{par_zeros, pcg, Hierarchy, Level, Rows};
 use super::{
-    fill_unreliable, into_depth, to_depth, Components, Depth, IntegrationProblem, IntegrationStats, Integrator,
-    Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT, DEFAULT_TOLERANCE,
+    fill_unreliable, into_depth, to_depth, Components, Depth, IntegrationProblem, IntegrationStats,
+    Integrator, Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT, DEFAULT_TOLERANCE,
 };
 use crate::error::Result;
 use crate::progress::Progress;
@@ -58,7 +58,14 @@ impl Default for Poisson {
 /// row, to the row below and from the row above). Without a prior `A` is singular, one
 /// constant per component: `b` sums to zero over each component, CG converges on it, and the
 /// caller removes the component means afterwards.
-fn rhs_row(problem: &IntegrationProblem, p: &[f32], q: &[f32], r: usize, op: &Rows, out: &mut [f64]) {
+fn rhs_row(
+    problem: &IntegrationProblem,
+    p: &[f32],
+    q: &[f32],
+    r: usize,
+    op: &Rows,
+    out: &mut [f64],
+) {
     let (w, h) = (problem.width, problem.height);
     let mask = problem.mask;
     let prior = problem.prior.filter(|pr| pr.lambda > 0.0);
@@ -133,7 +140,8 @@ impl Integrator for Poisson {
                     prior: None,
                     ..*problem
                 };
-                let mut d = Paths::default().integrate(&filled_problem, &crate::progress::Silent)?;
+                let mut d =
+                    Paths::default().integrate(&filled_problem, &crate::progress::Silent)?;
                 d.values.par_iter_mut().for_each(|v| {
                     if !v.is_finite() {
                         *v = 0.0;
@@ -155,7 +163,11 @@ impl Integrator for Poisson {
         );
         let mut r: Vec<f32> = par_zeros(w * h);
         let b_norm = level
-            .residual_from(|row, op, b| rhs_row(problem, &p, &q, row, op, b), start, &mut r)
+            .residual_from(
+                |row, op, b| rhs_row(problem, &p, &q, row, op, b),
+                start,
+                &mut r,
+            )
             .sqrt();
         drop(p);
         drop(q);
