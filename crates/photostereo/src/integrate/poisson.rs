@@ -101,6 +101,42 @@ impl Integrator for Poisson {
     }
 
     fn integrate(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
+        self.solve(problem, None, progress)
+    }
+}
+
+impl Poisson {
+    /// [`Integrator::integrate`] without a copy of the starting point: `start` (`height *
+    /// width`, e.g. the last [`Depth::values`], NaN outside the mask) is taken over, warm-starts
+    /// the solve as `problem.initial` would (values outside the mask and non-finite ones are
+    /// ignored; `problem.initial` is then not read) and becomes the returned depth's values, so
+    /// that the caller holds one depth map rather than two. The result is the same as
+    /// `integrate` with `initial: Some(&start)`. The direct solve of a full rectangle ignores
+    /// the start (and frees it first).
+    pub fn integrate_in_place(
+        &self,
+        problem: &IntegrationProblem,
+        start: Vec<f32>,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
+        if start.len() != problem.width * problem.height {
+            return Err(crate::error::Error::invalid(format!(
+                "integration: the starting depth has {} values, expected {}×{} = {}",
+                start.len(),
+                problem.width,
+                problem.height,
+                problem.width * problem.height
+            )));
+        }
+        self.solve(problem, Some(start), progress)
+    }
+
+    fn solve(
+        &self,
+        problem: &IntegrationProblem,
+        start: Option<Vec<f32>>,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
         problem.validate()?;
         let (w, h) = (problem.width, problem.height);
         if self.direct_on_rectangle
@@ -111,6 +147,7 @@ impl Integrator for Poisson {
                 .weights
                 .is_none_or(|ws| ws.par_iter().all(|&v| v == 1.0))
         {
+            drop(start);
             return Ok(self.direct(problem, progress));
         }
         let (p, q, filled) = fill_unreliable(problem, self.fill_below);
@@ -123,7 +160,19 @@ impl Integrator for Poisson {
         let components = Components::of(w, h, problem.mask);
         // The iterate lives in the returned depth map (f32): the starting point, then the
         // solution, then NaN outside the mask.
+        let warm = start.is_some() || problem.initial.is_some();
         let mut x: Vec<f32> = match self.initial_guess {
+            InitialGuess::Zero if start.is_some() => {
+                let mut x = start.unwrap_or_default();
+                x.par_iter_mut()
+                    .zip(problem.mask.par_iter())
+                    .for_each(|(v, &m)| {
+                        if !(m && v.is_finite()) {
+                            *v = 0.0;
+                        }
+                    });
+                x
+            }
             InitialGuess::Zero => match problem.initial {
                 Some(start) => start
                     .par_iter()
@@ -150,8 +199,7 @@ impl Integrator for Poisson {
                 d.values
             }
         };
-        let start = (self.initial_guess == InitialGuess::Paths || problem.initial.is_some())
-            .then_some(&x[..]);
+        let start = (self.initial_guess == InitialGuess::Paths || warm).then_some(&x[..]);
         // The normal equations' operator, computed row by row from the mask and weights.
         let level = Level::problem(
             w,
