@@ -25,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::integrate::{
     gradients_from_normals, normal_from_depth_at, normals_from_depth, weighted_normals,
-    IntegrationParams, IntegrationProblem,
+    IntegrationParams, IntegrationProblem, IntegratorKind, Poisson,
 };
 use crate::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
@@ -334,7 +334,7 @@ pub fn recursive(
                     normals_full,
                     &capture.mask,
                     &weights,
-                    (!last_depth.is_empty()).then_some(&last_depth[..]),
+                    std::mem::take(&mut last_depth),
                     integration,
                 )?;
                 // Attached shadows from the estimate where it is trusted (there the integrated
@@ -830,17 +830,28 @@ fn integrate(
     normals: Vec<[f32; 3]>,
     mask: &[bool],
     weights: &[f32],
-    initial: Option<&[f32]>,
+    initial: Vec<f32>,
     integration: &IntegrationParams,
 ) -> Result<crate::integrate::Depth> {
     let g = gradients_from_normals(w, h, &normals, Some(mask), integration.max_slope)?;
     drop(normals);
     let problem = IntegrationProblem {
         weights: Some(weights),
-        initial,
         ..IntegrationProblem::new(w, h, &g.p, &g.q, &g.mask)
     };
-    integration.method.integrator().integrate(&problem, &Silent)
+    match integration.method {
+        // `poisson` solves in the last surface's buffer: one depth map held, not two.
+        IntegratorKind::Poisson if !initial.is_empty() => {
+            Poisson::default().integrate_in_place(&problem, initial, &Silent)
+        }
+        _ => {
+            let problem = IntegrationProblem {
+                initial: (!initial.is_empty()).then_some(&initial[..]),
+                ..problem
+            };
+            integration.method.integrator().integrate(&problem, &Silent)
+        }
+    }
 }
 
 /// A near-light iteration's surface: the weighted normals integrated through the camera into

@@ -347,6 +347,22 @@ fn a_warm_start_from_a_nearby_surface_gives_the_same_solution_in_fewer_iteration
         cold.stats.iterations
     );
     assert!(warm.stats.relative_residual <= Poisson::default().tolerance);
+    // The same start handed over (no copy) gives the same depth, in its own buffer.
+    let buffer = last.values.clone();
+    let address = buffer.as_ptr();
+    let in_place = Poisson::default()
+        .integrate_in_place(&problem, buffer, &Silent)
+        .unwrap();
+    assert_eq!(in_place.values.as_ptr(), address);
+    assert_eq!(in_place.stats.iterations, warm.stats.iterations);
+    let max = max_abs_diff(&in_place.values, &warm.values);
+    assert!(max == 0.0, "in place vs initial: max diff {max}");
+    // A start of the wrong size is refused, naming it.
+    let err = Poisson::default()
+        .integrate_in_place(&problem, vec![0.0; 5], &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("starting depth has 5 values"), "{err}");
 }
 
 #[test]

@@ -671,11 +671,25 @@ pub fn surface_from_gradients(
 
 /// The 4-connected components of a mask.
 pub(crate) struct Components {
-    /// Component of each pixel (`u32::MAX` outside the mask); empty when the mask covers the
-    /// whole grid (one component), which saves a label per pixel on the common full grid.
-    labels: Vec<u32>,
+    /// Component of each pixel; whole grid (one component) without labels, which saves a label
+    /// per pixel on the common full grid; one byte per pixel for fewer than 255 components.
+    labels: Labels,
     /// Number of components.
     pub count: usize,
+}
+
+/// A view of [`Components`]' labels (`MAX` outside the mask).
+pub(crate) enum LabelSlice<'a> {
+    Whole,
+    Small(&'a [u8]),
+    Large(&'a [u32]),
+}
+
+/// Per-pixel component labels (`MAX` outside the mask).
+enum Labels {
+    Whole,
+    Small(Vec<u8>),
+    Large(Vec<u32>),
 }
 
 impl Components {
@@ -684,7 +698,7 @@ impl Components {
         let n = width * height;
         if mask.par_iter().all(|&m| m) {
             return Components {
-                labels: Vec::new(),
+                labels: Labels::Whole,
                 count: usize::from(n > 0),
             };
         }
@@ -721,6 +735,16 @@ impl Components {
             }
             count += 1;
         }
+        let labels = if count < u8::MAX as u32 {
+            Labels::Small(
+                labels
+                    .par_iter()
+                    .map(|&l| if l == u32::MAX { u8::MAX } else { l as u8 })
+                    .collect(),
+            )
+        } else {
+            Labels::Large(labels)
+        };
         Components {
             labels,
             count: count as usize,
@@ -730,53 +754,35 @@ impl Components {
     /// The component of pixel `i` (`None` outside the mask).
     #[inline]
     pub fn label(&self, i: usize) -> Option<usize> {
-        if self.labels.is_empty() {
-            return Some(0);
+        match &self.labels {
+            Labels::Whole => Some(0),
+            Labels::Small(l) => (l[i] != u8::MAX).then_some(l[i] as usize),
+            Labels::Large(l) => (l[i] != u32::MAX).then_some(l[i] as usize),
         }
-        let l = self.labels[i];
-        (l != u32::MAX).then_some(l as usize)
+    }
+
+    /// The labels.
+    pub fn labels(&self) -> LabelSlice<'_> {
+        match &self.labels {
+            Labels::Whole => LabelSlice::Whole,
+            Labels::Small(l) => LabelSlice::Small(l),
+            Labels::Large(l) => LabelSlice::Large(l),
+        }
     }
 
     /// Whether the mask covers the whole grid (one component, no labels).
     pub fn is_whole_grid(&self) -> bool {
-        self.labels.is_empty()
+        matches!(self.labels, Labels::Whole)
     }
 
-    /// The mean of `value(i)` over each component's pixels (labelled masks). Summed over
-    /// threads when the components are few, else in one pass.
-    fn labelled_means(&self, value: impl Fn(usize) -> f64 + Sync) -> Vec<f64> {
-        const BLOCK: usize = 1 << 16;
-        let k = self.count;
-        let sums = |lo: usize, labels: &[u32], sum: &mut [f64], cnt: &mut [f64]| {
-            for (j, &l) in labels.iter().enumerate() {
-                if l != u32::MAX {
-                    sum[l as usize] += value(lo + j);
-                    cnt[l as usize] += 1.0;
-                }
-            }
-        };
-        let (sum, cnt) = if k <= 64 {
-            self.labels
-                .par_chunks(BLOCK)
-                .enumerate()
-                .map(|(t, labels)| {
-                    let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
-                    sums(t * BLOCK, labels, &mut sum, &mut cnt);
-                    (sum, cnt)
-                })
-                .collect::<Vec<_>>()
-                .into_iter()
-                .fold((vec![0f64; k], vec![0f64; k]), |mut a, b| {
-                    a.0.iter_mut().zip(&b.0).for_each(|(x, y)| *x += y);
-                    a.1.iter_mut().zip(&b.1).for_each(|(x, y)| *x += y);
-                    a
-                })
-        } else {
-            let (mut sum, mut cnt) = (vec![0f64; k], vec![0f64; k]);
-            sums(0, &self.labels, &mut sum, &mut cnt);
-            (sum, cnt)
-        };
-        sum.iter().zip(&cnt).map(|(s, &c)| s / c.max(1.0)).collect()
+    /// The means of `a` (and of `b` when given) over each component's pixels (labelled masks),
+    /// in one pass. Summed over threads when the components are few, else in one thread.
+    fn labelled_means<T: Sample, U: Sample>(&self, a: &[T], b: Option<&[U]>) -> [Vec<f64>; 2] {
+        match &self.labels {
+            Labels::Whole => unreachable!("labelled means of a whole grid"),
+            Labels::Small(l) => labelled_means_of(l, self.count, a, b),
+            Labels::Large(l) => labelled_means_of(l, self.count, a, b),
+        }
     }
 
     /// The mean of `f` over each component (sums in f64).
@@ -790,25 +796,161 @@ impl Components {
                 .sum::<f64>();
             return vec![sum / f.len().max(1) as f64];
         }
-        self.labelled_means(|i| f[i].to_f64())
+        let [m, _] = self.labelled_means::<T, T>(f, None);
+        m
+    }
+
+    /// Subtracts each component's mean from `f` (values outside the mask are left alone) and
+    /// returns the means of `other` over each component, taken in the same pass (labelled
+    /// masks; empty on the whole grid).
+    pub fn remove_means_and_measure<T: Sample, U: Sample>(
+        &self,
+        f: &mut [T],
+        other: Option<&[U]>,
+    ) -> Vec<f64> {
+        if self.is_whole_grid() {
+            let mean = self.means(f)[0];
+            f.par_iter_mut()
+                .for_each(|v| *v = T::from_f64(v.to_f64() - mean));
+            return Vec::new();
+        }
+        let [mean, other_means] = self.labelled_means(f, other);
+        fn subtract<L: LabelInt, T: Sample>(labels: &[L], f: &mut [T], mean: &[f64]) {
+            f.par_chunks_mut(1 << 14)
+                .zip(labels.par_chunks(1 << 14))
+                .for_each(|(fs, ls)| {
+                    for (v, &l) in fs.iter_mut().zip(ls) {
+                        if let Some(l) = l.get() {
+                            *v = T::from_f64(v.to_f64() - mean[l]);
+                        }
+                    }
+                });
+        }
+        match &self.labels {
+            Labels::Whole => {}
+            Labels::Small(l) => subtract(l, f, &mean),
+            Labels::Large(l) => subtract(l, f, &mean),
+        }
+        other_means
     }
 
     /// Subtracts each component's mean from `f` (values outside the mask are left alone).
     pub fn remove_means<T: Sample>(&self, f: &mut [T]) {
-        let mean = self.means(f);
-        if self.is_whole_grid() {
-            f.par_iter_mut()
-                .for_each(|v| *v = T::from_f64(v.to_f64() - mean[0]));
-            return;
-        }
-        f.par_iter_mut()
-            .zip(self.labels.par_iter())
-            .for_each(|(v, &l)| {
-                if l != u32::MAX {
-                    *v = T::from_f64(v.to_f64() - mean[l as usize]);
-                }
-            });
+        self.remove_means_and_measure::<T, T>(f, None);
     }
+}
+
+/// A stored component label (`MAX` outside the mask).
+trait LabelInt: Copy + Send + Sync {
+    fn get(self) -> Option<usize>;
+}
+
+impl LabelInt for u8 {
+    #[inline]
+    fn get(self) -> Option<usize> {
+        (self != u8::MAX).then_some(self as usize)
+    }
+}
+
+impl LabelInt for u32 {
+    #[inline]
+    fn get(self) -> Option<usize> {
+        (self != u32::MAX).then_some(self as usize)
+    }
+}
+
+/// Per-component means of `a` and `b` (see [`Components::labelled_means`]).
+fn labelled_means_of<L: LabelInt, T: Sample, U: Sample>(
+    labels: &[L],
+    k: usize,
+    a: &[T],
+    b: Option<&[U]>,
+) -> [Vec<f64>; 2] {
+    const BLOCK: usize = 1 << 16;
+    let nb = usize::from(b.is_some());
+    // Sums of a, of b, and counts, per component.
+    let sums = |lo: usize, hi: usize| {
+        let mut acc = vec![[0f64; 3]; k];
+        let ls = &labels[lo..hi];
+        match b {
+            Some(b) => {
+                for ((&l, &x), &y) in ls.iter().zip(&a[lo..hi]).zip(&b[lo..hi]) {
+                    if let Some(l) = l.get() {
+                        let s = &mut acc[l];
+                        s[0] += x.to_f64();
+                        s[1] += y.to_f64();
+                        s[2] += 1.0;
+                    }
+                }
+            }
+            None => {
+                for (&l, &x) in ls.iter().zip(&a[lo..hi]) {
+                    if let Some(l) = l.get() {
+                        let s = &mut acc[l];
+                        s[0] += x.to_f64();
+                        s[2] += 1.0;
+                    }
+                }
+            }
+        }
+        acc
+    };
+    let n = labels.len();
+    if k == 1 {
+        // One component (the common masked case): branch-free sums in independent lanes.
+        const LANES: usize = 8;
+        let part = |lo: usize, hi: usize| {
+            let mut acc = [[0f64; LANES]; 3];
+            let (ls, xs) = (&labels[lo..hi], &a[lo..hi]);
+            let ys = b.map(|b| &b[lo..hi]);
+            for (j, (lc, xc)) in ls.chunks(LANES).zip(xs.chunks(LANES)).enumerate() {
+                for (q, (&l, &x)) in lc.iter().zip(xc).enumerate() {
+                    // Selects, not products: values outside the mask may be NaN.
+                    let on = l.get().is_some();
+                    acc[0][q] += if on { x.to_f64() } else { 0.0 };
+                    acc[2][q] += if on { 1.0 } else { 0.0 };
+                    if let Some(ys) = ys {
+                        acc[1][q] += if on { ys[j * LANES + q].to_f64() } else { 0.0 };
+                    }
+                }
+            }
+            acc.map(|l| l.iter().sum::<f64>())
+        };
+        let t = (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|t| part(t * BLOCK, ((t + 1) * BLOCK).min(n)))
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold([0f64; 3], |x, y| [x[0] + y[0], x[1] + y[1], x[2] + y[2]]);
+        let c = t[2].max(1.0);
+        return [
+            vec![t[0] / c],
+            if nb > 0 { vec![t[1] / c] } else { Vec::new() },
+        ];
+    }
+    let acc = if k <= 64 {
+        (0..n.div_ceil(BLOCK))
+            .into_par_iter()
+            .map(|t| sums(t * BLOCK, ((t + 1) * BLOCK).min(n)))
+            .collect::<Vec<_>>()
+            .into_iter()
+            .fold(vec![[0f64; 3]; k], |mut acc, part| {
+                for (x, y) in acc.iter_mut().zip(&part) {
+                    for j in 0..3 {
+                        x[j] += y[j];
+                    }
+                }
+                acc
+            })
+    } else {
+        sums(0, n)
+    };
+    let mean = |j: usize| {
+        acc.iter()
+            .map(|s| s[j] / s[2].max(1.0))
+            .collect::<Vec<f64>>()
+    };
+    [mean(0), if nb > 0 { mean(1) } else { Vec::new() }]
 }
 
 /// A stored value (f32 or f64) whose sums are taken in f64.
@@ -870,6 +1012,10 @@ pub(crate) fn edge_targets(
 /// Gradients with the pixels of weight below `fill_below` replaced by the harmonic interpolation
 /// of the others (Laplace's equation on the mask graph, Dirichlet data from reliable neighbours;
 /// a component without reliable pixels gets zero gradients). Returns `(p, q, filled_count)`.
+///
+/// Memory: the two copies of the gradients (f32), plus, while each is solved in place, the
+/// multigrid CG's work (three f32 vectors and the coarse levels); the holes' operator is computed
+/// from the mask and weights, not stored.
 pub(crate) fn fill_unreliable<'a>(
     problem: &IntegrationProblem<'a>,
     fill_below: f32,
@@ -879,84 +1025,90 @@ pub(crate) fn fill_unreliable<'a>(
     let Some(weights) = problem.weights else {
         return unchanged;
     };
-    let hole: Vec<bool> = (0..w * h)
-        .map(|i| problem.mask[i] && weights[i] < fill_below)
-        .collect();
-    let filled = hole.iter().filter(|&&b| b).count();
+    let mask = problem.mask;
+    let is_hole = |i: usize| mask[i] && weights[i] < fill_below;
+    let filled = (0..h)
+        .into_par_iter()
+        .map(|r| (r * w..(r + 1) * w).filter(|&i| is_hole(i)).count())
+        .sum::<usize>();
     if filled == 0 {
         return unchanged;
     }
-    let mut p = problem.p.to_vec();
-    let mut q = problem.q.to_vec();
-    let mask = problem.mask;
     let n = w * h;
-    let mut east = vec![0f32; n];
-    let mut south = vec![0f32; n];
-    let mut extra = vec![0f32; n];
-    let mut bp = vec![0f64; n];
-    let mut bq = vec![0f64; n];
-    for r in 0..h {
-        for c in 0..w {
-            let i = r * w + c;
-            if !hole[i] {
+    // Components of the holes without any reliable neighbour get one pinned cell (zero gradient).
+    let pins = {
+        let hole: Vec<bool> = (0..n).into_par_iter().map(is_hole).collect();
+        let components = Components::of(w, h, &hole);
+        let mut anchored = vec![false; components.count];
+        let mut first = vec![usize::MAX; components.count];
+        for i in 0..n {
+            let Some(l) = components.label(i) else {
                 continue;
+            };
+            if first[l] == usize::MAX {
+                first[l] = i;
             }
-            let mut nbrs = [usize::MAX; 4];
-            if c > 0 {
-                nbrs[0] = i - 1;
-            }
-            if c + 1 < w {
-                nbrs[1] = i + 1;
-            }
-            if r > 0 {
-                nbrs[2] = i - w;
-            }
-            if r + 1 < h {
-                nbrs[3] = i + w;
-            }
-            for j in nbrs.into_iter().filter(|&j| j != usize::MAX) {
-                if hole[j] {
-                    continue;
+            let (r, c) = (i / w, i % w);
+            let reliable = |j: usize| mask[j] && !hole[j];
+            anchored[l] |= (c > 0 && reliable(i - 1))
+                || (c + 1 < w && reliable(i + 1))
+                || (r > 0 && reliable(i - w))
+                || (r + 1 < h && reliable(i + w));
+        }
+        (0..components.count)
+            .filter(|&l| !anchored[l])
+            .map(|l| first[l])
+            .collect::<Vec<usize>>()
+    };
+    let mut hier = Hierarchy::new(Level::fill(w, h, mask, weights, fill_below, pins));
+    // Each gradient is solved in place in its copy: the holes start at 0, the other cells are
+    // inactive (never read through a non-zero weight, never written).
+    let mut solve_in_place = |g: &[f32]| -> Vec<f32> {
+        let mut x: Vec<f32> = g
+            .par_iter()
+            .enumerate()
+            .map(|(i, &v)| if is_hole(i) { 0.0 } else { v })
+            .collect();
+        let mut r: Vec<f32> = multigrid::par_zeros(n);
+        // b_i: the sum of the gradient over the hole's reliable neighbours.
+        let b_norm2 = hier.fine().residual_from(
+            |row, _, b| {
+                for (c, bv) in b.iter_mut().enumerate() {
+                    let i = row * w + c;
+                    *bv = 0.0;
+                    if !is_hole(i) {
+                        continue;
+                    }
+                    let nbrs = [
+                        (c > 0, i.wrapping_sub(1)),
+                        (c + 1 < w, i + 1),
+                        (row > 0, i.wrapping_sub(w)),
+                        (row + 1 < h, i + w),
+                    ];
+                    for (ok, j) in nbrs {
+                        if ok && mask[j] && !is_hole(j) {
+                            *bv += g[j] as f64;
+                        }
+                    }
                 }
-                if mask[j] {
-                    extra[i] += 1.0;
-                    bp[i] += problem.p[j] as f64;
-                    bq[i] += problem.q[j] as f64;
-                }
-            }
-            if c + 1 < w && hole[i + 1] {
-                east[i] = 1.0;
-            }
-            if r + 1 < h && hole[i + w] {
-                south[i] = 1.0;
-            }
-        }
-    }
-    // Components of the hole without any reliable neighbour: pin one cell (zero gradient).
-    let components = Components::of(w, h, &hole);
-    let mut anchored = vec![false; components.count];
-    for (i, &x) in extra.iter().enumerate() {
-        if let Some(l) = components.label(i) {
-            anchored[l] |= x > 0.0;
-        }
-    }
-    for (i, x) in extra.iter_mut().enumerate() {
-        if let Some(l) = components.label(i) {
-            if !anchored[l] {
-                *x = 1.0;
-                anchored[l] = true;
-            }
-        }
-    }
-    let mut hier = Hierarchy::new(Level::from_parts(w, h, east, south, |i| extra[i], &hole));
-    let sp = pcg(&mut hier, bp, None, None, 1e-6, 200, &Silent);
-    let sq = pcg(&mut hier, bq, None, None, 1e-6, 200, &Silent);
-    for i in 0..n {
-        if hole[i] {
-            p[i] = sp.x[i] as f32;
-            q[i] = sq.x[i] as f32;
-        }
-    }
+            },
+            None,
+            &mut r,
+        );
+        pcg(
+            &mut hier,
+            &mut r,
+            b_norm2.sqrt(),
+            &mut x,
+            None,
+            1e-6,
+            200,
+            &Silent,
+        );
+        x
+    };
+    let p = solve_in_place(problem.p);
+    let q = solve_in_place(problem.q);
     (Cow::Owned(p), Cow::Owned(q), filled)
 }
 
@@ -973,6 +1125,30 @@ pub(crate) fn to_depth(
         .zip(mask.par_iter())
         .map(|(&v, &m)| if m { v as f32 } else { f32::NAN })
         .collect();
+    Depth {
+        width,
+        height,
+        values,
+        stats,
+    }
+}
+
+/// A solution computed in place in f32 made a depth map: NaN outside the mask (no copy).
+pub(crate) fn into_depth(
+    width: usize,
+    height: usize,
+    mut values: Vec<f32>,
+    mask: &[bool],
+    stats: IntegrationStats,
+) -> Depth {
+    values
+        .par_iter_mut()
+        .zip(mask.par_iter())
+        .for_each(|(v, &m)| {
+            if !m {
+                *v = f32::NAN;
+            }
+        });
     Depth {
         width,
         height,

@@ -1,9 +1,9 @@
 //! `poisson`: masked weighted least squares, solved by multigrid-preconditioned CG.
 
-use super::multigrid::{par_zeros, pcg, Hierarchy, Level};
+use super::multigrid::{par_zeros, pcg, Hierarchy, Level, Rows};
 use super::{
-    fill_unreliable, to_depth, Components, Depth, IntegrationProblem, IntegrationStats, Integrator,
-    Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT, DEFAULT_TOLERANCE,
+    fill_unreliable, into_depth, to_depth, Components, Depth, IntegrationProblem, IntegrationStats,
+    Integrator, Paths, DEFAULT_FILL_BELOW, DEFAULT_MIN_EDGE_WEIGHT, DEFAULT_TOLERANCE,
 };
 use crate::error::Result;
 use crate::progress::Progress;
@@ -53,74 +53,46 @@ impl Default for Poisson {
     }
 }
 
-/// The normal equations of one problem: operator (finest level) and right-hand side.
-pub(crate) struct System {
-    pub level: Level,
-    pub rhs: Vec<f64>,
-}
-
-/// Builds `A` and `b` of `Σ w_e (f_b − f_a − d_e)² + λ Σ (f_i − z_i)²` from (filled) gradients.
-/// Without a prior `A` is singular, one constant per component: `b` sums to zero over each
-/// component, CG converges on it, and the caller removes the component means afterwards.
-pub(crate) fn build_system(
+/// Row `r` of `b` in `A f = b` for `Σ w_e (f_b − f_a − d_e)² + λ Σ (f_i − z_i)²`, from the
+/// (filled) gradients and the operator's rows (`op.e`, `op.s`, `op.su`: the edge weights of the
+/// row, to the row below and from the row above). Without a prior `A` is singular, one
+/// constant per component: `b` sums to zero over each component, CG converges on it, and the
+/// caller removes the component means afterwards.
+fn rhs_row(
     problem: &IntegrationProblem,
     p: &[f32],
     q: &[f32],
-    min_edge_weight: f32,
-) -> System {
+    r: usize,
+    op: &Rows,
+    out: &mut [f64],
+) {
     let (w, h) = (problem.width, problem.height);
-    let n = w * h;
     let mask = problem.mask;
-    let weight = |i: usize| problem.weights.map_or(1.0, |ws| ws[i]);
-    let edge = |a: usize, b: usize| weight(a).min(weight(b)).max(min_edge_weight);
-    let mut east: Vec<f32> = par_zeros(n);
-    let mut south: Vec<f32> = par_zeros(n);
-    east.par_chunks_mut(w)
-        .zip(south.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(r, (erow, srow))| {
-            for c in 0..w {
-                let i = r * w + c;
-                if !mask[i] {
-                    continue;
-                }
-                if c + 1 < w && mask[i + 1] {
-                    erow[c] = edge(i, i + 1);
-                }
-                if r + 1 < h && mask[i + w] {
-                    srow[c] = edge(i, i + w);
-                }
-            }
-        });
-    let mut rhs: Vec<f64> = par_zeros(n);
-    let lambda = problem.prior.map_or(0.0, |pr| pr.lambda);
-    rhs.par_chunks_mut(w).enumerate().for_each(|(r, row)| {
-        for (c, b) in row.iter_mut().enumerate() {
-            let i = r * w + c;
-            if !mask[i] {
-                continue;
-            }
-            let mut s = 0f64;
-            if c + 1 < w && east[i] > 0.0 {
-                s -= east[i] as f64 * 0.5 * (p[i] as f64 + p[i + 1] as f64);
-            }
-            if c > 0 && east[i - 1] > 0.0 {
-                s += east[i - 1] as f64 * 0.5 * (p[i] as f64 + p[i - 1] as f64);
-            }
-            if r + 1 < h && south[i] > 0.0 {
-                s -= south[i] as f64 * 0.5 * (q[i] as f64 + q[i + w] as f64);
-            }
-            if r > 0 && south[i - w] > 0.0 {
-                s += south[i - w] as f64 * 0.5 * (q[i] as f64 + q[i - w] as f64);
-            }
-            if let Some(prior) = problem.prior {
-                s += lambda as f64 * prior.depth[i] as f64;
-            }
-            *b = s;
+    let prior = problem.prior.filter(|pr| pr.lambda > 0.0);
+    for (c, b) in out.iter_mut().enumerate() {
+        let i = r * w + c;
+        if !mask[i] {
+            *b = 0.0;
+            continue;
         }
-    });
-    let level = Level::from_parts(w, h, east, south, |_| lambda, mask);
-    System { level, rhs }
+        let mut s = 0f64;
+        if c + 1 < w && op.e[c] > 0.0 {
+            s -= op.e[c] as f64 * 0.5 * (p[i] as f64 + p[i + 1] as f64);
+        }
+        if c > 0 && op.e[c - 1] > 0.0 {
+            s += op.e[c - 1] as f64 * 0.5 * (p[i] as f64 + p[i - 1] as f64);
+        }
+        if r + 1 < h && op.s[c] > 0.0 {
+            s -= op.s[c] as f64 * 0.5 * (q[i] as f64 + q[i + w] as f64);
+        }
+        if r > 0 && op.su[c] > 0.0 {
+            s += op.su[c] as f64 * 0.5 * (q[i] as f64 + q[i - w] as f64);
+        }
+        if let Some(prior) = prior {
+            s += prior.lambda as f64 * prior.depth[i] as f64;
+        }
+        *b = s;
+    }
 }
 
 impl Integrator for Poisson {
@@ -129,6 +101,42 @@ impl Integrator for Poisson {
     }
 
     fn integrate(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
+        self.solve(problem, None, progress)
+    }
+}
+
+impl Poisson {
+    /// [`Integrator::integrate`] without a copy of the starting point: `start` (`height *
+    /// width`, e.g. the last [`Depth::values`], NaN outside the mask) is taken over, warm-starts
+    /// the solve as `problem.initial` would (values outside the mask and non-finite ones are
+    /// ignored; `problem.initial` is then not read) and becomes the returned depth's values, so
+    /// that the caller holds one depth map rather than two. The result is the same as
+    /// `integrate` with `initial: Some(&start)`. The direct solve of a full rectangle ignores
+    /// the start (and frees it first).
+    pub fn integrate_in_place(
+        &self,
+        problem: &IntegrationProblem,
+        start: Vec<f32>,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
+        if start.len() != problem.width * problem.height {
+            return Err(crate::error::Error::invalid(format!(
+                "integration: the starting depth has {} values, expected {}×{} = {}",
+                start.len(),
+                problem.width,
+                problem.height,
+                problem.width * problem.height
+            )));
+        }
+        self.solve(problem, Some(start), progress)
+    }
+
+    fn solve(
+        &self,
+        problem: &IntegrationProblem,
+        start: Option<Vec<f32>>,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
         problem.validate()?;
         let (w, h) = (problem.width, problem.height);
         if self.direct_on_rectangle
@@ -139,19 +147,40 @@ impl Integrator for Poisson {
                 .weights
                 .is_none_or(|ws| ws.par_iter().all(|&v| v == 1.0))
         {
+            drop(start);
             return Ok(self.direct(problem, progress));
         }
         let (p, q, filled) = fill_unreliable(problem, self.fill_below);
         let has_prior = problem.prior.is_some_and(|pr| pr.lambda > 0.0);
+        let lambda = if has_prior {
+            problem.prior.map_or(0.0, |pr| pr.lambda)
+        } else {
+            0.0
+        };
         let components = Components::of(w, h, problem.mask);
-        let x0 = match self.initial_guess {
-            InitialGuess::Zero => problem.initial.map(|start| {
-                start
+        // The iterate lives in the returned depth map (f32): the starting point, then the
+        // solution, then NaN outside the mask.
+        let warm = start.is_some() || problem.initial.is_some();
+        let mut x: Vec<f32> = match self.initial_guess {
+            InitialGuess::Zero if start.is_some() => {
+                let mut x = start.unwrap_or_default();
+                x.par_iter_mut()
+                    .zip(problem.mask.par_iter())
+                    .for_each(|(v, &m)| {
+                        if !(m && v.is_finite()) {
+                            *v = 0.0;
+                        }
+                    });
+                x
+            }
+            InitialGuess::Zero => match problem.initial {
+                Some(start) => start
                     .par_iter()
                     .zip(problem.mask.par_iter())
-                    .map(|(&v, &m)| if m && v.is_finite() { v as f64 } else { 0.0 })
-                    .collect::<Vec<f64>>()
-            }),
+                    .map(|(&v, &m)| if m && v.is_finite() { v } else { 0.0 })
+                    .collect(),
+                None => par_zeros(w * h),
+            },
             InitialGuess::Paths => {
                 let filled_problem = IntegrationProblem {
                     p: &p,
@@ -160,16 +189,34 @@ impl Integrator for Poisson {
                     prior: None,
                     ..*problem
                 };
-                let d = Paths::default().integrate(&filled_problem, &crate::progress::Silent)?;
-                Some(
-                    d.values
-                        .iter()
-                        .map(|&v| if v.is_finite() { v as f64 } else { 0.0 })
-                        .collect::<Vec<f64>>(),
-                )
+                let mut d =
+                    Paths::default().integrate(&filled_problem, &crate::progress::Silent)?;
+                d.values.par_iter_mut().for_each(|v| {
+                    if !v.is_finite() {
+                        *v = 0.0;
+                    }
+                });
+                d.values
             }
         };
-        let System { level, rhs } = build_system(problem, &p, &q, self.min_edge_weight);
+        let start = (self.initial_guess == InitialGuess::Paths || warm).then_some(&x[..]);
+        // The normal equations' operator, computed row by row from the mask and weights.
+        let level = Level::problem(
+            w,
+            h,
+            problem.mask,
+            problem.weights,
+            self.min_edge_weight,
+            lambda,
+        );
+        let mut r: Vec<f32> = par_zeros(w * h);
+        let b_norm = level
+            .residual_from(
+                |row, op, b| rhs_row(problem, &p, &q, row, op, b),
+                start,
+                &mut r,
+            )
+            .sqrt();
         drop(p);
         drop(q);
         let mut hier = Hierarchy::new(level);
@@ -177,15 +224,16 @@ impl Integrator for Poisson {
         progress.begin("integrate", self.max_iterations as u64);
         let solve = pcg(
             &mut hier,
-            rhs,
-            x0,
+            &mut r,
+            b_norm,
+            &mut x,
             (!has_prior).then_some(&components),
             self.tolerance,
             self.max_iterations,
             progress,
         );
         progress.end();
-        let mut x = solve.x;
+        drop(r);
         if !has_prior {
             components.remove_means(&mut x);
         }
@@ -206,7 +254,7 @@ impl Integrator for Poisson {
             direct: false,
             notes,
         };
-        Ok(to_depth(w, h, &x, problem.mask, stats))
+        Ok(into_depth(w, h, x, problem.mask, stats))
     }
 }
 
