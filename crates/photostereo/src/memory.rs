@@ -20,15 +20,16 @@ use crate::store::SampleType;
 /// Bytes per frame pixel of the full-frame stages, independent of the light count and of the
 /// mask: at their largest, the final integration's gradients, weights and trust and the
 /// integrator's work arrays; elsewhere the depth, one normal map, the recursion's maps and the
-/// exported maps. Set on measured peaks (README, Memory) with a margin of about 40%.
-pub const FRAME_BYTES_PER_PIXEL: u64 = 70;
+/// exported maps. Set on measured peaks (README, Memory) with a margin: about 18 bytes per
+/// frame pixel and 155 per mask pixel (24 lights) were measured.
+pub const FRAME_BYTES_PER_PIXEL: u64 = 40;
 /// Bits per frame pixel and light: the shadow maps of one surface (2, as bit planes) and a
 /// margin for the light-by-light planes of the outputs.
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 4;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
 /// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
 /// shadow bits and the attribution's keys.
-pub const MASK_BYTES_PER_PIXEL: u64 = 80;
+pub const MASK_BYTES_PER_PIXEL: u64 = 110;
 /// Bytes per mask pixel and light held for the whole capture: the recursive method's light
 /// statuses (the current, the new and the last iteration's own).
 pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 3;
