@@ -130,15 +130,74 @@ pub(crate) fn cast_shadows_where(
     light: [f64; 3],
     wanted: Option<&[bool]>,
 ) -> Vec<bool> {
+    cast_shadows_in(scene, &ShadowField::new(scene), light, wanted)
+}
+
+/// What the ray march of a scene needs for any light, built once per scene and shared by its
+/// lights: the heights of mask pixels (NaN elsewhere, so one look-up tells a cell's corners
+/// and whether they are all in the mask), the highest mask point, and the tiles' maxima.
+pub(crate) struct ShadowField {
+    /// Height of each mask pixel, pixel units; NaN outside the mask.
+    masked: Vec<f32>,
+    max_h: f64,
+    coarse: TileMax,
+    fine: TileMax,
+}
+
+impl ShadowField {
+    pub(crate) fn new(scene: &Scene) -> Self {
+        ShadowField {
+            masked: scene
+                .depth
+                .iter()
+                .zip(&scene.mask)
+                .map(|(&d, &m)| if m { d } else { f32::NAN })
+                .collect(),
+            max_h: max_mask_height(scene),
+            coarse: TileMax::new(scene, COARSE_SHIFT),
+            fine: TileMax::new(scene, FINE_SHIFT),
+        }
+    }
+}
+
+/// [`cast_shadows_where`] with the scene's [`ShadowField`] given.
+pub(crate) fn cast_shadows_in(
+    scene: &Scene,
+    field: &ShadowField,
+    light: [f64; 3],
+    wanted: Option<&[bool]>,
+) -> Vec<bool> {
     let step = RENDER_STEP_PX;
     let (w, hgt) = (scene.width, scene.height);
     let mut out = vec![false; w * hgt];
     let Some((dr, dc, dz)) = ray_steps(light) else {
         return out;
     };
-    let max_h = max_mask_height(scene);
-    let coarse = TileMax::new(scene, COARSE_SHIFT);
-    let fine = TileMax::new(scene, FINE_SHIFT);
+    let max_h = field.max_h;
+    let (coarse, fine) = (&field.coarse, &field.fine);
+    let masked = field.masked.as_slice();
+    let (last_row, last_col) = ((hgt - 1) as f64, (w - 1) as f64);
+    // Bilinear height at (r, c) inside the frame, as `height_at` computes it: `None` when a
+    // corner of the cell is outside the mask (NaN there).
+    let height_in = |r: f64, c: f64| -> Option<f64> {
+        let r0 = r as usize;
+        let c0 = c as usize;
+        let r1 = (r0 + 1).min(hgt - 1);
+        let c1 = (c0 + 1).min(w - 1);
+        let (a, b) = (masked[r0 * w + c0], masked[r0 * w + c1]);
+        let (cc, d) = (masked[r1 * w + c0], masked[r1 * w + c1]);
+        if a.is_nan() || b.is_nan() || cc.is_nan() || d.is_nan() {
+            return None;
+        }
+        let fr = r - r0 as f64;
+        let fc = c - c0 as f64;
+        Some(
+            a as f64 * (1.0 - fr) * (1.0 - fc)
+                + b as f64 * (1.0 - fr) * fc
+                + cc as f64 * fr * (1.0 - fc)
+                + d as f64 * fr * fc,
+        )
+    };
     out.par_chunks_mut(w)
         .enumerate()
         .for_each(|(row, out_row)| {
@@ -156,7 +215,7 @@ pub(crate) fn cast_shadows_where(
                         break;
                     }
                     let (r, c) = (row as f64 + dr * t, col as f64 + dc * t);
-                    if outside_frame(scene, r, c) {
+                    if r < 0.0 || c < 0.0 || r > last_row || c > last_col {
                         break;
                     }
                     let (ri, ci) = (r as usize, c as usize);
@@ -184,7 +243,7 @@ pub(crate) fn cast_shadows_where(
                         k += jump.max(1);
                         continue;
                     }
-                    if matches!(height_at(scene, r, c), Some(h) if h > z) {
+                    if matches!(height_in(r, c), Some(h) if h > z) {
                         *o = true;
                         break;
                     }
