@@ -20,6 +20,11 @@ const RAY_OFFSET: f64 = 1e-4;
 /// let [`cast_shadows`] skip empty space.
 const COARSE_SHIFT: u32 = 4;
 const FINE_SHIFT: u32 = 2;
+/// The bilinear cells themselves (side 1): a sample is skipped when the ray is above its
+/// cell's four corners by more than [`CELL_MARGIN`] (relative), so that the rounding of the
+/// bilinear mean can never matter.
+const CELL_SHIFT: u32 = 0;
+const CELL_MARGIN: f64 = 1e-9;
 
 /// Bilinear height at fractional (row, col); `None` outside the frame or when a corner of the
 /// cell is outside the mask.
@@ -142,10 +147,60 @@ pub(crate) struct ShadowField {
     max_h: f64,
     coarse: TileMax,
     fine: TileMax,
+    /// Per cell: the highest of its four corners plus the margin; −∞ where a corner is
+    /// outside the mask (no sample there can hit).
+    cell: Vec<f64>,
+    /// Per coarse tile and direction quadrant ([`quadrant`]): the highest point of the tiles a
+    /// ray in that quadrant can still reach from the tile (itself and those at or beyond it
+    /// on both axes), plus the margin. A ray above it never meets the surface again.
+    ahead: [Vec<f64>; 4],
+}
+
+/// The quadrant of a ray's direction: rows growing (`dr` ≥ 0) and columns growing (`dc` ≥ 0)
+/// as bits 0 and 1.
+#[inline]
+fn quadrant(dr: f64, dc: f64) -> usize {
+    (dr >= 0.0) as usize | ((dc >= 0.0) as usize) << 1
+}
+
+/// [`ShadowField::ahead`] for one quadrant `q`.
+fn ahead_of(coarse: &TileMax, rows: usize, q: usize) -> Vec<f64> {
+    let cols = coarse.cols;
+    let mut out = coarse.max.clone();
+    let (down, right) = (q & 1 == 1, q & 2 == 2);
+    let order = |n: usize, forward: bool| -> Vec<usize> {
+        // Tiles farther along the direction first.
+        if forward {
+            (0..n).rev().collect()
+        } else {
+            (0..n).collect()
+        }
+    };
+    for &tr in &order(rows, down) {
+        for &tc in &order(cols, right) {
+            let mut m = out[tr * cols + tc];
+            let next_r = if down { tr + 1 } else { tr.wrapping_sub(1) };
+            let next_c = if right { tc + 1 } else { tc.wrapping_sub(1) };
+            if next_r < rows {
+                m = m.max(out[next_r * cols + tc]);
+            }
+            if next_c < cols {
+                m = m.max(out[tr * cols + next_c]);
+            }
+            out[tr * cols + tc] = m;
+        }
+    }
+    for m in &mut out {
+        *m += CELL_MARGIN * (1.0 + m.abs());
+    }
+    out
 }
 
 impl ShadowField {
     pub(crate) fn new(scene: &Scene) -> Self {
+        let coarse = TileMax::new(scene, COARSE_SHIFT);
+        let rows = scene.height.div_ceil(1 << COARSE_SHIFT);
+        let ahead = [0, 1, 2, 3].map(|q| ahead_of(&coarse, rows, q));
         ShadowField {
             masked: scene
                 .depth
@@ -154,8 +209,10 @@ impl ShadowField {
                 .map(|(&d, &m)| if m { d } else { f32::NAN })
                 .collect(),
             max_h: max_mask_height(scene),
-            coarse: TileMax::new(scene, COARSE_SHIFT),
+            coarse,
             fine: TileMax::new(scene, FINE_SHIFT),
+            cell: cell_bounds(scene),
+            ahead,
         }
     }
 }
@@ -174,7 +231,17 @@ pub(crate) fn cast_shadows_in(
         return out;
     };
     let max_h = field.max_h;
-    let (coarse, fine) = (&field.coarse, &field.fine);
+    let (coarse, fine, cell) = (&field.coarse, &field.fine, field.cell.as_slice());
+    // Travel per unit of row and column (∞ along an axis the ray does not move on).
+    let inv = |d: f64| {
+        if d.abs() > 1e-12 {
+            1.0 / d
+        } else {
+            f64::INFINITY
+        }
+    };
+    let (inv_dr, inv_dc) = (inv(dr), inv(dc));
+    let ahead = field.ahead[quadrant(dr, dc)].as_slice();
     let masked = field.masked.as_slice();
     let (last_row, last_col) = ((hgt - 1) as f64, (w - 1) as f64);
     // Bilinear height at (r, c) inside the frame, as `height_at` computes it: `None` when a
@@ -219,19 +286,25 @@ pub(crate) fn cast_shadows_in(
                         break;
                     }
                     let (ri, ci) = (r as usize, c as usize);
+                    // Above everything the ray can still reach: lit (the ray only rises).
+                    if z > ahead[(ri >> COARSE_SHIFT) * coarse.cols + (ci >> COARSE_SHIFT)] {
+                        break;
+                    }
                     let skip_shift = if z > coarse.max_at(ri, ci) {
                         Some(COARSE_SHIFT)
                     } else if z > fine.max_at(ri, ci) {
                         Some(FINE_SHIFT)
+                    } else if z > cell[ri * w + ci] {
+                        Some(CELL_SHIFT)
                     } else {
                         None
                     };
                     if let Some(shift) = skip_shift {
                         // Horizontal travel to the tile's far side along the ray; the samples
                         // before it are inside the tile, below the ray.
-                        let exit = axis_exit(r, dr, ri >> shift, shift).min(axis_exit(
+                        let exit = exit_along(r, inv_dr, ri >> shift, shift).min(exit_along(
                             c,
-                            dc,
+                            inv_dc,
                             ci >> shift,
                             shift,
                         ));
@@ -255,18 +328,42 @@ pub(crate) fn cast_shadows_in(
 }
 
 /// Travel (pixels along the ray's horizontal direction) from coordinate `x` until it leaves
-/// tile number `index` (of side 2^`shift`) on its axis, moving by `d` per unit of travel.
+/// tile number `index` (of side 2^`shift`) on its axis, given the travel per unit of that axis
+/// `inv_d` (the reciprocal of the ray's step on it; ∞ when the ray does not move on it).
 #[inline]
-fn axis_exit(x: f64, d: f64, index: usize, shift: u32) -> f64 {
+fn exit_along(x: f64, inv_d: f64, index: usize, shift: u32) -> f64 {
     let lo = (index << shift) as f64;
     let hi = lo + (1usize << shift) as f64;
-    if d > 1e-12 {
-        (hi - x) / d
-    } else if d < -1e-12 {
-        (x - lo) / -d
-    } else {
+    if inv_d.is_infinite() {
         f64::INFINITY
+    } else if inv_d > 0.0 {
+        (hi - x) * inv_d
+    } else {
+        (lo - x) * inv_d
     }
+}
+
+/// Per bilinear cell (top-left pixel (r, c), corners up to the next row and column, clamped
+/// at the frame's edge): the highest corner raised by [`CELL_MARGIN`], or −∞ when a corner is
+/// outside the mask.
+fn cell_bounds(scene: &Scene) -> Vec<f64> {
+    let (w, h) = (scene.width, scene.height);
+    let mut out = vec![f64::NEG_INFINITY; w * h];
+    for r in 0..h {
+        let r1 = (r + 1).min(h - 1);
+        for c in 0..w {
+            let c1 = (c + 1).min(w - 1);
+            let ids = [r * w + c, r * w + c1, r1 * w + c, r1 * w + c1];
+            if ids.iter().all(|&i| scene.mask[i]) {
+                let m = ids
+                    .iter()
+                    .map(|&i| scene.depth[i] as f64)
+                    .fold(f64::NEG_INFINITY, f64::max);
+                out[r * w + c] = m + CELL_MARGIN * (1.0 + m.abs());
+            }
+        }
+    }
+    out
 }
 
 /// Maximum height of mask pixels per tile, over the tile's pixels and the next row and column
