@@ -119,9 +119,9 @@ pub fn colormap(t: f32) -> [u8; 3] {
 /// 2^23 the fraction x − trunc(x) of a non-negative x is exact.
 #[inline]
 pub fn round_u8(x: f32) -> u8 {
-    let whole = x as u32; // truncation, saturating at 0 for negatives and NaN
+    let whole = x as u32; // truncation, saturating (0 for negatives and NaN)
     let up = x - whole as f32 >= 0.5;
-    (whole + up as u32).min(255) as u8
+    whole.saturating_add(up as u32).min(255) as u8
 }
 
 /// Renders per-pixel values (NaN = no data, drawn dark grey) with the colour map over
@@ -273,6 +273,33 @@ fn glyph(ch: char) -> Option<[u8; 7]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn round_u8_is_f32_round_then_a_saturating_cast() {
+        let mut values = vec![
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            -0.5,
+            -0.7,
+            1e9,
+        ];
+        for k in 0..=300u32 {
+            let x = k as f32;
+            values.extend([x, x + 0.5, x - 0.5, x + 0.49999997, x + 0.25, x + 0.75]);
+            values.extend([
+                f32::from_bits((x + 0.5).to_bits() - 1),
+                f32::from_bits((x + 0.5).to_bits() + 1),
+            ]);
+        }
+        for k in 0..100_000u32 {
+            values.push(k as f32 * 0.002_551);
+        }
+        for v in values {
+            assert_eq!(round_u8(v), v.round() as u8, "{v:?}");
+        }
+    }
 
     #[test]
     fn colormap_is_monotone_in_lightness() {

@@ -715,3 +715,27 @@ pub fn synth_streamed(
     let target = folder.commit()?;
     Ok((stats, lights, target))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn to_u16_is_the_rounded_scaled_value() {
+        let reference = |v: f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+        let mut values = vec![f32::NAN, -1.0, 0.0, 1.0, 2.0, f32::INFINITY, 0.5 / 65535.0];
+        for q in 0..=65535u32 {
+            let v = q as f32 / 65535.0;
+            values.extend([v, (q as f64 / 65535.0) as f32]);
+            let tie = (q as f32 + 0.5) / 65535.0;
+            values.extend([
+                tie,
+                f32::from_bits(tie.to_bits() - 1),
+                f32::from_bits(tie.to_bits() + 1),
+            ]);
+        }
+        for v in values {
+            assert_eq!(to_u16(v), reference(v), "{v:?}");
+        }
+    }
+}

@@ -246,9 +246,8 @@ pub(crate) fn cast_shadows_in(
     let (last_row, last_col) = ((hgt - 1) as f64, (w - 1) as f64);
     // Bilinear height at (r, c) inside the frame, as `height_at` computes it: `None` when a
     // corner of the cell is outside the mask (NaN there).
-    let height_in = |r: f64, c: f64| -> Option<f64> {
-        let r0 = r as usize;
-        let c0 = c as usize;
+    // (r0, c0) = (⌊r⌋, ⌊c⌋), the cell.
+    let height_in = |r: f64, c: f64, r0: usize, c0: usize| -> Option<f64> {
         let r1 = (r0 + 1).min(hgt - 1);
         let c1 = (c0 + 1).min(w - 1);
         let (a, b) = (masked[r0 * w + c0], masked[r0 * w + c1]);
@@ -274,7 +273,9 @@ pub(crate) fn cast_shadows_in(
                     continue;
                 }
                 let h0 = scene.depth[i] as f64;
-                let mut k = 1u64;
+                // Signed integers throughout: their conversions to and from f64 are single
+                // instructions (the values are far from the ranges where they differ).
+                let mut k = 1i64;
                 loop {
                     let t = k as f64 * step;
                     let z = h0 + RAY_OFFSET + dz * t;
@@ -285,7 +286,8 @@ pub(crate) fn cast_shadows_in(
                     if r < 0.0 || c < 0.0 || r > last_row || c > last_col {
                         break;
                     }
-                    let (ri, ci) = (r as usize, c as usize);
+                    // Non-negative here: truncation is the floor.
+                    let (ri, ci) = (r as i64 as usize, c as i64 as usize);
                     // Above everything the ray can still reach: lit (the ray only rises).
                     if z > ahead[(ri >> COARSE_SHIFT) * coarse.cols + (ci >> COARSE_SHIFT)] {
                         break;
@@ -311,12 +313,12 @@ pub(crate) fn cast_shadows_in(
                         // Jump to the first sample at or past the exit (less a margin far above
                         // rounding): every sample skipped lies strictly inside the tile.
                         let x = ((exit - 1e-7) / step).max(0.0);
-                        let whole = x as u64; // truncation = floor here, without a libm call
+                        let whole = x as i64; // truncation = floor here, without a libm call
                         let jump = if (whole as f64) < x { whole + 1 } else { whole };
                         k += jump.max(1);
                         continue;
                     }
-                    if matches!(height_in(r, c), Some(h) if h > z) {
+                    if matches!(height_in(r, c, ri, ci), Some(h) if h > z) {
                         *o = true;
                         break;
                     }
