@@ -426,7 +426,7 @@ fn rgb_picture(img: &Image) -> Canvas {
             c.put(
                 col,
                 row,
-                px.map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8),
+                px.map(|v| photostereo::figure::round_u8(v.clamp(0.0, 1.0) * 255.0)),
             );
         }
     }

@@ -16,10 +16,7 @@ pub struct Canvas {
 impl Canvas {
     /// A canvas filled with `background`.
     pub fn new(width: usize, height: usize, background: [u8; 3]) -> Self {
-        let mut data = Vec::with_capacity(width * height * 3);
-        for _ in 0..width * height {
-            data.extend_from_slice(&background);
-        }
+        let data = background.repeat(width * height);
         Canvas {
             width,
             height,
@@ -47,15 +44,15 @@ impl Canvas {
 
     /// Copies another canvas with its top-left corner at (x, y).
     pub fn blit(&mut self, src: &Canvas, x: usize, y: usize) {
-        for yy in 0..src.height {
-            for xx in 0..src.width {
-                let i = (yy * src.width + xx) * 3;
-                self.put(
-                    x + xx,
-                    y + yy,
-                    [src.data[i], src.data[i + 1], src.data[i + 2]],
-                );
-            }
+        // Row by row, clipped to this canvas (what `put` per pixel would keep).
+        if x >= self.width {
+            return;
+        }
+        let w = src.width.min(self.width - x);
+        for yy in 0..src.height.min(self.height.saturating_sub(y)) {
+            let s = yy * src.width * 3;
+            let d = ((y + yy) * self.width + x) * 3;
+            self.data[d..d + w * 3].copy_from_slice(&src.data[s..s + w * 3]);
         }
     }
 
@@ -108,13 +105,23 @@ pub fn colormap(t: f32) -> [u8; 3] {
         0.0
     };
     let x = t * (STOPS.len() - 1) as f32;
-    let i = (x.floor() as usize).min(STOPS.len() - 2);
+    // x ≥ 0: truncation is the floor.
+    let i = (x as usize).min(STOPS.len() - 2);
     let f = x - i as f32;
     let mut out = [0u8; 3];
     for c in 0..3 {
-        out[c] = (STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f).round() as u8;
+        out[c] = round_u8(STOPS[i][c] * (1.0 - f) + STOPS[i + 1][c] * f);
     }
     out
+}
+
+/// `x.round() as u8` (half away from zero, saturating, NaN to 0) without a libm call: below
+/// 2^23 the fraction x − trunc(x) of a non-negative x is exact.
+#[inline]
+pub fn round_u8(x: f32) -> u8 {
+    let whole = x as u32; // truncation, saturating (0 for negatives and NaN)
+    let up = x - whole as f32 >= 0.5;
+    whole.saturating_add(up as u32).min(255) as u8
 }
 
 /// Renders per-pixel values (NaN = no data, drawn dark grey) with the colour map over
@@ -190,7 +197,7 @@ pub fn normals_picture(normals: &[[f32; 3]], width: usize, height: usize) -> Can
             c.put(
                 i % width,
                 i / width,
-                n.map(|v| (((v + 1.0) * 0.5).clamp(0.0, 1.0) * 255.0).round() as u8),
+                n.map(|v| round_u8(((v + 1.0) * 0.5).clamp(0.0, 1.0) * 255.0)),
             );
         }
     }
@@ -201,7 +208,7 @@ pub fn normals_picture(normals: &[[f32; 3]], width: usize, height: usize) -> Can
 pub fn grey_picture(values: &[f32], width: usize, height: usize) -> Canvas {
     let mut c = Canvas::new(width, height, [0, 0, 0]);
     for (i, v) in values.iter().enumerate() {
-        let g = (v.clamp(0.0, 1.0) * 255.0).round() as u8;
+        let g = round_u8(v.clamp(0.0, 1.0) * 255.0);
         c.put(i % width, i / width, [g, g, g]);
     }
     c
@@ -266,6 +273,33 @@ fn glyph(ch: char) -> Option<[u8; 7]> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn round_u8_is_f32_round_then_a_saturating_cast() {
+        let mut values = vec![
+            f32::NAN,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -0.0,
+            -0.5,
+            -0.7,
+            1e9,
+        ];
+        for k in 0..=300u32 {
+            let x = k as f32;
+            values.extend([x, x + 0.5, x - 0.5, x + 0.49999997, x + 0.25, x + 0.75]);
+            values.extend([
+                f32::from_bits((x + 0.5).to_bits() - 1),
+                f32::from_bits((x + 0.5).to_bits() + 1),
+            ]);
+        }
+        for k in 0..100_000u32 {
+            values.push(k as f32 * 0.002_551);
+        }
+        for v in values {
+            assert_eq!(round_u8(v), v.round() as u8, "{v:?}");
+        }
+    }
 
     #[test]
     fn colormap_is_monotone_in_lightness() {

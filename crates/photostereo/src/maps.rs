@@ -103,22 +103,37 @@ impl View {
         let (w, h) = self.size();
         let mut c = Canvas::new(w, h, OUTSIDE);
         let mut inside = vec![0u8; w * h]; // 0 none, 1 partly, 2 fully inside
-        for py in 0..h {
-            for px in 0..w {
-                let (mut sum, mut n, mut total) = ([0u32; 3], 0u32, 0u32);
-                for i in self.block(px, py) {
-                    total += 1;
+        if self.factor == 1 {
+            // One frame pixel per panel pixel: its colour as it is (the mean of one).
+            for py in 0..h {
+                let row = (self.y0 + py) * self.width + self.x0;
+                for px in 0..w {
+                    let i = row + px;
                     if self.mask[i] {
-                        let v = colour(i);
-                        for k in 0..3 {
-                            sum[k] += v[k] as u32;
-                        }
-                        n += 1;
+                        let o = (py * w + px) * 3;
+                        c.data[o..o + 3].copy_from_slice(&colour(i));
+                        inside[py * w + px] = 2;
                     }
                 }
-                if n > 0 {
-                    c.put(px, py, sum.map(|s| ((s + n / 2) / n) as u8));
-                    inside[py * w + px] = if n == total { 2 } else { 1 };
+            }
+        } else {
+            for py in 0..h {
+                for px in 0..w {
+                    let (mut sum, mut n, mut total) = ([0u32; 3], 0u32, 0u32);
+                    for i in self.block(px, py) {
+                        total += 1;
+                        if self.mask[i] {
+                            let v = colour(i);
+                            for k in 0..3 {
+                                sum[k] += v[k] as u32;
+                            }
+                            n += 1;
+                        }
+                    }
+                    if n > 0 {
+                        c.put(px, py, sum.map(|s| ((s + n / 2) / n) as u8));
+                        inside[py * w + px] = if n == total { 2 } else { 1 };
+                    }
                 }
             }
         }
@@ -171,7 +186,7 @@ impl View {
             if n == [0.0; 3] {
                 [0, 0, 0]
             } else {
-                n.map(|v| (((v + 1.0) * 0.5).clamp(0.0, 1.0) * 255.0).round() as u8)
+                n.map(|v| crate::figure::round_u8(((v + 1.0) * 0.5).clamp(0.0, 1.0) * 255.0))
             }
         })
     }

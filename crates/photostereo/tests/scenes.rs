@@ -89,6 +89,15 @@ fn accelerated_cast_shadows_equal_the_plain_ray_march() {
     let mut lights = Rig::Square4.lights().unwrap().directions;
     lights.extend(Rig::Dome(12).lights().unwrap().directions);
     lights.push([0.9, 0.1, 0.2]); // grazing
+                                  // Along the axes (no travel on one of them) and low, in every quadrant.
+    let r = 0.5f64.sqrt();
+    lights.extend([
+        [r, 0.0, r],
+        [0.0, -r, r],
+        [-0.9, 0.0, 0.436],
+        [0.0, 0.9, 0.436],
+    ]);
+    lights.extend([[-0.6, -0.6, 0.53], [0.6, -0.6, 0.53], [-0.6, 0.6, 0.53]]);
     for &kind in SceneKind::ALL {
         for mask in [None, Some(MaskShape::Irregular)] {
             let scene = Scene::builtin(kind, 80, mask, false).unwrap();

@@ -53,18 +53,31 @@ impl Brdf {
     /// direction `l`, viewer (0, 0, 1). Zero for Lambert and where n·l ≤ 0 or n·v ≤ 0.
     #[inline]
     pub fn specular(self, n: [f64; 3], l: [f64; 3]) -> f64 {
+        self.specular_with_half(n, l, Brdf::half_vector(l))
+    }
+
+    /// The unit half vector between `l` and the viewer (0, 0, 1); `None` when they are
+    /// opposite (no specular term). The same for every pixel of a light.
+    #[inline]
+    pub fn half_vector(l: [f64; 3]) -> Option<[f64; 3]> {
+        let v = [l[0], l[1], l[2] + 1.0];
+        let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if norm < 1e-12 {
+            return None;
+        }
+        Some([v[0] / norm, v[1] / norm, v[2] / norm])
+    }
+
+    /// [`Brdf::specular`] with `half` = [`Brdf::half_vector`]`(l)` computed once per light.
+    #[inline]
+    pub fn specular_with_half(self, n: [f64; 3], l: [f64; 3], half: Option<[f64; 3]>) -> f64 {
         let n_dot_l = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
         let n_dot_v = n[2];
         if n_dot_l <= 0.0 || n_dot_v <= 0.0 {
             return 0.0;
         }
-        let h = {
-            let v = [l[0], l[1], l[2] + 1.0];
-            let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if norm < 1e-12 {
-                return 0.0;
-            }
-            [v[0] / norm, v[1] / norm, v[2] / norm]
+        let Some(h) = half else {
+            return 0.0;
         };
         let n_dot_h = (n[0] * h[0] + n[1] * h[1] + n[2] * h[2]).max(0.0);
         match self {

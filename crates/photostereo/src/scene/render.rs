@@ -16,7 +16,7 @@
 use super::reflectance::Brdf;
 use super::rigs::Rig;
 use super::rng::{splitmix64, Pcg32};
-use super::shadows::cast_shadows_where;
+use super::shadows::{cast_shadows_in, ShadowField};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Scene;
 use crate::capture::Capture;
@@ -261,12 +261,13 @@ pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result
     let (w, h) = (scene.width, scene.height);
     let threshold = HIGHLIGHT_MIN_FULL_SCALE.max(HIGHLIGHT_MIN_SIGMAS * options.noise_sigma);
     let seed = splitmix64(options.seed);
+    let field = ShadowField::new(scene);
     let per_light: Vec<LightResult> = lights
         .directions
         .par_iter()
         .zip(&lights.intensities)
         .enumerate()
-        .map(|(k, (l, e))| render_light(scene, k, *l, *e, options, seed, threshold))
+        .map(|(k, (l, e))| render_light(scene, &field, k, *l, *e, options, seed, threshold))
         .collect();
     let n = lights.len();
     let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
@@ -353,8 +354,12 @@ pub(crate) fn gather_lights(
     (images, stats)
 }
 
+/// Light `k` of direction `l` and RGB intensity `e` on `scene`, whose [`ShadowField`] is
+/// `field`.
+#[allow(clippy::too_many_arguments)]
 fn render_light(
     scene: &Scene,
+    field: &ShadowField,
     k: usize,
     l: [f64; 3],
     e: [f64; 3],
@@ -369,7 +374,8 @@ fn render_light(
         .iter()
         .map(|n| n[0] as f64 * l[0] + n[1] as f64 * l[1] + n[2] as f64 * l[2] > 0.0)
         .collect();
-    let mut cast = cast_shadows_where(scene, l, Some(&facing));
+    let mut cast = cast_shadows_in(scene, field, l, Some(&facing));
+    let half = Brdf::half_vector(l);
     let mut image = vec![0f32; w * h * 3];
     let mut shadow = vec![false; w * h];
     let mut highlight = vec![false; w * h];
@@ -398,7 +404,7 @@ fn render_light(
                 let (diffuse, specular) = if shadowed {
                     (0.0, 0.0)
                 } else {
-                    (n_dot_l, options.brdf.specular(n, l))
+                    (n_dot_l, options.brdf.specular_with_half(n, l, half))
                 };
                 let spec_mean = specular * (e[0] + e[1] + e[2]) / 3.0;
                 hl[col] = !shadowed && spec_mean > highlight_threshold;
@@ -431,6 +437,17 @@ fn render_light(
         highlight,
         clipped,
     }
+}
+
+/// `(v.clamp(0, 1) · 65535).round()` as u16 (NaN gives 0), without a libm call: for x in
+/// [0, 65535] the fraction x − trunc(x) is exact, so comparing it with ½ rounds half away from
+/// zero as `f32::round` does.
+#[inline]
+fn to_u16(v: f32) -> u16 {
+    let x = v.clamp(0.0, 1.0) * 65535.0;
+    let whole = x as u32; // truncation; NaN gives 0, as `NaN as u16` does
+    let up = x - whole as f32 >= 0.5;
+    (whole + up as u32) as u16
 }
 
 /// Parameters and statistics written to `synth.json`.
@@ -468,11 +485,7 @@ pub fn write_capture(dir: &Path, rendered: &Rendered, spec: Option<&SynthSpec>) 
         .par_iter()
         .zip(&names)
         .try_for_each(|(img, name)| {
-            let data: Vec<u16> = img
-                .data
-                .iter()
-                .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
-                .collect();
+            let data: Vec<u16> = img.data.iter().map(|&v| to_u16(v)).collect();
             write_png16(&dir.join(name), w, h, img.channels, &data)
         })?;
     let list = dir.join("filenames.txt");
@@ -610,11 +623,13 @@ pub fn synth_streamed(
     let mut highlight_file = open("highlight.npy")?;
     let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
     let mut stats = CaptureStats::default();
+    let field = ShadowField::new(&scene);
     progress.begin("rendering", n as u64);
     for (k, name) in names.iter().enumerate() {
         crate::progress::check_cancelled(progress)?;
         let r = render_light(
             &scene,
+            &field,
             k,
             lights.directions[k],
             lights.intensities[k],
@@ -635,11 +650,7 @@ pub fn synth_streamed(
             .write_all(&bytes(&r.highlight))
             .map_err(|e| Error::io(gt.join("highlight.npy"), e))?;
         drop((r.shadow, r.cast, r.highlight));
-        let data: Vec<u16> = r
-            .image
-            .iter()
-            .map(|v| (v.clamp(0.0, 1.0) * 65535.0).round() as u16)
-            .collect();
+        let data: Vec<u16> = r.image.iter().map(|&v| to_u16(v)).collect();
         drop(r.image);
         write_png16(&dir.join(name), w, h, 3, &data)?;
         progress.advance(1);
@@ -703,4 +714,28 @@ pub fn synth_streamed(
     write_json(&dir.join("synth.json"), &record)?;
     let target = folder.commit()?;
     Ok((stats, lights, target))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn to_u16_is_the_rounded_scaled_value() {
+        let reference = |v: f32| (v.clamp(0.0, 1.0) * 65535.0).round() as u16;
+        let mut values = vec![f32::NAN, -1.0, 0.0, 1.0, 2.0, f32::INFINITY, 0.5 / 65535.0];
+        for q in 0..=65535u32 {
+            let v = q as f32 / 65535.0;
+            values.extend([v, (q as f64 / 65535.0) as f32]);
+            let tie = (q as f32 + 0.5) / 65535.0;
+            values.extend([
+                tie,
+                f32::from_bits(tie.to_bits() - 1),
+                f32::from_bits(tie.to_bits() + 1),
+            ]);
+        }
+        for v in values {
+            assert_eq!(to_u16(v), reference(v), "{v:?}");
+        }
+    }
 }

@@ -82,6 +82,7 @@ impl SceneKind {
 
     /// g(u, v) and its partial derivatives (g, ∂g/∂u, ∂g/∂v) at normalised coordinates (u, v);
     /// `pixel` is the size of one pixel in normalised units (1/S).
+    #[inline]
     pub fn surface(self, u: f64, v: f64, pixel: f64) -> [f64; 3] {
         let wall = WALL_WIDTH_PX * pixel;
         match self {
