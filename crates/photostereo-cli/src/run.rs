@@ -224,6 +224,8 @@ pub fn main(a: RunArgs) -> Result<()> {
         error_map_max_deg: Some(a.error_map_max),
         light_subset: a.light_subset.clone(),
         obj_any_size: a.obj,
+        // The command line owns its process: within a budget, freed maps go back at once.
+        return_freed_memory_when_tiled: true,
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)

@@ -895,6 +895,8 @@ fn run(
         error_map_max_deg: None,
         light_subset,
         obj_any_size: false,
+        // The interpreter's allocator settings stay its own.
+        return_freed_memory_when_tiled: false,
     };
     let files = InputFiles {
         inputs,

@@ -393,8 +393,9 @@ impl CaptureFiles {
         let mut capture = if layout == Layout::InMemory {
             self.load_in_memory(progress, mask)?
         } else {
-            // Within a budget, freed full-frame maps go back to the system at once.
-            crate::limits::return_freed_memory();
+            if options.return_freed_memory_when_tiled {
+                crate::limits::return_freed_memory();
+            }
             let dir = options.spill_dir.clone().unwrap_or_else(std::env::temp_dir);
             self.load_tiled(
                 progress,
@@ -992,6 +993,11 @@ pub struct LoadOptions {
     pub spill_dir: Option<PathBuf>,
     /// A forced layout or tile size (tests, experiments).
     pub force: Force,
+    /// When the capture is loaded into tiles, make the C allocator hand large freed blocks
+    /// back to the system at once ([`crate::limits::return_freed_memory`]): the process's peak
+    /// then stays near what the run holds. Process-wide and lasting, so only a program that
+    /// owns its process (the command line) sets it; a library host such as Python leaves it.
+    pub return_freed_memory_when_tiled: bool,
 }
 
 /// Light-major byte planes (`planes[k][p * sb..]`, `sb` bytes per pixel) into the pixel-major

@@ -185,6 +185,7 @@ pub fn compare(
                     error_map_max_deg: None,
                     light_subset: options.light_subset.clone(),
                     obj_any_size: false,
+                    return_freed_memory_when_tiled: false,
                 };
                 write_reconstruction(rec, &dir, &run_options)?;
                 write_json(&dir.join("report.json"), &rec.report)?;

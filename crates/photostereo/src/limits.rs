@@ -33,7 +33,10 @@ pub const MEMORY_LIMIT_VAR: &str = "PHOTOSTEREO_MAX_MEMORY";
 /// come from its heap and stay resident when freed; the process's peak resident memory then
 /// exceeds what the run holds at any moment by a third or more. The price is system time for
 /// fresh pages (about 10% of a whole run on DiLiGenT cat), so a capture loaded into tiles
-/// (a run within a budget) sets it, one held whole does not. Process-wide and lasting.
+/// (a run within a budget) sets it, one held whole does not. Process-wide and lasting: the
+/// loader calls it only when [`crate::capture::LoadOptions::return_freed_memory_when_tiled`]
+/// asks (the command line does; a host process such as Python's keeps its own allocator
+/// settings).
 pub fn return_freed_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: mallopt only sets allocator parameters (glibc serialises it with the arenas).

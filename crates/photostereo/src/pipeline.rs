@@ -85,6 +85,8 @@ pub struct RunOptions {
     /// [`OBJ_MAX_VERTICES`] (the text format is about 10 times the binary PLY, which is written
     /// at every size).
     pub obj_any_size: bool,
+    /// See [`crate::capture::LoadOptions::return_freed_memory_when_tiled`].
+    pub return_freed_memory_when_tiled: bool,
 }
 
 /// Above this many vertices `mesh.obj` is skipped unless asked for.
@@ -202,6 +204,7 @@ pub fn run(
     let load_options = crate::capture::LoadOptions {
         budget: options.params.memory_limit,
         spill_dir: Some(folder.path().to_path_buf()),
+        return_freed_memory_when_tiled: options.return_freed_memory_when_tiled,
         ..Default::default()
     };
     let mut capture = files.load_with(progress, &load_options)?;

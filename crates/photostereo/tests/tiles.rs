@@ -25,6 +25,7 @@ fn tiled(layout: Layout, tile_pixels: usize, dir: &Path) -> LoadOptions {
             layout: Some(layout),
             tile_pixels: Some(tile_pixels),
         },
+        ..Default::default()
     }
 }
 
