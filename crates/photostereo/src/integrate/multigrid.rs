@@ -32,6 +32,10 @@ use rayon::prelude::*;
 const ROWS_PER_TASK: usize = 16;
 /// Largest side of the coarsest grid.
 const COARSEST_SIDE: usize = 8;
+/// A computed finest level of at most this many cells is stored once (16 bytes a cell, 8 MiB
+/// at most, inside the memory plan's fixed allowance): on small grids recomputing its rows in
+/// every sweep costs more than reading them.
+const STORE_FINE_UP_TO: usize = 1 << 19;
 
 /// How a level's operator is held.
 #[derive(Clone, Debug)]
@@ -247,6 +251,41 @@ impl<'a> Level<'a> {
 
     pub fn n(&self) -> usize {
         self.w * self.h
+    }
+
+    /// The same operator with its rows stored (bit for bit what [`Level::rows`] computes).
+    pub fn stored(&self) -> Level<'static> {
+        let (w, h) = (self.w, self.h);
+        let n = w * h;
+        let (mut east, mut south) = (par_zeros::<f32>(n), par_zeros::<f32>(n));
+        let (mut extra, mut inv_diag) = (par_zeros::<f32>(n), par_zeros::<f32>(n));
+        east.par_chunks_mut(w)
+            .zip(south.par_chunks_mut(w))
+            .zip(extra.par_chunks_mut(w).zip(inv_diag.par_chunks_mut(w)))
+            .enumerate()
+            .for_each_init(
+                || Scratch::new(w),
+                |sc, (r, ((e, s), (ex, inv)))| {
+                    let rows = self.rows(r, sc);
+                    e.copy_from_slice(rows.e);
+                    s.copy_from_slice(rows.s);
+                    ex.copy_from_slice(rows.ex);
+                    inv.copy_from_slice(rows.inv);
+                },
+            );
+        if extra.par_iter().all(|&x| x == 0.0) {
+            extra = Vec::new();
+        }
+        Level {
+            w,
+            h,
+            kind: Kind::Stored {
+                east,
+                south,
+                extra,
+                inv_diag,
+            },
+        }
     }
 
     /// The operator's rows at row `r` (slices of the storage, or computed into `sc`).
@@ -952,6 +991,11 @@ pub(crate) struct Hierarchy<'a> {
 impl<'a> Hierarchy<'a> {
     /// Builds all levels from the finest one.
     pub fn new(fine: Level<'a>) -> Hierarchy<'a> {
+        let fine = if fine.n() <= STORE_FINE_UP_TO && !matches!(fine.kind, Kind::Stored { .. }) {
+            fine.stored()
+        } else {
+            fine
+        };
         let mut levels = vec![fine];
         loop {
             let last = &levels[levels.len() - 1];
@@ -1538,6 +1582,11 @@ mod tests {
             let stored = Level::from_parts(w, h, east, south, |_| lambda, &mask);
             let level = Level::problem(w, h, &mask, ws, min_edge, lambda);
             assert_same_rows(&level, &stored, &format!("problem λ {lambda}"));
+            assert_same_rows(
+                &level.stored(),
+                &stored,
+                &format!("problem λ {lambda}, stored"),
+            );
         }
         // The fill's graph: holes are mask pixels with weight < 0.2; two pins.
         let below = 0.2;
@@ -1590,6 +1639,7 @@ mod tests {
             pins.into_iter().rev().collect(),
         );
         assert_same_rows(&level, &stored, "fill");
+        assert_same_rows(&level.stored(), &stored, "fill, stored");
     }
 
     #[test]
