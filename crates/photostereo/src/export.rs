@@ -15,7 +15,7 @@
 //! run ([`remove_stale`]).
 
 use crate::error::{Error, Result};
-use crate::imageio::{write_exr_rgb, write_png16};
+use crate::imageio::{write_exr_rgb, write_png16_rows};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
 
@@ -525,18 +525,20 @@ pub fn written_by_photostereo(path: &Path) -> bool {
 pub fn write_normals(dir: &Path, width: usize, height: usize, normals: &[[f32; 3]]) -> Result<()> {
     let flat: &[f32] = normals.as_flattened();
     write_npy_f32(&dir.join("normals.npy"), &[height, width, 3], flat)?;
-    let png: Vec<u16> = normals
-        .iter()
-        .flat_map(|n| {
+    write_png16_rows(&dir.join("normals.png"), width, height, 3, |r, out| {
+        for (o, n) in out
+            .chunks_exact_mut(3)
+            .zip(&normals[r * width..(r + 1) * width])
+        {
             if *n == [0.0; 3] {
-                [0u16; 3]
+                o.fill(0);
             } else {
-                n.map(|v| (((v + 1.0) * 0.5).clamp(0.0, 1.0) * 65535.0).round() as u16)
+                for (v, &c) in o.iter_mut().zip(n) {
+                    *v = (((c + 1.0) * 0.5).clamp(0.0, 1.0) * 65535.0).round() as u16;
+                }
             }
-        })
-        .collect();
-    write_png16(&dir.join("normals.png"), width, height, 3, &png)?;
-    drop(png);
+        }
+    })?;
     write_exr_rgb(&dir.join("normals.exr"), width, height, flat)
 }
 
@@ -551,29 +553,31 @@ pub fn write_albedo(
     mask: &[bool],
 ) -> Result<()> {
     write_npy_f32(&dir.join("albedo.npy"), &[height, width, channels], albedo)?;
-    let mut inside: Vec<f32> = albedo
-        .chunks_exact(channels)
-        .zip(mask)
-        .filter(|(_, &m)| m)
-        .flat_map(|(v, _)| v.iter().copied())
-        .filter(|v| v.is_finite())
-        .collect();
-    let top = if inside.is_empty() {
-        1.0
-    } else {
-        let k = ((inside.len() as f64 * 0.995) as usize).min(inside.len() - 1);
-        let (_, v, _) = inside.select_nth_unstable_by(k, |a, b| a.total_cmp(b));
-        if *v > 0.0 {
-            *v
-        } else {
-            1.0
+    // The 99.5th percentile of the mask's finite values, selected without a copy of them.
+    let inside = |visit: &mut dyn FnMut(f32)| {
+        for (v, _) in albedo.chunks_exact(channels).zip(mask).filter(|(_, &m)| m) {
+            v.iter()
+                .copied()
+                .filter(|x| x.is_finite())
+                .for_each(&mut *visit);
         }
     };
-    let png: Vec<u16> = albedo
-        .iter()
-        .map(|v| ((v / top).clamp(0.0, 1.0) * 65535.0).round() as u16)
-        .collect();
-    write_png16(&dir.join("albedo.png"), width, height, channels, &png)
+    let top = match crate::metrics::select_by_total_order(&inside, 0.995) {
+        Some(v) if v > 0.0 => v,
+        _ => 1.0,
+    };
+    let row = width * channels;
+    write_png16_rows(
+        &dir.join("albedo.png"),
+        width,
+        height,
+        channels,
+        |r, out| {
+            for (o, v) in out.iter_mut().zip(&albedo[r * row..(r + 1) * row]) {
+                *o = ((v / top).clamp(0.0, 1.0) * 65535.0).round() as u16;
+            }
+        },
+    )
 }
 
 /// Writes a float32 `.npy` array of the given shape (C order).

@@ -115,6 +115,62 @@ pub fn evaluate(
     Ok((map, stats))
 }
 
+/// Something that yields a sequence of values to a visitor, as often as it is called.
+pub type ValueSource<'a> = dyn Fn(&mut dyn FnMut(f32)) + 'a;
+
+/// The value of rank `⌊q·n⌋` (0-based, at most `n − 1`) among the `n` values that `values`
+/// yields, in `f32::total_cmp`'s order — what sorting them and indexing would give — without
+/// holding them: `values` is called twice (a histogram of the upper 16 bits of each value's
+/// order key, then of the lower 16 bits within the bin of the rank). `None` when it yields none.
+pub fn select_by_total_order(values: &ValueSource, q: f64) -> Option<f32> {
+    // Unsigned keys in total_cmp's order: negatives flipped below, positives above.
+    let key = |x: f32| {
+        let b = x.to_bits();
+        if b >> 31 == 1 {
+            !b
+        } else {
+            b | 0x8000_0000
+        }
+    };
+    let mut upper = vec![0u64; 1 << 16];
+    let mut n = 0u64;
+    values(&mut |x| {
+        upper[(key(x) >> 16) as usize] += 1;
+        n += 1;
+    });
+    if n == 0 {
+        return None;
+    }
+    let mut rank = ((n as f64 * q) as u64).min(n - 1);
+    let mut bin = 0;
+    for (b, &c) in upper.iter().enumerate() {
+        if rank < c {
+            bin = b as u32;
+            break;
+        }
+        rank -= c;
+    }
+    let mut lower = vec![0u64; 1 << 16];
+    values(&mut |x| {
+        let k = key(x);
+        if k >> 16 == bin {
+            lower[(k & 0xffff) as usize] += 1;
+        }
+    });
+    for (j, &c) in lower.iter().enumerate() {
+        if rank < c {
+            let k = (bin << 16) | j as u32;
+            return Some(f32::from_bits(if k >> 31 == 1 {
+                k & 0x7fff_ffff
+            } else {
+                !k
+            }));
+        }
+        rank -= c;
+    }
+    None
+}
+
 /// The median of the finite positive values of a `width × height` map (row-major) in the
 /// smallest square window around (`row`, `col`) that holds at least five of them: radii 2, 4,
 /// 8, … while below `widest`. NaN when none does. `scratch` holds the window's values.
@@ -276,6 +332,41 @@ pub fn quantile(v: &mut [f64], q: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn selection_by_total_order_equals_sorting() {
+        // Negatives, both zeros, duplicates, subnormals and a wide range of magnitudes.
+        let mut state = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            state
+        };
+        for n in [1usize, 2, 7, 1000, 20_000] {
+            let mut v: Vec<f32> = (0..n)
+                .map(|i| match next() % 7 {
+                    0 => -0.0,
+                    1 => 0.0,
+                    2 => f32::from_bits(1 + (next() % 1000) as u32),
+                    3 => (i % 5) as f32,
+                    _ => {
+                        let m = (next() % 2_000_000) as f32 / 1000.0 - 1000.0;
+                        m * 10f32.powi((next() % 9) as i32 - 4)
+                    }
+                })
+                .collect();
+            let yielded = v.clone();
+            let values = |visit: &mut dyn FnMut(f32)| yielded.iter().copied().for_each(&mut *visit);
+            v.sort_by(|a, b| a.total_cmp(b));
+            for q in [0.0, 0.1, 0.5, 0.995, 1.0] {
+                let k = ((n as f64 * q) as usize).min(n - 1);
+                let got = select_by_total_order(&values, q).unwrap();
+                assert_eq!(got.to_bits(), v[k].to_bits(), "n {n}, q {q}");
+            }
+        }
+        assert_eq!(select_by_total_order(&|_| {}, 0.5), None);
+    }
 
     #[test]
     fn growing_window_medians_match_a_direct_search() {

@@ -8,7 +8,7 @@
 
 use crate::error::{Error, Result};
 use crate::export::write_npy_f32;
-use crate::imageio::{write_exr_grey, write_png16};
+use crate::imageio::{write_exr_grey, write_png16_rows};
 use crate::integrate::Surface;
 use crate::lightmodel::Camera;
 use std::io::Write;
@@ -51,17 +51,15 @@ fn write_depth_png(path: &Path, width: usize, height: usize, depth: &[f32]) -> R
             |x, y| (x.0.min(y.0), x.1.max(y.1)),
         );
     let span = if hi > lo { hi - lo } else { 1.0 };
-    let png: Vec<u16> = depth
-        .par_iter()
-        .map(|&v| {
-            if v.is_finite() {
+    write_png16_rows(path, width, height, 1, |r, out| {
+        for (o, &v) in out.iter_mut().zip(&depth[r * width..(r + 1) * width]) {
+            *o = if v.is_finite() {
                 (((v - lo) / span).clamp(0.0, 1.0) * 65535.0).round() as u16
             } else {
                 0
-            }
-        })
-        .collect();
-    write_png16(path, width, height, 1, &png)
+            };
+        }
+    })
 }
 
 /// Vertex numbering and triangles of a depth map's mesh.
