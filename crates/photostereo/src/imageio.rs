@@ -492,6 +492,23 @@ const PNG_STREAM_ABOVE_BYTES: usize = 32 << 20;
 /// Rows per band of a streamed PNG.
 const PNG_BAND_ROWS: usize = 64;
 
+/// Samples per row of a `width × height × channels` image given `samples` in all; an error
+/// naming the file when they disagree.
+fn checked_row_len(
+    path: &Path,
+    (width, height, channels): (usize, usize, usize),
+    samples: usize,
+) -> Result<usize> {
+    let row = width * channels;
+    if samples != row * height {
+        return Err(Error::invalid(format!(
+            "PNG {}: {samples} samples for {width}×{height}×{channels}",
+            path.display()
+        )));
+    }
+    Ok(row)
+}
+
 /// Writes a 16-bit PNG with 1 (grey) or 3 (RGB) interleaved channels.
 pub fn write_png16(
     path: &Path,
@@ -500,14 +517,7 @@ pub fn write_png16(
     channels: usize,
     data: &[u16],
 ) -> Result<()> {
-    let row = width * channels;
-    if data.len() != row * height {
-        return Err(Error::invalid(format!(
-            "PNG {}: {} samples for {width}×{height}×{channels}",
-            path.display(),
-            data.len()
-        )));
-    }
+    let row = checked_row_len(path, (width, height, channels), data.len())?;
     write_png16_rows(path, width, height, channels, |r, out| {
         out.copy_from_slice(&data[r * row..(r + 1) * row])
     })
@@ -558,14 +568,7 @@ pub fn write_png8(
     channels: usize,
     data: &[u8],
 ) -> Result<()> {
-    let row = width * channels;
-    if data.len() != row * height {
-        return Err(Error::invalid(format!(
-            "PNG {}: {} samples for {width}×{height}×{channels}",
-            path.display(),
-            data.len()
-        )));
-    }
+    let row = checked_row_len(path, (width, height, channels), data.len())?;
     write_png_bands(
         path,
         width,
