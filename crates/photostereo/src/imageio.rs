@@ -702,13 +702,11 @@ pub fn write_exr_rgb(path: &Path, width: usize, height: usize, data: &[f32]) -> 
 /// Writes a float single-channel OpenEXR file (channel `Y`).
 pub fn write_exr_grey(path: &Path, width: usize, height: usize, data: &[f32]) -> Result<()> {
     use exr::prelude::*;
-    let channel = AnyChannel::new("Y", FlatSamples::F32(data.to_vec()));
-    let image = exr::prelude::Image::from_encoded_channels(
-        (width, height),
-        Encoding::UNCOMPRESSED,
-        AnyChannels::sort(SmallVec::from_vec(vec![channel])),
-    );
-    image
+    // Samples read from the caller's map as the file is written: no copy of it.
+    let channel = SpecificChannels::build()
+        .with_channel::<f32>("Y")
+        .with_pixel_fn(|Vec2(x, y): Vec2<usize>| (data[y * width + x],));
+    exr::prelude::Image::from_encoded_channels((width, height), Encoding::UNCOMPRESSED, channel)
         .write()
         .to_file(path)
         .map_err(|e| crate::error::Error::file(path, format!("OpenEXR encoding failed: {e}")))
