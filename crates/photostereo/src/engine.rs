@@ -330,7 +330,12 @@ pub fn reconstruct_with_truth(
         let t = Instant::now();
         // The output's normal map is made after the solve: during it only the gradients,
         // the weights and the integrator's arrays are held whole.
-        let (weighted, weights) = weighted_normals(&full_normals(), &capture.mask, Some(&trust));
+        let (weighted, weights) = crate::integrate::weighted_normals_at(
+            w * h,
+            &capture.pixels,
+            &estimate.normals,
+            &|_, i| trust[i],
+        );
         // The weighted copy of the normal map is dropped once its gradients are taken.
         let gradients = gradients_from_normals(
             w,

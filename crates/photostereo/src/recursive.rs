@@ -24,8 +24,8 @@ use crate::detect::{Attributor, Detection, DetectionParams};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::integrate::{
-    gradients_from_normals, normal_from_depth_at, normals_from_depth, weighted_normals,
-    IntegrationParams, IntegrationProblem, IntegratorKind, Poisson,
+    gradients_from_normals, normal_from_depth_at, normals_from_depth, IntegrationParams,
+    IntegrationProblem, IntegratorKind, Poisson,
 };
 use crate::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::metrics::angular_error_deg;
@@ -318,11 +318,12 @@ pub fn recursive(
         if near_lights {
             exact_trust(capture, &light_status, &few, &mut masked_trust);
         }
-        let trust = capture.scatter(&masked_trust, 1, 0.0);
-        let est_full = capture.scatter(&est.normals, 1, [0.0; 3]);
-        let (normals_full, weights) = weighted_normals(&est_full, &capture.mask, Some(&trust));
-        // Full-frame maps are dropped as soon as they have served (large captures).
-        drop((trust, est_full, masked_trust));
+        // Made from the mask pixels' estimate and trust: no full-frame copy of either.
+        let (normals_full, weights) =
+            crate::integrate::weighted_normals_at(w * h, &capture.pixels, &est.normals, &|p, _| {
+                masked_trust[p]
+            });
+        drop(masked_trust);
         let (depth, near_normals, shading) = match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few

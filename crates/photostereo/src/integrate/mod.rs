@@ -579,12 +579,37 @@ pub fn weighted_normals(
             if !mask[i] {
                 return;
             }
-            let n = normals[i];
-            let t = trust.map_or(1.0, |t| t[i]);
-            let usable = n.iter().all(|v| v.is_finite()) && n[2] > 0.0 && t > 0.0;
-            *o = if usable { n } else { [0.0, 0.0, 1.0] };
-            *w = if usable { t } else { 0.0 };
+            (*o, *w) = weighted_normal(normals[i], trust.map_or(1.0, |t| t[i]));
         });
+    (out, weights)
+}
+
+/// One mask pixel's normal to integrate and weight under [`weighted_normals`]' rule.
+#[inline]
+fn weighted_normal(n: [f32; 3], t: f32) -> ([f32; 3], f32) {
+    let usable = n.iter().all(|v| v.is_finite()) && n[2] > 0.0 && t > 0.0;
+    if usable {
+        (n, t)
+    } else {
+        ([0.0, 0.0, 1.0], 0.0)
+    }
+}
+
+/// [`weighted_normals`] from the estimate of the mask pixels alone: `normals[p]` and
+/// `trust(p, i)` belong to mask pixel `p` at flat frame index `pixels[p]` (ascending) of a
+/// `frame_len`-pixel frame. The same maps, without a full-frame copy of the estimate.
+pub fn weighted_normals_at(
+    frame_len: usize,
+    pixels: &[u32],
+    normals: &[[f32; 3]],
+    trust: &(dyn Fn(usize, usize) -> f32 + Sync),
+) -> (Vec<[f32; 3]>, Vec<f32>) {
+    let mut out = vec![[0f32; 3]; frame_len];
+    let mut weights = vec![0f32; frame_len];
+    for (p, (&i, &n)) in pixels.iter().zip(normals).enumerate() {
+        let i = i as usize;
+        (out[i], weights[i]) = weighted_normal(n, trust(p, i));
+    }
     (out, weights)
 }
 
