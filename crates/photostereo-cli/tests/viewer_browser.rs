@@ -126,30 +126,40 @@ fn file_url(index: &Path, fragment: &str) -> String {
     )
 }
 
-/// The page's state after loading `fragment`.
+/// The page's state after loading `fragment`. Headless Chromium's virtual time does not wait
+/// for every asynchronous image decode, so on a loaded machine the DOM can be dumped before the
+/// page says it is ready: such a load is tried again (up to three times in all); a page error
+/// fails at once.
 fn page_state(tmp: &Path, index: &Path, fragment: &str) -> Value {
-    let b = browse(
-        tmp,
-        &file_url(index, fragment),
-        (1000, 700),
-        &["--dump-dom".into()],
-    );
-    let start = b
-        .stdout
-        .find("<pre id=\"ps-state\"")
-        .unwrap_or_else(|| panic!("no state in the page: {}", b.stderr));
-    let body = &b.stdout[start..];
-    let json = &body[body.find('>').unwrap() + 1..body.find("</pre>").unwrap()];
-    let json = json
-        .replace("&quot;", "\"")
-        .replace("&lt;", "<")
-        .replace("&gt;", ">")
-        .replace("&amp;", "&");
-    let v: Value = serde_json::from_str(&json).unwrap();
-    assert_eq!(v["error"], Value::Null, "page error: {v}");
-    assert_eq!(v["ready"], true, "page not ready: {v}");
-    check_no_remote(&b);
-    v
+    let mut tries = 0;
+    loop {
+        tries += 1;
+        let b = browse(
+            tmp,
+            &file_url(index, fragment),
+            (1000, 700),
+            &["--dump-dom".into()],
+        );
+        let start = b
+            .stdout
+            .find("<pre id=\"ps-state\"")
+            .unwrap_or_else(|| panic!("no state in the page: {}", b.stderr));
+        let body = &b.stdout[start..];
+        let json = &body[body.find('>').unwrap() + 1..body.find("</pre>").unwrap()];
+        let json = json
+            .replace("&quot;", "\"")
+            .replace("&lt;", "<")
+            .replace("&gt;", ">")
+            .replace("&amp;", "&");
+        let v: Value = serde_json::from_str(&json).unwrap();
+        assert_eq!(v["error"], Value::Null, "page error: {v}");
+        if v["ready"] != true && tries < 3 {
+            continue;
+        }
+        assert_eq!(v["ready"], true, "page not ready after {tries} loads: {v}");
+        check_no_remote(&b);
+        return v;
+    }
 }
 
 /// A screenshot of `fragment` in a window of `size`, as RGB bytes.
