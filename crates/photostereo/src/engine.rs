@@ -26,10 +26,9 @@ use crate::integrate::{
 use crate::lambert::Estimate;
 use crate::metrics::{evaluate, ErrorStats};
 use crate::progress::{check_cancelled, Progress, Silent};
-use crate::recursive::{Recursive, RecursiveDiagnostics, RecursiveParams};
+use crate::recursive::{RecursiveDiagnostics, RecursiveParams};
 use crate::report::{InputSummary, Report};
 use std::str::FromStr;
-use std::sync::Arc;
 use std::time::Instant;
 
 /// The estimation methods.
@@ -682,13 +681,16 @@ fn estimate(
             (est, Some(d), None)
         }
         Method::Recursive => {
-            let recursive = Recursive {
-                params: params.recursive.clone(),
-                detection: params.detection.clone(),
-                integration: params.integration,
-                truth: truth.map(|t| Arc::new(t.to_vec())),
-            };
-            let r = recursive.run(capture, progress, &mut |_| {})?;
+            // Called with the caller's truth: no copy of it (12 bytes a frame pixel).
+            let r = crate::recursive::recursive(
+                capture,
+                &params.recursive,
+                &params.detection,
+                &params.integration,
+                truth,
+                progress,
+                &mut |_| {},
+            )?;
             report
                 .timings_s
                 .insert("detect".into(), r.detect_seconds.into());
