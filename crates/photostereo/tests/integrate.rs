@@ -737,3 +737,39 @@ fn poisson_iterations_do_not_grow_with_the_grid() {
         "iterations from {lo} to {hi}"
     );
 }
+
+/// `weighted_normals_at` (the mask pixels' estimate and trust) gives exactly the maps of
+/// `weighted_normals` on their full-frame scatter: placeholder (0, 0, 1) and weight 0 for a
+/// zero, non-finite or back-facing normal or a zero trust, zeros outside the mask.
+#[test]
+fn weighted_normals_from_mask_pixels_equal_the_full_frame_rule() {
+    use photostereo::integrate::{weighted_normals, weighted_normals_at};
+    let mask = irregular_mask();
+    let pixels: Vec<u32> = (0..W * H).filter(|&i| mask[i]).map(|i| i as u32).collect();
+    let normals: Vec<[f32; 3]> = (0..pixels.len())
+        .map(|p| match p % 11 {
+            0 => [0.0; 3],
+            1 => [f32::NAN, 0.0, 1.0],
+            2 => [0.6, 0.0, -0.8],
+            _ => {
+                let a = p as f32 * 0.01;
+                [0.3 * a.sin(), 0.3 * a.cos(), 0.9]
+            }
+        })
+        .collect();
+    let trust: Vec<f32> = (0..pixels.len()).map(|p| (p % 7) as f32 / 6.0).collect();
+    let (mut normals_full, mut trust_full) = (vec![[0f32; 3]; W * H], vec![0f32; W * H]);
+    for (p, &i) in pixels.iter().enumerate() {
+        normals_full[i as usize] = normals[p];
+        trust_full[i as usize] = trust[p];
+    }
+    let expected = weighted_normals(&normals_full, &mask, Some(&trust_full));
+    let got = weighted_normals_at(W * H, &pixels, &normals, &|p, _| trust[p]);
+    assert_eq!(got.1, expected.1);
+    for (i, (a, b)) in got.0.iter().zip(&expected.0).enumerate() {
+        assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits), "pixel {i}");
+    }
+    // Usable pixels keep their normal and trust; the others get the placeholder and 0.
+    let usable = got.1.iter().filter(|&&w| w > 0.0).count();
+    assert!(usable > pixels.len() / 2 && usable < pixels.len());
+}

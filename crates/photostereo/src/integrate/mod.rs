@@ -602,7 +602,7 @@ pub fn weighted_normals_at(
     frame_len: usize,
     pixels: &[u32],
     normals: &[[f32; 3]],
-    trust: &(dyn Fn(usize, usize) -> f32 + Sync),
+    trust: &dyn Fn(usize, usize) -> f32,
 ) -> (Vec<[f32; 3]>, Vec<f32>) {
     let mut out = vec![[0f32; 3]; frame_len];
     let mut weights = vec![0f32; frame_len];
