@@ -535,7 +535,6 @@ pub fn write_png16_rows(
 ) -> Result<()> {
     use rayon::prelude::*;
     let row = width * channels;
-    let mut values: Vec<u16> = Vec::new();
     write_png_bands(
         path,
         width,
@@ -543,19 +542,19 @@ pub fn write_png16_rows(
         channels,
         png::BitDepth::Sixteen,
         |rows, bytes| {
-            values.resize(rows.len() * row, 0);
-            values
-                .par_chunks_mut(row.max(1))
-                .zip(rows.clone())
-                .for_each(|(v, r)| fill_row(r, v));
+            // Each row computed into a per-thread scratch row, then stored big-endian.
             bytes
-                .par_chunks_mut(1 << 16)
-                .zip(values.par_chunks(1 << 15))
-                .for_each(|(out, vals)| {
-                    for (o, v) in out.chunks_exact_mut(2).zip(vals) {
-                        o.copy_from_slice(&v.to_be_bytes());
-                    }
-                });
+                .par_chunks_mut((2 * row).max(1))
+                .zip(rows)
+                .for_each_init(
+                    || vec![0u16; row],
+                    |values, (out, r)| {
+                        fill_row(r, values);
+                        for (o, v) in out.chunks_exact_mut(2).zip(values.iter()) {
+                            o.copy_from_slice(&v.to_be_bytes());
+                        }
+                    },
+                );
         },
     )
 }
