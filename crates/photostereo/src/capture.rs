@@ -351,6 +351,7 @@ impl CaptureFiles {
                 SampleType::U16
             },
             threads: rayon::current_num_threads(),
+            ground_truth: options.ground_truth,
         };
         // Without --memory-limit the budget is the machine's: a refusal names the images and
         // the memory available, as the readers' own checks do.
@@ -998,6 +999,9 @@ pub struct LoadOptions {
     /// then stays near what the run holds. Process-wide and lasting, so only a program that
     /// owns its process (the command line) sets it; a library host such as Python leaves it.
     pub return_freed_memory_when_tiled: bool,
+    /// Ground-truth normals will be held (per mask pixel) to score the run: the plan counts
+    /// them.
+    pub ground_truth: bool,
 }
 
 /// Light-major byte planes (`planes[k][p * sb..]`, `sb` bytes per pixel) into the pixel-major
@@ -1465,8 +1469,14 @@ impl Capture {
         }
     }
 
-    /// Scatters per-mask-pixel values (`width` values each) into a full `height × width × width`
-    /// row-major buffer filled with `fill` outside the mask.
+    /// The values of a full-frame map (row-major, one per frame pixel) at the mask pixels, in
+    /// mask order: the inverse of [`Capture::scatter`] with one value per pixel.
+    pub fn gather<T: Copy>(&self, frame: &[T]) -> Vec<T> {
+        self.pixels.iter().map(|&i| frame[i as usize]).collect()
+    }
+
+    /// Scatters per-mask-pixel values (`per_pixel` values each) into a full
+    /// `height × width × per_pixel` row-major buffer filled with `fill` outside the mask.
     pub fn scatter<T: Copy + Send + Sync>(
         &self,
         values: &[T],

@@ -42,11 +42,8 @@ pub fn majority_filter_where(
     let np = capture.n_pixels();
     let (w, h) = (capture.width, capture.height);
     debug_assert_eq!(light_status.len(), np * n);
-    // Mask index of each frame pixel (u32::MAX outside).
-    let mut index = vec![u32::MAX; w * h];
-    for (p, &i) in capture.pixels.iter().enumerate() {
-        index[i as usize] = p as u32;
-    }
+    // The mask pixels of each row (no frame-sized index: 4 bytes a frame pixel).
+    let mask_rows = MaskRows::new(capture);
     let mut out = light_status.to_vec();
     let changed: usize = out
         .par_chunks_mut(CHUNK * n)
@@ -69,12 +66,11 @@ pub fn majority_filter_where(
                     let (r, c) = (pix / w, pix % w);
                     neighbours.clear();
                     for rr in r.saturating_sub(radius)..(r + radius + 1).min(h) {
-                        for cc in c.saturating_sub(radius)..(c + radius + 1).min(w) {
-                            let q = index[rr * w + cc];
-                            if q != u32::MAX {
-                                neighbours.push(q as usize);
-                            }
-                        }
+                        neighbours.extend(mask_rows.between(
+                            rr,
+                            c.saturating_sub(radius),
+                            (c + radius).min(w - 1),
+                        ));
                     }
                     let total = neighbours.len() as u32;
                     for v in votes.iter_mut() {
@@ -116,6 +112,40 @@ pub fn majority_filter_where(
         )
         .sum();
     (out, changed)
+}
+
+/// The mask pixels of each frame row, found from [`Capture::pixels`] (ascending): `h + 1`
+/// offsets instead of a frame-sized index.
+struct MaskRows<'a> {
+    pixels: &'a [u32],
+    width: usize,
+    /// Mask index of the first mask pixel of each row, and `n_pixels` last.
+    starts: Vec<usize>,
+}
+
+impl<'a> MaskRows<'a> {
+    fn new(capture: &'a Capture) -> Self {
+        let (w, h) = (capture.width, capture.height);
+        let pixels = &capture.pixels[..];
+        let starts = (0..=h)
+            .map(|r| pixels.partition_point(|&i| (i as usize) < r * w))
+            .collect();
+        MaskRows {
+            pixels,
+            width: w,
+            starts,
+        }
+    }
+
+    /// The mask indices of row `row`'s mask pixels in columns `first..=last`, in order.
+    fn between(&self, row: usize, first: usize, last: usize) -> std::ops::Range<usize> {
+        let (a, b) = (self.starts[row], self.starts[row + 1]);
+        let in_row = &self.pixels[a..b];
+        let base = row * self.width;
+        let lo = in_row.partition_point(|&i| (i as usize) < base + first);
+        let hi = in_row.partition_point(|&i| (i as usize) <= base + last);
+        a + lo..a + hi
+    }
 }
 
 /// The mask pixels within `radius` (Chebyshev distance, in pixels) of a mask pixel where

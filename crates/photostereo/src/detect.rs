@@ -1227,32 +1227,38 @@ fn measure_light_noise_factors(
         .collect()
 }
 
-/// The mask pixels whose whole 3×3 neighbourhood lies in the mask, each as the nine mask-pixel
-/// indices of that neighbourhood (row by row), in the order of [`Capture::pixels`].
-pub(crate) fn interior_neighbourhoods(capture: &Capture) -> Vec<[u32; 9]> {
+/// The mask pixels whose whole 3×3 neighbourhood lies in the mask ("interior"): how many there
+/// are, and every `total.div_ceil(at_most)`-th of them (at most `at_most`), each as the nine
+/// mask-pixel indices of its neighbourhood (row by row), in the order of [`Capture::pixels`].
+/// Found from the mask and a binary search in the ascending [`Capture::pixels`]: no
+/// frame-sized index and no list of every interior pixel.
+pub(crate) fn interior_neighbourhoods(capture: &Capture, at_most: usize) -> (Vec<[u32; 9]>, usize) {
     let (w, h) = (capture.width, capture.height);
-    let mut index = vec![u32::MAX; w * h];
-    for (p, &i) in capture.pixels.iter().enumerate() {
-        index[i as usize] = p as u32;
-    }
-    let mut interior = Vec::new();
-    for &i in &capture.pixels {
+    let interior = |i: u32| {
         let (r, col) = (i as usize / w, i as usize % w);
-        if r == 0 || col == 0 || r + 1 >= h || col + 1 >= w {
-            continue;
-        }
-        let mut nb = [0u32; 9];
-        let mut inside = true;
-        for (j, slot) in nb.iter_mut().enumerate() {
-            let q = index[(r + j / 3 - 1) * w + col + j % 3 - 1];
-            inside &= q != u32::MAX;
-            *slot = q;
-        }
-        if inside {
-            interior.push(nb);
-        }
-    }
-    interior
+        r > 0
+            && col > 0
+            && r + 1 < h
+            && col + 1 < w
+            && (0..9).all(|j| capture.mask[(r + j / 3 - 1) * w + col + j % 3 - 1])
+    };
+    let total = capture.pixels.iter().filter(|&&i| interior(i)).count();
+    let stride = total.div_ceil(at_most.max(1)).max(1);
+    let sampled = capture
+        .pixels
+        .iter()
+        .copied()
+        .filter(|&i| interior(i))
+        .step_by(stride)
+        .map(|i| {
+            let (r, col) = (i as usize / w, i as usize % w);
+            std::array::from_fn(|j| {
+                let f = ((r + j / 3 - 1) * w + col + j % 3 - 1) as u32;
+                capture.pixels.binary_search(&f).unwrap_or(0) as u32
+            })
+        })
+        .collect();
+    (sampled, total)
 }
 
 /// Sensor noise of the channel-mean images (see [`NoiseEstimate::Images`]); `None` when fewer
@@ -1268,15 +1274,13 @@ pub fn image_noise(capture: &Capture) -> Option<f64> {
 /// every light at once (each neighbour's samples read once, in memory order), then the robust
 /// scale of each light's values and the median over the lights.
 fn measure_image_noise(capture: &Capture) -> Option<f64> {
-    let interior = interior_neighbourhoods(capture);
-    if interior.len() < 100 {
+    let (sampled, interior) = interior_neighbourhoods(capture, 4096);
+    if interior < 100 {
         return None;
     }
-    let stride = interior.len().div_ceil(4096);
     let n = capture.n_lights();
     let c = capture.channels;
     const KERNEL: [f64; 9] = [1.0, -2.0, 1.0, -2.0, 4.0, -2.0, 1.0, -2.0, 1.0];
-    let sampled: Vec<&[u32; 9]> = interior.iter().step_by(stride).collect();
     // Pixel-major: values[i * n + k] is |kernel| of light k at sampled pixel i.
     let mut values = vec![0f64; sampled.len() * n];
     values

@@ -213,15 +213,19 @@ impl Reconstruction {
     }
 
     /// Scores the normals against a ground-truth normal map of the same size ((H, W, 3),
-    /// zero where unknown): fills `error_map` and the report's error figures.
+    /// zero where unknown), or against one ground-truth normal per mask pixel (row-major, as
+    /// [`crate::metrics::truth_at_pixels`] gathers them): fills `error_map` and the report's
+    /// error figures.
     pub fn evaluate(&mut self, truth: &[[f32; 3]]) -> Result<ErrorStats> {
-        if truth.len() != self.normals.len() {
+        let mask_pixels = self.mask.iter().filter(|&&m| m).count();
+        if truth.len() != self.normals.len() && truth.len() != mask_pixels {
             return Err(Error::invalid(format!(
-                "ground truth has {} pixels but the reconstruction {}×{} = {}",
+                "ground truth has {} pixels but the reconstruction {}×{} = {} ({} mask pixels)",
                 truth.len(),
                 self.width,
                 self.height,
-                self.normals.len()
+                self.normals.len(),
+                mask_pixels
             )));
         }
         let (map, stats) = evaluate(&self.normals, truth, Some(&self.mask))?;
@@ -242,8 +246,9 @@ pub fn reconstruct(
 
 /// Reconstructs a capture: estimation by `params.method`, the χ² test's maps, integration of
 /// the final normals with the same weighting rule the recursive method uses, and the report
-/// (input, parameters, stage timings, method figures). `truth` (full-frame normals, optional)
-/// only adds per-iteration error figures to the recursive method's report.
+/// (input, parameters, stage timings, method figures). `truth` (optional: full-frame normals,
+/// or one per mask pixel as [`crate::metrics::truth_at_pixels`] gathers them) only adds
+/// per-iteration error figures to the report.
 pub fn reconstruct_with_truth(
     capture: &Capture,
     params: &Params,
@@ -319,9 +324,26 @@ pub fn reconstruct_with_truth(
         }
         None => integration_trust(capture, params, None, detection.as_ref()),
     };
+    // During the final integration the trust and the recursion's flag maps are held per mask
+    // pixel (7 bytes a frame pixel fewer at the run's largest stage) and scattered again
+    // after it.
+    let trust = {
+        let full = trust;
+        capture.gather(&full)
+    };
+    let flags_at_mask = diagnostics.as_mut().map(|d| {
+        [&mut d.highlight, &mut d.fewer_than_three, &mut d.reliable]
+            .map(|map| capture.gather(&std::mem::take(map)))
+    });
     let surface = if params.integrate && capture.lights.perspective().is_some() {
         let t = Instant::now();
-        let surface = near_integration(capture, params, &full_normals(), &trust, progress)?;
+        let surface = near_integration(
+            capture,
+            params,
+            &full_normals(),
+            &capture.scatter(&trust, 1, 0.0),
+            progress,
+        )?;
         report.extra.insert("integration".into(), surface.summary());
         report.time("integrate", t);
         Some(surface)
@@ -333,7 +355,7 @@ pub fn reconstruct_with_truth(
             w * h,
             &capture.pixels,
             &estimate.normals,
-            &|_, i| trust[i],
+            &|p, _| trust[p],
         );
         // The weighted copy of the normal map is dropped once its gradients are taken.
         let gradients = gradients_from_normals(
@@ -357,7 +379,17 @@ pub fn reconstruct_with_truth(
     } else {
         None
     };
+    let trust = capture.scatter(&trust, 1, 0.0);
+    if let (Some(d), Some([highlight, few, reliable])) = (diagnostics.as_mut(), flags_at_mask) {
+        d.highlight = capture.scatter(&highlight, 1, false);
+        d.fewer_than_three = capture.scatter(&few, 1, false);
+        d.reliable = capture.scatter(&reliable, 1, false);
+    }
+    // The full-frame maps replace the per-mask-pixel estimate: each freed once scattered.
     let normals = full_normals();
+    drop(std::mem::take(&mut estimate.normals));
+    let albedo = capture.scatter(&estimate.albedo, capture.channels, 0.0);
+    drop(std::mem::take(&mut estimate.albedo));
     let statuses_decided = estimate.light_status.is_some() || detection.is_some();
     let light_status = crate::statusmap::StatusMap::new(
         capture.width,
@@ -399,7 +431,7 @@ pub fn reconstruct_with_truth(
         height: h,
         channels: capture.channels,
         n_lights: capture.n_lights(),
-        albedo: capture.scatter(&estimate.albedo, capture.channels, 0.0),
+        albedo,
         normals,
         mask: capture.mask.clone(),
         light_status,

@@ -164,8 +164,13 @@ impl View {
 
     /// Values on the colour map over [0, `max`]; NaN drawn dark grey.
     pub fn heat_panel(&self, values: &[f32], max: f32) -> Canvas {
+        self.heat_panel_by(|i| values[i], max)
+    }
+
+    /// [`View::heat_panel`] of the values `value(i)` at frame pixels `i`.
+    pub fn heat_panel_by(&self, value: impl Fn(usize) -> f32, max: f32) -> Canvas {
         self.colour_panel(false, |i| {
-            let v = values[i];
+            let v = value(i);
             if v.is_nan() {
                 [40, 40, 40]
             } else {
@@ -525,41 +530,64 @@ pub fn unusable_lights_figure(
     height: usize,
     method: &str,
 ) -> Canvas {
+    use crate::statusmap::COUNT_OUTSIDE;
     let n = light_status.lights;
-    let shadow = light_status.counts(Some(status::SHADOW));
-    let highlight = light_status.counts(Some(status::HIGHLIGHT));
-    let any = light_status.counts(None);
+    // Per count 0..=n, the mask pixels with it: the percentile and the means come from these.
+    let histogram = |which: Option<u8>| {
+        let mut bins = vec![0usize; n + 1];
+        for p in 0..light_status.pixels().len() {
+            bins[light_status.count_at(p, which)] += 1;
+        }
+        bins
+    };
+    let mean = |bins: &[usize]| {
+        let total: usize = bins.iter().sum();
+        let sum: f64 = bins.iter().enumerate().map(|(v, &c)| (v * c) as f64).sum();
+        sum / total.max(1) as f64
+    };
     // The scale ends at the 99th percentile of the unusable count (a few pixels with every
     // light dropped would otherwise squeeze the rest into the bottom colours); above it clips.
-    let mut finite: Vec<f32> = any.iter().copied().filter(|v| v.is_finite()).collect();
-    let p99 = if finite.is_empty() {
+    // The value of rank ⌊0.99 (m − 1)⌋ among the m mask pixels' counts, from their histogram.
+    let any_bins = histogram(None);
+    let total: usize = any_bins.iter().sum();
+    let p99 = if total == 0 {
         1.0
     } else {
-        let k = ((finite.len() - 1) as f64 * 0.99) as usize;
-        *finite.select_nth_unstable_by(k, |a, b| a.total_cmp(b)).1
+        let rank = ((total - 1) as f64 * 0.99) as usize;
+        let mut below = 0;
+        any_bins
+            .iter()
+            .position(|&c| {
+                below += c;
+                below > rank
+            })
+            .unwrap_or(n) as f32
     };
     let max = nice_ceil(p99.max(1.0)).min(n as f32).max(1.0);
     let view = View::of_mask(mask, width, height, 360);
     let scale = if view.size().1 >= 240 { 2 } else { 1 };
-    let mean = |v: &[f32]| {
-        let (s, c) = v
-            .iter()
-            .filter(|x| x.is_finite())
-            .fold((0f64, 0usize), |(s, c), &x| (s + x as f64, c + 1));
-        s / c.max(1) as f64
-    };
+    // One frame-sized map of counts at a time, in two bytes a pixel.
     let panels: Vec<Canvas> = [
-        ("in shadow", &shadow),
-        ("in highlight", &highlight),
-        ("unusable (any)", &any),
+        ("in shadow", Some(status::SHADOW)),
+        ("in highlight", Some(status::HIGHLIGHT)),
+        ("unusable (any)", None),
     ]
     .iter()
-    .map(|(name, v)| {
-        titled(
-            &view.heat_panel(v, max),
-            &format!("{name}: mean {:.1}", mean(v)),
-            scale,
-        )
+    .map(|&(name, which)| {
+        let counts = light_status.count_map(which);
+        let panel = view.heat_panel_by(
+            |i| match counts[i] {
+                COUNT_OUTSIDE => f32::NAN,
+                c => c as f32,
+            },
+            max,
+        );
+        let bins = if which.is_none() {
+            any_bins.clone()
+        } else {
+            histogram(which)
+        };
+        titled(&panel, &format!("{name}: mean {:.1}", mean(&bins)), scale)
     })
     .collect();
     let steps = if max <= 4.0 { max as usize } else { 4 };

@@ -18,21 +18,25 @@ use crate::limits::human_bytes;
 use crate::store::SampleType;
 
 /// Bytes per frame pixel of the full-frame stages, independent of the light count and of the
-/// mask: at their largest, the final integration's gradients, weights and trust and the
-/// integrator's work arrays; elsewhere the depth, one normal map, the recursion's maps and the
-/// exported maps. Set on measured peaks (README, Memory) with a margin: about 18 bytes per
-/// frame pixel and 155 per mask pixel (24 lights) were measured.
-pub const FRAME_BYTES_PER_PIXEL: u64 = 40;
-/// Bits per frame pixel and light: the shadow maps of one surface (2, as bit planes) and a
-/// margin for the light-by-light planes of the outputs.
-pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 4;
+/// mask: at their largest (the final integration, and the recursion's surface) the gradients,
+/// the weights and the integrator's work arrays beside the depth and the mask; at the end the
+/// exported maps. Set on measured peaks with a margin of about 10% (README, Memory): the
+/// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
+pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
+/// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit
+/// planes).
+pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
 /// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
-/// shadow bits and the attribution's keys.
-pub const MASK_BYTES_PER_PIXEL: u64 = 110;
-/// Bytes per mask pixel and light held for the whole capture: the recursive method's light
-/// statuses (the current, the new and the last iteration's own).
-pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 3;
+/// shadow bits and the attribution's keys (about 39 measured).
+pub const MASK_BYTES_PER_PIXEL: u64 = 44;
+/// Bytes per mask pixel and light held for the whole capture: the light statuses (the
+/// current ones, and while the recursion integrates the pixels' own decisions where they
+/// differ; about 1.9 measured).
+pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// Bytes per mask pixel of the ground truth when a run is scored (`--gt`): one normal, held at
+/// the mask pixels only.
+pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
 /// Bytes per mask pixel, per light and channel, of one tile in use: its `f32` view (4), its
 /// stored bytes while read and while loaded (2 × stored size, at most 8).
 pub const TILE_BYTES_PER_SAMPLE: u64 = 12;
@@ -82,6 +86,8 @@ pub struct CaptureSize {
     pub sample_type: SampleType,
     /// Decoding threads (each may hold one decoded image in the in-memory layout).
     pub threads: usize,
+    /// Whether ground-truth normals are held for scoring the run.
+    pub ground_truth: bool,
 }
 
 impl CaptureSize {
@@ -134,7 +140,14 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
-        + s.pixels as u64 * (MASK_BYTES_PER_PIXEL + MASK_BYTES_PER_PIXEL_LIGHT * n)
+        + s.pixels as u64
+            * (MASK_BYTES_PER_PIXEL
+                + MASK_BYTES_PER_PIXEL_LIGHT * n
+                + if s.ground_truth {
+                    TRUTH_BYTES_PER_MASK_PIXEL
+                } else {
+                    0
+                })
         + FIXED_BYTES
 }
 
@@ -255,6 +268,7 @@ mod tests {
             channels: 3,
             sample_type: SampleType::U16,
             threads: 2,
+            ground_truth: false,
         }
     }
 
@@ -272,6 +286,15 @@ mod tests {
         let (l, p) = plan(&s, minimum_budget(&s) + (1 << 20), Force::default()).unwrap();
         assert_eq!(l, Layout::Spill);
         assert_eq!(p.spill_bytes, 144_000_000);
+        // Scoring against ground truth holds one normal per mask pixel more.
+        let scored = CaptureSize {
+            ground_truth: true,
+            ..s
+        };
+        assert_eq!(
+            full_frame_bytes(&scored) - full_frame_bytes(&s),
+            s.pixels as u64 * TRUTH_BYTES_PER_MASK_PIXEL
+        );
         let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
         let m = e.to_string();
         assert!(

@@ -50,19 +50,14 @@ pub struct ErrorStats {
 }
 
 /// Per-pixel angular errors (degrees, row-major; NaN where not evaluated) and their summary.
-/// `pred` and `truth` are `height * width` normals; `mask` optionally restricts the pixels.
+/// `pred` is `height * width` normals; `mask` optionally restricts the pixels; `truth` is
+/// either `height * width` normals or, with a mask, one normal per mask pixel in row-major
+/// order (what [`truth_at_pixels`] gathers: a twelfth of a frame's bytes per mask pixel).
 pub fn evaluate(
     pred: &[[f32; 3]],
     truth: &[[f32; 3]],
     mask: Option<&[bool]>,
 ) -> Result<(Vec<f32>, ErrorStats)> {
-    if pred.len() != truth.len() {
-        return Err(Error::invalid(format!(
-            "prediction has {} pixels but the ground truth has {}",
-            pred.len(),
-            truth.len()
-        )));
-    }
     if let Some(m) = mask {
         if m.len() != pred.len() {
             return Err(Error::invalid(format!(
@@ -72,24 +67,48 @@ pub fn evaluate(
             )));
         }
     }
+    let per_mask_pixel = match mask {
+        _ if truth.len() == pred.len() => false,
+        Some(m) if truth.len() == m.iter().filter(|&&x| x).count() => true,
+        _ => {
+            return Err(Error::invalid(format!(
+                "prediction has {} pixels but the ground truth has {}{}",
+                pred.len(),
+                truth.len(),
+                if mask.is_some() {
+                    " (expected the frame's pixels or one normal per mask pixel)"
+                } else {
+                    ""
+                }
+            )))
+        }
+    };
     let mut map = vec![f32::NAN; pred.len()];
     let mut errs = Vec::new();
     let mut eq14 = 0.0;
     let mut missing = 0;
+    // The mask index of the next mask pixel (truth per mask pixel).
+    let mut next = 0;
     for i in 0..pred.len() {
-        if mask.is_some_and(|m| !m[i])
-            || truth[i] == [0.0; 3]
-            || truth[i].iter().any(|v| !v.is_finite())
-        {
+        if mask.is_some_and(|m| !m[i]) {
+            continue;
+        }
+        let t = if per_mask_pixel {
+            next += 1;
+            truth[next - 1]
+        } else {
+            truth[i]
+        };
+        if t == [0.0; 3] || t.iter().any(|v| !v.is_finite()) {
             continue;
         }
         let e = if pred[i] == [0.0; 3] || pred[i].iter().any(|v| !v.is_finite()) {
             missing += 1;
             90.0
         } else {
-            angular_error_deg(pred[i], truth[i])
+            angular_error_deg(pred[i], t)
         };
-        eq14 += eq14_error_deg(pred[i], truth[i]);
+        eq14 += eq14_error_deg(pred[i], t);
         map[i] = e as f32;
         errs.push(e);
     }
@@ -113,6 +132,33 @@ pub fn evaluate(
         missing,
     };
     Ok((map, stats))
+}
+
+/// Ground-truth normals at the mask pixels `pixels` (row-major flat indices, ascending) of a
+/// `width` × `height` frame: `truth` itself when it already holds one normal per mask pixel,
+/// gathered from it when it is a full frame. Errors name the sizes expected.
+pub fn truth_at_pixels<'a>(
+    truth: &'a [[f32; 3]],
+    width: usize,
+    height: usize,
+    pixels: &[u32],
+) -> Result<std::borrow::Cow<'a, [[f32; 3]]>> {
+    use std::borrow::Cow;
+    if truth.len() == pixels.len() {
+        Ok(Cow::Borrowed(truth))
+    } else if truth.len() == width * height {
+        Ok(Cow::Owned(
+            pixels.iter().map(|&i| truth[i as usize]).collect(),
+        ))
+    } else {
+        Err(Error::invalid(format!(
+            "ground truth has {} normals: expected {width}×{height} = {} (the frame) or {} (one \
+             per mask pixel)",
+            truth.len(),
+            width * height,
+            pixels.len()
+        )))
+    }
 }
 
 /// Something that yields a sequence of values to a visitor, as often as it is called.

@@ -205,6 +205,7 @@ pub fn run(
         budget: options.params.memory_limit,
         spill_dir: Some(folder.path().to_path_buf()),
         return_freed_memory_when_tiled: options.return_freed_memory_when_tiled,
+        ground_truth: truth.is_some(),
         ..Default::default()
     };
     let mut capture = files.load_with(progress, &load_options)?;
@@ -226,8 +227,15 @@ pub fn run(
             ));
         }
     }
-    let truth_normals = truth.as_ref().map(|t| t.normals.as_slice());
-    let mut rec = reconstruct_with_truth(&capture, &options.params, truth_normals, progress)?;
+    // The truth is held at the mask pixels only from here (12 bytes a mask pixel instead of
+    // a frame pixel): the run and the evaluation read it there.
+    let truth = truth
+        .map(|t| {
+            crate::metrics::truth_at_pixels(&t.normals, t.width, t.height, &capture.pixels)
+                .map(|c| c.into_owned())
+        })
+        .transpose()?;
+    let mut rec = reconstruct_with_truth(&capture, &options.params, truth.as_deref(), progress)?;
     drop(capture);
     rec.report
         .notes
@@ -248,7 +256,7 @@ pub fn run(
     }
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();
-        rec.evaluate(&truth.normals)?;
+        rec.evaluate(truth)?;
         rec.report.param("ground_truth", path.display().to_string());
         rec.report.time("evaluate", t);
     }

@@ -180,7 +180,8 @@ pub struct Recursive {
     pub params: RecursiveParams,
     pub detection: DetectionParams,
     pub integration: IntegrationParams,
-    /// Ground-truth normals (full frame) for the per-iteration error figures, when known.
+    /// Ground-truth normals (full frame, or one per mask pixel) for the per-iteration error
+    /// figures, when known.
     pub truth: Option<Arc<Vec<[f32; 3]>>>,
 }
 
@@ -233,8 +234,8 @@ impl Recursive {
     }
 }
 
-/// Runs the recursive method. `truth` (full-frame normals) adds error figures per iteration;
-/// `on_iteration` is called after each iteration.
+/// Runs the recursive method. `truth` (full-frame normals, or one per mask pixel) adds error
+/// figures per iteration; `on_iteration` is called after each iteration.
 pub fn recursive(
     capture: &Capture,
     params: &RecursiveParams,
@@ -286,15 +287,22 @@ pub fn recursive(
     let mut last_depth = Vec::new();
     let mut highlight = vec![false; np];
     // The per-pixel decisions of the last iteration before the spatial consensus, for the
-    // hysteresis of the attribution.
-    let (mut raw_status, mut raw_consistent, mut raw_few): (Vec<u8>, Vec<bool>, Vec<bool>) =
-        (Vec::new(), Vec::new(), Vec::new());
-    // Per pixel, the attribution's input of the last iteration as bits (see below).
-    let key_words = n.div_ceil(64);
-    let mut raw_key: Vec<u64> = Vec::new();
+    // hysteresis of the attribution (the statuses held as their difference from the ones the
+    // iteration ended with).
+    let (mut raw_status, mut raw_consistent, mut raw_few) = (
+        OwnStatuses::default(),
+        Vec::<bool>::new(),
+        Vec::<bool>::new(),
+    );
+    // Per pixel, the attribution's input of the last iteration as bits (see below), in
+    // `key_bytes` bytes (3 under 24 lights).
+    let key_bytes = n.div_ceil(8);
+    let mut raw_key: Vec<u8> = Vec::new();
     let near_lights = capture.lights.near.is_some();
-    let truth_masked: Option<Vec<[f32; 3]>> =
-        truth.map(|t| capture.pixels.iter().map(|&i| t[i as usize]).collect());
+    // The truth at the mask pixels: borrowed when given per mask pixel, gathered otherwise.
+    let truth_masked = truth
+        .map(|t| crate::metrics::truth_at_pixels(t, w, h, &capture.pixels))
+        .transpose()?;
     progress.begin("recursive", params.max_iterations as u64);
     // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
     // iteration that reached the smallest change so far (stall detection).
@@ -388,15 +396,14 @@ pub fn recursive(
             )?,
         };
         drop(shading);
-        // 4–5. Usable lights. The shadows per mask pixel as bits (`key_words` per pixel).
+        // 4–5. Usable lights. The shadows per mask pixel as bits (`key_bytes` per pixel).
         let shadow_bits = maps.pixel_bits(&capture.pixels);
-        let in_shadow =
-            |p: usize, k: usize| shadow_bits[p * key_words + k / 64] >> (k % 64) & 1 != 0;
+        let in_shadow = |p: usize, k: usize| shadow_bits[p * key_bytes + k / 8] >> (k % 8) & 1 != 0;
         let mut new_status = vec![status::USED; np * n];
         let mut new_consistent = vec![false; np];
         let mut new_few = vec![false; np];
         let mut new_highlight = vec![false; np];
-        let mut new_key = vec![0u64; np * key_words];
+        let mut new_key = vec![0u8; np * key_bytes];
         // Tile by tile (the whole capture at once when it is held whole): `off` is the tile's
         // first mask pixel, `tile` its view (local indices).
         capture.for_each_tile(|off, tile| {
@@ -407,8 +414,8 @@ pub fn recursive(
                 .zip(new_few[off..off + tn].par_chunks_mut(CHUNK))
                 .zip(new_highlight[off..off + tn].par_chunks_mut(CHUNK))
                 .zip(
-                    new_key[off * key_words..(off + tn) * key_words]
-                        .par_chunks_mut(CHUNK * key_words),
+                    new_key[off * key_bytes..(off + tn) * key_bytes]
+                        .par_chunks_mut(CHUNK * key_bytes),
                 )
                 .enumerate()
                 .for_each_init(
@@ -427,18 +434,22 @@ pub fn recursive(
                             let dark = noise.shadow_level(detection_params, level);
                             // The attribution's input beyond the fixed readings: the lights the
                             // surface shadows where the reading agrees, as bits.
-                            let key = &mut keys[dp * key_words..(dp + 1) * key_words];
+                            let key = &mut keys[dp * key_bytes..(dp + 1) * key_bytes];
                             key.fill(0);
                             for k in 0..n {
                                 if in_shadow(p, k) && grey[k] <= dark {
-                                    key[k / 64] |= 1 << (k % 64);
+                                    key[k / 8] |= 1 << (k % 8);
                                 }
                             }
                             // Hysteresis: a usable set that passed the test in the last
                             // iteration and already drops every light the new surface shadows
                             // (where the reading agrees) stays; the recursion then settles
                             // instead of trading equally good sets between iterations.
-                            let previous = raw_status.get(p * n..(p + 1) * n).unwrap_or(&[]);
+                            let previous = if iteration > 1 {
+                                raw_status.at(p, &light_status, n)
+                            } else {
+                                &[]
+                            };
                             if iteration > 1
                                 && raw_consistent[p]
                                 && !raw_few[p]
@@ -473,7 +484,7 @@ pub fn recursive(
                             // surface): they are reused, not recomputed.
                             if iteration > 1
                                 && !near_lights
-                                && raw_key.get(p * key_words..(p + 1) * key_words) == Some(&*key)
+                                && raw_key.get(p * key_bytes..(p + 1) * key_bytes) == Some(&*key)
                             {
                                 s.copy_from_slice(previous);
                                 cons[dp] = raw_consistent[p];
@@ -528,32 +539,40 @@ pub fn recursive(
             let seeds: Vec<bool> = (0..np)
                 .into_par_iter()
                 .map(|p| {
-                    raw_status[p * n..(p + 1) * n] != new_status[p * n..(p + 1) * n]
+                    raw_status.at(p, &light_status, n) != &new_status[p * n..(p + 1) * n]
                         || raw_consistent[p] != new_consistent[p]
                         || raw_few[p] != new_few[p]
                 })
                 .collect();
             crate::consensus::neighbourhood_of(capture, &seeds, params.consensus_radius)
         });
-        raw_status.clone_from(&new_status);
+        // The pixels' own decisions become the last iteration's (moved: the last ones are not
+        // kept beside them); the consensus writes its result into a new array, so that three
+        // status arrays at most are held (current, own, filtered).
+        drop(std::mem::take(&mut raw_status));
+        let own_status = new_status;
         raw_consistent.clone_from(&new_consistent);
         raw_few.clone_from(&new_few);
         raw_key = new_key;
-        if params.consensus_radius > 0 {
+        let mut new_status = if params.consensus_radius > 0 {
             let min_kept =
                 ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
             let (filtered, _) = crate::consensus::majority_filter_where(
                 capture,
-                &new_status,
+                &own_status,
                 params.consensus_radius,
                 min_kept,
                 redo.as_deref(),
             );
+            filtered
+        } else {
+            own_status.clone()
+        };
+        if params.consensus_radius > 0 {
             let redone = |p: usize| redo.as_ref().is_none_or(|r| r[p]);
             let moved: Vec<usize> = (0..np)
-                .filter(|&p| redone(p) && usable_differs(&filtered, &new_status, p, n))
+                .filter(|&p| redone(p) && usable_differs(&new_status, &own_status, p, n))
                 .collect();
-            new_status = filtered;
             for p in (0..np).filter(|&p| !redone(p)) {
                 new_status[p * n..(p + 1) * n].copy_from_slice(&light_status[p * n..(p + 1) * n]);
                 new_consistent[p] = consistent[p];
@@ -574,7 +593,7 @@ pub fn recursive(
                         } else {
                             // The neighbours' set does not fit this pixel's readings: the
                             // pixel's own decisions stand (the test disposes).
-                            s.copy_from_slice(&raw_status[p * n..(p + 1) * n]);
+                            s.copy_from_slice(&own_status[p * n..(p + 1) * n]);
                         }
                     }
                     Ok(())
@@ -591,6 +610,8 @@ pub fn recursive(
         // neighbour fill below rewrote in the last iteration or rewrites in this one.
         // The last statuses have served: replaced before the re-estimate, not kept beside it.
         light_status = new_status;
+        raw_status = OwnStatuses::of(&own_status, &light_status, n);
+        drop(own_status);
         if near_lights {
             est = crate::tiles::solve_statuses(capture, &light_status)?;
         } else {
@@ -677,6 +698,39 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// A status array of `n` lights per mask pixel held as its difference from another (the
+/// pixels' own decisions against the statuses after the consensus, which differ at a few
+/// pixels): the pixels where they differ and their statuses there.
+#[derive(Default)]
+struct OwnStatuses {
+    /// Mask pixels where the statuses differ, ascending.
+    ids: Vec<u32>,
+    /// Their statuses, `n` per pixel of `ids`.
+    codes: Vec<u8>,
+}
+
+impl OwnStatuses {
+    /// `own` held as its difference from `base` (both `n` statuses per mask pixel).
+    fn of(own: &[u8], base: &[u8], n: usize) -> OwnStatuses {
+        let mut held = OwnStatuses::default();
+        for (p, (o, b)) in own.chunks_exact(n).zip(base.chunks_exact(n)).enumerate() {
+            if o != b {
+                held.ids.push(p as u32);
+                held.codes.extend_from_slice(o);
+            }
+        }
+        held
+    }
+
+    /// Mask pixel `p`'s statuses, `base` (the array this was made against) where they agree.
+    fn at<'a>(&'a self, p: usize, base: &'a [u8], n: usize) -> &'a [u8] {
+        match self.ids.binary_search(&(p as u32)) {
+            Ok(j) => &self.codes[j * n..(j + 1) * n],
+            Err(_) => &base[p * n..(p + 1) * n],
+        }
+    }
 }
 
 /// Solves the mask pixels `ids` of `est` again with their usable lights in `statuses`

@@ -187,22 +187,22 @@ impl ShadowMaps {
         }
     }
 
-    /// Per pixel of `pixels` (flat row-major indices), its shadows as bits: bit `k % 64` of
-    /// word `k / 64` of the pixel's `n_lights.div_ceil(64)` words is set when light `k`
+    /// Per pixel of `pixels` (flat row-major indices), its shadows as bits: bit `k % 8` of
+    /// byte `k / 8` of the pixel's `n_lights.div_ceil(8)` bytes is set when light `k`
     /// shadows it. Read light by light over runs of pixels, so the maps are walked in order.
-    pub fn pixel_bits(&self, pixels: &[u32]) -> Vec<u64> {
-        let words = self.lights.div_ceil(64);
-        let mut bits = vec![0u64; pixels.len() * words];
-        bits.par_chunks_mut(1024 * words)
+    pub fn pixel_bits(&self, pixels: &[u32]) -> Vec<u8> {
+        let bytes = self.lights.div_ceil(8);
+        let mut bits = vec![0u8; pixels.len() * bytes];
+        bits.par_chunks_mut(1024 * bytes)
             .zip(pixels.par_chunks(1024))
             .for_each(|(out, run)| {
                 for k in 0..self.lights {
                     let plane = k * self.words;
-                    let (word, bit) = (k / 64, 1u64 << (k % 64));
+                    let (byte, bit) = (k / 8, 1u8 << (k % 8));
                     for (j, &i) in run.iter().enumerate() {
                         let (w, b) = (plane + i as usize / 64, i % 64);
                         if (self.attached[w] | self.cast[w]) >> b & 1 != 0 {
-                            out[j * words + word] |= bit;
+                            out[j * bytes + byte] |= bit;
                         }
                     }
                 }

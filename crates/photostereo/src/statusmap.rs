@@ -5,6 +5,9 @@
 
 use crate::lambert::status;
 
+/// [`StatusMap::count_map`]'s value outside the mask.
+pub const COUNT_OUTSIDE: u16 = u16::MAX;
+
 /// Per mask pixel and light, the status of the light in the pixel's estimate.
 #[derive(Clone, Debug, PartialEq)]
 pub struct StatusMap {
@@ -106,20 +109,36 @@ impl StatusMap {
         full
     }
 
+    /// How many lights of mask pixel `p` have the status `which` (any status but used when
+    /// `None`).
+    pub fn count_at(&self, p: usize, which: Option<u8>) -> usize {
+        (0..self.lights)
+            .filter(|&k| {
+                let s = self.code(p, k);
+                match which {
+                    Some(w) => s == w,
+                    None => s != status::USED && s != status::OUTSIDE,
+                }
+            })
+            .count()
+    }
+
     /// Per frame pixel, how many lights have the status `which` (any status but used when
     /// `None`); NaN outside the mask.
     pub fn counts(&self, which: Option<u8>) -> Vec<f32> {
         let mut counts = vec![f32::NAN; self.width * self.height];
         for (p, &i) in self.pixels.iter().enumerate() {
-            counts[i as usize] = (0..self.lights)
-                .filter(|&k| {
-                    let s = self.code(p, k);
-                    match which {
-                        Some(w) => s == w,
-                        None => s != status::USED && s != status::OUTSIDE,
-                    }
-                })
-                .count() as f32;
+            counts[i as usize] = self.count_at(p, which) as f32;
+        }
+        counts
+    }
+
+    /// [`StatusMap::counts`] as whole numbers in two bytes a frame pixel: [`COUNT_OUTSIDE`]
+    /// outside the mask, counts above `u16::MAX − 1` clipped there.
+    pub fn count_map(&self, which: Option<u8>) -> Vec<u16> {
+        let mut counts = vec![COUNT_OUTSIDE; self.width * self.height];
+        for (p, &i) in self.pixels.iter().enumerate() {
+            counts[i as usize] = self.count_at(p, which).min(COUNT_OUTSIDE as usize - 1) as u16;
         }
         counts
     }

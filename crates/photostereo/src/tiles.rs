@@ -39,10 +39,9 @@ pub fn statistics_pixels(capture: &Capture) -> Vec<usize> {
     ids.extend((0..np).step_by(np.div_ceil(8192).max(1)));
     ids.extend((0..np).step_by((np / 2000).max(1)));
     // Image noise: interior pixels (whole 3×3 neighbourhood in the mask), every stride-th.
-    let interior = crate::detect::interior_neighbourhoods(capture);
-    if interior.len() >= 100 {
-        let stride = interior.len().div_ceil(4096);
-        for nb in interior.iter().step_by(stride) {
+    let (sampled, interior) = crate::detect::interior_neighbourhoods(capture, 4096);
+    if interior >= 100 {
+        for nb in &sampled {
             ids.extend(nb.iter().map(|&q| q as usize));
         }
     }
