@@ -70,6 +70,10 @@ fn main() {
             if let Ok(i) = std::env::var("PS_ITERS") {
                 params.recursive.max_iterations = i.parse().unwrap();
             }
+            // PS_RADIUS=3 sets the recursion's consensus radius (pixels).
+            if let Ok(r) = std::env::var("PS_RADIUS") {
+                params.recursive.consensus_radius = r.parse().unwrap();
+            }
             // PS_KAPPA=0.02 fixes κ at another value; PS_KAPPA=measured measures it on the capture.
             if let Ok(k) = std::env::var("PS_KAPPA") {
                 params.detection.relative_noise = if k == "measured" {

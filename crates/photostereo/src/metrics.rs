@@ -379,6 +379,48 @@ pub fn quantile(v: &mut [f64], q: f64) -> f64 {
 mod tests {
     use super::*;
 
+    /// Scoring against the truth at the mask pixels gives the full-frame truth's map and
+    /// figures exactly; a truth of another length is refused naming both sizes.
+    #[test]
+    fn truth_per_mask_pixel_scores_as_the_full_frame() {
+        let (w, h) = (7, 5);
+        let unit = |a: f32, b: f32| [a.sin() * b.cos(), a.sin() * b.sin(), a.cos()];
+        let pred: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| unit(0.3 + 0.01 * i as f32, i as f32))
+            .collect();
+        let mut truth: Vec<[f32; 3]> = (0..w * h)
+            .map(|i| unit(0.31 + 0.012 * i as f32, 0.9 * i as f32))
+            .collect();
+        truth[3] = [0.0; 3]; // unknown ground truth: not scored
+        let mask: Vec<bool> = (0..w * h).map(|i| i % 3 != 1).collect();
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        let at_mask = truth_at_pixels(&truth, w, h, &pixels).unwrap();
+        assert_eq!(at_mask.len(), pixels.len());
+        for (p, &i) in pixels.iter().enumerate() {
+            assert_eq!(at_mask[p], truth[i as usize]);
+        }
+        // Already per mask pixel: borrowed as it is.
+        assert!(matches!(
+            truth_at_pixels(&at_mask, w, h, &pixels).unwrap(),
+            std::borrow::Cow::Borrowed(_)
+        ));
+        let (map_full, stats_full) = evaluate(&pred, &truth, Some(&mask)).unwrap();
+        let (map_mask, stats_mask) = evaluate(&pred, &at_mask, Some(&mask)).unwrap();
+        assert_eq!(stats_full, stats_mask);
+        assert_eq!(stats_full.pixels, pixels.len() - 1);
+        for (a, b) in map_full.iter().zip(&map_mask) {
+            assert!(a.to_bits() == b.to_bits(), "{a} {b}");
+        }
+        let e = truth_at_pixels(&truth[..10], w, h, &pixels)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("35") && e.contains(&pixels.len().to_string()),
+            "{e}"
+        );
+        assert!(evaluate(&pred, &truth[..10], Some(&mask)).is_err());
+    }
+
     #[test]
     fn selection_by_total_order_equals_sorting() {
         // Negatives, both zeros, duplicates, subnormals and a wide range of magnitudes.

@@ -1279,3 +1279,31 @@ mod stop_tests {
         assert!(!done && why.contains("iteration limit (3)"), "{why}");
     }
 }
+
+#[cfg(test)]
+mod own_status_tests {
+    use super::*;
+
+    /// The difference form gives back every pixel's own statuses, whatever the base.
+    #[test]
+    fn own_statuses_are_recovered_from_their_difference() {
+        let n = 5;
+        let np = 200;
+        let mut rng = crate::rng::Pcg32::new(7, 1);
+        let base: Vec<u8> = (0..np * n).map(|_| (rng.next_u32() % 4) as u8).collect();
+        let mut own = base.clone();
+        for p in (0..np).filter(|p| p % 7 == 3 || p % 11 == 0) {
+            own[p * n + p % n] = (own[p * n + p % n] + 1) % 4;
+        }
+        let held = OwnStatuses::of(&own, &base, n);
+        assert_eq!(
+            held.ids.len(),
+            (0..np).filter(|p| p % 7 == 3 || p % 11 == 0).count()
+        );
+        for p in 0..np {
+            assert_eq!(held.at(p, &base, n), &own[p * n..(p + 1) * n], "pixel {p}");
+        }
+        // Equal arrays: nothing held.
+        assert!(OwnStatuses::of(&base, &base, n).ids.is_empty());
+    }
+}

@@ -189,6 +189,18 @@ mod tests {
         assert!(shadow[1].is_nan() && shadow[3].is_nan() && shadow[4].is_nan());
         let any = map.counts(None);
         assert_eq!((any[0], any[2], any[5]), (2.0, 2.0, 1.0));
+        // The 2-byte map holds the same counts, and its own value outside the mask.
+        for which in [Some(status::SHADOW), Some(status::HIGHLIGHT), None] {
+            let f = map.counts(which);
+            let u = map.count_map(which);
+            for i in 0..w * h {
+                if f[i].is_nan() {
+                    assert_eq!(u[i], COUNT_OUTSIDE);
+                } else {
+                    assert_eq!(u[i] as f32, f[i]);
+                }
+            }
+        }
         // Without codes every mask pixel uses every light.
         let all = StatusMap::new(w, h, n, pixels, None);
         assert_eq!(all.counts(None)[2], 0.0);

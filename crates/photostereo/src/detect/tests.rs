@@ -294,3 +294,48 @@ fn light_noise_factors_are_one_with_four_lights() {
     };
     assert!(light_noise_factors(&capture, &noise, &DetectionParams::default()).is_empty());
 }
+
+/// The interior pixels (whole 3×3 neighbourhood in the mask) and their sample, against a
+/// brute-force list over an irregular mask that touches the frame's border.
+#[test]
+fn interior_neighbourhoods_are_every_stride_th_of_the_brute_force_list() {
+    let (mut capture, _) = lambert_sphere(40, 17.0, &ring(6, 30.0));
+    let (w, h) = (capture.width, capture.height);
+    // Holes and a border strip: pixels whose neighbourhoods leave the mask.
+    for i in 0..w * h {
+        let (r, c) = (i / w, i % w);
+        if (r * 7 + c * 3) % 23 == 0 || r == 0 {
+            capture.mask[i] = true;
+        }
+        if (r * 5 + c * 11) % 31 == 0 {
+            capture.mask[i] = false;
+        }
+    }
+    capture.pixels = (0..w * h)
+        .filter(|&i| capture.mask[i])
+        .map(|i| i as u32)
+        .collect();
+    let index = |i: usize| capture.pixels.iter().position(|&q| q as usize == i);
+    let mut brute: Vec<[u32; 9]> = Vec::new();
+    for &i in &capture.pixels {
+        let (r, c) = (i as usize / w, i as usize % w);
+        if r == 0 || c == 0 || r + 1 == h || c + 1 == w {
+            continue;
+        }
+        let nb: Vec<Option<usize>> = (0..9)
+            .map(|j| index((r + j / 3 - 1) * w + c + j % 3 - 1))
+            .collect();
+        if nb.iter().all(|q| q.is_some()) {
+            brute.push(std::array::from_fn(|j| nb[j].unwrap() as u32));
+        }
+    }
+    assert!(brute.len() > 300, "{}", brute.len());
+    for at_most in [4096, 100, 7] {
+        let (sampled, total) = interior_neighbourhoods(&capture, at_most);
+        assert_eq!(total, brute.len());
+        let stride = brute.len().div_ceil(at_most);
+        let expected: Vec<[u32; 9]> = brute.iter().step_by(stride).copied().collect();
+        assert_eq!(sampled, expected, "at most {at_most}");
+        assert!(sampled.len() <= at_most);
+    }
+}
