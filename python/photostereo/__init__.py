@@ -351,7 +351,7 @@ def reconstruct(
     shadow_ratio: float = 0.1,
     noise_estimate: str = "images",
     noise_refinements: int = 1,
-    max_iterations: int = 5,
+    max_iterations: int = 10,
     change_tolerance: float = 0.002,
     fallback: str = "neighbours",
     integrator: str = "poisson",

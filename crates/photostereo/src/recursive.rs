@@ -104,7 +104,7 @@ impl Default for RecursiveParams {
     fn default() -> Self {
         RecursiveParams {
             shadows: ShadowParams::default(),
-            max_iterations: 5,
+            max_iterations: 10,
             change_tolerance: 0.002,
             fallback: Fallback::Neighbours,
             consensus_radius: 2,
@@ -123,6 +123,9 @@ pub struct IterationRecord {
     pub highlight_pixels: usize,
     /// Pixels left with fewer than three usable lights.
     pub fewer_than_three: usize,
+    /// Pixels held at their set since they went back to an earlier one (the oscillation rule),
+    /// up to this iteration.
+    pub oscillating_pixels: usize,
     /// Mean share of (pixel, light) pairs in geometric shadow.
     pub shadowed_share: f64,
     /// Mean angular error against ground truth, when given (degrees).
@@ -307,6 +310,10 @@ pub fn recursive(
     // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
     // iteration that reached the smallest change so far (stall detection).
     let mut stop = StopRule::new(params, fingerprint(&light_status));
+    // Per pixel, a fingerprint of the usable set it had before its current one, and whether
+    // it went back to that set (see the oscillation rule below).
+    let mut earlier_print = vec![0u32; np];
+    let mut oscillating = vec![false; np];
     let mut converged = false;
     let mut stop_reason = String::new();
     for iteration in 1..=params.max_iterations {
@@ -600,6 +607,41 @@ pub fn recursive(
                 })?;
             }
         }
+        // Oscillation: a pixel whose new usable set is the one it had before its current set
+        // goes back and forth between two sets that both pass the test as the surface moves a
+        // little between iterations (both sets the recursion's own, not the detector's). It
+        // keeps its current set (and flags) from then on: the
+        // recursion settles instead of trading them, and the change it reports is the change
+        // of the other pixels.
+        new_status
+            .par_chunks_mut(n)
+            .zip(new_consistent.par_iter_mut())
+            .zip(new_few.par_iter_mut())
+            .zip(new_highlight.par_iter_mut())
+            .zip(oscillating.par_iter_mut())
+            .zip(earlier_print.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (((((row, cons), fw), hl), stuck), print))| {
+                let current = &light_status[p * n..(p + 1) * n];
+                let differs = row
+                    .iter()
+                    .zip(current)
+                    .any(|(a, b)| (*a == status::USED) != (*b == status::USED));
+                if !differs {
+                    return;
+                }
+                if *stuck || usable_print(row) == *print {
+                    *stuck = true;
+                    row.copy_from_slice(current);
+                    *cons = consistent[p];
+                    *fw = few[p];
+                    *hl = highlight[p];
+                } else if iteration > 1 {
+                    // (The detector's initial sets are not the recursion's decisions: a pixel
+                    // that returns to one is settling, not oscillating.)
+                    *print = usable_print(current);
+                }
+            });
         let changed: Vec<bool> = (0..np)
             .into_par_iter()
             .map(|p| usable_differs(&new_status, &light_status, p, n))
@@ -649,6 +691,7 @@ pub fn recursive(
             changed_share: changed_pixels as f64 / np.max(1) as f64,
             highlight_pixels: highlight.iter().filter(|&&x| x).count(),
             fewer_than_three: few.iter().filter(|&&x| x).count(),
+            oscillating_pixels: oscillating.iter().filter(|&&x| x).count(),
             shadowed_share,
             mean_error_deg: truth_masked.as_ref().map(|t| mean_error(&est.normals, t)),
             seconds: start.elapsed().as_secs_f64(),
@@ -841,6 +884,20 @@ impl StopRule {
 pub const STALL_ITERATIONS: usize = 10;
 
 /// A fingerprint of per-pixel light statuses (usable or not), for cycle detection.
+/// A 32-bit fingerprint (FNV-1a) of one pixel's usable-light set (its statuses `row`); never
+/// 0 for a set, so that 0 can stand for none.
+fn usable_print(row: &[u8]) -> u32 {
+    let mut h = 0x811c_9dc5u32;
+    for chunk in row.chunks(8) {
+        let mut bits = 0u8;
+        for (i, &s) in chunk.iter().enumerate() {
+            bits |= u8::from(s == status::USED) << i;
+        }
+        h = (h ^ u32::from(bits)).wrapping_mul(0x0100_0193);
+    }
+    h.max(1)
+}
+
 fn fingerprint(light_status: &[u8]) -> u64 {
     use std::hash::{Hash, Hasher};
     let mut h = std::collections::hash_map::DefaultHasher::new();
@@ -1305,5 +1362,44 @@ mod own_status_tests {
         }
         // Equal arrays: nothing held.
         assert!(OwnStatuses::of(&base, &base, n).ids.is_empty());
+    }
+
+    /// A usable set's fingerprint ignores why a light was dropped, tells the sets of 20 lights
+    /// with up to three dropped apart, and is never 0 (the "none" value).
+    #[test]
+    fn usable_prints_follow_the_usable_sets() {
+        let n = 20;
+        let set = |dropped: &[usize], label: u8| -> Vec<u8> {
+            (0..n)
+                .map(|k| {
+                    if dropped.contains(&k) {
+                        label
+                    } else {
+                        status::USED
+                    }
+                })
+                .collect()
+        };
+        assert_eq!(
+            usable_print(&set(&[2, 7], status::SHADOW)),
+            usable_print(&set(&[2, 7], status::HIGHLIGHT))
+        );
+        // Every set with one, two or three lights dropped: distinct prints.
+        let mut dropped_sets: Vec<Vec<usize>> = Vec::new();
+        for a in 0..n {
+            dropped_sets.push(vec![a]);
+            for b in a + 1..n {
+                dropped_sets.push(vec![a, b]);
+                for c in b + 1..n {
+                    dropped_sets.push(vec![a, b, c]);
+                }
+            }
+        }
+        let prints: std::collections::HashSet<u32> = dropped_sets
+            .iter()
+            .map(|d| usable_print(&set(d, status::REJECTED)))
+            .collect();
+        assert_eq!(prints.len(), dropped_sets.len());
+        assert!(!prints.contains(&0) && !prints.contains(&usable_print(&set(&[], 0))));
     }
 }

@@ -40,8 +40,8 @@ fn run(capture: &Capture, method: Method) -> photostereo::engine::Reconstruction
 
 /// Of the pairs the recursive method labels "shadow", fewer than 20% read more than half of the
 /// Lambertian prediction (it was 73–94% on psmImages when darker-than-predicted meant shadow);
-/// Coleman & Jain gives every mask pixel that least squares solves a normal; the recursion says
-/// whether it converged. Roughness and the gray sphere's figures are printed.
+/// Coleman & Jain gives every mask pixel that least squares solves a normal; the recursion
+/// settles within its default limit. Roughness and the gray sphere's figures are printed.
 #[test]
 fn psm_shadow_labels_completeness_and_sphere() {
     for name in PSM {
@@ -54,9 +54,10 @@ fn psm_shadow_labels_completeness_and_sphere() {
         let r = &rec.report.extra["recursive"];
         assert!(r["converged"].is_boolean() && r["final_change"].is_f64());
         assert!(!r["stop_reason"].as_str().unwrap().is_empty());
-        if r["converged"] == false {
-            assert!(rec.report.notes.iter().any(|n| n.contains("not converged")));
-        }
+        // With the oscillation rule the usable sets settle within the default limit (they
+        // stopped at the limit, 0.4–1% of the pixels still changing, on four of the six).
+        assert_eq!(r["converged"], true, "{name}: {}", r["stop_reason"]);
+        assert!(r["final_change"].as_f64().unwrap() < 0.002, "{name}");
         let (w, h) = (rec.width, rec.height);
         let rough = |n: &[[f32; 3]]| roughness_deg(n, &rec.mask, w, h);
         println!(
