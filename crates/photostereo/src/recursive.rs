@@ -623,11 +623,7 @@ pub fn recursive(
             .enumerate()
             .for_each(|(p, (((((row, cons), fw), hl), stuck), print))| {
                 let current = &light_status[p * n..(p + 1) * n];
-                let differs = row
-                    .iter()
-                    .zip(current)
-                    .any(|(a, b)| (*a == status::USED) != (*b == status::USED));
-                if !differs {
+                if !usable_sets_differ(row, current) {
                     return;
                 }
                 if *stuck || usable_print(row) == *print {
@@ -795,9 +791,13 @@ fn resolve_at(
 /// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
 /// per pixel (labels of removed lights aside).
 fn usable_differs(a: &[u8], b: &[u8], p: usize, n: usize) -> bool {
-    a[p * n..(p + 1) * n]
-        .iter()
-        .zip(&b[p * n..(p + 1) * n])
+    usable_sets_differ(&a[p * n..(p + 1) * n], &b[p * n..(p + 1) * n])
+}
+
+/// Whether two status rows of one pixel differ in their usable-light sets.
+fn usable_sets_differ(a: &[u8], b: &[u8]) -> bool {
+    a.iter()
+        .zip(b)
         .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
 }
 
