@@ -532,11 +532,12 @@ pub fn unusable_lights_figure(
 ) -> Canvas {
     use crate::statusmap::COUNT_OUTSIDE;
     let n = light_status.lights;
-    // Per count 0..=n, the mask pixels with it: the percentile and the means come from these.
-    let histogram = |which: Option<u8>| {
+    // Per count 0..=n, the mask pixels with it (from a 2-byte count map): the percentile and
+    // the means come from these.
+    let histogram = |counts: &[u16]| {
         let mut bins = vec![0usize; n + 1];
-        for p in 0..light_status.pixels().len() {
-            bins[light_status.count_at(p, which)] += 1;
+        for &c in counts.iter().filter(|&&c| c != COUNT_OUTSIDE) {
+            bins[usize::from(c).min(n)] += 1;
         }
         bins
     };
@@ -548,7 +549,8 @@ pub fn unusable_lights_figure(
     // The scale ends at the 99th percentile of the unusable count (a few pixels with every
     // light dropped would otherwise squeeze the rest into the bottom colours); above it clips.
     // The value of rank ⌊0.99 (m − 1)⌋ among the m mask pixels' counts, from their histogram.
-    let any_bins = histogram(None);
+    let any = light_status.count_map(None);
+    let any_bins = histogram(&any);
     let total: usize = any_bins.iter().sum();
     let p99 = if total == 0 {
         1.0
@@ -566,30 +568,28 @@ pub fn unusable_lights_figure(
     let max = nice_ceil(p99.max(1.0)).min(n as f32).max(1.0);
     let view = View::of_mask(mask, width, height, 360);
     let scale = if view.size().1 >= 240 { 2 } else { 1 };
-    // One frame-sized map of counts at a time, in two bytes a pixel.
-    let panels: Vec<Canvas> = [
-        ("in shadow", Some(status::SHADOW)),
-        ("in highlight", Some(status::HIGHLIGHT)),
-        ("unusable (any)", None),
-    ]
-    .iter()
-    .map(|&(name, which)| {
-        let counts = light_status.count_map(which);
-        let panel = view.heat_panel_by(
+    let panel = |name: &str, counts: &[u16], bins: &[usize]| {
+        let heat = view.heat_panel_by(
             |i| match counts[i] {
                 COUNT_OUTSIDE => f32::NAN,
                 c => c as f32,
             },
             max,
         );
-        let bins = if which.is_none() {
-            any_bins.clone()
-        } else {
-            histogram(which)
-        };
-        titled(&panel, &format!("{name}: mean {:.1}", mean(&bins)), scale)
+        titled(&heat, &format!("{name}: mean {:.1}", mean(bins)), scale)
+    };
+    // One further count map at a time beside the unusable one, in two bytes a pixel.
+    let mut panels: Vec<Canvas> = [
+        ("in shadow", status::SHADOW),
+        ("in highlight", status::HIGHLIGHT),
+    ]
+    .iter()
+    .map(|&(name, which)| {
+        let counts = light_status.count_map(Some(which));
+        panel(name, &counts, &histogram(&counts))
     })
     .collect();
+    panels.push(panel("unusable (any)", &any, &any_bins));
     let steps = if max <= 4.0 { max as usize } else { 4 };
     let ticks: Vec<(f32, String)> = (0..=steps)
         .map(|i| {
