@@ -353,6 +353,8 @@ def reconstruct(
     noise_refinements: int = 1,
     max_iterations: int = 10,
     change_tolerance: float = 0.002,
+    surface_prior: float = 1.0,
+    refine_lights: bool = False,
     fallback: str = "neighbours",
     integrator: str = "poisson",
     max_slope: float = 20.0,
@@ -389,6 +391,11 @@ def reconstruct(
     noise_refinements: rounds of noise re-estimation (``residuals`` only).
     max_iterations: the recursive method's iteration limit.
     change_tolerance: stop when the usable-light sets change at fewer than this share of pixels.
+    surface_prior: the recursive method's final estimate takes the integrated surface's normal
+        as a prior with this angular standard deviation in degrees (0: least squares alone).
+    refine_lights: refine the lights from the readings first (distant lights, six or more;
+        ``report["input"]["light_refinement"]`` says how far each moved); the Capture object
+        keeps its lights (a copy of its samples is refined for the call).
     fallback: completion of pixels with fewer than three lights: ``neighbours`` or ``brightest``.
     integrator: ``poisson`` (any mask), ``dct``, ``fft`` or ``paths``.
     max_slope: cap on |dz/dx|, |dz/dy| in pixel units per pixel.
@@ -413,6 +420,8 @@ def reconstruct(
         noise_refinements=noise_refinements,
         max_iterations=max_iterations,
         change_tolerance=change_tolerance,
+        surface_prior=surface_prior,
+        refine_lights=refine_lights,
         fallback=fallback,
         integrator=integrator,
         max_slope=max_slope,

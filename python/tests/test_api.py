@@ -236,6 +236,34 @@ def test_render_scene_equals_the_synth_folder(tmp_path):
     assert err["mean_deg"] < 3.0, err["mean_deg"]
 
 
+def test_refine_lights_recovers_a_perturbed_light_and_leaves_the_capture():
+    # Twelve lights on a noise-free Lambertian sphere cap; light 0 given 2 degrees off (rotated
+    # about the y axis): the refined direction comes back toward the truth.
+    images, lights, mask, truth, _ = lambert_sphere(size=96, radius=40.0, n_lights=12)
+    given = lights.copy()
+    s, c = math.sin(math.radians(2.0)), math.cos(math.radians(2.0))
+    x, z = given[0, 0], given[0, 2]
+    given[0, 0], given[0, 2] = c * x + s * z, -s * x + c * z
+    cap = ps.Capture.from_arrays(images.astype(np.float32), given, mask=mask)
+    lights_before, images_before = cap.lights.copy(), cap.images.copy()
+    rec = ps.reconstruct(cap, method="l2", refine_lights=True, integrate=False)
+    refined = rec.report["input"]["light_refinement"]
+    directions = np.asarray(refined["directions"])
+    assert angles_deg(directions[0], lights[0]) < 0.5 * angles_deg(given[0], lights[0])
+    assert abs(refined["gains"][0] - 1.0) < 0.01, refined["gains"]
+    assert rec.report["parameters"]["refine_lights"] is True
+    # The Capture keeps the lights and samples it was built with.
+    assert np.array_equal(cap.lights, lights_before)
+    assert np.array_equal(cap.images, images_before)
+    plain = ps.reconstruct(cap, method="l2", integrate=False)
+    assert "light_refinement" not in plain.report["input"]
+    # The surface prior is reported and can be turned off.
+    with_prior = ps.reconstruct(cap, method="recursive", integrate=False)
+    assert with_prior.report["recursive"]["surface_prior"]["prior_deg"] == 1.0
+    without = ps.reconstruct(cap, method="recursive", integrate=False, surface_prior=0.0)
+    assert without.report["recursive"]["surface_prior"] is None
+
+
 # --- bad input ------------------------------------------------------------------------------
 
 

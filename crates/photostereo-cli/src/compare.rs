@@ -67,6 +67,19 @@ pub struct CompareArgs {
     /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
     #[arg(long, default_value_t = defaults().recursive.change_tolerance)]
     pub change_tolerance: f64,
+    /// Recursive method: angular standard deviation (degrees) of the integrated surface's
+    /// normal as a prior on each pixel's normal in the final estimate (it steadies pixels
+    /// with few usable lights and is released where the readings disagree with it); 0 = the
+    /// usable lights' least squares alone.
+    #[arg(long, default_value_t = defaults().recursive.surface_prior_deg)]
+    pub surface_prior: f64,
+    /// Refine the light directions and intensities from the readings before estimating (six
+    /// or more distant lights): each light's vector by least squares over the pixels' fits,
+    /// with the readings the detector keeps, its frame kept on the given lights; every method
+    /// then uses the refined lights, and report.json's input.light_refinement says how far
+    /// each moved.
+    #[arg(long)]
+    pub refine_lights: bool,
     /// Integration weight of unreliable pixels relative to reliable ones.
     #[arg(long, default_value_t = defaults().integration.unreliable_weight)]
     pub unreliable_weight: f32,
@@ -114,6 +127,7 @@ fn params(a: &CompareArgs) -> Params {
         recursive: RecursiveParams {
             max_iterations: a.max_iterations,
             change_tolerance: a.change_tolerance,
+            surface_prior_deg: a.surface_prior,
             fallback: a.fallback,
             ..d.recursive
         },
@@ -125,6 +139,7 @@ fn params(a: &CompareArgs) -> Params {
         detect: true,
         integrate: true,
         memory_limit: None,
+        refine_lights: a.refine_lights,
     }
 }
 

@@ -254,7 +254,9 @@ fn run_scene(
         let capture_dir = scene_dir.join("capture");
         make_dirs(root, &capture_dir)?;
         write_capture(&capture_dir, &rendered, Some(&spec))?;
-        let capture = rendered.capture()?;
+        let mut capture = rendered.capture()?;
+        // As a run prepares a capture from files (the lights refined from the readings).
+        photostereo::engine::prepare(&mut capture, &Params::default())?;
         let truth = &rendered.truth;
         let (w, h) = (truth.width, truth.height);
         let mut figure_rows: Vec<(String, Vec<Canvas>)> = Vec::new();

@@ -71,6 +71,19 @@ pub struct RunArgs {
     /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
     #[arg(long, default_value_t = defaults().recursive.change_tolerance)]
     pub change_tolerance: f64,
+    /// Recursive method: angular standard deviation (degrees) of the integrated surface's
+    /// normal as a prior on each pixel's normal in the final estimate (it steadies pixels
+    /// with few usable lights and is released where the readings disagree with it); 0 = the
+    /// usable lights' least squares alone.
+    #[arg(long, default_value_t = defaults().recursive.surface_prior_deg)]
+    pub surface_prior: f64,
+    /// Refine the light directions and intensities from the readings before estimating (six
+    /// or more distant lights): each light's vector by least squares over the pixels' fits,
+    /// with the readings the detector keeps, its frame kept on the given lights; every method
+    /// then uses the refined lights, and report.json's input.light_refinement says how far
+    /// each moved.
+    #[arg(long)]
+    pub refine_lights: bool,
     /// Recursive method: radius of the spatial consensus of the usable lights (a pixel takes
     /// the majority of its (2r+1)² neighbourhood's removals where its readings pass the test
     /// with them); 0 = the paper's per-pixel decisions.
@@ -145,6 +158,7 @@ pub fn params(a: &RunArgs) -> Params {
         recursive: RecursiveParams {
             max_iterations: a.max_iterations,
             change_tolerance: a.change_tolerance,
+            surface_prior_deg: a.surface_prior,
             consensus_radius: a.consensus_radius,
             fallback: a.fallback,
             ..d.recursive
@@ -157,6 +171,7 @@ pub fn params(a: &RunArgs) -> Params {
         detect: !a.no_detect,
         integrate: !a.no_depth,
         memory_limit: a.memory_limit,
+        refine_lights: a.refine_lights,
     }
 }
 

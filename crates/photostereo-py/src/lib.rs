@@ -240,6 +240,8 @@ fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
             "noise_refinements" => p.detection.noise_refinements = usize_of(v)?,
             "max_iterations" => p.recursive.max_iterations = usize_of(v)?,
             "change_tolerance" => p.recursive.change_tolerance = f64_of(v)?,
+            "surface_prior" => p.recursive.surface_prior_deg = f64_of(v)?,
+            "refine_lights" => p.refine_lights = bool_of(v)?,
             "fallback" => p.recursive.fallback = str_of(v)?.parse::<Fallback>().map_err(py_err)?,
             "integrator" => p.integration.method = str_of(v)?.parse().map_err(py_err)?,
             "max_slope" => p.integration.max_slope = f64_of(v)? as f32,
@@ -318,6 +320,8 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("noise_refinements", p.detection.noise_refinements)?;
     d.set_item("max_iterations", p.recursive.max_iterations)?;
     d.set_item("change_tolerance", p.recursive.change_tolerance)?;
+    d.set_item("surface_prior", p.recursive.surface_prior_deg)?;
+    d.set_item("refine_lights", p.refine_lights)?;
     d.set_item("fallback", p.recursive.fallback.name())?;
     d.set_item("integrator", p.integration.method.name())?;
     d.set_item(
@@ -853,7 +857,15 @@ fn reconstruct<'py>(
     let params = params_from(params)?;
     let capture = Arc::clone(&capture.inner);
     let rec = run_detached(py, num_threads, progress, move |p| {
-        photostereo::engine::reconstruct(&capture, &params, p)
+        if params.refine_lights {
+            // The Capture object stays as built: the refined lights (and rescaled samples)
+            // belong to a copy made for this call.
+            let mut own = (*capture).clone();
+            photostereo::engine::prepare(&mut own, &params)?;
+            photostereo::engine::reconstruct(&own, &params, p)
+        } else {
+            photostereo::engine::reconstruct(&capture, &params, p)
+        }
     })?;
     reconstruction_dict(py, rec)
 }

@@ -60,7 +60,16 @@ fn main() {
                 None,
             )
         };
-        let capture = files.load(&Silent).unwrap();
+        let mut capture = files.load(&Silent).unwrap();
+        // PS_REFINE=1 refines the lights from the readings first.
+        if std::env::var("PS_REFINE").is_ok_and(|v| v == "1") {
+            capture
+                .refine_lights(&photostereo::calibrate::RefineParams::default())
+                .unwrap();
+            if let Some(note) = capture.notes.last() {
+                eprintln!("{object}: {note}");
+            }
+        }
         for &method in &methods {
             let mut params = Params {
                 method,
@@ -81,6 +90,10 @@ fn main() {
                 } else {
                     Some(k.parse().unwrap())
                 };
+            }
+            // PS_PRIOR=0 turns the recursion's surface prior off (degrees).
+            if let Ok(v) = std::env::var("PS_PRIOR") {
+                params.recursive.surface_prior_deg = v.parse().unwrap();
             }
             // PS_LIGHT_NOISE=0 turns the per-light noise factors off.
             if let Ok(v) = std::env::var("PS_LIGHT_NOISE") {

@@ -51,6 +51,10 @@ pub struct Capture {
     pub sources: Vec<PathBuf>,
     /// Remarks made while loading (path resolution, renormalised lights…).
     pub notes: Vec<String>,
+    /// The refinement of the lights from the readings, once applied
+    /// ([`Capture::apply_light_refinement`]): `lights` and the samples are then the refined
+    /// ones.
+    pub light_refinement: Option<crate::calibrate::LightRefinement>,
     /// The capture-wide statistics once measured (noise level, dark floor, κ): every method
     /// run on this capture reads them instead of measuring them again. A clone or any capture
     /// derived from this one starts without them.
@@ -656,6 +660,7 @@ impl CaptureFiles {
             sources: self.images.clone(),
             notes: self.notes.clone(),
             statistics: Statistics::default(),
+            light_refinement: None,
         })
     }
 
@@ -769,6 +774,7 @@ impl CaptureFiles {
             sources: self.images.clone(),
             notes: self.notes.clone(),
             statistics: Statistics::default(),
+            light_refinement: None,
         };
         Ok(capture)
     }
@@ -1052,6 +1058,109 @@ impl Capture {
         self.statistics = Statistics::default();
     }
 
+    /// Refines the lights from the readings ([`crate::calibrate::refine_lights`]) and applies
+    /// the result ([`Capture::apply_light_refinement`]); returns whether the lights changed
+    /// (`false`: the capture is not one to calibrate on, see `refine_lights`, or its lights
+    /// were refined already).
+    pub fn refine_lights(&mut self, params: &crate::calibrate::RefineParams) -> Result<bool> {
+        if self.light_refinement.is_some() {
+            return Ok(false);
+        }
+        match crate::calibrate::refine_lights(self, params)? {
+            Some(r) => {
+                self.apply_light_refinement(r)?;
+                Ok(true)
+            }
+            None => Ok(false),
+        }
+    }
+
+    /// Makes `refinement`'s lights the capture's: directions replaced, light k's samples
+    /// divided by its gain (a tiled capture's store divides them as it reads them, with the
+    /// same rounding), intensities multiplied by it (the record of what the lights are),
+    /// statistics forgotten. Refused on a sampled view, on a capture already refined and on a
+    /// tiled capture whose store is shared with another capture.
+    pub fn apply_light_refinement(
+        &mut self,
+        refinement: crate::calibrate::LightRefinement,
+    ) -> Result<()> {
+        let n = self.n_lights();
+        if refinement.directions.len() != n || refinement.gains.len() != n {
+            return Err(Error::invalid(format!(
+                "light refinement: {} directions and {} gains for {} lights",
+                refinement.directions.len(),
+                refinement.gains.len(),
+                n
+            )));
+        }
+        if self.light_refinement.is_some() {
+            return Err(Error::invalid(
+                "light refinement: the lights were refined already",
+            ));
+        }
+        if self.sparse.is_some() || self.lights.near.is_some() {
+            return Err(Error::invalid(
+                "light refinement: applies to a whole capture under distant lights",
+            ));
+        }
+        if refinement
+            .gains
+            .iter()
+            .any(|g| !(g.is_finite() && *g > 0.0))
+        {
+            return Err(Error::invalid("light refinement: gains must be positive"));
+        }
+        let inverse: Vec<f32> = refinement.gains.iter().map(|g| (1.0 / g) as f32).collect();
+        let c = self.channels;
+        match self.store.as_mut() {
+            Some(store) => Arc::get_mut(store)
+                .ok_or_else(|| {
+                    Error::invalid(
+                        "light refinement: the tiled samples are shared with another capture",
+                    )
+                })?
+                .set_light_gains(inverse)?,
+            None => self.samples.par_chunks_mut(n * c).for_each(|pixel| {
+                for (light, &g) in pixel.chunks_exact_mut(c).zip(&inverse) {
+                    for v in light {
+                        *v *= g;
+                    }
+                }
+            }),
+        }
+        for (k, (d, g)) in refinement
+            .directions
+            .iter()
+            .zip(&refinement.gains)
+            .enumerate()
+        {
+            self.lights.directions[k] = *d;
+            if let Some(i) = self.lights.intensities.get_mut(k) {
+                for v in i.iter_mut() {
+                    *v *= g;
+                }
+            }
+        }
+        let mean = refinement.angle_deg.iter().sum::<f64>() / n as f64;
+        let max = refinement.angle_deg.iter().cloned().fold(0.0, f64::max);
+        let gain_spread = refinement
+            .gains
+            .iter()
+            .map(|g| (g - 1.0).abs())
+            .fold(0.0, f64::max);
+        self.notes.push(format!(
+            "lights refined from the readings: directions moved {mean:.2}° on average (at most \
+             {max:.2}°), intensities by up to {:.1}%; the pixels' median misfit {:.2}% → {:.2}% \
+             of their level",
+            100.0 * gain_spread,
+            100.0 * refinement.misfit_before,
+            100.0 * refinement.misfit_after
+        ));
+        self.light_refinement = Some(refinement);
+        self.forget_statistics();
+        Ok(())
+    }
+
     /// Builds a capture from decoded images (all of one size and channel count), their lights
     /// and an optional mask (`height * width`, row-major). Images are divided by the lights'
     /// intensities as when loading files.
@@ -1144,6 +1253,7 @@ impl Capture {
             sources: Vec::new(),
             notes: Vec::new(),
             statistics: Statistics::default(),
+            light_refinement: None,
         }
     }
 
@@ -1447,6 +1557,7 @@ impl Capture {
             sources: Vec::new(),
             notes: Vec::new(),
             statistics: Statistics::default(),
+            light_refinement: self.light_refinement.clone(),
         }
     }
 
@@ -1466,6 +1577,7 @@ impl Capture {
             sources: Vec::new(),
             notes: self.notes.clone(),
             statistics: Statistics::default(),
+            light_refinement: self.light_refinement.clone(),
         }
     }
 

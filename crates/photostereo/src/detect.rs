@@ -1071,16 +1071,28 @@ fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
 /// returns the robust scale of the kept ones
 /// (1.4826 × their median absolute standardised residual). `None` when fewer than four readings
 /// are kept, the pixel is black or the kept lights do not determine a normal.
-fn robust_fit(
+pub(crate) fn robust_fit(
     dirs: &[Vector3<f64>],
     grey: &[f64],
     keep: &mut [bool],
     u: &mut Vec<(usize, f64)>,
     scratch: &mut Vec<f64>,
 ) -> Option<f64> {
+    robust_fit_with(dirs, grey, keep, u, scratch).map(|(scale, _)| scale)
+}
+
+/// [`robust_fit`], returning the robust scale and the final fit m = ρ n.
+pub(crate) fn robust_fit_with(
+    dirs: &[Vector3<f64>],
+    grey: &[f64],
+    keep: &mut [bool],
+    u: &mut Vec<(usize, f64)>,
+    scratch: &mut Vec<f64>,
+) -> Option<(f64, Vector3<f64>)> {
     let n = dirs.len();
     let level = grey.iter().sum::<f64>() / n as f64;
     let mut scale = f64::NAN;
+    let mut fit = Vector3::zeros();
     for round in 0..2 {
         let count = keep.iter().filter(|&&k| k).count();
         if count < 4 || level <= 0.0 {
@@ -1094,6 +1106,7 @@ fn robust_fit(
         }
         let gi = gram.try_inverse()?;
         let m = gi * b;
+        fit = m;
         u.clear();
         for k in 0..n {
             let h = dirs[k].dot(&(gi * dirs[k]));
@@ -1117,7 +1130,7 @@ fn robust_fit(
             }
         }
     }
-    Some(scale)
+    Some((scale, fit))
 }
 
 /// Per-light noise factors c_k ≥ 1 of a capture under the noise model `noise`
@@ -1444,6 +1457,27 @@ impl<'a> Attributor<'a> {
             noise,
             capture,
         })
+    }
+
+    /// [`Attributor::new`] under the light vectors `vectors` (direction times relative
+    /// intensity, camera frame, one per light) instead of the capture's: the attribution of the
+    /// readings while the lights are refined ([`crate::calibrate::refine_lights`]). Distant
+    /// lights.
+    pub fn with_vectors(
+        capture: &'a Capture,
+        params: &'a DetectionParams,
+        noise: NoiseModel,
+        vectors: &[[f64; 3]],
+    ) -> Result<Self> {
+        let mut attributor = Attributor::new(capture, params, noise)?;
+        if vectors.len() != attributor.test.directions.len()
+            || !attributor.test.set_directions(vectors)
+        {
+            return Err(Error::invalid(
+                "light vectors: one per light, determining a normal, expected",
+            ));
+        }
+        Ok(attributor)
     }
 
     /// Per-thread scratch space for [`Attributor::run`].

@@ -102,6 +102,12 @@ pub struct Params {
     /// in tiles at the input's precision, in memory or in a spill file; the results are the
     /// same. A capture already in memory ([`Capture::from_stack`]) is used as it is.
     pub memory_limit: Option<u64>,
+    /// Refine the lights from the readings before estimating ([`prepare`],
+    /// [`crate::calibrate::refine_lights`]; distant lights, six or more). Default false: the
+    /// lights are taken as given, and every method (`l2` included) sees the same lights a
+    /// user supplied; on real rigs whose calibration is off by a degree or two it lowers the
+    /// recursive method's error (README, "Light refinement").
+    pub refine_lights: bool,
 }
 
 impl Default for Params {
@@ -114,8 +120,20 @@ impl Default for Params {
             detect: true,
             integrate: true,
             memory_limit: None,
+            refine_lights: false,
         }
     }
+}
+
+/// Prepares a capture for [`reconstruct`] with `params`: with `refine_lights`, its lights
+/// refined from its readings ([`Capture::refine_lights`], once per capture; the report's
+/// `input.light_refinement` records it). Every front end calls it once a capture is loaded;
+/// [`reconstruct`] itself takes the lights as they are. Returns whether the lights changed.
+pub fn prepare(capture: &mut Capture, params: &Params) -> Result<bool> {
+    if !params.refine_lights {
+        return Ok(false);
+    }
+    capture.refine_lights(&crate::calibrate::RefineParams::default())
 }
 
 impl Params {
@@ -139,6 +157,7 @@ impl Params {
             "method": self.method.name(),
             "detect": self.detect,
             "integrate": self.integrate,
+            "refine_lights": self.refine_lights,
             "detection": self.detection,
             "recursive": self.recursive,
             "integration": self.integration,
@@ -410,6 +429,7 @@ pub fn reconstruct_with_truth(
                 "converged": d.converged,
                 "final_change": d.final_change,
                 "stop_reason": d.stop_reason,
+                "surface_prior": d.surface_prior,
             }),
         );
         if !d.converged {

@@ -16,11 +16,15 @@
 //! 6. Re-estimate every pixel from its usable lights, and repeat from 2 until the usable-light
 //!    sets change at fewer than `change_tolerance` of the pixels, or `max_iterations`.
 //!
+//! 7. The final estimate: each pixel's usable readings with the last surface's normal as a
+//!    robust prior ([`SurfacePrior`]), which steadies the pixels the readings determine
+//!    poorly (few usable lights, dark readings) and leaves the others.
+//!
 //! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
 //! completed by [`Fallback`].
 
 use crate::capture::Capture;
-use crate::detect::{Attributor, Detection, DetectionParams};
+use crate::detect::{Attributor, Detection, DetectionParams, NoiseModel};
 use crate::error::{Error, Result};
 use crate::estimate::Estimator;
 use crate::integrate::{
@@ -98,6 +102,10 @@ pub struct RecursiveParams {
     /// fault region narrower than three pixels is not told apart from the test's noise-level
     /// decisions; 0 turns the consensus off (the paper's per-pixel decisions).
     pub consensus_radius: usize,
+    /// The final re-estimate takes the last integrated surface as a prior on each normal
+    /// ([`SurfacePrior`]): its angular standard deviation in degrees (default 1; 0 turns the
+    /// step off and the estimate is the usable lights' least squares).
+    pub surface_prior_deg: f64,
 }
 
 impl Default for RecursiveParams {
@@ -108,6 +116,7 @@ impl Default for RecursiveParams {
             change_tolerance: 0.002,
             fallback: Fallback::Neighbours,
             consensus_radius: 2,
+            surface_prior_deg: 1.0,
         }
     }
 }
@@ -161,6 +170,8 @@ pub struct RecursiveDiagnostics {
     pub final_change: f64,
     /// Why the recursion stopped, in words.
     pub stop_reason: String,
+    /// The final re-estimate with the surface as prior, when it ran.
+    pub surface_prior: Option<SurfacePriorRecord>,
 }
 
 /// The normals, albedo and light statuses of a recursive run, and its diagnostics.
@@ -205,6 +216,15 @@ impl RecursiveParams {
             return Err(Error::parameter(
                 "max_iterations",
                 "0: the recursive method needs at least one iteration",
+            ));
+        }
+        if !(self.surface_prior_deg.is_finite() && (0.0..=90.0).contains(&self.surface_prior_deg)) {
+            return Err(Error::parameter(
+                "surface_prior_deg",
+                format!(
+                    "{}: expected an angle in degrees in [0, 90] (0 turns the surface prior off)",
+                    self.surface_prior_deg
+                ),
             ));
         }
         if !(0.0..=1.0).contains(&self.change_tolerance) {
@@ -706,6 +726,22 @@ pub fn recursive(
         }
     }
     progress.end();
+    // 7. The final estimate: each pixel's usable lights with the last surface as a prior on its
+    // normal (distant lights; near lights keep their least-squares estimate).
+    let surface_prior = if params.surface_prior_deg > 0.0 && !near_lights && !last_depth.is_empty()
+    {
+        let scatter = usable_scatter(capture, &light_status, &few, &noise)?;
+        let prior = SurfacePrior {
+            sigma_rad: params.surface_prior_deg.to_radians(),
+            noise: NoiseModel {
+                kappa: scatter,
+                ..noise.clone()
+            },
+        };
+        Some(prior.apply(capture, &light_status, &few, &last_depth, &mut est)?)
+    } else {
+        None
+    };
     let final_trust = pixel_trust(
         &est,
         &consistent,
@@ -729,6 +765,7 @@ pub fn recursive(
         fallback: params.fallback,
         converged,
         stop_reason,
+        surface_prior,
     };
     est.light_status = Some(light_status);
     Ok(RecursiveResult {
@@ -737,6 +774,304 @@ pub fn recursive(
         detect_seconds,
         diagnostics,
     })
+}
+
+/// The recursive method's final step: a maximum a posteriori estimate of each pixel's scaled
+/// normal b = ρ n from its usable lights, with the last integrated surface as a prior on n.
+///
+/// The data term is the usable readings' weighted least squares under `noise` (σ_k² =
+/// c_k² (σ₀² + κ² Ī²), Ī the mean of the usable readings); the prior says b ≈ ρ̂ n_s with an isotropic standard deviation ρ̂ σ_s,
+/// n_s the surface's normal and ρ̂ the pixel's own least-squares albedo:
+/// b = (G + π I)⁻¹ (r + π ρ̂ n_s), G = Σ l_k l_kᵀ / σ_k², r = Σ l_k I_k / σ_k², π = 1 / (ρ̂ σ_s)².
+/// Where the readings determine the normal well (many lights, bright) the prior barely moves
+/// it; where they do not (few usable lights, dark, readings near the noise floor) the surface's
+/// normal — the integrable part of the neighbourhood's normals — steadies it. That removes
+/// the speckle of per-pixel usable sets without smoothing what the readings show: the prior is
+/// robust, its precision divided by 1 + a² / (3² (σ_s² + v)), a the angle between the
+/// least-squares normal and the surface's and v the least-squares normal's own angular
+/// variance, so that where the two disagree beyond three combined standard deviations (a
+/// crease or a step the integration smooths over) the readings decide.
+pub struct SurfacePrior {
+    /// σ_s, radians.
+    pub sigma_rad: f64,
+    /// The readings' noise: the detector's σ₀, floor and light factors, with κ the scatter of
+    /// the usable readings (`usable_scatter`; the test's κ is a decision threshold, this one
+    /// what the readings the estimate uses show).
+    pub noise: NoiseModel,
+}
+
+/// The model error κ of the readings the estimate uses: over a regular sample of at most 8192
+/// mask pixels with four usable lights or more (not flagged in `skip`), each pixel's weighted
+/// least-squares residual variance s² over its usable lights (light factors of `noise`), scaled
+/// to the median of its χ² distribution (so that the median over the pixels estimates the
+/// variance, whatever each pixel's degrees of freedom), gives κ_p² = (s² − σ₀²) / Ī², Ī the
+/// usable readings' mean; κ is the square root of the median of κ_p² (0 when negative or with
+/// fewer than 100 pixels). Unlike the capture's κ measured over all lights
+/// ([`crate::detect::estimate_kappa`]), it leaves out the readings the recursion dropped:
+/// highlights and shadows do not count as the readings' scatter.
+fn usable_scatter(
+    capture: &Capture,
+    light_status: &[u8],
+    skip: &[bool],
+    noise: &NoiseModel,
+) -> Result<f64> {
+    use nalgebra::{Matrix3, Vector3};
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let np = capture.n_pixels();
+    let ids: Vec<usize> = (0..np)
+        .step_by(np.div_ceil(8192).max(1))
+        .filter(|&p| !skip[p])
+        .collect();
+    let dirs: Vec<Vector3<f64>> = capture
+        .lights
+        .directions
+        .iter()
+        .enumerate()
+        .map(|(k, d)| Vector3::from(*d) / noise.light_factor.get(k).copied().unwrap_or(1.0))
+        .collect();
+    // The median of χ²_ν / ν per degrees of freedom ν.
+    let chi2_median: Vec<f64> = (0..n.max(4))
+        .map(|dof| {
+            if dof == 0 {
+                1.0
+            } else {
+                crate::stats::chi2_quantile(0.5, dof) / dof as f64
+            }
+        })
+        .collect();
+    let mut k2 = Vec::with_capacity(ids.len());
+    let mut grey = vec![0f64; n];
+    capture.for_ids_by_tile(&ids, |sub, view| {
+        for &p in sub {
+            channel_mean(view.pixel_samples(p), c, &mut grey);
+            for (k, g) in grey.iter_mut().enumerate() {
+                *g /= noise.light_factor.get(k).copied().unwrap_or(1.0);
+            }
+            let used = |k: usize| light_status[p * n + k] == status::USED;
+            let count = (0..n).filter(|&k| used(k)).count();
+            if count < 4 {
+                continue;
+            }
+            let (mut gram, mut rhs, mut level) = (Matrix3::zeros(), Vector3::zeros(), 0.0);
+            for k in (0..n).filter(|&k| used(k)) {
+                gram += dirs[k] * dirs[k].transpose();
+                rhs += dirs[k] * grey[k];
+                level += grey[k];
+            }
+            let Some(gi) = gram.try_inverse() else {
+                continue;
+            };
+            let m = gi * rhs;
+            let rss: f64 = (0..n)
+                .filter(|&k| used(k))
+                .map(|k| (grey[k] - dirs[k].dot(&m)).powi(2))
+                .sum();
+            let dof = count - 3;
+            let level = level / count as f64;
+            if level > 0.0 {
+                let s2 = rss / dof as f64 / chi2_median[dof];
+                k2.push((s2 - noise.sigma0 * noise.sigma0) / (level * level));
+            }
+        }
+        Ok(())
+    })?;
+    if k2.len() < 100 {
+        return Ok(0.0);
+    }
+    Ok(crate::metrics::median(&mut k2).max(0.0).sqrt())
+}
+
+/// What [`SurfacePrior::apply`] did, for the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct SurfacePriorRecord {
+    /// σ_s, degrees.
+    pub prior_deg: f64,
+    /// κ of the data term.
+    pub kappa: f64,
+    /// Pixels re-estimated (mask pixels with three usable lights or more and a surface normal).
+    pub pixels: usize,
+    /// Mean angle between the least-squares and the final normals, degrees.
+    pub mean_shift_deg: f64,
+}
+
+/// The prior is released where the least-squares normal and the surface disagree beyond this
+/// many combined standard deviations (a Cauchy weight with scale 3).
+const PRIOR_RELEASE_SIGMAS: f64 = 3.0;
+
+impl SurfacePrior {
+    /// Re-estimates the mask pixels of `est` not flagged in `skip` (they keep their estimate)
+    /// from their usable lights in `light_status` and the surface `depth` (full frame, pixel
+    /// units, NaN outside the mask). Distant lights.
+    pub fn apply(
+        &self,
+        capture: &Capture,
+        light_status: &[u8],
+        skip: &[bool],
+        depth: &[f32],
+        est: &mut Estimate,
+    ) -> Result<SurfacePriorRecord> {
+        let (n, c) = (capture.n_lights(), capture.channels);
+        let (w, h) = (capture.width, capture.height);
+        let factors = &self.noise.light_factor;
+        let dirs: Vec<nalgebra::Vector3<f64>> = capture
+            .lights
+            .directions
+            .iter()
+            .map(|d| nalgebra::Vector3::from(*d))
+            .collect();
+        // The shift summed in nanodegrees as integers: the same total in any order, however
+        // the capture is tiled.
+        let (mut pixels, mut shift_nano) = (0usize, 0u64);
+        capture.for_each_tile(|off, tile| {
+            let tn = tile.n_pixels();
+            let sums: Vec<(usize, u64)> = est.normals[off..off + tn]
+                .par_chunks_mut(CHUNK)
+                .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+                .enumerate()
+                .map_init(
+                    || (vec![0f64; n], vec![false; n]),
+                    |(grey, used), (chunk, (normals, albedo))| {
+                        let (mut count, mut nano) = (0usize, 0u64);
+                        for (dp, old) in normals.iter_mut().enumerate() {
+                            let lp = chunk * CHUNK + dp;
+                            let p = off + lp;
+                            if skip[p] {
+                                continue;
+                            }
+                            let samples = tile.pixel_samples(lp);
+                            channel_mean(samples, c, grey);
+                            for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
+                                *u = st == status::USED;
+                            }
+                            let i = capture.pixels[p] as usize;
+                            let surface = normal_from_depth_at(i, w, h, depth, &capture.mask);
+                            let Some(m) = self.solve(&dirs, factors, grey, used, surface) else {
+                                continue;
+                            };
+                            let mut normal = [0f32; 3];
+                            write_normal_albedo_with(
+                                &capture.lights.directions,
+                                c,
+                                samples,
+                                &m,
+                                Some(used),
+                                &mut normal,
+                                &mut albedo[dp * c..(dp + 1) * c],
+                            );
+                            nano += (angular_error_deg(normal, *old) * 1e9).round() as u64;
+                            *old = normal;
+                            count += 1;
+                        }
+                        (count, nano)
+                    },
+                )
+                .collect();
+            for (count, nano) in sums {
+                pixels += count;
+                shift_nano += nano;
+            }
+            Ok(())
+        })?;
+        let shift = shift_nano as f64 * 1e-9;
+        Ok(SurfacePriorRecord {
+            prior_deg: self.sigma_rad.to_degrees(),
+            kappa: self.noise.kappa,
+            pixels,
+            mean_shift_deg: shift / pixels.max(1) as f64,
+        })
+    }
+
+    /// One pixel's scaled normal: `grey` its channel-mean readings, `used` its usable lights,
+    /// `surface` the surface's unit normal there ((0, 0, 0): none). `None` when the usable
+    /// lights do not determine a normal or there is no surface normal (the estimate stays).
+    fn solve(
+        &self,
+        dirs: &[nalgebra::Vector3<f64>],
+        factors: &[f64],
+        grey: &[f64],
+        used: &[bool],
+        surface: [f32; 3],
+    ) -> Option<nalgebra::Vector3<f64>> {
+        let fit = self.least_squares(dirs, factors, grey, used, surface)?;
+        let s2 = self.sigma_rad * self.sigma_rad;
+        let release =
+            1.0 + fit.angle * fit.angle / (PRIOR_RELEASE_SIGMAS.powi(2) * (s2 + fit.variance));
+        let precision = 1.0 / (fit.rho * fit.rho * s2 * release);
+        (fit.gram + nalgebra::Matrix3::identity() * precision)
+            .try_inverse()
+            .map(|g| g * (fit.rhs + fit.prior * (fit.rho * precision)))
+    }
+
+    /// The usable readings' weighted least squares at one pixel and how its normal compares
+    /// with the surface's ([`SurfacePrior::solve`]'s arguments).
+    fn least_squares(
+        &self,
+        dirs: &[nalgebra::Vector3<f64>],
+        factors: &[f64],
+        grey: &[f64],
+        used: &[bool],
+        surface: [f32; 3],
+    ) -> Option<PixelFit> {
+        use nalgebra::{Matrix3, Vector3};
+        if surface == [0.0; 3] {
+            return None;
+        }
+        // The model error scales with the readings the fit uses (at a pixel most of whose
+        // lights are in shadow, the lit ones), not with the mean over every light.
+        let (sum, used_count) = grey
+            .iter()
+            .zip(used)
+            .filter(|(_, &u)| u)
+            .fold((0.0, 0usize), |(s, c), (g, _)| (s + g, c + 1));
+        let level = sum / used_count.max(1) as f64;
+        let variance = self.noise.variance(level);
+        let (mut gram, mut rhs) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
+        let mut count = 0;
+        for k in (0..dirs.len()).filter(|&k| used[k]) {
+            let f = factors.get(k).copied().unwrap_or(1.0);
+            let inv = 1.0 / (variance * f * f);
+            gram += dirs[k] * dirs[k].transpose() * inv;
+            rhs += dirs[k] * (grey[k] * inv);
+            count += 1;
+        }
+        if count < 3 {
+            return None;
+        }
+        let gram_inv = gram.try_inverse()?;
+        let m = gram_inv * rhs;
+        let rho = m.norm();
+        if !(rho.is_finite() && rho > 1e-12) {
+            return None;
+        }
+        let normal = m / rho;
+        let prior = Vector3::new(surface[0] as f64, surface[1] as f64, surface[2] as f64);
+        // The least-squares normal's angular variance: its covariance G⁻¹ / ρ² on the tangent
+        // plane.
+        let tangent = Matrix3::identity() - normal * normal.transpose();
+        Some(PixelFit {
+            gram,
+            rhs,
+            rho,
+            prior,
+            variance: (tangent * gram_inv * tangent).trace() / (rho * rho),
+            angle: normal.dot(&prior).clamp(-1.0, 1.0).acos(),
+        })
+    }
+}
+
+/// [`SurfacePrior::least_squares`] at one pixel.
+struct PixelFit {
+    /// G and r of the usable readings.
+    gram: nalgebra::Matrix3<f64>,
+    rhs: nalgebra::Vector3<f64>,
+    /// The least-squares albedo ρ̂.
+    rho: f64,
+    /// The surface's unit normal.
+    prior: nalgebra::Vector3<f64>,
+    /// The least-squares normal's angular variance v, rad².
+    variance: f64,
+    /// The angle between the least-squares normal and the surface's, rad.
+    angle: f64,
 }
 
 /// A status array of `n` lights per mask pixel held as its difference from another (the

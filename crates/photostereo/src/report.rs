@@ -59,6 +59,10 @@ pub struct InputSummary {
     /// Condition number of the light matrix (omitted where the input is no capture).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub light_condition_number: Option<f64>,
+    /// The lights' refinement from the readings, when applied: refined directions, gains, the
+    /// angle each light moved and the pixels' misfit before and after.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub light_refinement: Option<crate::calibrate::LightRefinement>,
 }
 
 fn is_zero<T: Default + PartialEq>(v: &T) -> bool {
@@ -88,6 +92,7 @@ impl InputSummary {
             mask_pixels: capture.n_pixels(),
             lights_renormalised: Some(capture.lights.renormalised),
             light_condition_number: Some(capture.lights.condition_number()),
+            light_refinement: capture.light_refinement.clone(),
         }
     }
 }

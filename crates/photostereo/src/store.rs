@@ -149,6 +149,9 @@ pub struct SampleStore {
     decode: Vec<Decode>,
     /// Per light and channel: the factor 1 / intensity.
     scale: Vec<[f32; 3]>,
+    /// Per light: the factor 1 / gain of a light refinement, applied after `scale` (as a
+    /// capture held whole applies it to its samples); empty when the lights are as given.
+    gain: Vec<f32>,
     backing: Backing,
     /// The folder of the spill file, when the tiles are spilled.
     spill_dir: Option<PathBuf>,
@@ -208,9 +211,31 @@ impl SampleStore {
             tiling,
             decode,
             scale,
+            gain: Vec::new(),
             backing,
             spill_dir: spill_dir.map(Path::to_path_buf),
         })
+    }
+
+    /// Multiplies light k's samples by `inverse_gains[k]` when they are read, after the
+    /// intensity scale (what [`crate::capture::Capture::apply_light_refinement`] does to a
+    /// capture held whole, with the same two roundings). Once only: a store whose gains are
+    /// set keeps them.
+    pub fn set_light_gains(&mut self, inverse_gains: Vec<f32>) -> Result<()> {
+        if inverse_gains.len() != self.n_lights {
+            return Err(Error::invalid(format!(
+                "light gains: {} values for {} lights",
+                inverse_gains.len(),
+                self.n_lights
+            )));
+        }
+        if !self.gain.is_empty() {
+            return Err(Error::invalid(
+                "light gains: this store's lights were refined already".to_string(),
+            ));
+        }
+        self.gain = inverse_gains;
+        Ok(())
     }
 
     /// The sample type.
@@ -323,6 +348,7 @@ impl SampleStore {
                                 d[i] = dec.apply_u16(u) * f;
                             }
                         }
+                        self.apply_gains(d);
                     }
                 }
                 SampleType::F32 => {
@@ -340,9 +366,22 @@ impl SampleStore {
                                 d[i] = v * f;
                             }
                         }
+                        self.apply_gains(d);
                     }
                 }
             });
+    }
+
+    /// One pixel's samples times the light gains, when set.
+    #[inline]
+    fn apply_gains(&self, pixel: &mut [f32]) {
+        if !self.gain.is_empty() {
+            for (light, &g) in pixel.chunks_exact_mut(self.channels).zip(&self.gain) {
+                for v in light {
+                    *v *= g;
+                }
+            }
+        }
     }
 
     /// A store with only the lights `keep` (in that order), in memory or spilled like this
@@ -356,6 +395,9 @@ impl SampleStore {
             keep.iter().map(|&k| self.scale[k]).collect(),
             self.spill_dir.as_deref(),
         )?;
+        if !self.gain.is_empty() {
+            out.gain = keep.iter().map(|&k| self.gain[k]).collect();
+        }
         let sb = self.channels * self.kind.bytes();
         let (pin, pout) = (self.pixel_bytes(), out.pixel_bytes());
         let mut raw = Vec::new();

@@ -15,10 +15,12 @@
 pub mod circle;
 pub mod highlight;
 mod picture;
+pub mod refine;
 
 pub use circle::{detect_sphere, fit_circle, fit_mask_circle, Circle, CircleFit};
 pub use highlight::{find_highlight, Highlight, HighlightOptions, HighlightSearch};
 pub use picture::calibration_figure;
+pub use refine::{refine_lights, LightRefinement, RefineParams};
 
 use crate::error::{Error, Result};
 use crate::imageio::{read_image, read_mask, Image};
