@@ -1041,7 +1041,7 @@ fn measure_kappa(
                         *g /= f;
                     }
                 }
-                let scale = robust_fit(&dirs, grey, keep, u, scratch)?;
+                let (scale, _) = robust_fit_with(&dirs, grey, keep, u, scratch)?;
                 Some((scale * scale - sigma0 * sigma0) / (level * level))
             },
         )
@@ -1068,20 +1068,10 @@ fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
 /// the readings beyond 3 robust scales dropped, and the fit repeated once. Fills `u` with
 /// (light, standardised residual) for every light — eₖ / √(1 − hₖ) for the kept readings, the
 /// prediction error eₖ / √(1 + hₖ) for the others — and `keep` with the readings kept, and
-/// returns the robust scale of the kept ones
-/// (1.4826 × their median absolute standardised residual). `None` when fewer than four readings
-/// are kept, the pixel is black or the kept lights do not determine a normal.
-pub(crate) fn robust_fit(
-    dirs: &[Vector3<f64>],
-    grey: &[f64],
-    keep: &mut [bool],
-    u: &mut Vec<(usize, f64)>,
-    scratch: &mut Vec<f64>,
-) -> Option<f64> {
-    robust_fit_with(dirs, grey, keep, u, scratch).map(|(scale, _)| scale)
-}
-
-/// [`robust_fit`], returning the robust scale and the final fit m = ρ n.
+/// returns the robust scale of the kept ones (1.4826 × their median absolute standardised
+/// residual) with the final fit m = ρ n (also the lights' refinement's pixel fit,
+/// [`crate::calibrate::refine_lights`]). `None` when fewer than four readings are kept, the
+/// pixel is black or the kept lights do not determine a normal.
 pub(crate) fn robust_fit_with(
     dirs: &[Vector3<f64>],
     grey: &[f64],
@@ -1194,7 +1184,7 @@ fn measure_light_noise_factors(
                 for (k, g) in keep.iter_mut().zip(grey.iter()) {
                     *k = *g > dark;
                 }
-                if robust_fit(&dirs, &grey, &mut keep, &mut u, &mut scratch).is_some() {
+                if robust_fit_with(&dirs, &grey, &mut keep, &mut u, &mut scratch).is_some() {
                     let sigma = noise.variance(level).sqrt();
                     for &(k, z) in u.iter() {
                         if grey[k] > dark {

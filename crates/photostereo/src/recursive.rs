@@ -992,26 +992,6 @@ impl SurfacePrior {
         used: &[bool],
         surface: [f32; 3],
     ) -> Option<nalgebra::Vector3<f64>> {
-        let fit = self.least_squares(dirs, factors, grey, used, surface)?;
-        let s2 = self.sigma_rad * self.sigma_rad;
-        let release =
-            1.0 + fit.angle * fit.angle / (PRIOR_RELEASE_SIGMAS.powi(2) * (s2 + fit.variance));
-        let precision = 1.0 / (fit.rho * fit.rho * s2 * release);
-        (fit.gram + nalgebra::Matrix3::identity() * precision)
-            .try_inverse()
-            .map(|g| g * (fit.rhs + fit.prior * (fit.rho * precision)))
-    }
-
-    /// The usable readings' weighted least squares at one pixel and how its normal compares
-    /// with the surface's ([`SurfacePrior::solve`]'s arguments).
-    fn least_squares(
-        &self,
-        dirs: &[nalgebra::Vector3<f64>],
-        factors: &[f64],
-        grey: &[f64],
-        used: &[bool],
-        surface: [f32; 3],
-    ) -> Option<PixelFit> {
         use nalgebra::{Matrix3, Vector3};
         if surface == [0.0; 3] {
             return None;
@@ -1023,19 +1003,16 @@ impl SurfacePrior {
             .zip(used)
             .filter(|(_, &u)| u)
             .fold((0.0, 0usize), |(s, c), (g, _)| (s + g, c + 1));
-        let level = sum / used_count.max(1) as f64;
-        let variance = self.noise.variance(level);
+        if used_count < 3 {
+            return None;
+        }
+        let variance = self.noise.variance(sum / used_count as f64);
         let (mut gram, mut rhs) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
-        let mut count = 0;
         for k in (0..dirs.len()).filter(|&k| used[k]) {
             let f = factors.get(k).copied().unwrap_or(1.0);
             let inv = 1.0 / (variance * f * f);
             gram += dirs[k] * dirs[k].transpose() * inv;
             rhs += dirs[k] * (grey[k] * inv);
-            count += 1;
-        }
-        if count < 3 {
-            return None;
         }
         let gram_inv = gram.try_inverse()?;
         let m = gram_inv * rhs;
@@ -1045,33 +1022,18 @@ impl SurfacePrior {
         }
         let normal = m / rho;
         let prior = Vector3::new(surface[0] as f64, surface[1] as f64, surface[2] as f64);
-        // The least-squares normal's angular variance: its covariance G⁻¹ / ρ² on the tangent
-        // plane.
+        // The least-squares normal's angular variance v: its covariance G⁻¹ / ρ² on the
+        // tangent plane; a: its angle to the surface's normal.
         let tangent = Matrix3::identity() - normal * normal.transpose();
-        Some(PixelFit {
-            gram,
-            rhs,
-            rho,
-            prior,
-            variance: (tangent * gram_inv * tangent).trace() / (rho * rho),
-            angle: normal.dot(&prior).clamp(-1.0, 1.0).acos(),
-        })
+        let own = (tangent * gram_inv * tangent).trace() / (rho * rho);
+        let angle = normal.dot(&prior).clamp(-1.0, 1.0).acos();
+        let s2 = self.sigma_rad * self.sigma_rad;
+        let release = 1.0 + angle * angle / (PRIOR_RELEASE_SIGMAS.powi(2) * (s2 + own));
+        let precision = 1.0 / (rho * rho * s2 * release);
+        (gram + Matrix3::identity() * precision)
+            .try_inverse()
+            .map(|g| g * (rhs + prior * (rho * precision)))
     }
-}
-
-/// [`SurfacePrior::least_squares`] at one pixel.
-struct PixelFit {
-    /// G and r of the usable readings.
-    gram: nalgebra::Matrix3<f64>,
-    rhs: nalgebra::Vector3<f64>,
-    /// The least-squares albedo ρ̂.
-    rho: f64,
-    /// The surface's unit normal.
-    prior: nalgebra::Vector3<f64>,
-    /// The least-squares normal's angular variance v, rad².
-    variance: f64,
-    /// The angle between the least-squares normal and the surface's, rad.
-    angle: f64,
 }
 
 /// A status array of `n` lights per mask pixel held as its difference from another (the
