@@ -75,7 +75,7 @@ pub struct RunArgs {
     /// normal as a prior on each pixel's normal in the final estimate (it steadies pixels
     /// with few usable lights and is released where the readings disagree with it); 0 = the
     /// usable lights' least squares alone.
-    #[arg(long, default_value_t = defaults().recursive.surface_prior_deg)]
+    #[arg(long, default_value_t = defaults().recursive.surface_prior_deg, allow_negative_numbers = true)]
     pub surface_prior: f64,
     /// Refine the light directions and intensities from the readings before estimating (six
     /// or more distant lights): each light's vector by least squares over the pixels' fits,

@@ -242,6 +242,11 @@ fn out_of_range_parameters_are_refused() {
     f.fails(&["--max-iterations", "0"], &["--max-iterations 0"]);
     f.fails(&["--unreliable-weight", "2"], &["--unreliable-weight 2"]);
     f.fails(&["--change-tolerance=-0.5"], &["--change-tolerance -0.5"]);
+    f.fails(
+        &["--surface-prior", "-1"],
+        &["--surface-prior -1", "[0, 90]"],
+    );
+    f.fails(&["--surface-prior", "nan"], &["--surface-prior NaN"]);
     f.fails(&["--max-slope", "0"], &["--max-slope 0"]);
     f.fails(&["--sigma=-1"], &["--sigma -1"]);
     f.fails(&["--relative-noise=-0.5"], &["--relative-noise -0.5"]);

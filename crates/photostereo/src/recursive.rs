@@ -219,8 +219,9 @@ impl RecursiveParams {
             ));
         }
         if !(self.surface_prior_deg.is_finite() && (0.0..=90.0).contains(&self.surface_prior_deg)) {
+            // Named as the front ends spell it (`--surface-prior`, `surface_prior=`).
             return Err(Error::parameter(
-                "surface_prior_deg",
+                "surface_prior",
                 format!(
                     "{}: expected an angle in degrees in [0, 90] (0 turns the surface prior off)",
                     self.surface_prior_deg
