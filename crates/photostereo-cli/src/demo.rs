@@ -255,7 +255,8 @@ fn run_scene(
         make_dirs(root, &capture_dir)?;
         write_capture(&capture_dir, &rendered, Some(&spec))?;
         let mut capture = rendered.capture()?;
-        // As a run prepares a capture from files (the lights refined from the readings).
+        // Prepared as a run prepares a capture from files (default parameters: the lights as
+        // given).
         photostereo::engine::prepare(&mut capture, &Params::default())?;
         let truth = &rendered.truth;
         let (w, h) = (truth.width, truth.height);

@@ -155,7 +155,8 @@ pub fn compare(
         capture = capture.select_lights(&keep)?;
         subset = Some(keep);
     }
-    // The lights refined from the readings (the chosen subset's), once for every method.
+    // With `refine_lights`, the lights (the chosen subset's) refined from the readings, once
+    // for every method that runs on this capture.
     crate::engine::prepare(&mut capture, &options.params)?;
     let load_seconds = t.elapsed().as_secs_f64();
     if let (Some(t), Some(path)) = (&truth, &options.ground_truth) {

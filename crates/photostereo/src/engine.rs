@@ -104,9 +104,9 @@ pub struct Params {
     pub memory_limit: Option<u64>,
     /// Refine the lights from the readings before estimating ([`prepare`],
     /// [`crate::calibrate::refine_lights`]; distant lights, six or more). Default false: the
-    /// lights are taken as given, and every method (`l2` included) sees the same lights a
-    /// user supplied; on real rigs whose calibration is off by a degree or two it lowers the
-    /// recursive method's error (README, "Light refinement").
+    /// lights are taken as given, and every method (`l2` included) sees the lights a user
+    /// supplied. It recovers lights given a few degrees off on Lambertian renders; on the real
+    /// captures measured its effect is mixed (README, "Light refinement").
     pub refine_lights: bool,
 }
 
