@@ -1041,7 +1041,7 @@ fn measure_kappa(
                         *g /= f;
                     }
                 }
-                let (scale, _) = robust_fit_with(&dirs, grey, keep, u, scratch)?;
+                let (scale, _, _) = robust_fit_with(&dirs, grey, keep, u, scratch)?;
                 Some((scale * scale - sigma0 * sigma0) / (level * level))
             },
         )
@@ -1054,7 +1054,7 @@ fn measure_kappa(
 }
 
 /// The capture's light vectors (distant lights).
-fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
+pub(crate) fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
     capture
         .lights
         .directions
@@ -1069,20 +1069,21 @@ fn distant_directions(capture: &Capture) -> Vec<Vector3<f64>> {
 /// (light, standardised residual) for every light — eₖ / √(1 − hₖ) for the kept readings, the
 /// prediction error eₖ / √(1 + hₖ) for the others — and `keep` with the readings kept, and
 /// returns the robust scale of the kept ones (1.4826 × their median absolute standardised
-/// residual) with the final fit m = ρ n (also the lights' refinement's pixel fit,
-/// [`crate::calibrate::refine_lights`]). `None` when fewer than four readings are kept, the
-/// pixel is black or the kept lights do not determine a normal.
+/// residual) with the final fit m = ρ n and the inverse normal matrix G⁻¹ of its readings
+/// (also the lights' refinement's pixel fit, [`crate::calibrate::refine_lights`]). `None` when
+/// fewer than four readings are kept, the pixel is black or the kept lights do not determine a
+/// normal.
 pub(crate) fn robust_fit_with(
     dirs: &[Vector3<f64>],
     grey: &[f64],
     keep: &mut [bool],
     u: &mut Vec<(usize, f64)>,
     scratch: &mut Vec<f64>,
-) -> Option<(f64, Vector3<f64>)> {
+) -> Option<(f64, Vector3<f64>, Matrix3<f64>)> {
     let n = dirs.len();
     let level = grey.iter().sum::<f64>() / n as f64;
     let mut scale = f64::NAN;
-    let mut fit = Vector3::zeros();
+    let (mut fit, mut fit_inv) = (Vector3::zeros(), Matrix3::zeros());
     for round in 0..2 {
         let count = keep.iter().filter(|&&k| k).count();
         if count < 4 || level <= 0.0 {
@@ -1096,7 +1097,7 @@ pub(crate) fn robust_fit_with(
         }
         let gi = gram.try_inverse()?;
         let m = gi * b;
-        fit = m;
+        (fit, fit_inv) = (m, gi);
         u.clear();
         for k in 0..n {
             let h = dirs[k].dot(&(gi * dirs[k]));
@@ -1120,7 +1121,7 @@ pub(crate) fn robust_fit_with(
             }
         }
     }
-    Some((scale, fit))
+    Some((scale, fit, fit_inv))
 }
 
 /// Per-light noise factors c_k ≥ 1 of a capture under the noise model `noise`

@@ -823,13 +823,10 @@ fn usable_scatter(
         .step_by(np.div_ceil(8192).max(1))
         .filter(|&p| !skip[p])
         .collect();
-    let dirs: Vec<Vector3<f64>> = capture
-        .lights
-        .directions
-        .iter()
-        .enumerate()
-        .map(|(k, d)| Vector3::from(*d) / noise.light_factor.get(k).copied().unwrap_or(1.0))
-        .collect();
+    let mut dirs = crate::detect::distant_directions(capture);
+    for (k, d) in dirs.iter_mut().enumerate() {
+        *d /= noise.light_factor.get(k).copied().unwrap_or(1.0);
+    }
     // The median of χ²_ν / ν per degrees of freedom ν.
     let chi2_median: Vec<f64> = (0..n.max(4))
         .map(|dof| {
@@ -914,12 +911,7 @@ impl SurfacePrior {
         let (n, c) = (capture.n_lights(), capture.channels);
         let (w, h) = (capture.width, capture.height);
         let factors = &self.noise.light_factor;
-        let dirs: Vec<nalgebra::Vector3<f64>> = capture
-            .lights
-            .directions
-            .iter()
-            .map(|d| nalgebra::Vector3::from(*d))
-            .collect();
+        let dirs = crate::detect::distant_directions(capture);
         // The shift summed in nanodegrees as integers: the same total in any order, however
         // the capture is tiled.
         let (mut pixels, mut shift_nano) = (0usize, 0u64);

@@ -115,12 +115,7 @@ pub fn refine_lights(capture: &Capture, params: &RefineParams) -> Result<Option<
     // not pull the lights.
     let noise = crate::detect::noise_model(view, &defaults, &crate::progress::Silent)?;
     let mut usable = vec![crate::lambert::status::USED; ids.len() * n];
-    let given: Vec<Vector3<f64>> = capture
-        .lights
-        .directions
-        .iter()
-        .map(|d| Vector3::from(*d))
-        .collect();
+    let given = crate::detect::distant_directions(capture);
     let mut lights = given.clone();
     let mut misfit_before = f64::NAN;
     let mut last_change = 0.0;
@@ -252,7 +247,7 @@ impl Fits {
                     for ((k, g), st) in keep.iter_mut().zip(grey).zip(status) {
                         *k = *g > dark && *st == crate::lambert::status::USED;
                     }
-                    let Some((scale, m)) = crate::detect::robust_fit_with(
+                    let Some((scale, m, gram_inv)) = crate::detect::robust_fit_with(
                         lights,
                         grey,
                         &mut keep,
@@ -262,13 +257,6 @@ impl Fits {
                         continue;
                     };
                     misfits.push(scale / level);
-                    let mut gram = Matrix3::zeros();
-                    for k in (0..n).filter(|&k| keep[k]) {
-                        gram += lights[k] * lights[k].transpose();
-                    }
-                    let Some(gram_inv) = gram.try_inverse() else {
-                        continue;
-                    };
                     for k in 0..n {
                         if grey[k] <= dark {
                             continue;
