@@ -343,7 +343,7 @@ def reconstruct(
     light_anisotropy: Any = None,
     method: str = "recursive",
     sigma: Optional[float] = None,
-    relative_noise: float = 0.01,
+    relative_noise: Optional[float] = None,
     confidence: float = 0.95,
     min_kept_share: float = 0.25,
     batch_alpha: float = 0.05,
@@ -380,8 +380,9 @@ def reconstruct(
         alternation.
     method: ``l2``, ``coleman-jain``, ``barsky-petrou`` or ``recursive``.
     sigma: image noise per channel, full scale 1 (None: estimated from the images).
-    relative_noise: model error as a share of a pixel's mean intensity (kappa); None: measured
-        from the capture (reported as ``detection.kappa_measured``).
+    relative_noise: model error as a share of a pixel's mean intensity (kappa), e.g. 0.01;
+        None (default): measured from the capture, the light-to-light part of its misfit
+        (reported as ``detection.kappa_measured``; 0.01 with fewer than five lights).
     confidence: confidence of the chi-square test of non-Lambertian pixels.
     min_kept_share: the attribution keeps at least this share of the lights (and three).
     batch_alpha: family-wise error rate for removing several dark readings in one step.

@@ -55,9 +55,10 @@ pub struct CompareArgs {
     /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
     #[arg(long)]
     pub sigma: Option<f64>,
-    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²).
-    #[arg(long, default_value_t = photostereo::detect::DEFAULT_RELATIVE_NOISE)]
-    pub relative_noise: f64,
+    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
+    /// share such as 0.01, or `measured` (as `run`).
+    #[arg(long, default_value = "measured", value_parser = crate::run::parse_relative_noise)]
+    pub relative_noise: crate::run::RelativeNoise,
     /// Confidence of the χ² test for non-Lambertian pixels.
     #[arg(long, default_value_t = defaults().detection.confidence)]
     pub confidence: f64,
@@ -120,7 +121,7 @@ fn params(a: &CompareArgs) -> Params {
         method: d.method,
         detection: DetectionParams {
             sigma: a.sigma,
-            relative_noise: Some(a.relative_noise),
+            relative_noise: a.relative_noise.0,
             confidence: a.confidence,
             ..d.detection
         },

@@ -51,9 +51,10 @@ pub struct RunArgs {
     #[arg(long)]
     pub sigma: Option<f64>,
     /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
-    /// share, or `measured` to measure it on the capture (report.json: detection.noise.kappa,
-    /// and detection.kappa_measured in every run).
-    #[arg(long, default_value = "0.01", value_parser = parse_relative_noise)]
+    /// share such as 0.01, or `measured`: the light-to-light part of the capture's misfit
+    /// (report.json: detection.noise.kappa, and detection.kappa_measured in every run; 0.01
+    /// where it cannot be measured: fewer than five lights).
+    #[arg(long, default_value = "measured", value_parser = parse_relative_noise)]
     pub relative_noise: RelativeNoise,
     /// Confidence of the χ² test for non-Lambertian pixels.
     #[arg(long, default_value_t = defaults().detection.confidence)]
@@ -309,7 +310,7 @@ pub fn main(a: RunArgs) -> Result<()> {
 #[derive(Clone, Copy, Debug)]
 pub struct RelativeNoise(pub Option<f64>);
 
-fn parse_relative_noise(s: &str) -> std::result::Result<RelativeNoise, String> {
+pub fn parse_relative_noise(s: &str) -> std::result::Result<RelativeNoise, String> {
     if s == "measured" {
         return Ok(RelativeNoise(None));
     }

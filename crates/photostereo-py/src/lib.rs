@@ -299,12 +299,8 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     let d = PyDict::new(py);
     d.set_item("method", p.method.name())?;
     d.set_item("sigma", p.detection.sigma)?;
-    d.set_item(
-        "relative_noise",
-        p.detection
-            .relative_noise
-            .unwrap_or(photostereo::detect::DEFAULT_RELATIVE_NOISE),
-    )?;
+    // None: measured on the capture (the default).
+    d.set_item("relative_noise", p.detection.relative_noise)?;
     d.set_item("confidence", p.detection.confidence)?;
     d.set_item("min_kept_share", p.detection.min_kept_share)?;
     d.set_item("batch_alpha", p.detection.batch_alpha)?;

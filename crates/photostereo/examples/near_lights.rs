@@ -2,7 +2,8 @@
 //! error of `l2` under the distant approximation, of every method in the near model, and of
 //! the oracle (least squares on the truly lit lights with the true per-pixel light vectors).
 //!
-//! `cargo run --release -p photostereo --example near_lights [SIZE] [SCENE...]`
+//! `cargo run --release -p photostereo --example near_lights [SIZE] [SCENE...]` (env `PS_KAPPA=0.01`
+//! fixes κ instead of measuring it)
 
 use photostereo::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::progress::Silent;
@@ -32,10 +33,14 @@ fn main() -> photostereo::Result<()> {
             let err = |capture: &photostereo::Capture,
                        method: Method|
              -> photostereo::Result<(f64, usize)> {
-                let params = Params {
+                let mut params = Params {
                     method,
                     ..Params::default()
                 };
+                // PS_KAPPA=0.01 fixes κ (default: measured on the capture).
+                if let Ok(k) = std::env::var("PS_KAPPA") {
+                    params.detection.relative_noise = k.parse().ok();
+                }
                 let mut rec = reconstruct_with_truth(capture, &params, None, &Silent)?;
                 let e = rec.evaluate(truth)?;
                 let rounds = rec
