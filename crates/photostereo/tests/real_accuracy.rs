@@ -41,7 +41,10 @@ fn run(capture: &Capture, method: Method) -> photostereo::engine::Reconstruction
 /// Of the pairs the recursive method labels "shadow", fewer than 20% read more than half of the
 /// Lambertian prediction (it was 73–94% on psmImages when darker-than-predicted meant shadow);
 /// Coleman & Jain gives every mask pixel that least squares solves a normal; the recursion
-/// settles within its default limit. Roughness and the gray sphere's figures are printed.
+/// settles within its default limit. With κ measured on the capture (the default) the χ² test
+/// flags a minority of the pixels (0.14–0.28; 0.68–0.98 at κ = 1%) and the recursive field is
+/// smoother than `l2`'s on every object (roughness 9–24% lower; at κ = 1% it was higher on four
+/// of the six); the gray sphere's error is below `l2`'s in mean and 90th percentile.
 #[test]
 fn psm_shadow_labels_completeness_and_sphere() {
     for name in PSM {
@@ -60,11 +63,21 @@ fn psm_shadow_labels_completeness_and_sphere() {
         assert!(r["final_change"].as_f64().unwrap() < 0.002, "{name}");
         let (w, h) = (rec.width, rec.height);
         let rough = |n: &[[f32; 3]]| roughness_deg(n, &rec.mask, w, h);
+        let unreliable = rec.report.extra["detection"]["unreliable_share"]
+            .as_f64()
+            .unwrap();
+        let (rough_l2, rough_rec) = (rough(&l2.normals), rough(&rec.normals));
         println!(
-            "{name}: roughness l2 {:.2} recursive {:.2}; shadow pairs lit {lit:.3}; {}",
-            rough(&l2.normals),
-            rough(&rec.normals),
+            "{name}: roughness l2 {rough_l2:.2} recursive {rough_rec:.2}; shadow pairs lit {lit:.3}; unreliable {unreliable:.3}; {}",
             r["stop_reason"]
+        );
+        assert!(
+            unreliable < 0.5,
+            "{name}: the test flags {unreliable} of the pixels"
+        );
+        assert!(
+            rough_rec < rough_l2,
+            "{name}: roughness recursive {rough_rec:.3} against l2 {rough_l2:.3}"
         );
         let cj = run(&capture, Method::ColemanJain);
         let missing = l2
@@ -82,8 +95,15 @@ fn psm_shadow_labels_completeness_and_sphere() {
                 e.iter().sum::<f64>() / e.len() as f64
             };
             let (a, b) = (mean(&l2.normals), mean(&rec.normals));
-            println!("gray sphere, inner 90%: mean l2 {a:.3} recursive {b:.3}");
+            let p90 = |n: &[[f32; 3]]| {
+                photostereo::metrics::quantile(&mut sphere_errors(n, w, circle, 0.9), 0.9)
+            };
+            let (pa, pb) = (p90(&l2.normals), p90(&rec.normals));
+            println!(
+                "gray sphere, inner 90%: mean l2 {a:.3} recursive {b:.3}; p90 l2 {pa:.3} recursive {pb:.3}"
+            );
             assert!(b < a, "gray: recursive {b} against l2 {a}");
+            assert!(pb < pa, "gray p90: recursive {pb} against l2 {pa}");
         }
     }
 }

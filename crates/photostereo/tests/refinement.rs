@@ -302,3 +302,105 @@ fn apply(m: &nalgebra::Matrix3<f64>, v: [f64; 3]) -> [f64; 3] {
     let r = m * nalgebra::Vector3::from(v);
     [r.x, r.y, r.z]
 }
+
+/// The recursive method's error and the κ its test used, with κ measured (`None`, the
+/// default) or fixed.
+fn recursive_error_with_kappa(
+    r: &Rendered,
+    capture: &photostereo::Capture,
+    kappa: Option<f64>,
+) -> (f64, f64) {
+    let mut params = Params {
+        method: Method::Recursive,
+        integrate: false,
+        ..Params::default()
+    };
+    params.detection.relative_noise = kappa;
+    let rec = reconstruct(capture, &params, &Silent).unwrap();
+    let used = rec.report.extra["detection"]["noise"]["kappa"]
+        .as_f64()
+        .unwrap();
+    let error = evaluate(&rec.normals, &r.truth.normals, Some(&r.truth.mask))
+        .unwrap()
+        .1
+        .mean_deg;
+    (error, used)
+}
+
+/// κ measured as the light-to-light misfit (issue 19) follows a rig's calibration error: with
+/// every light direction given 1.5° off (twenty lights, Lambertian and glossy scenes, 0.5%
+/// noise) it measures 1–5% (a 1.5° error changes a reading by up to 2.6% of its level), and
+/// the test that accepts that much misfit keeps the lights a fixed 1% would drop: the
+/// recursive error falls against κ = 1% on every scene (by at least 3%; measured 0.77–0.92 of
+/// it) and by at least 12% on average (measured 17%).
+#[test]
+fn measured_kappa_follows_the_lights_calibration_error() {
+    let mut ratios = Vec::new();
+    for (i, (kind, brdf)) in [
+        (SceneKind::Sphere, Brdf::Lambert),
+        (SceneKind::Bumps, Brdf::Lambert),
+        (SceneKind::Sphere, Brdf::BlinnPhong),
+        (SceneKind::Terrain, Brdf::BlinnPhong),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let r = render(kind, Rig::Dome(20), brdf, 0.005, 11 + i as u64);
+        let mut capture = r.capture().unwrap();
+        // Each light 1.5° off about its own axis (independent errors, as a calibration leaves).
+        for (k, d) in capture.lights.directions.iter_mut().enumerate() {
+            let t = k as f64;
+            let other = [(2.4 * t).sin(), (3.7 * t).cos(), (1.3 * t + 0.5).sin()];
+            let axis = normalise(cross(*d, other));
+            *d = rotate(*d, axis, 1.5f64.to_radians());
+        }
+        capture.forget_statistics();
+        let (fixed, _) = recursive_error_with_kappa(&r, &capture, Some(0.01));
+        let (measured, kappa) = recursive_error_with_kappa(&r, &capture, None);
+        eprintln!(
+            "{kind} {}: κ measured {:.2}%: {measured:.3}°, κ = 1%: {fixed:.3}°",
+            brdf.name(),
+            100.0 * kappa
+        );
+        assert!((0.01..0.05).contains(&kappa), "{kind}: κ {kappa}");
+        assert!(
+            measured < 0.97 * fixed,
+            "{kind}: {measured:.3}° with κ measured, {fixed:.3}° at 1%"
+        );
+        ratios.push(measured / fixed);
+    }
+    let mean = ratios.iter().sum::<f64>() / ratios.len() as f64;
+    assert!(mean < 0.88, "mean ratio {mean:.3}: {ratios:?}");
+}
+
+/// Smooth departures from Lambert are what the test must find, not model error it must accept:
+/// under fifty lights, the broad lobes of a Torrance–Sparrow surface (with sensor noise only)
+/// measure κ below 0.5% — the all-residual scale would count them — and the recursive error
+/// is no worse than at κ = 1% (measured 0.03–0.08° better).
+#[test]
+fn measured_kappa_leaves_smooth_lobes_to_the_test() {
+    for (i, kind) in [SceneKind::Sphere, SceneKind::Bumps, SceneKind::Face]
+        .into_iter()
+        .enumerate()
+    {
+        let r = render(
+            kind,
+            Rig::Dome(50),
+            Brdf::TorranceSparrow,
+            0.005,
+            21 + i as u64,
+        );
+        let capture = r.capture().unwrap();
+        let (fixed, _) = recursive_error_with_kappa(&r, &capture, Some(0.01));
+        let (measured, kappa) = recursive_error_with_kappa(&r, &capture, None);
+        eprintln!(
+            "{kind}: κ measured {:.2}%: {measured:.3}°, κ = 1%: {fixed:.3}°",
+            100.0 * kappa
+        );
+        assert!(kappa < 0.005, "{kind}: κ {kappa}");
+        assert!(
+            measured <= fixed + 0.01,
+            "{kind}: {measured:.3}° with κ measured, {fixed:.3}° at 1%"
+        );
+    }
+}
