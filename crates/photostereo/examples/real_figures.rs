@@ -83,7 +83,7 @@ fn main() {
             if let Ok(r) = std::env::var("PS_RADIUS") {
                 params.recursive.consensus_radius = r.parse().unwrap();
             }
-            // PS_KAPPA=0.02 fixes κ at another value; PS_KAPPA=measured measures it on the capture.
+            // PS_KAPPA=0.01 fixes κ; PS_KAPPA=measured (the default) measures it on the capture.
             if let Ok(k) = std::env::var("PS_KAPPA") {
                 params.detection.relative_noise = if k == "measured" {
                     None
