@@ -45,7 +45,7 @@ pub struct DetectionParams {
     /// lights after a trimmed fit, so that smooth departures from Lambert such as a broad
     /// specular lobe, which the test is there to find, do not count — with the lights' noise
     /// factors weighting the fit when `light_noise` is on; 0–1% on the demo's renders,
-    /// 0.6–1.2% on DiLiGenT, 3.2–4.8% on psmImages), or [`DEFAULT_RELATIVE_NOISE`] (1%, the
+    /// 0.5–1.1% on DiLiGenT, 2.7–4.2% on psmImages), or [`DEFAULT_RELATIVE_NOISE`] (1%, the
     /// model error a calibrated rig leaves: intensities known to about 1%, directions to about
     /// half a degree) where it cannot be measured (fewer than [`MIN_KAPPA_LIGHTS`] lights, near
     /// lights).
@@ -966,9 +966,10 @@ fn measure_dark_floor(capture: &Capture) -> f64 {
 /// light to the next (each light's calibration error, the sensor's response), which the χ² test
 /// must accept, and not the smooth departures from Lambert (a broad specular lobe, interreflection,
 /// soft shadow edges) that it is there to find. For a regular sample of at most 8192 mask pixels,
-/// the readings above the absolute shadow level (`floor + 3σ₀`) are fitted by least squares and
-/// the readings beyond 3 robust scales (1.4826 × the median absolute standardised residual)
-/// dropped until the kept set stops changing (at most [`KAPPA_TRIM_ROUNDS`] refits). Then, for
+/// the readings above the absolute shadow level (`floor + 3σ₀`) are fitted robustly
+/// (`high_breakdown_fit`: least median of squares over light triplets, then least squares
+/// over the readings within 3 robust scales, repeated until that set settles), so that neither
+/// a sharp highlight nor a third of the readings dimmed by a partial occluder bias it. Then, for
 /// each kept light k whose nearest light j (in direction) is also kept, the difference of their
 /// residuals d = eₖ − eⱼ, whose variance under noise alone is σ²(2 − hₖₖ − hⱼⱼ + 2hₖⱼ) (H the fit's
 /// hat matrix): a smooth departure is nearly the same at neighbouring lights and cancels, an
@@ -979,10 +980,9 @@ fn measure_dark_floor(capture: &Capture) -> f64 {
 /// than [`MIN_KAPPA_LIGHTS`] lights, with near lights (before the surface is known a pixel's
 /// light vectors carry the error of its unknown depth: measured there, κ took the recursive
 /// error on the near ring's 128² sphere from 0.52° to 19.9°) or with fewer than 100 pixels
-/// counted; the noise
-/// model then keeps [`DEFAULT_RELATIVE_NOISE`]. Measured this way
-/// κ is 0.6–1.2% on DiLiGenT (whose lobes the robust scale of all residuals took for model error:
-/// 1.3–4.0%), 3.2–4.8% on psmImages, at most 1% on the demo's renders of five lights or more.
+/// counted; the noise model then keeps [`DEFAULT_RELATIVE_NOISE`]. Measured this way κ is
+/// 0.5–1.1% on DiLiGenT (whose lobes the robust scale of all residuals took for model error:
+/// 1.3–4.0%), 2.7–4.2% on psmImages, at most 1% on the demo's renders of five lights or more.
 pub fn estimate_kappa(
     capture: &Capture,
     sigma0: f64,
@@ -1030,7 +1030,7 @@ const LIGHT_FACTORS_KEY: u64 = 2;
 /// standardised residuals are equal in size), so no reading can be trimmed.
 pub const MIN_KAPPA_LIGHTS: usize = 5;
 
-/// Refits of the trimmed fit behind [`estimate_kappa`] at most (the kept set settles in 2–4).
+/// Refits of the robust fit behind [`estimate_kappa`] at most, after the first.
 pub const KAPPA_TRIM_ROUNDS: usize = 10;
 
 /// The χ²₁ median: the median of d²/Var(d) for a normal d.
@@ -1060,36 +1060,33 @@ fn measure_kappa(
     }
     let stride = np.div_ceil(8192).max(1);
     let dark = floor + shadow_sigmas * sigma0;
+    let triplets = light_triplets(&dirs);
     let mut k2: Vec<f64> = (0..np)
         .into_par_iter()
         .step_by(stride)
         .map_init(
             || {
-                let buffers = (vec![0f64; n], vec![false; n], Vec::with_capacity(n));
-                (buffers, Vec::with_capacity(n))
+                (
+                    vec![0f64; n],
+                    vec![false; n],
+                    vec![false; n],
+                    Vec::with_capacity(n),
+                )
             },
-            |((grey, keep, u), scratch), p| {
+            |(grey, keep, lit, scratch), p| {
                 channel_mean(capture.pixel_samples(p), c, grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
-                for (k, g) in keep.iter_mut().zip(grey.iter()) {
+                for ((k, l), g) in keep.iter_mut().zip(lit.iter_mut()).zip(grey.iter()) {
                     *k = *g > dark;
+                    *l = *k;
                 }
                 if weighted {
                     for (g, &f) in grey.iter_mut().zip(factors) {
                         *g /= f;
                     }
                 }
-                let (mut fit, mut gram_inv) = {
-                    let (_, m, gi) = robust_fit_with(&dirs, grey, keep, u, scratch)?;
-                    (m, gi)
-                };
-                for _ in 1..KAPPA_TRIM_ROUNDS {
-                    let before = keep.iter().filter(|&&k| k).count();
-                    (_, fit, gram_inv) = robust_fit_with(&dirs, grey, keep, u, scratch)?;
-                    if keep.iter().filter(|&&k| k).count() == before {
-                        break;
-                    }
-                }
+                let (fit, gram_inv) =
+                    high_breakdown_fit(&dirs, &triplets, grey, keep, lit, scratch)?;
                 scratch.clear();
                 for (k, &j) in neighbour.iter().enumerate() {
                     if !(keep[k] && keep[j]) {
@@ -1113,6 +1110,144 @@ fn measure_kappa(
         return None;
     }
     Some(crate::metrics::median(&mut k2).max(0.0).sqrt())
+}
+
+/// Triplets of lights that determine a normal well (the determinant of their unit vectors at
+/// least 0.05), with the inverse of the 3 × 3 matrix of their (possibly weighted) vectors: all
+/// of them up to [`MAX_TRIPLETS`], else that many drawn by a fixed sequence (the same on every
+/// run).
+fn light_triplets(dirs: &[Vector3<f64>]) -> Vec<([usize; 3], Matrix3<f64>)> {
+    let n = dirs.len();
+    let total = n * n.saturating_sub(1) * n.saturating_sub(2) / 6;
+    let mut out = Vec::new();
+    let consider = |t: [usize; 3]| -> Option<([usize; 3], Matrix3<f64>)> {
+        let m = Matrix3::from_rows(&[
+            dirs[t[0]].transpose(),
+            dirs[t[1]].transpose(),
+            dirs[t[2]].transpose(),
+        ]);
+        let unit = Matrix3::from_rows(&[
+            dirs[t[0]].normalize().transpose(),
+            dirs[t[1]].normalize().transpose(),
+            dirs[t[2]].normalize().transpose(),
+        ]);
+        if unit.determinant().abs() < 0.05 {
+            return None;
+        }
+        m.try_inverse().map(|inv| (t, inv))
+    };
+    if total <= MAX_TRIPLETS {
+        for a in 0..n {
+            for b in a + 1..n {
+                for c in b + 1..n {
+                    out.extend(consider([a, b, c]));
+                }
+            }
+        }
+    } else {
+        // A 64-bit linear congruential sequence (Knuth's MMIX constants).
+        let mut state: u64 = 0x9E37_79B9_7F4A_7C15;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 33) as usize) % n
+        };
+        let mut tries = 0;
+        while out.len() < MAX_TRIPLETS && tries < 20 * MAX_TRIPLETS {
+            tries += 1;
+            let (a, b, c) = (next(), next(), next());
+            if a != b && b != c && a != c {
+                out.extend(consider([a, b, c]));
+            }
+        }
+    }
+    out
+}
+
+/// Light triplets tried by `high_breakdown_fit` at most: with a third of a pixel's readings
+/// faulty a triplet is clean with probability ≥ 0.25 (twelve lights), so that forty miss a clean
+/// one with probability below 10⁻⁵.
+const MAX_TRIPLETS: usize = 40;
+
+/// Lights (evenly spaced in the capture's order) over which `high_breakdown_fit` ranks the
+/// triplets by their median squared residual, at most; the fit that follows uses every light.
+const RANK_LIGHTS: usize = 24;
+
+/// The fit behind [`estimate_kappa`], robust to a large share of faulty readings (Rousseeuw &
+/// Leroy's reweighted least median of squares, iterated): the least median of squares over the
+/// light triplets whose three readings are all lit (`lit`; the median over at most
+/// [`RANK_LIGHTS`] of the lit readings) — a fit that the majority of the
+/// readings agree with, even when a third of them are off by a moderate amount, which trimming
+/// a least-squares fit cannot undo — with its scale s₀ = 1.4826 (1 + 5/(n − 3)) √median (n the
+/// lit readings); the readings within 3 s₀ are fitted by least squares, and then, while the set
+/// changes (at most [`KAPPA_TRIM_ROUNDS`] times), the lit readings within 3 σ̂ of the last fit
+/// (σ̂² = the set's residual sum of squares over its count − 3; readings may come back) are
+/// fitted again. `keep` is left holding that set. Returns the fit m = ρn and the inverse normal
+/// matrix of the set; None with fewer than four readings in it or no usable triplet.
+fn high_breakdown_fit(
+    dirs: &[Vector3<f64>],
+    triplets: &[([usize; 3], Matrix3<f64>)],
+    grey: &[f64],
+    keep: &mut [bool],
+    lit: &[bool],
+    scratch: &mut Vec<f64>,
+) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    let n = dirs.len();
+    let mut best: Option<(f64, Vector3<f64>)> = None;
+    for (t, inv) in triplets {
+        if !(lit[t[0]] && lit[t[1]] && lit[t[2]]) {
+            continue;
+        }
+        let m = inv * Vector3::new(grey[t[0]], grey[t[1]], grey[t[2]]);
+        scratch.clear();
+        scratch.extend(
+            (0..n)
+                .step_by(n.div_ceil(RANK_LIGHTS))
+                .filter(|&k| lit[k])
+                .map(|k| (grey[k] - dirs[k].dot(&m)).powi(2)),
+        );
+        if scratch.is_empty() {
+            continue;
+        }
+        let med = crate::metrics::median(scratch);
+        if best.is_none_or(|(b, _)| med < b) {
+            best = Some((med, m));
+        }
+    }
+    let (median_square, mut fit) = best?;
+    let count = lit.iter().filter(|&&l| l).count() as f64;
+    let mut scale = 1.4826 * (1.0 + 5.0 / (count - 3.0).max(1.0)) * median_square.sqrt();
+    let mut gram_inv = Matrix3::zeros();
+    for round in 0..=KAPPA_TRIM_ROUNDS {
+        let mut changed = false;
+        for k in 0..n {
+            let inside = lit[k] && (grey[k] - dirs[k].dot(&fit)).abs() <= 3.0 * scale;
+            changed |= inside != keep[k];
+            keep[k] = inside;
+        }
+        if round > 0 && !changed {
+            break;
+        }
+        let kept = keep.iter().filter(|&&k| k).count();
+        if kept < 4 {
+            return None;
+        }
+        let mut gram = Matrix3::zeros();
+        let mut b = Vector3::zeros();
+        for k in (0..n).filter(|&k| keep[k]) {
+            gram += dirs[k] * dirs[k].transpose();
+            b += dirs[k] * grey[k];
+        }
+        gram_inv = gram.try_inverse()?;
+        fit = gram_inv * b;
+        let rss: f64 = (0..n)
+            .filter(|&k| keep[k])
+            .map(|k| (grey[k] - dirs[k].dot(&fit)).powi(2))
+            .sum();
+        scale = (rss / (kept as f64 - 3.0)).sqrt();
+    }
+    Some((fit, gram_inv))
 }
 
 /// For each light, the index of the light nearest to it in direction (the largest cosine
