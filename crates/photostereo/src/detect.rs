@@ -1233,14 +1233,7 @@ fn high_breakdown_fit(
         if kept < 4 {
             return None;
         }
-        let mut gram = Matrix3::zeros();
-        let mut b = Vector3::zeros();
-        for k in (0..n).filter(|&k| keep[k]) {
-            gram += dirs[k] * dirs[k].transpose();
-            b += dirs[k] * grey[k];
-        }
-        gram_inv = gram.try_inverse()?;
-        fit = gram_inv * b;
+        (fit, gram_inv) = least_squares(dirs, grey, keep)?;
         let rss: f64 = (0..n)
             .filter(|&k| keep[k])
             .map(|k| (grey[k] - dirs[k].dot(&fit)).powi(2))
@@ -1248,6 +1241,23 @@ fn high_breakdown_fit(
         scale = (rss / (kept as f64 - 3.0)).sqrt();
     }
     Some((fit, gram_inv))
+}
+
+/// The least-squares fit m = ρn of the readings flagged in `keep` and the inverse of their normal
+/// matrix; None where those lights do not determine a normal.
+fn least_squares(
+    dirs: &[Vector3<f64>],
+    grey: &[f64],
+    keep: &[bool],
+) -> Option<(Vector3<f64>, Matrix3<f64>)> {
+    let mut gram = Matrix3::zeros();
+    let mut b = Vector3::zeros();
+    for k in (0..dirs.len()).filter(|&k| keep[k]) {
+        gram += dirs[k] * dirs[k].transpose();
+        b += dirs[k] * grey[k];
+    }
+    let gram_inv = gram.try_inverse()?;
+    Some((gram_inv * b, gram_inv))
 }
 
 /// For each light, the index of the light nearest to it in direction (the largest cosine
@@ -1307,14 +1317,7 @@ pub(crate) fn robust_fit_with(
         if count < 4 || level <= 0.0 {
             return None;
         }
-        let mut gram = Matrix3::zeros();
-        let mut b = Vector3::zeros();
-        for k in (0..n).filter(|&k| keep[k]) {
-            gram += dirs[k] * dirs[k].transpose();
-            b += dirs[k] * grey[k];
-        }
-        let gi = gram.try_inverse()?;
-        let m = gi * b;
+        let (m, gi) = least_squares(dirs, grey, keep)?;
         (fit, fit_inv) = (m, gi);
         u.clear();
         for k in 0..n {
