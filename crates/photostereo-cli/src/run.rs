@@ -53,7 +53,7 @@ pub struct RunArgs {
     /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
     /// share such as 0.01, or `measured`: the light-to-light part of the capture's misfit
     /// (report.json: detection.noise.kappa, and detection.kappa_measured in every run; 0.01
-    /// where it cannot be measured: fewer than five lights).
+    /// where it cannot be measured: fewer than five lights, or near lights).
     #[arg(long, default_value = "measured", value_parser = parse_relative_noise)]
     pub relative_noise: RelativeNoise,
     /// Confidence of the χ² test for non-Lambertian pixels.
