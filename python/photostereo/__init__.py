@@ -382,7 +382,8 @@ def reconstruct(
     sigma: image noise per channel, full scale 1 (None: estimated from the images).
     relative_noise: model error as a share of a pixel's mean intensity (kappa), e.g. 0.01;
         None (default): measured from the capture, the light-to-light part of its misfit
-        (reported as ``detection.kappa_measured``; 0.01 with fewer than five lights or near lights).
+        (reported as ``detection.kappa_measured``; 0.01 with fewer than five lights or with
+        near lights).
     confidence: confidence of the chi-square test of non-Lambertian pixels.
     min_kept_share: the attribution keeps at least this share of the lights (and three).
     batch_alpha: family-wise error rate for removing several dark readings in one step.
