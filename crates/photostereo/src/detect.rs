@@ -1076,9 +1076,8 @@ fn measure_kappa(
             |(grey, keep, lit, scratch), p| {
                 channel_mean(capture.pixel_samples(p), c, grey);
                 let level = grey.iter().sum::<f64>() / n as f64;
-                for ((k, l), g) in keep.iter_mut().zip(lit.iter_mut()).zip(grey.iter()) {
-                    *k = *g > dark;
-                    *l = *k;
+                for (l, g) in lit.iter_mut().zip(grey.iter()) {
+                    *l = *g > dark;
                 }
                 if weighted {
                     for (g, &f) in grey.iter_mut().zip(factors) {
@@ -1177,14 +1176,15 @@ const RANK_LIGHTS: usize = 24;
 /// The fit behind [`estimate_kappa`], robust to a large share of faulty readings (Rousseeuw &
 /// Leroy's reweighted least median of squares, iterated): the least median of squares over the
 /// light triplets whose three readings are all lit (`lit`; the median over at most
-/// [`RANK_LIGHTS`] of the lit readings) — a fit that the majority of the
-/// readings agree with, even when a third of them are off by a moderate amount, which trimming
-/// a least-squares fit cannot undo — with its scale s₀ = 1.4826 (1 + 5/(n − 3)) √median (n the
-/// lit readings); the readings within 3 s₀ are fitted by least squares, and then, while the set
-/// changes (at most [`KAPPA_TRIM_ROUNDS`] times), the lit readings within 3 σ̂ of the last fit
-/// (σ̂² = the set's residual sum of squares over its count − 3; readings may come back) are
-/// fitted again. `keep` is left holding that set. Returns the fit m = ρn and the inverse normal
-/// matrix of the set; None with fewer than four readings in it or no usable triplet.
+/// [`RANK_LIGHTS`] of the lit readings) — a fit that the majority of the readings agree with,
+/// even when a third of them are off by a moderate amount, which trimming a least-squares fit
+/// cannot undo — with its scale s₀ = 1.4826 (1 + 5/(n − 3)) √median (n the lit readings); the
+/// readings within 3 s₀ are fitted by least squares, and then, while the set changes (at most
+/// [`KAPPA_TRIM_ROUNDS`] times), the lit readings within 3 σ̂ of the last fit (σ̂² = the set's
+/// residual sum of squares over its count − 3; readings may come back) are fitted again.
+/// `keep` (any content on entry) is left holding that set. Returns the fit m = ρn and the
+/// inverse normal matrix of the set; None with fewer than four readings in it or no usable
+/// triplet.
 fn high_breakdown_fit(
     dirs: &[Vector3<f64>],
     triplets: &[([usize; 3], Matrix3<f64>)],
