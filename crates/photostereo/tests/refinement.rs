@@ -18,18 +18,32 @@ fn render(kind: SceneKind, rig: Rig, brdf: Brdf, noise: f64, seed: u64) -> Rende
     synthesize(&spec).unwrap()
 }
 
-fn recursive_error(r: &Rendered, capture: &photostereo::Capture, prior_deg: f64) -> f64 {
+/// The recursive method's mean error against the truth and the κ its test used, with the
+/// default parameters changed by `tweak`.
+fn recursive_run(
+    r: &Rendered,
+    capture: &photostereo::Capture,
+    tweak: impl FnOnce(&mut Params),
+) -> (f64, f64) {
     let mut params = Params {
         method: Method::Recursive,
         integrate: false,
         ..Params::default()
     };
-    params.recursive.surface_prior_deg = prior_deg;
+    tweak(&mut params);
     let rec = reconstruct(capture, &params, &Silent).unwrap();
-    evaluate(&rec.normals, &r.truth.normals, Some(&r.truth.mask))
+    let kappa = rec.report.extra["detection"]["noise"]["kappa"]
+        .as_f64()
+        .unwrap();
+    let error = evaluate(&rec.normals, &r.truth.normals, Some(&r.truth.mask))
         .unwrap()
         .1
-        .mean_deg
+        .mean_deg;
+    (error, kappa)
+}
+
+fn recursive_error(r: &Rendered, capture: &photostereo::Capture, prior_deg: f64) -> f64 {
+    recursive_run(r, capture, |p| p.recursive.surface_prior_deg = prior_deg).0
 }
 
 /// On noisy captures (3% of full scale, twelve lights, highlights and shadows) the surface
@@ -310,21 +324,7 @@ fn recursive_error_with_kappa(
     capture: &photostereo::Capture,
     kappa: Option<f64>,
 ) -> (f64, f64) {
-    let mut params = Params {
-        method: Method::Recursive,
-        integrate: false,
-        ..Params::default()
-    };
-    params.detection.relative_noise = kappa;
-    let rec = reconstruct(capture, &params, &Silent).unwrap();
-    let used = rec.report.extra["detection"]["noise"]["kappa"]
-        .as_f64()
-        .unwrap();
-    let error = evaluate(&rec.normals, &r.truth.normals, Some(&r.truth.mask))
-        .unwrap()
-        .1
-        .mean_deg;
-    (error, used)
+    recursive_run(r, capture, |p| p.detection.relative_noise = kappa)
 }
 
 /// κ measured as the light-to-light misfit (issue 19) follows a rig's calibration error: with
