@@ -8,7 +8,7 @@ use photostereo::calibrate::{
     calibrate, calibration_figure, matte_intensities, sphere_circle, CalibrationOptions,
     HighlightOptions, SphereFiles,
 };
-use photostereo::export::{write_json, OutputFolder};
+use photostereo::export::{write_json, OutputFolder, OutputKind};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -76,7 +76,8 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
         .chain(&a.matte_mask)
         .map(PathBuf::as_path)
         .collect();
-    let folder = OutputFolder::create_for(&a.output, a.out.force, &inputs)?;
+    let folder =
+        OutputFolder::create_for(&a.output, a.out.force, OutputKind::Calibration, &inputs)?;
     let progress = a.out.progress();
     let loaded = files.load(&progress)?;
     let options = CalibrationOptions {

@@ -6,7 +6,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use photostereo::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::export::{write_json, OutputFolder};
+use photostereo::export::{write_json, OutputFolder, OutputKind};
 use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
 use photostereo::imageio::Image;
 use photostereo::maps::{nice_ceil, tick_label};
@@ -20,8 +20,6 @@ use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// Marker file that identifies a folder written by `demo` (so re-running replaces it).
-const MARKER: &str = ".photostereo-demo";
 /// The demo's fixed noise seed.
 const DEMO_SEED: u64 = 2007;
 /// The demo's noise σ, fraction of full scale.
@@ -61,9 +59,9 @@ pub fn main(a: DemoArgs) -> Result<()> {
         .iter()
         .map(|r| Rig::parse(r))
         .collect::<photostereo::Result<_>>()?;
-    let ours = a.output.join(MARKER).exists();
-    let folder = OutputFolder::create(&a.output, a.out.force || ours)?;
-    std::fs::write(folder.file(MARKER), "written by photostereo demo\n")?;
+    // The demo replaces its own folder without being asked.
+    let ours = photostereo::export::marker_kind(&a.output) == Some(OutputKind::Demo);
+    let folder = OutputFolder::create(&a.output, a.out.force || ours, OutputKind::Demo)?;
     let start = Instant::now();
     // Every (rig, scene) pair is independent (fixed seeds): all of them, and the near-light
     // line, run side by side; the results are gathered in the tables' order.

@@ -3,7 +3,7 @@
 use crate::common::print_json;
 use anyhow::{bail, Result};
 use clap::Args;
-use photostereo::export::OutputFile;
+use photostereo::export::{OutputFile, OutputKind};
 use photostereo::figure::write_error_map;
 use photostereo::groundtruth::read_normal_map;
 use photostereo::imageio::read_mask;
@@ -60,7 +60,12 @@ pub fn main(a: EvalArgs) -> Result<()> {
     // Refuse a bad --error-map before any work; the file is written under a temporary name
     // and renamed into place at the end.
     let out = match &a.error_map {
-        Some(p) => Some(OutputFile::create(p, a.force, &inputs)?),
+        Some(p) => Some(OutputFile::create(
+            p,
+            a.force,
+            OutputKind::ErrorMap,
+            &inputs,
+        )?),
         None => None,
     };
     let pred = read_normal_map(&a.pred)?;

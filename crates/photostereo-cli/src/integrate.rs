@@ -3,7 +3,7 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use photostereo::export::{write_json, OutputFolder};
+use photostereo::export::{write_json, OutputFolder, OutputKind};
 use photostereo::groundtruth::read_normal_map;
 use photostereo::imageio::read_mask;
 use photostereo::integrate::{
@@ -77,7 +77,8 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
         .chain(a.mask.as_deref())
         .chain(a.camera.as_deref())
         .collect();
-    let folder = OutputFolder::create_for(&a.output, a.out.force, &inputs)?;
+    let folder =
+        OutputFolder::create_for(&a.output, a.out.force, OutputKind::Integration, &inputs)?;
     let start = Instant::now();
     let mut report = Report::new(a.method.name());
     let t = Instant::now();

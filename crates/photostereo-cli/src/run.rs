@@ -232,7 +232,12 @@ pub fn main(a: RunArgs) -> Result<()> {
     inputs.extend(a.lights.as_deref());
     inputs.extend(a.intensities.as_deref());
     inputs.extend(a.gt.as_deref());
-    photostereo::export::check_output(&a.output, a.out.force, &inputs)?;
+    photostereo::export::check_output(
+        &a.output,
+        a.out.force,
+        photostereo::export::OutputKind::Run,
+        &inputs,
+    )?;
     let options = RunOptions {
         params: params(&a),
         ground_truth: a.gt.clone(),

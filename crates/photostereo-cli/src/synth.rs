@@ -99,7 +99,12 @@ pub fn main(a: SynthArgs) -> Result<()> {
     // A rig given as a light file is an input: --force never replaces it or its folder.
     let rig_file = std::path::Path::new(&a.rig);
     if rig_file.exists() {
-        photostereo::export::check_output(&output, a.out.force, &[rig_file])?;
+        photostereo::export::check_output(
+            &output,
+            a.out.force,
+            photostereo::export::OutputKind::Synth,
+            &[rig_file],
+        )?;
     }
     let budget = a
         .memory_limit

@@ -282,6 +282,110 @@ fn eval_force_replaces_only_its_own_error_maps_never_an_input() {
     assert!(f.path("err.png").exists());
 }
 
+/// `--force` replaces only what the same command wrote in that place: every subcommand that
+/// takes it refuses another command's output (and a folder photostereo never wrote) and
+/// replaces its own.
+#[test]
+fn force_replaces_only_what_the_same_command_wrote() {
+    let f = Fixture::new();
+    let chrome = PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/psmImages/chrome.txt"
+    ));
+    let chrome = chrome.to_str().unwrap();
+    f.succeeds(&["run", "cap", "-o", "run", "--quiet", "--no-depth"]);
+    f.succeeds(&[
+        "synth", "sphere", "--rig", "ring8", "--size", "32", "-o", "syn", "-q",
+    ]);
+
+    // eval --error-map over a photograph photostereo rendered, and over a run's picture.
+    for target in ["syn/001.png", "run/normals.png"] {
+        f.refuses(
+            &[
+                "eval",
+                "syn/gt/normal.npy",
+                "syn/gt/normal.npy",
+                "--error-map",
+                target,
+                "--force",
+            ],
+            &[target, "--force refused", "error-map"],
+        );
+    }
+    // export-openlime over its own run folder, over a run, and over a folder of the user's.
+    f.refuses(
+        &["export-openlime", "run", "-o", "run", "--force"],
+        &["--force refused", "input"],
+    );
+    std::fs::create_dir(f.path("site")).unwrap();
+    f.write("site/index.html", "<p>mine</p>");
+    f.refuses(
+        &["export-openlime", "run", "-o", "site", "--force"],
+        &["--force refused", "not written by photostereo"],
+    );
+    f.refuses(
+        &["export-openlime", "run", "-o", "syn", "--force"],
+        &["--force refused", "synth folder", "openlime folder"],
+    );
+
+    // Every folder-writing command over a folder another command wrote.
+    let over_run: [&[&str]; 6] = [
+        &[
+            "synth", "sphere", "--rig", "ring8", "--size", "32", "-o", "run", "--force",
+        ],
+        &["compare", "cap", "-o", "run", "--force"],
+        &["integrate", "syn/gt/normal.npy", "-o", "run", "--force"],
+        &["calibrate", chrome, "-o", "run", "--force"],
+        &[
+            "demo", "--size", "16", "--rig", "square4", "-o", "run", "--force",
+        ],
+        &["export-openlime", "run2", "-o", "run", "--force"],
+    ];
+    f.succeeds(&["run", "cap", "-o", "run2", "--quiet", "--no-depth"]);
+    for args in over_run {
+        f.refuses(args, &["--force refused", "run folder"]);
+    }
+    f.refuses(
+        &["run", "cap", "-o", "syn", "--force"],
+        &["--force refused", "synth folder", "run folder"],
+    );
+
+    // Each replaces its own.
+    let own: [&[&str]; 8] = [
+        &["run", "cap", "-o", "run", "--quiet", "--no-depth"],
+        &[
+            "synth", "sphere", "--rig", "ring8", "--size", "32", "-o", "syn", "-q",
+        ],
+        &["compare", "cap", "-o", "cmp", "--quiet"],
+        &["integrate", "syn/gt/normal.npy", "-o", "depth", "--quiet"],
+        &["calibrate", chrome, "-o", "cal", "--quiet"],
+        &[
+            "demo", "--size", "16", "--rig", "square4", "-o", "dem", "--quiet",
+        ],
+        &["export-openlime", "run", "-o", "lime", "--quiet"],
+        &[
+            "eval",
+            "syn/gt/normal.npy",
+            "syn/gt/normal.npy",
+            "--error-map",
+            "err.png",
+        ],
+    ];
+    for args in own {
+        let out = args[args
+            .iter()
+            .position(|a| *a == "-o" || *a == "--error-map")
+            .unwrap()
+            + 1];
+        if !f.path(out).exists() {
+            f.succeeds(args);
+        }
+        let mut again = args.to_vec();
+        again.push("--force");
+        f.succeeds(&again);
+    }
+}
+
 // ---------------------------------------------------------------------------------------------
 // 2. Forged and huge headers
 

@@ -13,7 +13,7 @@
 use crate::capture::{Capture, CaptureFiles};
 use crate::engine::{reconstruct_with_truth, Method, Params, Reconstruction};
 use crate::error::{Error, Result};
-use crate::export::{write_json, OutputFolder};
+use crate::export::{write_json, OutputFolder, OutputKind};
 use crate::figure::{colormap, Canvas};
 use crate::groundtruth::read_normal_map;
 use crate::indicators::{raw_scale, status_intensities, StatusIntensities};
@@ -141,7 +141,7 @@ pub fn compare(
     if options.methods.is_empty() {
         return Err(Error::invalid("compare needs at least one method"));
     }
-    let folder = OutputFolder::create(output, force)?;
+    let folder = OutputFolder::create(output, force, OutputKind::Compare)?;
     let start = Instant::now();
     let truth = match &options.ground_truth {
         Some(p) => Some(read_normal_map(p)?),

@@ -3,10 +3,11 @@
 //! [`OutputFolder::commit`]; dropping an uncommitted folder removes the staging folder, so an
 //! interrupted or failed run never leaves half-written output behind.
 //!
-//! Safety of `--force`: an existing target is replaced only when it is a folder that photostereo
-//! wrote (it holds the [`MARKER`] file, which every output folder gets) or an empty folder, and
-//! never when it is, or holds, one of the command's inputs ([`check_output`]). Anything else is
-//! refused with a message saying why.
+//! Safety of `--force`: an existing target is replaced only when the same kind of command wrote
+//! it there ([`OutputKind`]: a run folder by a run, an error map by an error map; the kind is
+//! recorded in the [`MARKER`] file every output folder gets, and in a `tEXt` chunk of an output
+//! PNG) or when it is an empty folder, and never when it is, or holds, one of the command's
+//! inputs ([`check_output`]). Anything else is refused with a message saying why.
 //!
 //! Interruptions: staging folders (and [`OutputFile`] temporaries) in progress are registered,
 //! so that a front end's SIGINT/SIGTERM handler can remove them with [`abandon_pending`]. A
@@ -24,6 +25,76 @@ use std::sync::{Mutex, MutexGuard};
 pub const MARKER: &str = ".photostereo";
 /// Markers of earlier versions (`demo` wrote its own).
 const LEGACY_MARKERS: [&str; 1] = [".photostereo-demo"];
+/// The marker line that names the kind of output (`kind: run`).
+const MARKER_KIND: &str = "kind: ";
+/// The `tEXt` keyword of an output PNG that names its kind.
+const PNG_KIND_KEYWORD: &str = "photostereo-output";
+
+/// What wrote an output folder or file. `force` replaces an existing output only when the same
+/// kind wrote it: a run never replaces a synthetic capture, an error map never replaces a
+/// photograph, an OpenLIME export never replaces a run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum OutputKind {
+    /// A reconstruction's output folder (`run`).
+    Run,
+    /// A synthetic capture with its ground truth (`synth`).
+    Synth,
+    /// The demo's tables and figures.
+    Demo,
+    /// A comparison of methods (`compare`).
+    Compare,
+    /// A light calibration from a mirror sphere (`calibrate`).
+    Calibration,
+    /// Depth integrated from a normal map (`integrate`).
+    Integration,
+    /// An OpenLIME page exported from a run (`export-openlime`).
+    OpenLime,
+    /// A colour-mapped angular-error picture (`eval --error-map`).
+    ErrorMap,
+}
+
+impl OutputKind {
+    const ALL: [OutputKind; 8] = [
+        OutputKind::Run,
+        OutputKind::Synth,
+        OutputKind::Demo,
+        OutputKind::Compare,
+        OutputKind::Calibration,
+        OutputKind::Integration,
+        OutputKind::OpenLime,
+        OutputKind::ErrorMap,
+    ];
+
+    /// The name recorded in markers and PNG chunks.
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputKind::Run => "run",
+            OutputKind::Synth => "synth",
+            OutputKind::Demo => "demo",
+            OutputKind::Compare => "compare",
+            OutputKind::Calibration => "calibration",
+            OutputKind::Integration => "integration",
+            OutputKind::OpenLime => "openlime",
+            OutputKind::ErrorMap => "error-map",
+        }
+    }
+
+    fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|k| k.name() == name.trim())
+    }
+}
+
+/// The kind of output recorded in `dir`'s marker: `None` where there is no marker or it names
+/// no kind (markers of versions that did not record it).
+pub fn marker_kind(dir: &Path) -> Option<OutputKind> {
+    if dir.join(LEGACY_MARKERS[0]).is_file() {
+        return Some(OutputKind::Demo);
+    }
+    let text = std::fs::read_to_string(dir.join(MARKER)).ok()?;
+    text.lines()
+        .find_map(|l| l.strip_prefix(MARKER_KIND))
+        .and_then(OutputKind::from_name)
+}
 
 /// Staging folders and temporary files of this process not yet committed.
 static PENDING: Mutex<Vec<PathBuf>> = Mutex::new(Vec::new());
@@ -105,10 +176,11 @@ fn resolved(path: &Path) -> PathBuf {
     abs
 }
 
-/// Checks that `target` may be written: refused when it exists and `force` is off; with
-/// `force`, refused unless it is a folder photostereo wrote (with [`MARKER`]) or an empty
-/// folder, and refused whenever it is one of `inputs` or holds one. Errors say why.
-pub fn check_output(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+/// Checks that `target` may be written as a `kind` folder: refused when it exists and `force` is
+/// off; with `force`, refused unless it is a folder the same kind of command wrote (its
+/// [`MARKER`] names `kind`) or an empty folder, and refused whenever it is one of `inputs` or
+/// holds one. Errors say why.
+pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Path]) -> Result<()> {
     let meta = match std::fs::symlink_metadata(target) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -136,7 +208,7 @@ pub fn check_output(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> 
     if meta.file_type().is_symlink() {
         return why(
             "it is a symbolic link; --force replaces only a folder that photostereo wrote or an empty folder"
-                .into(),
+                .to_string(),
         );
     }
     if !meta.is_dir() {
@@ -146,7 +218,20 @@ pub fn check_output(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> 
         );
     }
     if has_marker(target) {
-        return Ok(());
+        return match marker_kind(target) {
+            Some(k) if k == kind => Ok(()),
+            Some(k) => why(format!(
+                "it holds a {} folder, and --force replaces only a {} folder; \
+                 choose another output (-o)",
+                k.name(),
+                kind.name()
+            )),
+            None => why(format!(
+                "an earlier photostereo wrote it without recording what it holds, and --force \
+                 replaces only a {} folder; remove it yourself or choose another output (-o)",
+                kind.name()
+            )),
+        };
     }
     let empty = std::fs::read_dir(target)
         .map_err(|e| Error::io(target, e))?
@@ -285,21 +370,28 @@ pub struct OutputFolder {
     target: PathBuf,
     staging: PathBuf,
     force: bool,
+    kind: OutputKind,
     committed: bool,
     /// Leftovers of interrupted runs removed when this folder was created.
     pub removed_stale: Vec<PathBuf>,
 }
 
 impl OutputFolder {
-    /// Prepares writing to `target` (see [`check_output`] for what `force` may replace).
-    pub fn create(target: &Path, force: bool) -> Result<Self> {
-        Self::create_for(target, force, &[])
+    /// Prepares writing a `kind` folder to `target` (see [`check_output`] for what `force` may
+    /// replace).
+    pub fn create(target: &Path, force: bool, kind: OutputKind) -> Result<Self> {
+        Self::create_for(target, force, kind, &[])
     }
 
-    /// Prepares writing to `target`, refusing to replace any of `inputs` or a folder holding
-    /// one (see [`check_output`]).
-    pub fn create_for(target: &Path, force: bool, inputs: &[&Path]) -> Result<Self> {
-        check_output(target, force, inputs)?;
+    /// Prepares writing a `kind` folder to `target`, refusing to replace any of `inputs` or a
+    /// folder holding one (see [`check_output`]).
+    pub fn create_for(
+        target: &Path,
+        force: bool,
+        kind: OutputKind,
+        inputs: &[&Path],
+    ) -> Result<Self> {
+        check_output(target, force, kind, inputs)?;
         let name = target
             .file_name()
             .filter(|n| *n != "." && *n != "..")
@@ -324,16 +416,19 @@ impl OutputFolder {
             target: target.to_path_buf(),
             staging,
             force,
+            kind,
             committed: false,
             removed_stale,
         };
         std::fs::write(
             folder.file(MARKER),
             format!(
-                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n",
+                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n\
+                 {MARKER_KIND}{}\n",
                 env!("CARGO_PKG_VERSION"),
                 host_name(),
-                std::process::id()
+                std::process::id(),
+                kind.name()
             ),
         )
         .map_err(|e| Error::io(folder.file(MARKER), e))?;
@@ -361,7 +456,7 @@ impl OutputFolder {
         // are in a consistent state.
         let mut guard = pending();
         if std::fs::symlink_metadata(&self.target).is_ok() {
-            check_output(&self.target, self.force, &[])?;
+            check_output(&self.target, self.force, self.kind, &[])?;
             let old = self.staging.with_file_name(format!(
                 ".{}.old-{}",
                 self.target
@@ -399,22 +494,24 @@ impl Drop for OutputFolder {
     }
 }
 
-/// One output file written under a temporary name beside it (`.NAME.tmp-PID`) and renamed into
-/// place by [`commit`](OutputFile::commit); removed when dropped uncommitted or on a signal.
-/// `--force` replaces an existing file only when it is a PNG photostereo wrote (or empty), and
-/// never one of the inputs.
+/// One output PNG written under a temporary name beside it (`.NAME.tmp-PID`) and renamed into
+/// place by [`commit`](OutputFile::commit), which first records its [`OutputKind`] in a `tEXt`
+/// chunk; removed when dropped uncommitted or on a signal. `--force` replaces an existing file
+/// only when it is a PNG that the same kind of command wrote (or empty), and never one of the
+/// inputs.
 #[derive(Debug)]
 pub struct OutputFile {
     target: PathBuf,
     temp: PathBuf,
     force: bool,
+    kind: OutputKind,
     committed: bool,
 }
 
 impl OutputFile {
-    /// Prepares writing `target`.
-    pub fn create(target: &Path, force: bool, inputs: &[&Path]) -> Result<Self> {
-        check_output_file(target, force, inputs)?;
+    /// Prepares writing the PNG `target` as a `kind` file.
+    pub fn create(target: &Path, force: bool, kind: OutputKind, inputs: &[&Path]) -> Result<Self> {
+        check_output_file(target, force, kind, inputs)?;
         let name = target
             .file_name()
             .ok_or_else(|| Error::file(target, "not a valid output file name"))?
@@ -434,6 +531,7 @@ impl OutputFile {
             target: target.to_path_buf(),
             temp,
             force,
+            kind,
             committed: false,
         })
     }
@@ -443,10 +541,11 @@ impl OutputFile {
         &self.temp
     }
 
-    /// Renames the file into place.
+    /// Records the file's kind in it and renames it into place.
     pub fn commit(mut self) -> Result<PathBuf> {
+        tag_png(&self.temp, self.kind)?;
         let mut guard = pending();
-        check_output_file(&self.target, self.force, &[])?;
+        check_output_file(&self.target, self.force, self.kind, &[])?;
         std::fs::rename(&self.temp, &self.target).map_err(|e| Error::io(&self.target, e))?;
         guard.retain(|p| *p != self.temp);
         drop(guard);
@@ -464,7 +563,7 @@ impl Drop for OutputFile {
     }
 }
 
-fn check_output_file(target: &Path, force: bool, inputs: &[&Path]) -> Result<()> {
+fn check_output_file(target: &Path, force: bool, kind: OutputKind, inputs: &[&Path]) -> Result<()> {
     let meta = match std::fs::symlink_metadata(target) {
         Ok(m) => m,
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
@@ -483,40 +582,94 @@ fn check_output_file(target: &Path, force: bool, inputs: &[&Path]) -> Result<()>
     if !meta.is_file() {
         return why("it is not a regular file");
     }
-    if meta.len() == 0 || written_by_photostereo(target) {
+    if meta.len() == 0 || png_kind(target) == Some(kind) {
         return Ok(());
     }
-    why("photostereo did not write it; --force replaces only a file that photostereo wrote; remove it yourself or choose another name")
+    let replaces = format!(
+        "--force replaces only a PNG that photostereo wrote as {}",
+        kind.name()
+    );
+    match png_kind(target) {
+        Some(k) => why(&format!(
+            "photostereo wrote it as {}; {replaces}; choose another name",
+            k.name()
+        )),
+        None if written_by_photostereo(target) => why(&format!(
+            "photostereo wrote it as part of another output; {replaces}; choose another name"
+        )),
+        None => why(&format!(
+            "photostereo did not write it; {replaces}; remove it yourself or choose another name"
+        )),
+    }
+}
+
+/// The PNG chunks before the image data of `path` (at most the first 64 KiB): `(type, body)`.
+fn png_head_chunks(path: &Path) -> Vec<([u8; 4], Vec<u8>)> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    let Ok(f) = std::fs::File::open(path) else {
+        return Vec::new();
+    };
+    if f.take(1 << 16).read_to_end(&mut head).is_err() || !head.starts_with(b"\x89PNG\r\n\x1a\n") {
+        return Vec::new();
+    }
+    let mut chunks = Vec::new();
+    let mut pos = 8;
+    while pos + 8 <= head.len() {
+        let len =
+            u32::from_be_bytes([head[pos], head[pos + 1], head[pos + 2], head[pos + 3]]) as usize;
+        let kind = [head[pos + 4], head[pos + 5], head[pos + 6], head[pos + 7]];
+        let Some(body) = head.get(pos + 8..(pos + 8).saturating_add(len)) else {
+            break;
+        };
+        if &kind == b"IDAT" {
+            break;
+        }
+        chunks.push((kind, body.to_vec()));
+        pos += 12 + len;
+    }
+    chunks
+}
+
+/// The [`OutputKind`] an output PNG records in its `photostereo-output` text chunk.
+pub fn png_kind(path: &Path) -> Option<OutputKind> {
+    let key = format!("{PNG_KIND_KEYWORD}\0");
+    png_head_chunks(path).into_iter().find_map(|(kind, body)| {
+        let value = body
+            .strip_prefix(key.as_bytes())
+            .filter(|_| &kind == b"tEXt")?;
+        OutputKind::from_name(std::str::from_utf8(value).ok()?)
+    })
+}
+
+/// Inserts a `tEXt` chunk recording `kind` after the header of the PNG at `path`.
+fn tag_png(path: &Path, kind: OutputKind) -> Result<()> {
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    // Signature (8) + IHDR (length 4, type 4, body 13, CRC 4).
+    const AFTER_IHDR: usize = 8 + 25;
+    if bytes.len() < AFTER_IHDR || &bytes[12..16] != b"IHDR" {
+        return Err(Error::file(path, "not a PNG written here"));
+    }
+    let body = format!("{PNG_KIND_KEYWORD}\0{}", kind.name());
+    let mut chunk = Vec::with_capacity(body.len() + 12);
+    chunk.extend_from_slice(&(body.len() as u32).to_be_bytes());
+    chunk.extend_from_slice(b"tEXt");
+    chunk.extend_from_slice(body.as_bytes());
+    let crc = crc32fast::hash(&chunk[4..]);
+    chunk.extend_from_slice(&crc.to_be_bytes());
+    let mut out = Vec::with_capacity(bytes.len() + chunk.len());
+    out.extend_from_slice(&bytes[..AFTER_IHDR]);
+    out.extend_from_slice(&chunk);
+    out.extend_from_slice(&bytes[AFTER_IHDR..]);
+    std::fs::write(path, out).map_err(|e| Error::io(path, e))
 }
 
 /// Whether `path` is a PNG photostereo wrote (a `Software` text chunk naming it, before the
 /// image data).
 pub fn written_by_photostereo(path: &Path) -> bool {
-    use std::io::Read;
-    let mut head = Vec::new();
-    let Ok(f) = std::fs::File::open(path) else {
-        return false;
-    };
-    if f.take(1 << 16).read_to_end(&mut head).is_err() || !head.starts_with(b"\x89PNG\r\n\x1a\n") {
-        return false;
-    }
-    let mut pos = 8;
-    while pos + 8 <= head.len() {
-        let len =
-            u32::from_be_bytes([head[pos], head[pos + 1], head[pos + 2], head[pos + 3]]) as usize;
-        let kind = &head[pos + 4..pos + 8];
-        let Some(body) = head.get(pos + 8..(pos + 8).saturating_add(len)) else {
-            return false;
-        };
-        if kind == b"tEXt" && body.starts_with(crate::imageio::PNG_SOFTWARE_TEXT) {
-            return true;
-        }
-        if kind == b"IDAT" {
-            return false;
-        }
-        pos += 12 + len;
-    }
-    false
+    png_head_chunks(path)
+        .iter()
+        .any(|(kind, body)| kind == b"tEXt" && body.starts_with(crate::imageio::PNG_SOFTWARE_TEXT))
 }
 
 /// Writes `normals.npy` (float32 (H, W, 3)), `normals.png` (16-bit RGB, (n + 1) / 2 · 65535,

@@ -5,7 +5,9 @@
 use crate::capture::CaptureFiles;
 use crate::engine::{reconstruct_with_truth, Params, Reconstruction};
 use crate::error::{Error, Result};
-use crate::export::{write_albedo, write_json, write_normals, write_npy_f32, OutputFolder};
+use crate::export::{
+    write_albedo, write_json, write_normals, write_npy_f32, OutputFolder, OutputKind,
+};
 use crate::figure::write_error_map;
 use crate::groundtruth::read_normal_map;
 use crate::imageio::write_png8;
@@ -193,7 +195,7 @@ pub fn run(
     }
     options.params.validate()?;
     // Refuse an existing output before any work.
-    let folder = OutputFolder::create(output, force)?;
+    let folder = OutputFolder::create(output, force, OutputKind::Run)?;
     let start = Instant::now();
     // Read the ground truth first: a bad file fails fast, before decoding the capture.
     let truth = match &options.ground_truth {

@@ -569,7 +569,8 @@ pub fn near_synth_to_folder(
     output: &Path,
     force: bool,
 ) -> Result<(NearRendered, std::path::PathBuf)> {
-    let folder = crate::export::OutputFolder::create(output, force)?;
+    let folder =
+        crate::export::OutputFolder::create(output, force, crate::export::OutputKind::Synth)?;
     let rendered = synthesize_near(spec)?;
     write_near_capture(folder.path(), &rendered)?;
     let target = folder.commit()?;

@@ -21,7 +21,7 @@ use super::surfaces::{MaskShape, SceneKind};
 use super::Scene;
 use crate::capture::Capture;
 use crate::error::{Error, Result};
-use crate::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder};
+use crate::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder, OutputKind};
 use crate::imageio::{write_png16, write_png8, Image};
 use crate::lights::Lights;
 use rayon::prelude::*;
@@ -544,7 +544,7 @@ pub fn synth_to_folder(
     output: &Path,
     force: bool,
 ) -> Result<(Rendered, PathBuf)> {
-    let folder = OutputFolder::create(output, force)?;
+    let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
     let rendered = synthesize(spec)?;
     write_capture(folder.path(), &rendered, Some(spec))?;
     let target = folder.commit()?;
@@ -592,7 +592,7 @@ pub fn synth_streamed(
     progress: &dyn crate::progress::Progress,
 ) -> Result<(CaptureStats, Lights, PathBuf)> {
     use std::io::Write;
-    let folder = OutputFolder::create(output, force)?;
+    let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
     let dir = folder.path();
     let scene = match spec.height {
         None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,

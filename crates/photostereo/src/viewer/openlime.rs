@@ -15,6 +15,7 @@
 use super::folder::RunFolder;
 use super::relight::{albedo_white, srgb_encode};
 use crate::error::{Error, Result};
+use crate::export::{OutputFolder, OutputKind};
 use crate::imageio::write_png8;
 use serde_json::json;
 use std::path::{Path, PathBuf};
@@ -111,20 +112,23 @@ const ui = new OpenLIME.UIBasic(lime, { showLightDirections: true });
 </html>
 "#;
 
-/// Writes `kd.png`, `normals.png`, `brdf.json` and `index.html` into `out` (created; an existing
-/// folder is refused unless `force`).
+/// Writes `kd.png`, `normals.png`, `brdf.json` and `index.html` into the folder `out`, staged
+/// and renamed into place; an existing `out` is refused unless `force`, and `force` replaces
+/// only an earlier OpenLIME export, never the run folder or a folder holding it
+/// ([`check_output`](crate::export::check_output)).
 pub fn export_openlime(f: &RunFolder, out: &Path, force: bool) -> Result<OpenLimeSummary> {
-    if out.exists() && !force {
-        return Err(Error::OutputExists {
-            path: out.to_path_buf(),
-        });
-    }
-    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let folder = OutputFolder::create_for(out, force, OutputKind::OpenLime, &[f.dir.as_path()])?;
     let (w, h) = (f.width, f.height);
-    write_png8(&out.join("kd.png"), w, h, 3, &kd_rgb8(f))?;
-    write_png8(&out.join("normals.png"), w, h, 3, &normals_rgb8(&f.normals))?;
+    write_png8(&folder.file("kd.png"), w, h, 3, &kd_rgb8(f))?;
+    write_png8(
+        &folder.file("normals.png"),
+        w,
+        h,
+        3,
+        &normals_rgb8(&f.normals),
+    )?;
     let config = layer_config(w, h);
-    crate::export::write_json(&out.join("brdf.json"), &config)?;
+    crate::export::write_json(&folder.file("brdf.json"), &config)?;
     let title = std::fs::canonicalize(&f.dir)
         .ok()
         .and_then(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
@@ -135,8 +139,9 @@ pub fn export_openlime(f: &RunFolder, out: &Path, force: bool) -> Result<OpenLim
         .map_err(|e| Error::invalid(e.to_string()))?
         .replace("</", "<\\/");
     let page = PAGE.replace("@TITLE@", &title).replace("@CONFIG@", &cfg);
-    let index = out.join("index.html");
+    let index = folder.file("index.html");
     std::fs::write(&index, page).map_err(|e| Error::io(&index, e))?;
+    folder.commit()?;
     Ok(OpenLimeSummary {
         dir: out.to_path_buf(),
         files: ["kd.png", "normals.png", "brdf.json", "index.html"]
