@@ -885,23 +885,52 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let target = dir.path().join("out");
         {
-            let f = OutputFolder::create(&target, false).unwrap();
+            let f = OutputFolder::create(&target, false, OutputKind::Run).unwrap();
             std::fs::write(f.file("a.txt"), "x").unwrap();
         }
         assert!(!target.exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
-        let f = OutputFolder::create(&target, false).unwrap();
+        let f = OutputFolder::create(&target, false, OutputKind::Run).unwrap();
         std::fs::write(f.file("a.txt"), "x").unwrap();
         f.commit().unwrap();
         assert!(target.join("a.txt").exists());
         assert!(matches!(
-            OutputFolder::create(&target, false),
+            OutputFolder::create(&target, false, OutputKind::Run),
             Err(Error::OutputExists { .. })
         ));
-        let f = OutputFolder::create(&target, true).unwrap();
+        let f = OutputFolder::create(&target, true, OutputKind::Run).unwrap();
         std::fs::write(f.file("b.txt"), "y").unwrap();
         f.commit().unwrap();
         assert!(target.join("b.txt").exists() && !target.join("a.txt").exists());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn an_output_png_records_its_kind_in_a_chunk_other_decoders_read() {
+        let dir = tempfile::tempdir().unwrap();
+        let target = dir.path().join("err.png");
+        let f = OutputFile::create(&target, false, OutputKind::ErrorMap, &[]).unwrap();
+        crate::imageio::write_png8(f.path(), 3, 2, 1, &[0, 50, 100, 150, 200, 250]).unwrap();
+        f.commit().unwrap();
+        assert_eq!(png_kind(&target), Some(OutputKind::ErrorMap));
+        // The png crate checks every chunk's CRC and reads the text chunk back.
+        let mut dec = png::Decoder::new(std::io::BufReader::new(
+            std::fs::File::open(&target).unwrap(),
+        ));
+        dec.set_ignore_text_chunk(false);
+        let mut reader = dec.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+        reader.next_frame(&mut buf).unwrap();
+        let texts: Vec<(String, String)> = reader
+            .info()
+            .uncompressed_latin1_text
+            .iter()
+            .map(|t| (t.keyword.clone(), t.text.clone()))
+            .collect();
+        assert!(texts.contains(&("photostereo-output".into(), "error-map".into())));
+        assert_eq!(&buf[..6], &[0, 50, 100, 150, 200, 250]);
+        // A PNG of another kind is not replaced, even with force; its own kind is.
+        assert!(OutputFile::create(&target, true, OutputKind::Run, &[]).is_err());
+        assert!(OutputFile::create(&target, true, OutputKind::ErrorMap, &[]).is_ok());
     }
 }
