@@ -3,5 +3,5 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = photostereo::imageio::decode_image(data);
+    let _ = photostereo::io::imageio::decode_image(data);
 });

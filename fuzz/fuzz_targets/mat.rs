@@ -3,6 +3,6 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = photostereo::matfile::parse_mat(data, None);
-    let _ = photostereo::matfile::parse_mat(data, Some("Normal_gt"));
+    let _ = photostereo::io::matfile::parse_mat(data, None);
+    let _ = photostereo::io::matfile::parse_mat(data, Some("Normal_gt"));
 });

@@ -3,5 +3,5 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    let _ = photostereo::groundtruth::decode_npy(data);
+    let _ = photostereo::io::groundtruth::decode_npy(data);
 });

@@ -5,10 +5,11 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{Context, Result};
 use clap::Args;
 use photostereo::calibrate::{
-    calibrate, calibration_figure, matte_intensities, sphere_circle, CalibrationOptions,
-    HighlightOptions, SphereFiles,
+    calibrate, matte_intensities, sphere_circle, CalibrationOptions, HighlightOptions,
 };
-use photostereo::export::{write_json, OutputFolder, OutputKind};
+use photostereo::io::calibration_figure::calibration_figure;
+use photostereo::io::export::{write_json, OutputFolder, OutputKind};
+use photostereo::io::layouts::sphere::SphereFiles;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]

@@ -3,7 +3,7 @@
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
-use photostereo::progress::Progress;
+use photostereo::base::progress::Progress;
 use std::io::IsTerminal;
 use std::sync::Mutex;
 
@@ -127,7 +127,7 @@ pub fn check_input_paths(
 
 /// `--memory-limit SIZE`: bytes, or with a `K`, `M`, `G` or `T` suffix (powers of 1024).
 pub fn parse_memory_limit(s: &str) -> Result<u64, String> {
-    match photostereo::limits::parse_bytes(s) {
+    match photostereo::base::machine::parse_bytes(s) {
         Some(b) if b > 0 => Ok(b),
         _ => Err(format!(
             "'{s}': expected a size in bytes such as 4G, 500M or 1.5G (powers of 1024)"

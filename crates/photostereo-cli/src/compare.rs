@@ -5,13 +5,13 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
-use photostereo::capture::CaptureFiles;
-use photostereo::compare::{compare, CompareOptions, FIGURE};
-use photostereo::detect::DetectionParams;
-use photostereo::engine::{Method, Params};
-use photostereo::integrate::{IntegrationParams, IntegratorKind};
-use photostereo::pipeline::LightSubset;
-use photostereo::recursive::{Fallback, RecursiveParams};
+use photostereo::app::compare::{compare, CompareOptions, FIGURE};
+use photostereo::app::pipeline::LightSubset;
+use photostereo::geometry::integrate::{IntegrationParams, IntegratorKind};
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::method::engine::{Method, Params};
+use photostereo::method::recursive::{Fallback, RecursiveParams};
+use photostereo::solve::detect::DetectionParams;
 use std::path::{Path, PathBuf};
 
 fn defaults() -> Params {

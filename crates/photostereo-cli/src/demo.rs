@@ -5,17 +5,17 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use photostereo::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::export::{write_json, OutputFolder, OutputKind};
-use photostereo::figure::{heat_map, normals_picture, text_width, Canvas};
-use photostereo::imageio::Image;
-use photostereo::maps::{nice_ceil, tick_label};
-use photostereo::metrics::{evaluate, ErrorStats};
-use photostereo::pipeline::{write_reconstruction, RunOptions};
-use photostereo::progress::Silent;
+use photostereo::app::pipeline::{write_reconstruction, RunOptions};
+use photostereo::base::progress::Silent;
+use photostereo::io::export::{write_json, OutputFolder, OutputKind};
+use photostereo::io::figure::{heat_map, normals_picture, text_width, Canvas};
+use photostereo::io::maps::{nice_ceil, tick_label};
+use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
+use photostereo::model::image::Image;
 use photostereo::scene::{
     spec_scene, synthesize_scene, write_capture, Brdf, Rig, Scene, SceneKind, SynthSpec,
 };
+use photostereo::solve::metrics::{evaluate, ErrorStats};
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;
@@ -60,7 +60,7 @@ pub fn main(a: DemoArgs) -> Result<()> {
         .map(|r| Rig::parse(r))
         .collect::<photostereo::Result<_>>()?;
     // The demo replaces its own folder without being asked.
-    let ours = photostereo::export::marker_kind(&a.output) == Some(OutputKind::Demo);
+    let ours = photostereo::io::export::marker_kind(&a.output) == Some(OutputKind::Demo);
     let folder = OutputFolder::create(&a.output, a.out.force || ours, OutputKind::Demo)?;
     let start = Instant::now();
     // Every (rig, scene) pair is independent (fixed seeds): all of them, and the near-light
@@ -255,7 +255,7 @@ fn run_scene(
         let mut capture = rendered.capture()?;
         // Prepared as a run prepares a capture from files (default parameters: the lights as
         // given).
-        photostereo::engine::prepare(&mut capture, &Params::default())?;
+        photostereo::method::engine::prepare(&mut capture, &Params::default())?;
         let truth = &rendered.truth;
         let (w, h) = (truth.width, truth.height);
         let mut figure_rows: Vec<(String, Vec<Canvas>)> = Vec::new();
@@ -427,7 +427,7 @@ fn rgb_picture(img: &Image) -> Canvas {
             c.put(
                 col,
                 row,
-                px.map(|v| photostereo::figure::round_u8(v.clamp(0.0, 1.0) * 255.0)),
+                px.map(|v| photostereo::io::figure::round_u8(v.clamp(0.0, 1.0) * 255.0)),
             );
         }
     }

@@ -3,11 +3,11 @@
 use crate::common::print_json;
 use anyhow::{bail, Result};
 use clap::Args;
-use photostereo::export::{OutputFile, OutputKind};
-use photostereo::figure::write_error_map;
-use photostereo::groundtruth::read_normal_map;
-use photostereo::imageio::read_mask;
-use photostereo::metrics::evaluate;
+use photostereo::io::export::{OutputFile, OutputKind};
+use photostereo::io::figure::write_error_map;
+use photostereo::io::groundtruth::read_normal_map;
+use photostereo::io::imageio::read_mask;
+use photostereo::solve::metrics::evaluate;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]

@@ -3,13 +3,13 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use photostereo::export::{write_json, OutputFolder, OutputKind};
-use photostereo::groundtruth::read_normal_map;
-use photostereo::imageio::read_mask;
-use photostereo::integrate::{
+use photostereo::geometry::integrate::{
     surface_from_normals, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
 };
-use photostereo::report::Report;
+use photostereo::io::export::{write_json, OutputFolder, OutputKind};
+use photostereo::io::groundtruth::read_normal_map;
+use photostereo::io::imageio::read_mask;
+use photostereo::method::report::Report;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -110,7 +110,7 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     report.input.height = map.height;
     report.input.files = vec![a.normals.display().to_string()];
     report.input.mask_file = a.mask.as_ref().map(|m| m.display().to_string());
-    let integrator: Box<dyn photostereo::integrate::Integrator> = match a.method {
+    let integrator: Box<dyn photostereo::geometry::integrate::Integrator> = match a.method {
         IntegratorKind::Poisson => {
             report.param("tolerance", a.tolerance);
             Box::new(Poisson {
@@ -124,13 +124,13 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     let t = Instant::now();
     let surface = match (&a.camera, a.distance) {
         (Some(k), Some(d)) => {
-            let camera = photostereo::nearlayout::read_camera(k)?;
+            let camera = photostereo::io::layouts::near::read_camera(k)?;
             if !(d.is_finite() && d > 0.0) {
                 bail!("--distance {d}: expected the object's mean distance in mm, positive");
             }
             report.param("camera", k.display().to_string());
             report.param("distance_mm", d);
-            photostereo::integrate::perspective::perspective_surface(
+            photostereo::geometry::integrate::perspective::perspective_surface(
                 map.width,
                 map.height,
                 &map.normals,
@@ -194,10 +194,10 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     report.extra.insert("integration".into(), summary);
     let t = Instant::now();
     let camera = match &a.camera {
-        Some(k) => Some(photostereo::nearlayout::read_camera(k)?),
+        Some(k) => Some(photostereo::io::layouts::near::read_camera(k)?),
         None => None,
     };
-    photostereo::surface::write_surface_camera(
+    photostereo::io::surface::write_surface_camera(
         folder.path(),
         &surface,
         &map.normals,

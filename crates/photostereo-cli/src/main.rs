@@ -59,7 +59,7 @@ fn remove_output_on_signals() {
     };
     std::thread::spawn(move || {
         if let Some(sig) = signals.forever().next() {
-            photostereo::export::abandon_pending();
+            photostereo::io::export::abandon_pending();
             let _ = signal_hook::low_level::emulate_default_handler(sig);
             std::process::exit(128 + sig);
         }

@@ -3,12 +3,12 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
-use photostereo::capture::CaptureFiles;
-use photostereo::detect::DetectionParams;
-use photostereo::engine::{Method, Params};
-use photostereo::integrate::{IntegrationParams, IntegratorKind};
-use photostereo::pipeline::{run, LightSubset, RunOptions, DEFAULT_ERROR_MAP_MAX_DEG};
-use photostereo::recursive::{Fallback, RecursiveParams};
+use photostereo::app::pipeline::{run, LightSubset, RunOptions, DEFAULT_ERROR_MAP_MAX_DEG};
+use photostereo::geometry::integrate::{IntegrationParams, IntegratorKind};
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::method::engine::{Method, Params};
+use photostereo::method::recursive::{Fallback, RecursiveParams};
+use photostereo::solve::detect::DetectionParams;
 use std::path::{Path, PathBuf};
 
 /// The library's defaults, the one source of the flags' defaults.
@@ -197,8 +197,8 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.mask.as_deref(),
     )?;
     let files = match (a.distance, a.input.as_slice()) {
-        (Some(d), [dir]) if dir.is_dir() && photostereo::nearlayout::is_near_layout(dir) => {
-            let mut f = photostereo::nearlayout::near_capture_files(dir, Some(d))?;
+        (Some(d), [dir]) if dir.is_dir() && photostereo::io::layouts::near::is_near_layout(dir) => {
+            let mut f = photostereo::io::layouts::near::near_capture_files(dir, Some(d))?;
             if let Some(m) = &a.mask {
                 f.mask = Some(m.clone());
             }
@@ -213,7 +213,7 @@ pub fn main(a: RunArgs) -> Result<()> {
             if let Some(m) = &a.mask {
                 f.mask = Some(m.clone());
             }
-            photostereo::nearlayout::attach_camera(f, dir, Some(d))?
+            photostereo::io::layouts::near::attach_camera(f, dir, Some(d))?
         }
         (Some(_), _) => anyhow::bail!(
             "--distance applies to one capture folder holding light_positions.txt or K.txt"
@@ -232,10 +232,10 @@ pub fn main(a: RunArgs) -> Result<()> {
     inputs.extend(a.lights.as_deref());
     inputs.extend(a.intensities.as_deref());
     inputs.extend(a.gt.as_deref());
-    photostereo::export::check_output(
+    photostereo::io::export::check_output(
         &a.output,
         a.out.force,
-        photostereo::export::OutputKind::Run,
+        photostereo::io::export::OutputKind::Run,
         &inputs,
     )?;
     let options = RunOptions {

@@ -99,16 +99,16 @@ pub fn main(a: SynthArgs) -> Result<()> {
     // A rig given as a light file is an input: --force never replaces it or its folder.
     let rig_file = std::path::Path::new(&a.rig);
     if rig_file.exists() {
-        photostereo::export::check_output(
+        photostereo::io::export::check_output(
             &output,
             a.out.force,
-            photostereo::export::OutputKind::Synth,
+            photostereo::io::export::OutputKind::Synth,
             &[rig_file],
         )?;
     }
     let budget = a
         .memory_limit
-        .unwrap_or_else(photostereo::memory::default_budget);
+        .unwrap_or_else(photostereo::model::memory::default_budget);
     let n_lights = spec.rig.lights()?.len();
     if photostereo::scene::render::in_memory_bytes(width, height, n_lights) > budget
         || width != height
@@ -118,9 +118,9 @@ pub fn main(a: SynthArgs) -> Result<()> {
             bail!(
                 "--memory-limit {}: rendering {width}×{height} needs about {} (the scene and one light); \
                  the smallest budget that works is {}",
-                photostereo::memory::size_flag(budget),
-                photostereo::memory::size_flag(need),
-                photostereo::memory::size_flag(need)
+                photostereo::model::memory::size_flag(budget),
+                photostereo::model::memory::size_flag(need),
+                photostereo::model::memory::size_flag(need)
             );
         }
         let bar = a.out.progress();

@@ -4,7 +4,7 @@
 use crate::common::print_json;
 use anyhow::{bail, Context, Result};
 use clap::Args;
-use photostereo::viewer::{
+use photostereo::io::viewer::{
     openlime::export_openlime, serve::Server, write_view, RunFolder, ViewOptions, ViewSummary,
 };
 use photostereo::Lights;
@@ -152,7 +152,7 @@ pub fn after_run(
     output: &Path,
     files: &photostereo::CaptureFiles,
     gt: Option<&Path>,
-    report: &photostereo::report::Report,
+    report: &photostereo::method::report::Report,
     print: bool,
 ) -> Result<()> {
     let all = &files.lights.directions;

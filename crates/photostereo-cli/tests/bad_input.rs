@@ -4,7 +4,7 @@
 mod common;
 
 use common::BIN;
-use photostereo::imageio::{write_png16, write_png8};
+use photostereo::io::imageio::{write_png16, write_png8};
 use std::path::{Path, PathBuf};
 use std::process::Command;
 

@@ -164,7 +164,8 @@ fn chrome_without_highlight(dir: &Path) {
     for k in 0..12 {
         let dst = dir.join(format!("chrome.{k}.png"));
         if k == 2 {
-            photostereo::imageio::write_png8(&dst, 512, 340, 3, &vec![3u8; 512 * 340 * 3]).unwrap();
+            photostereo::io::imageio::write_png8(&dst, 512, 340, 3, &vec![3u8; 512 * 340 * 3])
+                .unwrap();
         } else {
             std::os::unix::fs::symlink(psm(&format!("chrome/chrome.{k}.png")), dst).unwrap();
         }
@@ -201,7 +202,7 @@ fn bad_masks_are_errors() {
     // Writes a mask, runs `calibrate` with it and expects a refusal naming the file and `what`.
     let refused = |name: &str, w: usize, h: usize, pixels: &[u8], what: &str| {
         let m = tmp.path().join(name);
-        photostereo::imageio::write_png8(&m, w, h, 1, pixels).unwrap();
+        photostereo::io::imageio::write_png8(&m, w, h, 1, pixels).unwrap();
         let o = run!(
             "calibrate",
             psm("chrome.txt"),
@@ -271,7 +272,7 @@ fn tuning_options_take_effect() {
     let cap = tmp.path().join("cap");
     std::fs::create_dir(&cap).unwrap();
     chrome_without_highlight(&cap);
-    let img = photostereo::imageio::read_image(&psm("chrome/chrome.2.png")).unwrap();
+    let img = photostereo::io::imageio::read_image(&psm("chrome/chrome.2.png")).unwrap();
     let dim: Vec<u8> = img
         .data
         .iter()
@@ -279,7 +280,7 @@ fn tuning_options_take_effect() {
         .collect();
     let p = cap.join("chrome.2.png");
     std::fs::remove_file(&p).unwrap();
-    photostereo::imageio::write_png8(&p, img.width, img.height, 3, &dim).unwrap();
+    photostereo::io::imageio::write_png8(&p, img.width, img.height, 3, &dim).unwrap();
     let o = run!("calibrate", cap, "-o", tmp.path().join("a"));
     assert_eq!(o.status.code(), Some(2));
     assert!(
@@ -375,7 +376,7 @@ fn pure_noise_is_refused() {
                     (v.clamp(0.0, 1.0) * 255.0).round() as u8
                 })
                 .collect();
-            photostereo::imageio::write_png8(&cap.join(format!("n.{k}.png")), 512, 340, 3, &px)
+            photostereo::io::imageio::write_png8(&cap.join(format!("n.{k}.png")), 512, 340, 3, &px)
                 .unwrap();
         }
         std::os::unix::fs::symlink(psm("chrome/chrome.mask.png"), cap.join("mask.png")).unwrap();
@@ -391,8 +392,8 @@ fn a_weak_light_is_warned_of() {
     std::fs::create_dir(&cap).unwrap();
     chrome_without_highlight(&cap);
     // Image 3: the brighter of images 3 and 6 at each pixel, two highlights of equal strength.
-    let a = photostereo::imageio::read_image(&psm("chrome/chrome.2.png")).unwrap();
-    let b = photostereo::imageio::read_image(&psm("chrome/chrome.5.png")).unwrap();
+    let a = photostereo::io::imageio::read_image(&psm("chrome/chrome.2.png")).unwrap();
+    let b = photostereo::io::imageio::read_image(&psm("chrome/chrome.5.png")).unwrap();
     let px: Vec<u8> = a
         .data
         .iter()
@@ -401,7 +402,7 @@ fn a_weak_light_is_warned_of() {
         .collect();
     let p = cap.join("chrome.2.png");
     std::fs::remove_file(&p).unwrap();
-    photostereo::imageio::write_png8(&p, a.width, a.height, 3, &px).unwrap();
+    photostereo::io::imageio::write_png8(&p, a.width, a.height, 3, &px).unwrap();
     let out = tmp.path().join("cal");
     let o = run!("calibrate", cap, "-o", out);
     let err = text(&o.stderr);

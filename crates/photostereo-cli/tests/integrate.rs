@@ -193,7 +193,7 @@ fn the_ply_mesh_has_one_vertex_per_pixel_and_counter_clockwise_triangles() {
     );
     assert_eq!(obj.lines().filter(|l| l.starts_with("f ")).count(), faces);
     // depth.png spans 0..65535 over the object.
-    let png = photostereo::imageio::read_image(&out.join("depth.png")).unwrap();
+    let png = photostereo::io::imageio::read_image(&out.join("depth.png")).unwrap();
     assert_eq!((png.bit_depth, png.channels), (16, 1));
     let max = png.data.iter().fold(0f32, |m, &v| m.max(v));
     assert_eq!(max, 1.0);
@@ -234,7 +234,7 @@ fn integrate_flags_and_errors() {
     assert_eq!(o.status.code(), Some(2));
     // A mask of the wrong size.
     let mask = tmp.path().join("mask.png");
-    photostereo::imageio::write_png8(&mask, 10, 10, 1, &[255u8; 100]).unwrap();
+    photostereo::io::imageio::write_png8(&mask, 10, 10, 1, &[255u8; 100]).unwrap();
     let o = bin()
         .args([
             n,
@@ -267,7 +267,7 @@ fn integrate_flags_and_errors() {
             m[r * W + c] = 255;
         }
     }
-    photostereo::imageio::write_png8(&mask, W, H, 1, &m).unwrap();
+    photostereo::io::imageio::write_png8(&mask, W, H, 1, &m).unwrap();
     let out = tmp.path().join("d");
     assert!(bin()
         .args([

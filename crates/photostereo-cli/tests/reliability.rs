@@ -7,7 +7,7 @@
 mod common;
 
 use common::{sphere_image, BIN, DIRS, SIZE};
-use photostereo::imageio::write_png16;
+use photostereo::io::imageio::write_png16;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
@@ -755,7 +755,7 @@ fn doubtful_captures_are_noted_in_the_output_and_the_report() {
     // A few mask pixels black in every image: no normal there.
     for k in 0..6 {
         let p = f.path(&format!("cap/{:03}.png", k + 1));
-        let img = photostereo::imageio::read_image(&p).unwrap();
+        let img = photostereo::io::imageio::read_image(&p).unwrap();
         let mut data: Vec<u16> = img
             .data
             .iter()

@@ -209,7 +209,7 @@ fn demo_scores_every_method_on_six_scenes_and_replaces_its_own_folder() {
     let v: serde_json::Value = serde_json::from_str(&stdout(&o)).unwrap();
     let results = v["results"].as_array().unwrap();
     // Three rigs × six scenes × every method.
-    let methods = photostereo::engine::Method::ALL.len();
+    let methods = photostereo::method::engine::Method::ALL.len();
     assert_eq!(results.len(), 3 * 6 * methods);
     for r in results {
         let e = r["error"]["mean_deg"].as_f64().unwrap();
@@ -265,7 +265,7 @@ fn any_width_and_height_rendered_one_light_at_a_time() {
         (Some(40), Some(24))
     );
     assert_eq!(summary["streamed"], true);
-    let img = photostereo::imageio::read_image(&dir.path().join("wh/001.png")).unwrap();
+    let img = photostereo::io::imageio::read_image(&dir.path().join("wh/001.png")).unwrap();
     assert_eq!((img.width, img.height, img.bit_depth), (40, 24, 16));
     // The capture runs, and its normals match the ground truth of the W×H scene.
     let o = photostereo(

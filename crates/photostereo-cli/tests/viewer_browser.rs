@@ -9,9 +9,9 @@
 //! Needs `/usr/bin/chromium`: without it the browser tests print SKIPPED and pass, unless the
 //! environment variable `CI` is set, in which case they fail (`.ci/run` installs it).
 
-use photostereo::figure::colormap;
-use photostereo::metrics::angular_error_deg;
-use photostereo::viewer::{albedo_white, relight, RelightParams};
+use photostereo::io::figure::colormap;
+use photostereo::io::viewer::{albedo_white, relight, RelightParams};
+use photostereo::solve::metrics::angular_error_deg;
 use serde_json::Value;
 use std::io::{BufRead, BufReader, Read, Write};
 use std::path::{Path, PathBuf};
@@ -422,7 +422,7 @@ fn check_layers_and_probe(tmp: &Path, out: &Path, a: &Arrays, gt: &Path) {
         .filter(|&i| a.mask[i])
         .max_by_key(|&i| count(i))
         .unwrap();
-    let truth = photostereo::groundtruth::read_normal_map(gt).unwrap();
+    let truth = photostereo::io::groundtruth::read_normal_map(gt).unwrap();
     let inside = a.mask.iter().filter(|&&m| m).count();
     let middle = (0..hw).filter(|&i| a.mask[i]).nth(inside / 2).unwrap();
     for (i, layer) in [(worst, "count"), (middle, "error")] {

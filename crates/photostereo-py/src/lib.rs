@@ -8,17 +8,18 @@
 
 use ndarray::{Array2, Array3, Array4, ArrayView2, ArrayView3, Axis};
 use numpy::{IntoPyArray, PyReadonlyArray2, PyReadonlyArray3, PyReadonlyArray4};
-use photostereo::capture::{Capture, CaptureFiles, Stack};
-use photostereo::detect::NoiseEstimate;
-use photostereo::engine::{Method, Params, Reconstruction};
-use photostereo::imageio::Image;
-use photostereo::lightmodel::Camera;
-use photostereo::lights::Lights;
-use photostereo::pipeline::{LightSubset, RunOptions};
-use photostereo::progress::Progress;
-use photostereo::recursive::Fallback;
+use photostereo::app::pipeline::{LightSubset, RunOptions};
+use photostereo::base::progress::Progress;
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::method::engine::{Method, Params, Reconstruction};
+use photostereo::method::recursive::Fallback;
+use photostereo::model::capture::{Capture, Stack};
+use photostereo::model::image::Image;
+use photostereo::model::lightmodel::Camera;
+use photostereo::model::lights::Lights;
 use photostereo::scene::near::{near_synth_to_folder, synthesize_near, NearRig, NearSpec};
 use photostereo::scene::{synth_to_folder, Brdf, Rig, SceneKind, SynthSpec};
+use photostereo::solve::detect::NoiseEstimate;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
 use pyo3::prelude::*;
@@ -254,7 +255,7 @@ fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
                         return Ok(b);
                     }
                     let s = str_of(x)?;
-                    photostereo::limits::parse_bytes(&s).ok_or_else(|| {
+                    photostereo::base::machine::parse_bytes(&s).ok_or_else(|| {
                         bad(format!(
                             "memory_limit '{s}': expected bytes or a size such as '4G' or '500M'"
                         ))
@@ -322,11 +323,11 @@ fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
     d.set_item("integrator", p.integration.method.name())?;
     d.set_item(
         "max_slope",
-        photostereo::report::f32_as_given(p.integration.max_slope),
+        photostereo::base::number::f32_as_given(p.integration.max_slope),
     )?;
     d.set_item(
         "unreliable_weight",
-        photostereo::report::f32_as_given(p.integration.unreliable_weight),
+        photostereo::base::number::f32_as_given(p.integration.unreliable_weight),
     )?;
     d.set_item("detect", p.detect)?;
     d.set_item("integrate", p.integrate)?;
@@ -442,9 +443,8 @@ struct InputFiles {
 
 impl InputFiles {
     fn resolve(&self) -> photostereo::Result<CaptureFiles> {
-        use photostereo::nearlayout::{
-            attach_camera_with, is_near_layout, near_capture_files_with,
-        };
+        use photostereo::io::layouts::near::is_near_layout;
+        use photostereo::io::layouts::near::{attach_camera_with, near_capture_files_with};
         if self.distance.is_none() && self.camera.is_none() {
             return CaptureFiles::from_inputs(
                 &self.inputs,
@@ -485,7 +485,7 @@ fn camera_from(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Camera>> {
         return Ok(None);
     }
     if let Ok(path) = obj.extract::<PathBuf>() {
-        return photostereo::nearlayout::read_camera(&path)
+        return photostereo::io::layouts::near::read_camera(&path)
             .map(Some)
             .map_err(py_err);
     }
@@ -505,7 +505,7 @@ fn camera_from(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Camera>> {
         [k[[1, 0]], k[[1, 1]], k[[1, 2]]],
         [k[[2, 0]], k[[2, 1]], k[[2, 2]]],
     ];
-    photostereo::nearlayout::camera_from_matrix(rows)
+    photostereo::io::layouts::near::camera_from_matrix(rows)
         .map(Some)
         .map_err(py_err)
 }
@@ -657,7 +657,7 @@ fn near_lights_from(
             rgb_rows(&e)
         }
     };
-    let layout = photostereo::nearlayout::NearLayout {
+    let layout = photostereo::io::layouts::near::NearLayout {
         camera,
         positions,
         axes,
@@ -857,10 +857,10 @@ fn reconstruct<'py>(
             // The Capture object stays as built: the refined lights (and rescaled samples)
             // belong to a copy made for this call.
             let mut own = (*capture).clone();
-            photostereo::engine::prepare(&mut own, &params)?;
-            photostereo::engine::reconstruct(&own, &params, p)
+            photostereo::method::engine::prepare(&mut own, &params)?;
+            photostereo::method::engine::reconstruct(&own, &params, p)
         } else {
-            photostereo::engine::reconstruct(&capture, &params, p)
+            photostereo::method::engine::reconstruct(&capture, &params, p)
         }
     })?;
     reconstruction_dict(py, rec)
@@ -915,7 +915,7 @@ fn run(
         camera,
     };
     let rec = run_detached(py, num_threads, progress, move |p| {
-        photostereo::pipeline::run(&files.resolve()?, &options, &output, force, p)
+        photostereo::app::pipeline::run(&files.resolve()?, &options, &output, force, p)
     })?;
     serde_json::to_string(&rec.report).map_err(|e| bad(e.to_string()))
 }
@@ -978,10 +978,10 @@ fn integrate<'py>(
         Some(wt) => Some(wt.as_array().iter().copied().collect()),
         None => None,
     };
-    let kind: photostereo::integrate::IntegratorKind = method.parse().map_err(py_err)?;
-    let max_slope = max_slope.unwrap_or(photostereo::integrate::DEFAULT_MAX_SLOPE);
+    let kind: photostereo::geometry::integrate::IntegratorKind = method.parse().map_err(py_err)?;
+    let max_slope = max_slope.unwrap_or(photostereo::geometry::integrate::DEFAULT_MAX_SLOPE);
     let depth = run_detached(py, num_threads, None, move |p| {
-        photostereo::integrate::surface_from_normals(
+        photostereo::geometry::integrate::surface_from_normals(
             w,
             h,
             &normals,
@@ -1019,7 +1019,7 @@ fn angular_error<'py>(
     let gt = normals_from(tv, "truth")?;
     let mask = mask_from(mask.as_ref().map(|m| m.as_array()), h, w)?;
     let (map, stats) = py
-        .detach(|| photostereo::metrics::evaluate(&pred, &gt, mask.as_deref()))
+        .detach(|| photostereo::solve::metrics::evaluate(&pred, &gt, mask.as_deref()))
         .map_err(py_err)?;
     let json = serde_json::to_string(&stats).map_err(|e| bad(e.to_string()))?;
     let map = Array2::from_shape_vec((h, w), map).map_err(|e| bad(e.to_string()))?;
@@ -1218,7 +1218,7 @@ fn synth(
 #[pyfunction]
 fn read_image<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, numpy::PyArray3<f32>>> {
     let img = py
-        .detach(|| photostereo::imageio::read_image(&path))
+        .detach(|| photostereo::io::imageio::read_image(&path))
         .map_err(py_err)?;
     Ok(
         Array3::from_shape_vec((img.height, img.width, img.channels), img.data)
@@ -1231,7 +1231,7 @@ fn read_image<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, numpy:
 #[pyfunction]
 fn read_normals<'py>(py: Python<'py>, path: PathBuf) -> PyResult<Bound<'py, numpy::PyArray3<f32>>> {
     let map = py
-        .detach(|| photostereo::groundtruth::read_normal_map(&path))
+        .detach(|| photostereo::io::groundtruth::read_normal_map(&path))
         .map_err(py_err)?;
     Ok(
         Array3::from_shape_vec((map.height, map.width, 3), flat3(&map.normals))

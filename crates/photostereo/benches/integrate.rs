@@ -5,8 +5,8 @@
 //! (the 4096² case alone takes several seconds per sample; filter it with `poisson_full_4096`).
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use photostereo::integrate::{Dct, IntegrationProblem, Integrator, Poisson};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::geometry::integrate::{Dct, IntegrationProblem, Integrator, Poisson};
 use std::hint::black_box;
 
 #[path = "support/grids.rs"]

@@ -2,10 +2,10 @@
 //! same on a DiLiGenT-like mask of about 45k pixels.
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use photostereo::estimate::{Estimator, LeastSquares};
-use photostereo::imageio::Image;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::model::image::Image;
 use photostereo::scene::ring_lights;
+use photostereo::solve::estimate::{Estimator, LeastSquares};
 use photostereo::Capture;
 
 fn capture(width: usize, height: usize, mask_radius: Option<f64>) -> Capture {
@@ -75,20 +75,20 @@ fn bench_diligent(c: &mut Criterion) {
     g.bench_function("l2", |b| {
         b.iter(|| LeastSquares.estimate(&capture, &Silent).unwrap())
     });
-    let params = photostereo::detect::DetectionParams::default();
-    let test_only = photostereo::detect::DetectionParams {
+    let params = photostereo::solve::detect::DetectionParams::default();
+    let test_only = photostereo::solve::detect::DetectionParams {
         attribute: false,
         ..params.clone()
     };
     g.bench_function("detect_test_only", |b| {
-        b.iter(|| photostereo::detect::detect(&capture, &test_only, &Silent).unwrap())
+        b.iter(|| photostereo::solve::detect::detect(&capture, &test_only, &Silent).unwrap())
     });
     g.bench_function("detect_and_attribute", |b| {
-        b.iter(|| photostereo::detect::detect(&capture, &params, &Silent).unwrap())
+        b.iter(|| photostereo::solve::detect::detect(&capture, &params, &Silent).unwrap())
     });
     g.bench_function("recursive", |b| {
         b.iter(|| {
-            photostereo::recursive::Recursive::default()
+            photostereo::method::recursive::Recursive::default()
                 .estimate(&capture, &Silent)
                 .unwrap()
         })

@@ -4,7 +4,7 @@
 //! `cargo bench -p photostereo --bench mesh -- --warm-up-time 1 --measurement-time 5`
 
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
-use photostereo::surface::{write_depth, write_mesh_obj, write_mesh_ply};
+use photostereo::io::surface::{write_depth, write_mesh_obj, write_mesh_ply};
 use std::hint::black_box;
 
 /// A smooth 2048² depth map (pixels) with its unit normals.

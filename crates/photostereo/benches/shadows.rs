@@ -3,7 +3,9 @@
 //! `cargo bench -p photostereo --bench shadows -- --warm-up-time 1 --measurement-time 3`
 
 use criterion::{criterion_group, criterion_main, Criterion};
-use photostereo::shadows::{cast_shadows, cast_shadows_ray_march, shadow_maps, ShadowParams};
+use photostereo::geometry::shadows::{
+    cast_shadows, cast_shadows_ray_march, shadow_maps, ShadowParams,
+};
 use photostereo::Lights;
 use std::hint::black_box;
 use std::path::Path;

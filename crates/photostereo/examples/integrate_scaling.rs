@@ -7,8 +7,8 @@
 //! /usr/bin/time -v target/release/examples/integrate_scaling 4096
 //! ```
 
-use photostereo::integrate::{IntegrationProblem, Integrator, Poisson};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::geometry::integrate::{IntegrationProblem, Integrator, Poisson};
 use std::time::Instant;
 
 #[path = "../benches/support/grids.rs"]

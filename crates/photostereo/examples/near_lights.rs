@@ -5,8 +5,8 @@
 //! `cargo run --release -p photostereo --example near_lights [SIZE] [SCENE...]` (env `PS_KAPPA=0.01`
 //! fixes κ instead of measuring it)
 
-use photostereo::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::scene::near::{oracle_error, synthesize_near, NearRig, NearSpec};
 use photostereo::scene::SceneKind;
 

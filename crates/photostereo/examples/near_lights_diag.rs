@@ -5,12 +5,12 @@
 //!
 //! `cargo run --release -p photostereo --example near_lights_diag [SIZE] [SCENE] [RIG]`
 
-use photostereo::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::lambert::status;
-use photostereo::metrics::angular_error_deg;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::SceneKind;
+use photostereo::solve::lambert::status;
+use photostereo::solve::metrics::angular_error_deg;
 use std::collections::BTreeMap;
 
 /// (lit lights, highlighted, usable lights, usable in true shadow, highlighted usable).
@@ -52,7 +52,7 @@ fn main() -> photostereo::Result<()> {
     // (lit lights, highlighted) -> (pixels, error sum, pixels with the right set, their error sum)
     let mut table: BTreeMap<(usize, bool), (usize, f64, usize, f64)> = BTreeMap::new();
     // The integrated surface's own normals, per class.
-    let surface_normals = photostereo::integrate::perspective::normals_from_z(
+    let surface_normals = photostereo::geometry::integrate::perspective::normals_from_z(
         rec.width,
         rec.height,
         rec.depth().unwrap(),
@@ -145,7 +145,7 @@ fn main() -> photostereo::Result<()> {
                 img[(r * 2 * w + c) * 3 + ch]
             })
             .collect();
-        photostereo::imageio::write_png8(std::path::Path::new(&path), sw, sh, 3, &big)?;
+        photostereo::io::imageio::write_png8(std::path::Path::new(&path), sw, sh, 3, &big)?;
     }
     println!(
         "{} {}: mean {:.3} deg over {count} pixels",

@@ -7,12 +7,14 @@
 //! with objects among ball bear cat buddha cat-psm gray horse owl rock (default: all) and
 //! methods among l2 coleman-jain barsky-petrou recursive (default: all).
 
-use photostereo::capture::CaptureFiles;
-use photostereo::engine::{reconstruct, Method, Params};
-use photostereo::groundtruth::read_normal_map;
-use photostereo::lambert::{shadow_labels, Estimate};
-use photostereo::metrics::{circle_from_mask, evaluate, quantile, roughness_deg, sphere_errors};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::io::groundtruth::read_normal_map;
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::method::engine::{reconstruct, Method, Params};
+use photostereo::solve::lambert::{shadow_labels, Estimate};
+use photostereo::solve::metrics::{
+    circle_from_mask, evaluate, quantile, roughness_deg, sphere_errors,
+};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -63,9 +65,11 @@ fn main() {
         let mut capture = files.load(&Silent).unwrap();
         // PS_REFINE=1 refines the lights from the readings first.
         if std::env::var("PS_REFINE").is_ok_and(|v| v == "1") {
-            capture
-                .refine_lights(&photostereo::calibrate::RefineParams::default())
-                .unwrap();
+            photostereo::solve::refine::refine_capture_lights(
+                &mut capture,
+                &photostereo::solve::refine::RefineParams::default(),
+            )
+            .unwrap();
             if let Some(note) = capture.notes.last() {
                 eprintln!("{object}: {note}");
             }

@@ -6,8 +6,8 @@
 //! cargo run --release --example viewer_large -- [WIDTH HEIGHT [FOLDER]]
 //! (default 8000 6000 ./viewer-large), then open FOLDER/index.html.
 
-use photostereo::export::{write_npy_f32, write_npy_u8};
-use photostereo::viewer::{write_view, ViewOptions};
+use photostereo::io::export::{write_npy_f32, write_npy_u8};
+use photostereo::io::viewer::{write_view, ViewOptions};
 use rayon::prelude::*;
 use std::path::PathBuf;
 use std::time::Instant;

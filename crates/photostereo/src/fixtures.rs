@@ -1,8 +1,8 @@
 //! Test fixtures shared by the unit tests of several modules: analytic Lambertian scenes.
 
-use crate::capture::Capture;
-use crate::imageio::Image;
-use crate::lights::Lights;
+use crate::model::capture::Capture;
+use crate::model::image::Image;
+use crate::model::lights::Lights;
 
 /// A Lambertian sphere of radius `r` px centred in a `size`² frame, RGB albedo (0.8, 0.6, 0.4),
 /// rendered without shadows: the mask keeps only pixels lit by every light.

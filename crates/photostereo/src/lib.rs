@@ -38,50 +38,22 @@
 //! Beside them: [`scene`] renders ground-truth scenes and [`calibrate`] finds lights from a
 //! mirror sphere. The library never prints: progress goes through [`progress::Progress`].
 
+pub mod app;
+pub mod base;
 pub mod calibrate;
-pub mod capture;
-pub mod compare;
-pub mod consensus;
-pub mod detect;
-pub mod engine;
-pub mod error;
-pub mod estimate;
-pub mod export;
-pub mod figure;
 #[cfg(test)]
 pub(crate) mod fixtures;
-pub mod groundtruth;
-pub mod imageio;
-pub mod indicators;
-pub mod integrate;
-pub mod lambert;
-pub mod lightmodel;
-pub mod lights;
-pub mod limits;
-pub mod maps;
-pub mod matfile;
-pub mod memory;
-pub mod metrics;
-pub mod near_lobe;
-pub mod nearlayout;
-pub mod pipeline;
-pub mod plausibility;
-pub mod progress;
-pub mod recursive;
-pub mod report;
-pub mod rng;
+pub mod geometry;
+pub mod io;
+pub mod method;
+pub mod model;
 pub mod scene;
-pub mod shadows;
-pub mod stats;
-pub mod statusmap;
-pub mod store;
-pub mod surface;
-pub mod tiles;
-pub mod viewer;
+pub mod solve;
 
-pub use capture::{Capture, CaptureFiles};
-pub use engine::{reconstruct, Method, Params, Reconstruction};
-pub use error::{Error, Result};
-pub use estimate::{Estimate, Estimator};
-pub use lights::Lights;
-pub use pipeline::RunOptions;
+pub use app::pipeline::RunOptions;
+pub use base::error::{Error, Result};
+pub use io::layouts::CaptureFiles;
+pub use method::engine::{reconstruct, Method, Params, Reconstruction};
+pub use model::capture::Capture;
+pub use model::lights::Lights;
+pub use solve::estimate::{Estimate, Estimator};

@@ -4,10 +4,10 @@
 //! highlights by the methods that drop lights. Measured: of 900 such readings, coleman-jain drops
 //! 21, barsky-petrou 676, recursive 862, all labelled shadows.
 
-use photostereo::engine::{reconstruct, Method, Params};
-use photostereo::lambert::status;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::method::engine::{reconstruct, Method, Params};
 use photostereo::scene::{synthesize, Brdf, Rig, SceneKind, SynthSpec};
+use photostereo::solve::lambert::status;
 
 #[test]
 fn noisy_attached_shadows_are_labelled_shadows() {

@@ -3,12 +3,13 @@
 //! experiment that explains the difference to `lights.reference.txt`.
 
 use nalgebra::{DMatrix, DVector};
+use photostereo::base::progress::Silent;
 use photostereo::calibrate::{
-    calibrate, fit_mask_circle, reflect_view, Calibration, CalibrationOptions, Circle, SphereFiles,
+    calibrate, fit_mask_circle, reflect_view, Calibration, CalibrationOptions, Circle,
 };
-use photostereo::estimate::{Estimator, LeastSquares};
-use photostereo::metrics::angular_error_deg;
-use photostereo::progress::Silent;
+use photostereo::io::layouts::sphere::SphereFiles;
+use photostereo::solve::estimate::{Estimator, LeastSquares};
+use photostereo::solve::metrics::angular_error_deg;
 use photostereo::{Capture, Lights};
 use std::path::PathBuf;
 

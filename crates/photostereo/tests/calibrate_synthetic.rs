@@ -5,7 +5,7 @@
 use photostereo::calibrate::{
     calibrate, fit_mask_circle, matte_intensities, CalibrationOptions, Circle, WarningKind,
 };
-use photostereo::imageio::Image;
+use photostereo::model::image::Image;
 
 /// A small deterministic generator (xorshift64*) with Gaussian samples (Box–Muller).
 struct Rng(u64);

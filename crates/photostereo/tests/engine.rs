@@ -4,15 +4,15 @@
 //! errors that name the parameter.
 
 use ndarray::{Array2, Array4, Axis};
-use photostereo::capture::{Capture, Stack};
-use photostereo::engine::{reconstruct, Method, Params};
-use photostereo::imageio::Image;
-use photostereo::lambert::status;
-use photostereo::lights::Lights;
-use photostereo::metrics::angular_error_deg;
-use photostereo::progress::Silent;
-use photostereo::rng::Pcg32;
+use photostereo::base::progress::Silent;
+use photostereo::base::rng::Pcg32;
+use photostereo::method::engine::{reconstruct, Method, Params};
+use photostereo::model::capture::{Capture, Stack};
+use photostereo::model::image::Image;
+use photostereo::model::lights::Lights;
 use photostereo::scene::{lambert_capture, ring_lights, sphere_on_plane, Scene};
+use photostereo::solve::lambert::status;
+use photostereo::solve::metrics::angular_error_deg;
 
 fn ring(n: usize) -> Lights {
     ring_lights(n, 35.0)
@@ -269,7 +269,7 @@ fn parameter_errors_name_the_parameter() {
     let cases: Vec<(Params, &str)> = vec![
         (
             Params {
-                detection: photostereo::detect::DetectionParams {
+                detection: photostereo::solve::detect::DetectionParams {
                     relative_noise: Some(-0.5),
                     ..Default::default()
                 },
@@ -279,7 +279,7 @@ fn parameter_errors_name_the_parameter() {
         ),
         (
             Params {
-                recursive: photostereo::recursive::RecursiveParams {
+                recursive: photostereo::method::recursive::RecursiveParams {
                     max_iterations: 0,
                     ..Default::default()
                 },
@@ -289,7 +289,7 @@ fn parameter_errors_name_the_parameter() {
         ),
         (
             Params {
-                integration: photostereo::integrate::IntegrationParams {
+                integration: photostereo::geometry::integrate::IntegrationParams {
                     unreliable_weight: 1.5,
                     ..Default::default()
                 },

@@ -1,5 +1,5 @@
 //! Fuzzing every reader on the stable toolchain, inside the normal test run: valid seed files
-//! of each format are mutated deterministically (PCG32 from `photostereo::rng`) and fed to the
+//! of each format are mutated deterministically (PCG32 from `photostereo::base::rng`) and fed to the
 //! reader. Every outcome must be `Ok` or an `Error`: a panic fails the test (caught with
 //! `catch_unwind`, the input saved under the system's temporary folder), and so does any single
 //! allocation above [`MAX_ALLOCATION`] (a counting global allocator watches them).
@@ -8,7 +8,7 @@
 //! for that long instead; `FUZZ_SEED` changes the sequence. `cargo fuzz` targets for longer,
 //! coverage-guided runs live in `fuzz/` (not a workspace member; needs a nightly toolchain).
 
-use photostereo::rng::Pcg32;
+use photostereo::base::rng::Pcg32;
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 use std::io::Cursor;
@@ -602,14 +602,14 @@ fn list_folder() -> tempfile::TempDir {
     let sub = dir.path().join("obj");
     std::fs::create_dir(&sub).unwrap();
     for name in ["a.png", "b.png", "c.png", "mask.png"] {
-        photostereo::imageio::write_png8(&sub.join(name), 2, 2, 1, &[1, 2, 3, 4]).unwrap();
+        photostereo::io::imageio::write_png8(&sub.join(name), 2, 2, 1, &[1, 2, 3, 4]).unwrap();
     }
     dir
 }
 
 /// Text as the text readers see it: the bytes' byte-order mark removed, UTF-8 checked.
 fn text(bytes: &[u8]) -> Option<String> {
-    photostereo::limits::text_from_bytes(bytes).ok()
+    photostereo::io::limits::text_from_bytes(bytes).ok()
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -629,7 +629,7 @@ fn fuzz_regressions() {
     for f in files {
         let bytes = std::fs::read(&f).unwrap();
         LARGEST.with(|l| l.set(0));
-        let r = std::panic::catch_unwind(|| photostereo::imageio::decode_image(&bytes).is_ok());
+        let r = std::panic::catch_unwind(|| photostereo::io::imageio::decode_image(&bytes).is_ok());
         assert!(matches!(r, Ok(false)), "{}: {r:?}", f.display());
         let largest = LARGEST.with(Cell::get);
         assert!(
@@ -641,7 +641,7 @@ fn fuzz_regressions() {
 }
 
 fn decode(bytes: &[u8]) -> bool {
-    photostereo::imageio::decode_image(bytes).is_ok()
+    photostereo::io::imageio::decode_image(bytes).is_ok()
 }
 
 #[test]
@@ -673,14 +673,14 @@ fn fuzz_exr() {
 #[test]
 fn fuzz_npy() {
     fuzz("npy", npy_seeds(), byte_mutations, |b| {
-        photostereo::groundtruth::decode_npy(b).is_ok()
+        photostereo::io::groundtruth::decode_npy(b).is_ok()
     });
 }
 
 #[test]
 fn fuzz_mat() {
     fuzz("mat", mat_seeds(), byte_mutations, |b| {
-        photostereo::matfile::parse_mat(b, None).is_ok()
+        photostereo::io::matfile::parse_mat(b, None).is_ok()
     });
 }
 
@@ -706,7 +706,7 @@ c.png
     ];
     let list = root.join("obj").join("list.txt");
     fuzz("list_file", seeds, text_mutations, move |b| {
-        text(b).is_some_and(|t| photostereo::capture::parse_list_file(&t, &list).is_ok())
+        text(b).is_some_and(|t| photostereo::io::layouts::parse_list_file(&t, &list).is_ok())
     });
     let _ = std::fs::remove_dir_all(root);
 }
@@ -775,9 +775,13 @@ fn fuzz_intensity_file() {
     .unwrap();
     fuzz("intensity_file", seeds, text_mutations, move |b| {
         text(b).is_some_and(|t| {
-            photostereo::lights::parse_intensity_rows(&t, Path::new("intensities.txt"), Some(4))
-                .and_then(|rows| lights.clone().with_intensities(rows))
-                .is_ok()
+            photostereo::model::lights::parse_intensity_rows(
+                &t,
+                Path::new("intensities.txt"),
+                Some(4),
+            )
+            .and_then(|rows| lights.clone().with_intensities(rows))
+            .is_ok()
         })
     });
 }
@@ -802,7 +806,7 @@ img4.jpg -0.3 -0.3 0.9
     ];
     fuzz("lp_file", seeds, text_mutations, |b| {
         text(b).is_some_and(|t| {
-            photostereo::nearlayout::parse_lp(&t, Path::new("capture.lp"))
+            photostereo::io::layouts::near::parse_lp(&t, Path::new("capture.lp"))
                 .and_then(|(_, l)| l.check_rank())
                 .is_ok()
         })
@@ -838,7 +842,7 @@ fn fuzz_near_layout() {
     ];
     fuzz("near_positions", seeds, text_mutations, move |b| {
         text(b).is_some_and(|t| {
-            photostereo::nearlayout::parse_near_layout(
+            photostereo::io::layouts::near::parse_near_layout(
                 Some(k),
                 &t,
                 None,
@@ -857,6 +861,6 @@ fn fuzz_near_layout() {
         b"3772.08 0 305.875\n0 3759.01 255.125\n0 0 1\n".to_vec(),
     ];
     fuzz("camera_file", seeds, text_mutations, move |b| {
-        text(b).is_some_and(|t| photostereo::nearlayout::parse_camera(&t, names[0]).is_ok())
+        text(b).is_some_and(|t| photostereo::io::layouts::near::parse_camera(&t, names[0]).is_ok())
     });
 }

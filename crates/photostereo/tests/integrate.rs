@@ -2,11 +2,11 @@
 //! irregular masks; agreement of the full-rectangle methods; filling of zero-weight holes; bad
 //! normals; and DiLiGenT's ball (ground-truth normals → depth → normals).
 
-use photostereo::integrate::{
+use photostereo::base::progress::Silent;
+use photostereo::geometry::integrate::{
     curl_map, gradients_from_normals, integrate_normals, normals_from_depth, Dct, Fft,
     InitialGuess, IntegrationProblem, Integrator, IntegratorKind, Paths, Poisson, Prior,
 };
-use photostereo::progress::Silent;
 
 const W: usize = 128;
 const H: usize = 96;
@@ -557,8 +557,8 @@ fn diligent(object: &str) -> (usize, usize, Vec<[f32; 3]>, Vec<bool>) {
         "/../../../shared/data/diligent"
     ))
     .join(format!("{object}PNG"));
-    let gt = photostereo::groundtruth::read_normal_map(&dir.join("Normal_gt.mat")).unwrap();
-    let (h, w, mask) = photostereo::imageio::read_mask(&dir.join("mask.png")).unwrap();
+    let gt = photostereo::io::groundtruth::read_normal_map(&dir.join("Normal_gt.mat")).unwrap();
+    let (h, w, mask) = photostereo::io::imageio::read_mask(&dir.join("mask.png")).unwrap();
     assert_eq!((w, h), (gt.width, gt.height));
     (w, h, gt.normals, mask)
 }
@@ -573,7 +573,7 @@ fn rederived_error(object: &str, kind: IntegratorKind) -> f64 {
     let (mut s, mut n) = (0f64, 0usize);
     for i in 0..w * h {
         if valid[i] {
-            s += photostereo::metrics::angular_error_deg(back[i], normals[i]);
+            s += photostereo::solve::metrics::angular_error_deg(back[i], normals[i]);
             n += 1;
         }
     }
@@ -635,7 +635,7 @@ fn print_diligent_integration_figures() {
             if !valid[i] {
                 continue;
             }
-            let e = photostereo::metrics::angular_error_deg(back[i], normals[i]);
+            let e = photostereo::solve::metrics::angular_error_deg(back[i], normals[i]);
             let border = !inner[i];
             if e > 5.0 {
                 big += 1;
@@ -743,7 +743,7 @@ fn poisson_iterations_do_not_grow_with_the_grid() {
 /// zero, non-finite or back-facing normal or a zero trust, zeros outside the mask.
 #[test]
 fn weighted_normals_from_mask_pixels_equal_the_full_frame_rule() {
-    use photostereo::integrate::{weighted_normals, weighted_normals_at};
+    use photostereo::geometry::integrate::{weighted_normals, weighted_normals_at};
     let mask = irregular_mask();
     let pixels: Vec<u32> = (0..W * H).filter(|&i| mask[i]).map(|i| i as u32).collect();
     let normals: Vec<[f32; 3]> = (0..pixels.len())

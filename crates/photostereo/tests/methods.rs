@@ -2,11 +2,11 @@
 //! precision and recall, the baselines' ordering, and the recursive method's advantage
 //! (issues 4 and 6). Every figure is measured against the renderer's ground truth.
 
-use photostereo::detect::{detect, DetectionParams};
-use photostereo::engine::{reconstruct, reconstruct_with_truth, Method, Params};
-use photostereo::metrics::evaluate;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::method::engine::{reconstruct, reconstruct_with_truth, Method, Params};
 use photostereo::scene::{synthesize, Brdf, Rendered, Rig, SceneKind, SynthSpec};
+use photostereo::solve::detect::{detect, DetectionParams};
+use photostereo::solve::metrics::evaluate;
 
 const NOISE: f64 = 0.005;
 
@@ -117,7 +117,7 @@ fn lambertian_deviation(clean: &Rendered) -> Vec<(f64, f64)> {
     let capture = clean.capture().unwrap();
     let n = capture.n_lights();
     let c = capture.channels;
-    let a = photostereo::detect::null_space(&capture.lights);
+    let a = photostereo::solve::detect::null_space(&capture.lights);
     (0..capture.n_pixels())
         .map(|p| {
             let i = capture.pixels[p] as usize;

@@ -2,8 +2,8 @@
 //! approximation and against the oracle, on small near-light scenes; the near-light layout
 //! read back from disk.
 
-use photostereo::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::scene::near::{
     oracle_error, synthesize_near, write_near_capture, NearRendered, NearRig, NearSpec,
 };
@@ -201,9 +201,9 @@ fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
 /// differentiated back are closer to the truth than with orthographic integration.
 #[test]
 fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic() {
-    use photostereo::integrate::perspective::{normals_from_z, perspective_surface};
-    use photostereo::integrate::{normals_from_depth, surface_from_normals, Poisson};
-    use photostereo::lightmodel::Camera;
+    use photostereo::geometry::integrate::perspective::{normals_from_z, perspective_surface};
+    use photostereo::geometry::integrate::{normals_from_depth, surface_from_normals, Poisson};
+    use photostereo::model::lightmodel::Camera;
     let root = std::path::PathBuf::from(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../../../shared/data/diligent"
@@ -211,7 +211,7 @@ fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic()
     let camera = Camera::new(3772.08, 3759.01, 305.875, 255.125).unwrap();
     for object in ["ballPNG", "bearPNG", "catPNG"] {
         let map =
-            photostereo::groundtruth::read_normal_map(&root.join(object).join("Normal_gt.mat"))
+            photostereo::io::groundtruth::read_normal_map(&root.join(object).join("Normal_gt.mat"))
                 .unwrap();
         let (w, h) = (map.width, map.height);
         let mask: Vec<bool> = map.normals.iter().map(|n| *n != [0.0; 3]).collect();
@@ -234,7 +234,7 @@ fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic()
             .collect();
         let mean_error = |normals: &[[f32; 3]]| {
             let (_, s) =
-                photostereo::metrics::evaluate(normals, &map.normals, Some(&inner)).unwrap();
+                photostereo::solve::metrics::evaluate(normals, &map.normals, Some(&inner)).unwrap();
             s.mean_deg
         };
         let ortho = surface_from_normals(
@@ -244,7 +244,7 @@ fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic()
             Some(&mask),
             None,
             &Poisson::default(),
-            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            photostereo::geometry::integrate::DEFAULT_MAX_SLOPE,
             &Silent,
         )
         .unwrap();
@@ -258,7 +258,7 @@ fn perspective_integration_fits_diligent_ground_truth_better_than_orthographic()
             &camera,
             1500.0,
             &Poisson::default(),
-            photostereo::integrate::DEFAULT_MAX_SLOPE,
+            photostereo::geometry::integrate::DEFAULT_MAX_SLOPE,
             &Silent,
         )
         .unwrap();
@@ -283,14 +283,14 @@ fn point_light_shadow_maps_match_the_rendered_shadows() {
     let t = &r.rendered.truth;
     let capture = r.capture().unwrap();
     let near = capture.lights.near.as_deref().unwrap();
-    let maps = photostereo::lightmodel::near_shadow_maps(
+    let maps = photostereo::model::lightmodel::near_shadow_maps(
         near,
         &t.depth,
         &t.normals,
         &t.mask,
         64,
         64,
-        &photostereo::shadows::ShadowParams::default(),
+        &photostereo::geometry::shadows::ShadowParams::default(),
     )
     .unwrap();
     let (mut agree, mut total, mut cast_truth, mut cast_found) = (0usize, 0usize, 0usize, 0usize);

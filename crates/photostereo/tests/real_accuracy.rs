@@ -3,14 +3,15 @@
 //! every method, the `gray` sphere against its outline, and the recursion's convergence report.
 //! The figures behind them: `cargo run --release -p photostereo --example real_figures`.
 
-use photostereo::capture::{Capture, CaptureFiles};
-use photostereo::engine::{reconstruct, Method, Params};
-use photostereo::lambert::status;
-use photostereo::metrics::{circle_from_mask, roughness_deg, sphere_errors};
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::method::engine::{reconstruct, Method, Params};
+use photostereo::model::capture::Capture;
 use photostereo::scene::{
     lambert_capture, ring_lights, sphere_on_plane, synthesize, Brdf, Rig, SceneKind, SynthSpec,
 };
+use photostereo::solve::lambert::status;
+use photostereo::solve::metrics::{circle_from_mask, roughness_deg, sphere_errors};
 use std::path::PathBuf;
 
 fn data(rel: &str) -> PathBuf {
@@ -29,7 +30,7 @@ fn psm(name: &str) -> Capture {
     .unwrap()
 }
 
-fn run(capture: &Capture, method: Method) -> photostereo::engine::Reconstruction {
+fn run(capture: &Capture, method: Method) -> photostereo::method::engine::Reconstruction {
     let params = Params {
         method,
         integrate: false,
@@ -99,7 +100,7 @@ fn psm_shadow_labels_completeness_and_sphere() {
             };
             let (a, b) = (mean(&l2.normals), mean(&rec.normals));
             let p90 = |n: &[[f32; 3]]| {
-                photostereo::metrics::quantile(&mut sphere_errors(n, w, circle, 0.9), 0.9)
+                photostereo::solve::metrics::quantile(&mut sphere_errors(n, w, circle, 0.9), 0.9)
             };
             let (pa, pb) = (p90(&l2.normals), p90(&rec.normals));
             println!(

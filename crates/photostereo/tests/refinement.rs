@@ -1,13 +1,13 @@
 //! The recursive method's surface prior and the lights' refinement from the readings (issue
 //! 19), against ground truth: rendered scenes with known normals and known lights.
 
-use photostereo::calibrate::{refine_lights, RefineParams};
-use photostereo::capture::{CaptureFiles, LoadOptions};
-use photostereo::engine::{reconstruct, Method, Params};
-use photostereo::memory::{Force, Layout};
-use photostereo::metrics::evaluate;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::io::layouts::{CaptureFiles, LoadOptions};
+use photostereo::method::engine::{reconstruct, Method, Params};
+use photostereo::model::memory::{Force, Layout};
 use photostereo::scene::{synth_to_folder, synthesize, Brdf, Rendered, Rig, SceneKind, SynthSpec};
+use photostereo::solve::metrics::evaluate;
+use photostereo::solve::refine::{refine_capture_lights, refine_lights, RefineParams};
 
 fn render(kind: SceneKind, rig: Rig, brdf: Brdf, noise: f64, seed: u64) -> Rendered {
     let mut spec = SynthSpec::new(kind, rig);
@@ -169,7 +169,7 @@ fn refinement_recovers_miscalibrated_lights() {
     capture.apply_light_refinement(refined).unwrap();
     assert!(capture.notes.last().unwrap().contains("lights refined"));
     // Once only.
-    assert!(!capture.refine_lights(&RefineParams::default()).unwrap());
+    assert!(!refine_capture_lights(&mut capture, &RefineParams::default()).unwrap());
 }
 
 /// Exact lights stay close to where they are on shiny scenes (twenty lights, 20% of the
@@ -236,8 +236,8 @@ fn refinement_in_tiles_is_the_refinement_held_whole() {
     };
     let mut tiled = files.load_with(&Silent, &options).unwrap();
     assert!(tiled.is_tiled());
-    assert!(whole.refine_lights(&RefineParams::default()).unwrap());
-    assert!(tiled.refine_lights(&RefineParams::default()).unwrap());
+    assert!(refine_capture_lights(&mut whole, &RefineParams::default()).unwrap());
+    assert!(refine_capture_lights(&mut tiled, &RefineParams::default()).unwrap());
     assert_eq!(whole.light_refinement, tiled.light_refinement);
     assert_eq!(whole.lights.directions, tiled.lights.directions);
     let stride = whole.n_lights() * whole.channels;

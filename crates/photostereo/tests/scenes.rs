@@ -1,18 +1,18 @@
 //! Ground-truth scenes: geometry, shadows, reflectance, noise, files and determinism, each
 //! checked against an independent truth (analytic formulas, brute force, least squares).
 
-use photostereo::capture::CaptureFiles;
-use photostereo::estimate::{Estimator, LeastSquares};
-use photostereo::groundtruth::read_normal_map;
-use photostereo::lights::Lights;
-use photostereo::metrics::evaluate;
-use photostereo::progress::Silent;
+use photostereo::base::progress::Silent;
+use photostereo::io::groundtruth::read_normal_map;
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::model::lights::Lights;
 use photostereo::scene::rigs::slant_tilt_lights;
 use photostereo::scene::rng::Pcg32;
 use photostereo::scene::{
     cast_shadows, ray_march_shadows, render, synth_to_folder, synthesize, Brdf, Frame,
     LightIntensities, MaskShape, RenderOptions, Rig, Scene, SceneKind, SynthSpec,
 };
+use photostereo::solve::estimate::{Estimator, LeastSquares};
+use photostereo::solve::metrics::evaluate;
 use std::path::Path;
 
 fn noise_free(brdf: Brdf) -> RenderOptions {
@@ -466,7 +466,7 @@ fn written_ground_truth_has_the_documented_shapes() {
             assert_eq!(hl[[k, row, col]], r.truth.highlight[k][i]);
         }
     }
-    let (h, w, mask) = photostereo::imageio::read_mask(&out.join("mask.png")).unwrap();
+    let (h, w, mask) = photostereo::io::imageio::read_mask(&out.join("mask.png")).unwrap();
     assert_eq!((h, w), (40, 40));
     assert_eq!(mask, r.truth.mask);
     assert!(mask.iter().any(|&m| !m), "bumps use the irregular mask");

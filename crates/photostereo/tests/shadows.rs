@@ -1,11 +1,11 @@
-//! The horizon sweep of `photostereo::shadows` against independent truths: the per-pixel ray
+//! The horizon sweep of `photostereo::geometry::shadows` against independent truths: the per-pixel ray
 //! march, `scene::ray_march_shadows`, analytic shadow lengths and terminator areas.
 //! Run with `--nocapture` to see the measured agreement per case.
 
 mod shadows_scenes;
 
+use photostereo::geometry::shadows::*;
 use photostereo::scene;
-use photostereo::shadows::*;
 use shadows_scenes::*;
 
 /// Ray-march step (pixels) of the reference in these tests.

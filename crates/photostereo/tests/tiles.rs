@@ -4,10 +4,11 @@
 //! spill file never outlives the load (success, error, cancellation); a budget too small is
 //! refused with the smallest that works.
 
-use photostereo::capture::{Capture, CaptureFiles, LoadOptions};
-use photostereo::engine::{reconstruct, Method, Params, Reconstruction};
-use photostereo::memory::{Force, Layout};
-use photostereo::progress::{Progress, Silent};
+use photostereo::base::progress::{Progress, Silent};
+use photostereo::io::layouts::{CaptureFiles, LoadOptions};
+use photostereo::method::engine::{reconstruct, Method, Params, Reconstruction};
+use photostereo::model::capture::Capture;
+use photostereo::model::memory::{Force, Layout};
 use photostereo::scene::{synth_to_folder, Rig, SceneKind, SynthSpec};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};

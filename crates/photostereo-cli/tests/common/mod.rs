@@ -4,7 +4,7 @@
 
 #![allow(dead_code)]
 
-use photostereo::imageio::{write_png16, write_png8};
+use photostereo::io::imageio::{write_png16, write_png8};
 use std::path::Path;
 
 /// The binary under test.

@@ -5,8 +5,8 @@
 //! Image coordinates: `x` = column, `y` = row (row 0 at the top), in pixels, with the centre of
 //! pixel (col, row) at (col, row).
 
-use crate::error::{Error, Result};
-use crate::imageio::Image;
+use crate::base::error::{Error, Result};
+use crate::model::image::Image;
 use nalgebra::{Matrix3, Vector3};
 
 /// A circle in image coordinates (pixels; `cx` = column, `cy` = row of the centre).

@@ -4,7 +4,7 @@
 //! Image coordinates: `x` = column, `y` = row, pixels, centre of pixel (col, row) at (col, row).
 
 use super::circle::{grey_at, label_regions, Circle};
-use crate::imageio::Image;
+use crate::model::image::Image;
 
 /// Parameters of the highlight search.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]

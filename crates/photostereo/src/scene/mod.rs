@@ -19,7 +19,7 @@ pub mod near;
 pub mod reflectance;
 pub mod render;
 pub mod rigs;
-pub use crate::rng;
+pub use crate::base::rng;
 pub mod shadows;
 pub mod surfaces;
 
@@ -32,10 +32,10 @@ pub use rigs::Rig;
 pub use shadows::{cast_shadows, ray_march_shadows};
 pub use surfaces::{MaskShape, SceneKind};
 
-use crate::capture::Capture;
-use crate::error::{Error, Result};
-use crate::imageio::Image;
-use crate::lights::Lights;
+use crate::base::error::{Error, Result};
+use crate::model::capture::Capture;
+use crate::model::image::Image;
+use crate::model::lights::Lights;
 use rayon::prelude::*;
 
 /// One sampled pixel: height, unit normal, albedo, inside the mask.
@@ -132,14 +132,14 @@ impl Scene {
         mask: Option<MaskShape>,
         textured: bool,
     ) -> Result<Scene> {
-        let side = crate::limits::MAX_IMAGE_SIDE as usize;
+        let side = crate::model::image::MAX_IMAGE_SIDE as usize;
         if !(8..=side).contains(&width)
             || !(8..=side).contains(&height)
-            || (width * height) as u64 > crate::limits::MAX_IMAGE_PIXELS
+            || (width * height) as u64 > crate::model::image::MAX_IMAGE_PIXELS
         {
             return Err(Error::invalid(format!(
                 "scene size {width}×{height}: expected 8 to {side} pixels a side and at most {} pixels",
-                crate::limits::MAX_IMAGE_PIXELS
+                crate::model::image::MAX_IMAGE_PIXELS
             )));
         }
         let mask = mask.unwrap_or(kind.default_mask());

@@ -16,11 +16,11 @@ use super::render::{gather_lights, GroundTruth, LightResult, Rendered};
 use super::rng::{splitmix64, Pcg32};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Brdf;
-use crate::capture::Capture;
-use crate::error::{Error, Result};
-use crate::imageio::Image;
-use crate::lightmodel::{dot, norm, sub, Camera, NearLights};
-use crate::lights::Lights;
+use crate::base::error::{Error, Result};
+use crate::model::capture::Capture;
+use crate::model::image::Image;
+use crate::model::lightmodel::{dot, norm, sub, Camera, NearLights};
+use crate::model::lights::Lights;
 use rayon::prelude::*;
 use std::path::Path;
 use std::sync::Arc;
@@ -556,9 +556,13 @@ pub fn oracle_error(near: &NearRendered) -> Result<f64> {
             usable[p * n + k] = !truth.shadow[k][i as usize];
         }
     }
-    let est = crate::lambert::solve_subsets(&capture, Some(&usable), &crate::progress::Silent);
+    let est = crate::solve::lambert::solve_subsets(
+        &capture,
+        Some(&usable),
+        &crate::base::progress::Silent,
+    );
     let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
-    let (_, stats) = crate::metrics::evaluate(&normals, &truth.normals, Some(&truth.mask))?;
+    let (_, stats) = crate::solve::metrics::evaluate(&normals, &truth.normals, Some(&truth.mask))?;
     Ok(stats.mean_deg)
 }
 
@@ -569,8 +573,11 @@ pub fn near_synth_to_folder(
     output: &Path,
     force: bool,
 ) -> Result<(NearRendered, std::path::PathBuf)> {
-    let folder =
-        crate::export::OutputFolder::create(output, force, crate::export::OutputKind::Synth)?;
+    let folder = crate::io::export::OutputFolder::create(
+        output,
+        force,
+        crate::io::export::OutputKind::Synth,
+    )?;
     let rendered = synthesize_near(spec)?;
     write_near_capture(folder.path(), &rendered)?;
     let target = folder.commit()?;

@@ -7,7 +7,7 @@
 //! surface facing the half vector of a light at slant 35° (the `square4` rig) reaches a specular
 //! value of about 0.5–0.6 of full scale: with an albedo of 0.6–0.8 such highlights clip at white.
 
-use crate::error::{Error, Result};
+use crate::base::error::{Error, Result};
 use std::fmt;
 use std::str::FromStr;
 
@@ -112,7 +112,7 @@ impl fmt::Display for Brdf {
 impl FromStr for Brdf {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        crate::error::parse_name(s, Brdf::ALL, Brdf::name, "reflectance model")
+        crate::base::error::parse_name(s, Brdf::ALL, Brdf::name, "reflectance model")
     }
 }
 

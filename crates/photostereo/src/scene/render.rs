@@ -19,11 +19,12 @@ use super::rng::{splitmix64, Pcg32};
 use super::shadows::{cast_shadows_in, ShadowField};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Scene;
-use crate::capture::Capture;
-use crate::error::{Error, Result};
-use crate::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder, OutputKind};
-use crate::imageio::{write_png16, write_png8, Image};
-use crate::lights::Lights;
+use crate::base::error::{Error, Result};
+use crate::io::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder, OutputKind};
+use crate::io::imageio::{write_png16, write_png8};
+use crate::model::capture::Capture;
+use crate::model::image::Image;
+use crate::model::lights::Lights;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -589,7 +590,7 @@ pub fn synth_streamed(
     spec: &SynthSpec,
     output: &Path,
     force: bool,
-    progress: &dyn crate::progress::Progress,
+    progress: &dyn crate::base::progress::Progress,
 ) -> Result<(CaptureStats, Lights, PathBuf)> {
     use std::io::Write;
     let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
@@ -626,7 +627,7 @@ pub fn synth_streamed(
     let field = ShadowField::new(&scene);
     progress.begin("rendering", n as u64);
     for (k, name) in names.iter().enumerate() {
-        crate::progress::check_cancelled(progress)?;
+        crate::base::progress::check_cancelled(progress)?;
         let r = render_light(
             &scene,
             &field,

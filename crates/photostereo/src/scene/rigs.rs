@@ -2,8 +2,8 @@
 //! z toward the camera) from the surface toward the light. Slant = angle from the viewing axis
 //! (+z); tilt = angle in the image plane from +x, counter-clockwise (toward +y, the image's top).
 
-use crate::error::{Error, Result};
-use crate::lights::Lights;
+use crate::base::error::{Error, Result};
+use crate::model::lights::Lights;
 use std::path::{Path, PathBuf};
 
 /// Slant of the `square4` rig, degrees (the paper's rig).

@@ -8,7 +8,7 @@
 //! do not depend on N. Steep walls are tanh ramps about 1.5 pixels wide (their width is given in
 //! pixels, so they stay sharp at every size) and keep n_z > 0 everywhere.
 
-use crate::error::{Error, Result};
+use crate::base::error::{Error, Result};
 use std::fmt;
 use std::str::FromStr;
 
@@ -157,7 +157,7 @@ impl fmt::Display for SceneKind {
 impl FromStr for SceneKind {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
-        crate::error::parse_name(s, SceneKind::ALL, SceneKind::name, "scene")
+        crate::base::error::parse_name(s, SceneKind::ALL, SceneKind::name, "scene")
     }
 }
 

@@ -1,0 +1,5 @@
+//! Drivers over files: `run` (load → reconstruct → evaluate → report → export) and `compare` (every
+//! method on one capture).
+
+pub mod compare;
+pub mod pipeline;

@@ -1,0 +1,5 @@
+//! Shape from normals: integration into depth and the shadows a height field casts. Uses
+//! [`crate::model`] and [`crate::base`].
+
+pub mod integrate;
+pub mod shadows;

@@ -1,0 +1,494 @@
+//! Decoding a capture's files into a [`Capture`]: whole in memory as `f32` when it fits the
+//! memory budget, else into a tiled sample store in memory or in a spill file
+//! (ALGORITHMS.md §10), with the refusals of a budget too small.
+
+use super::CaptureFiles;
+use crate::base::error::{Error, Result};
+use crate::base::progress::Progress;
+use crate::io::imageio::{read_image, read_mask};
+use crate::model::capture::{interleave, light_scale, Capture, CaptureParts};
+use crate::model::image::Image;
+use crate::model::memory::{CaptureSize, Force, Layout, MemoryPlan};
+use crate::model::store::{Decode, SampleStore, SampleType, Tiling};
+use rayon::prelude::*;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+impl CaptureFiles {
+    /// Decodes the images in parallel and builds the capture, within the default memory
+    /// budget ([`crate::model::memory::default_budget`]).
+    pub fn load(&self, progress: &dyn Progress) -> Result<Capture> {
+        self.load_with(progress, &LoadOptions::default())
+    }
+
+    /// Decodes the images and builds the capture within `options.budget`: whole in memory as
+    /// `f32` when that fits, else in tiles (see [`crate::model::memory`]); the plan is in the
+    /// capture's `memory`. A budget too small for the capture's full-frame stages is refused
+    /// (naming `memory_limit` and the smallest budget that works) before the samples are read.
+    pub fn load_with(&self, progress: &dyn Progress, options: &LoadOptions) -> Result<Capture> {
+        self.check_counts()?;
+        let budget = options
+            .budget
+            .unwrap_or_else(crate::model::memory::default_budget);
+        let info = crate::io::imageio::probe(&self.images[0])?;
+        let mut size = CaptureSize {
+            width: info.width,
+            height: info.height,
+            pixels: 0,
+            lights: self.images.len(),
+            channels: info.channels,
+            sample_type: if info.bit_depth == 32 {
+                SampleType::F32
+            } else {
+                SampleType::U16
+            },
+            threads: rayon::current_num_threads(),
+            ground_truth: options.ground_truth,
+        };
+        // Without --memory-limit the budget is the machine's: a refusal names the images and
+        // the memory available, as the readers' own checks do.
+        let refusal = |e: Error| match (e, options.budget) {
+            (Error::Parameter { message, .. }, None) => Error::file(
+                &self.images[0],
+                format!(
+                    "declares {}×{} pixels × {} images: {} (the default budget is half of the \
+                     memory available{}; --memory-limit sets it)",
+                    info.width,
+                    info.height,
+                    self.images.len(),
+                    message.split_once(": ").map_or(message.as_str(), |m| m.1),
+                    if std::env::var_os(crate::base::machine::MEMORY_LIMIT_VAR).is_some() {
+                        format!(", with {} set", crate::base::machine::MEMORY_LIMIT_VAR)
+                    } else {
+                        String::new()
+                    }
+                ),
+            ),
+            (e, _) => e,
+        };
+        // The frame alone (no mask pixel) already tells a budget that cannot work, before any
+        // image is decoded; the smallest budget that works is then named with the mask's
+        // pixels counted.
+        if let Err(e) = crate::model::memory::plan(&size, budget, Force::default()) {
+            let Ok(mask) = self.read_mask_for(info.width, info.height) else {
+                return Err(refusal(e));
+            };
+            size.pixels = mask.iter().filter(|&&m| m).count();
+            return Err(refusal(
+                crate::model::memory::plan(&size, budget, Force::default())
+                    .err()
+                    .unwrap_or(e),
+            ));
+        }
+        let mask = self.read_mask_for(info.width, info.height)?;
+        size.pixels = mask.iter().filter(|&&m| m).count();
+        let (layout, plan) =
+            crate::model::memory::plan(&size, budget, options.force).map_err(refusal)?;
+        let mut capture = if layout == Layout::InMemory {
+            self.load_in_memory(progress, mask)?
+        } else {
+            if options.return_freed_memory_when_tiled {
+                crate::base::machine::return_freed_memory();
+            }
+            let dir = options.spill_dir.clone().unwrap_or_else(std::env::temp_dir);
+            self.load_tiled(
+                progress,
+                mask,
+                &plan,
+                (layout == Layout::Spill).then_some(&*dir),
+            )?
+        };
+        capture.memory = Some(plan);
+        let notes = crate::solve::plausibility::check_capture(&capture)?;
+        capture.notes.extend(notes);
+        let (w, h) = (capture.width, capture.height);
+        capture.notes.extend(self.whole_frame_note(w, h));
+        Ok(capture)
+    }
+
+    fn check_counts(&self) -> Result<()> {
+        let n = self.images.len();
+        if n != self.lights.len() {
+            return Err(Error::invalid(format!(
+                "{} images but {} light directions: expected one light per image",
+                n,
+                self.lights.len()
+            )));
+        }
+        if n < 3 {
+            return Err(Error::invalid(format!(
+                "{n} image(s): photometric stereo needs at least three"
+            )));
+        }
+        self.lights.check_rank().map(|_| ())
+    }
+
+    /// The mask (all true without a mask file), checked against the images' size.
+    fn read_mask_for(&self, w: usize, h: usize) -> Result<Vec<bool>> {
+        Ok(match &self.mask {
+            Some(path) => {
+                let (mh, mw, m) = read_mask(path)?;
+                if (mh, mw) != (h, w) {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "mask is {}×{} (width×height) but the images are {}×{}",
+                            mw, mh, w, h
+                        ),
+                    ));
+                }
+                if !m.iter().any(|&v| v) {
+                    return Err(Error::file(path, "the mask is empty (no non-zero pixel)"));
+                }
+                m
+            }
+            None => vec![true; w * h],
+        })
+    }
+
+    /// The error for image `k` whose size or channels differ from the first image's.
+    fn mismatch(
+        &self,
+        k: usize,
+        (w, h, c): (usize, usize, usize),
+        (iw, ih, ic): (usize, usize, usize),
+    ) -> Option<Error> {
+        let path = &self.images[k];
+        if (iw, ih) != (w, h) {
+            return Some(Error::file(
+                path,
+                format!(
+                    "image is {}×{} but {} is {}×{}: all images of a capture must share size",
+                    iw,
+                    ih,
+                    self.images[0].display(),
+                    w,
+                    h
+                ),
+            ));
+        }
+        if ic != c {
+            return Some(Error::file(
+                path,
+                format!(
+                    "image has {} channel(s) but {} has {}: all images must share the channel count",
+                    ic,
+                    self.images[0].display(),
+                    c
+                ),
+            ));
+        }
+        None
+    }
+
+    /// The tiled loader: every image decoded once, row band by row band (PNG, streamed; other
+    /// formats decoded whole, a few at a time), scattered into the tiles of `plan`.
+    fn load_tiled(
+        &self,
+        progress: &dyn Progress,
+        mask: Vec<bool>,
+        plan: &MemoryPlan,
+        spill_dir: Option<&Path>,
+    ) -> Result<Capture> {
+        let n = self.images.len();
+        let infos: Vec<crate::io::imageio::ImageInfo> = self
+            .images
+            .par_iter()
+            .map(|p| crate::io::imageio::probe(p))
+            .collect::<Result<_>>()?;
+        let (w, h, c) = (infos[0].width, infos[0].height, infos[0].channels);
+        for (k, i) in infos.iter().enumerate() {
+            if let Some(e) = self.mismatch(k, (w, h, c), (i.width, i.height, i.channels)) {
+                return Err(e);
+            }
+        }
+        let kind = if infos.iter().any(|i| i.bit_depth == 32) {
+            SampleType::F32
+        } else {
+            SampleType::U16
+        };
+        let decode: Vec<Decode> = infos
+            .iter()
+            .map(|i| match (kind, i.format, i.bit_depth) {
+                (SampleType::F32, _, _) => Decode::Float,
+                (_, crate::io::imageio::Format::Png, 8) => Decode::MulRecip(1.0f32 / 255.0),
+                (_, crate::io::imageio::Format::Png, _) => Decode::MulRecip(1.0f32 / 65535.0),
+                (_, _, 8) => Decode::Div(255.0),
+                _ => Decode::Div(65535.0),
+            })
+            .collect();
+        let scale: Vec<[f32; 3]> = self
+            .lights
+            .intensities
+            .iter()
+            .map(|i| light_scale(i, c))
+            .collect();
+        let pixels: Vec<u32> = mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i as u32)
+            .collect();
+        let tiling = Tiling::new(&mask, w, h, plan.tile_pixels);
+        let mut store =
+            SampleStore::new(kind, c, tiling.clone(), decode.clone(), scale, spill_dir)?;
+        let e = kind.bytes();
+        let sb = c * e; // bytes of one light's sample of one pixel
+        let pb = n * sb;
+        let streamed = infos.iter().all(|i| i.streamable);
+        progress.begin("loading", (n * h) as u64);
+        let mut raw: Vec<u8> = Vec::new();
+        // The bytes of light k for the pixels of a tile, from integer or decoded values.
+        let put_u16 = |dec: Decode, u: u16, out: &mut Vec<u8>| match kind {
+            SampleType::U16 => out.extend_from_slice(&u.to_ne_bytes()),
+            SampleType::F32 => {
+                let v = match dec {
+                    Decode::Div(f) => u as f32 / f,
+                    Decode::MulRecip(r) => u as f32 * r,
+                    Decode::Float => u as f32,
+                };
+                out.extend_from_slice(&v.to_ne_bytes())
+            }
+        };
+        if streamed {
+            let mut readers: Vec<crate::io::imageio::PngRows> = self
+                .images
+                .iter()
+                .map(|p| crate::io::imageio::PngRows::open(p))
+                .collect::<Result<_>>()?;
+            let mut planes: Vec<Vec<u8>> = vec![Vec::new(); n];
+            for t in 0..tiling.len() {
+                crate::base::progress::check_cancelled(progress)?;
+                let (r0, r1) = (tiling.rows[t], tiling.rows[t + 1]);
+                let tile_pixels = &pixels[tiling.pixels(t)];
+                readers
+                    .par_iter_mut()
+                    .zip(planes.par_iter_mut())
+                    .enumerate()
+                    .map(|(k, (reader, plane))| -> Result<()> {
+                        plane.clear();
+                        let mut row = Vec::with_capacity(w * c);
+                        let mut next = 0;
+                        for r in r0..r1 {
+                            reader.next_row(c, &mut row)?;
+                            while next < tile_pixels.len() && tile_pixels[next] as usize / w == r {
+                                let col = tile_pixels[next] as usize % w;
+                                for &u in &row[col * c..(col + 1) * c] {
+                                    put_u16(decode[k], u, plane);
+                                }
+                                next += 1;
+                            }
+                        }
+                        progress.advance((r1 - r0) as u64);
+                        Ok(())
+                    })
+                    .collect::<Result<()>>()?;
+                interleave_bytes(&planes, tile_pixels.len(), sb, &mut raw);
+                store.write_raw(t, &raw)?;
+            }
+        } else {
+            // Decoded whole, as many at a time as there are threads; each group patched into
+            // every tile.
+            let group = rayon::current_num_threads().max(1);
+            for k0 in (0..n).step_by(group) {
+                crate::base::progress::check_cancelled(progress)?;
+                let ks: Vec<usize> = (k0..(k0 + group).min(n)).collect();
+                let images: Vec<Image> = ks
+                    .par_iter()
+                    .map(|&k| {
+                        let img = read_image(&self.images[k])?;
+                        if let Some(e) =
+                            self.mismatch(k, (w, h, c), (img.width, img.height, img.channels))
+                        {
+                            return Err(e);
+                        }
+                        progress.advance(h as u64);
+                        Ok(img)
+                    })
+                    .collect::<Result<_>>()?;
+                for t in 0..tiling.len() {
+                    let tile_pixels = &pixels[tiling.pixels(t)];
+                    store.read_raw(t, &mut raw)?;
+                    raw.par_chunks_mut(pb)
+                        .zip(tile_pixels.par_iter())
+                        .for_each(|(px, &i)| {
+                            let mut bytes = Vec::with_capacity(sb);
+                            for (&k, img) in ks.iter().zip(&images) {
+                                bytes.clear();
+                                let src = &img.data[i as usize * c..(i as usize + 1) * c];
+                                for &v in src {
+                                    match kind {
+                                        SampleType::U16 => bytes
+                                            .extend_from_slice(&decode[k].to_u16(v).to_ne_bytes()),
+                                        SampleType::F32 => {
+                                            bytes.extend_from_slice(&v.to_ne_bytes())
+                                        }
+                                    }
+                                }
+                                px[k * sb..(k + 1) * sb].copy_from_slice(&bytes);
+                            }
+                        });
+                    store.write_raw(t, &raw)?;
+                }
+            }
+        }
+        progress.end();
+        let _ = pb;
+        Ok(Capture::from_parts(CaptureParts {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth: infos[0].bit_depth,
+            lights: self.lights.clone(),
+            mask,
+            pixels,
+            samples: Vec::new(),
+            store: Some(Arc::new(store)),
+            sources: self.images.clone(),
+            notes: self.notes.clone(),
+        }))
+    }
+
+    /// The loader of captures held whole as `f32`.
+    fn load_in_memory(&self, progress: &dyn Progress, mask: Vec<bool>) -> Result<Capture> {
+        let n = self.images.len();
+        progress.begin("loading", n as u64);
+        let first = read_image(&self.images[0])?;
+        progress.advance(1);
+        if mask.len() != first.width * first.height {
+            return Err(Error::file(
+                &self.images[0],
+                "the image's size changed while the capture was read",
+            ));
+        }
+        let pixels: Vec<u32> = mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i as u32)
+            .collect();
+        let (w, h, c) = (first.width, first.height, first.channels);
+        // The samples of the mask pixels, plus their transient second copy while loading.
+        let needed = (pixels.len() as u64)
+            .saturating_mul(n as u64)
+            .saturating_mul(c as u64)
+            .saturating_mul(8);
+        if let Err(m) = crate::base::machine::check_memory(
+            needed,
+            &format!(
+                "{n} images of {} mask pixels × {c} channel(s) ({} of samples, twice while loading)",
+                pixels.len(),
+                crate::base::machine::human_bytes(needed / 2)
+            ),
+        ) {
+            return Err(Error::invalid(format!(
+                "{m}: use a smaller mask or fewer images (or set {})",
+                crate::base::machine::MEMORY_LIMIT_VAR
+            )));
+        }
+        let gather = |k: usize, img: &Image| -> Vec<f32> {
+            let scale = light_scale(&self.lights.intensities[k], c);
+            let mut out = Vec::with_capacity(pixels.len() * c);
+            for &i in &pixels {
+                let base = i as usize * c;
+                out.extend(
+                    img.data[base..base + c]
+                        .iter()
+                        .zip(&scale)
+                        .map(|(v, s)| v * s),
+                );
+            }
+            out
+        };
+        let first_planes = gather(0, &first);
+        let bit_depth = first.bit_depth;
+        drop(first);
+        let rest: Vec<Result<Vec<f32>>> = (1..n)
+            .into_par_iter()
+            .map(|k| {
+                let path = &self.images[k];
+                let img = read_image(path)?;
+                if (img.width, img.height) != (w, h) {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "image is {}×{} but {} is {}×{}: all images of a capture must share size",
+                            img.width,
+                            img.height,
+                            self.images[0].display(),
+                            w,
+                            h
+                        ),
+                    ));
+                }
+                if img.channels != c {
+                    return Err(Error::file(
+                        path,
+                        format!(
+                            "image has {} channel(s) but {} has {}: all images must share the channel count",
+                            img.channels,
+                            self.images[0].display(),
+                            c
+                        ),
+                    ));
+                }
+                let planes = gather(k, &img);
+                progress.advance(1);
+                Ok(planes)
+            })
+            .collect();
+        let mut planes = Vec::with_capacity(n);
+        planes.push(first_planes);
+        for r in rest {
+            planes.push(r?);
+        }
+        progress.end();
+        let samples = interleave(&planes, pixels.len(), c);
+        let capture = Capture::from_parts(CaptureParts {
+            width: w,
+            height: h,
+            channels: c,
+            bit_depth,
+            lights: self.lights.clone(),
+            mask,
+            pixels,
+            samples,
+            store: None,
+            sources: self.images.clone(),
+            notes: self.notes.clone(),
+        });
+        Ok(capture)
+    }
+}
+
+/// Options of [`CaptureFiles::load_with`].
+#[derive(Clone, Debug, Default)]
+pub struct LoadOptions {
+    /// The memory budget, bytes (default: [`crate::model::memory::default_budget`]).
+    pub budget: Option<u64>,
+    /// Where a spill file goes (default: the system's temporary folder); `run` gives the
+    /// output's staging folder.
+    pub spill_dir: Option<PathBuf>,
+    /// A forced layout or tile size (tests, experiments).
+    pub force: Force,
+    /// When the capture is loaded into tiles, make the C allocator hand large freed blocks
+    /// back to the system at once ([`crate::base::machine::return_freed_memory`]): the process's peak
+    /// then stays near what the run holds. Process-wide and lasting, so only a program that
+    /// owns its process (the command line) sets it; a library host such as Python leaves it.
+    pub return_freed_memory_when_tiled: bool,
+    /// Ground-truth normals will be held (per mask pixel) to score the run: the plan counts
+    /// them.
+    pub ground_truth: bool,
+}
+
+/// Light-major byte planes (`planes[k][p * sb..]`, `sb` bytes per pixel) into the pixel-major
+/// raw tile `out` (`[pixel][light]`).
+fn interleave_bytes(planes: &[Vec<u8>], n_pixels: usize, sb: usize, out: &mut Vec<u8>) {
+    let pb = planes.len() * sb;
+    out.resize(n_pixels * pb, 0);
+    out.par_chunks_mut(pb).enumerate().for_each(|(p, px)| {
+        for (k, plane) in planes.iter().enumerate() {
+            px[k * sb..(k + 1) * sb].copy_from_slice(&plane[p * sb..(p + 1) * sb]);
+        }
+    });
+}

@@ -1,0 +1,14 @@
+//! Every format at the edge: capture layouts, image readers and writers with their size limits,
+//! ground truth, output folders, figures and maps, surfaces and meshes, the viewer's page.
+
+pub mod calibration_figure;
+pub mod export;
+pub mod figure;
+pub mod groundtruth;
+pub mod imageio;
+pub mod layouts;
+pub mod limits;
+pub mod maps;
+pub mod matfile;
+pub mod surface;
+pub mod viewer;

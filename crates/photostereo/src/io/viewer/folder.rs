@@ -1,0 +1,256 @@
+//! Reading a run's output folder (CONVENTIONS.md, "The output folder of a run") for the viewer.
+//! Only `normals.npy` is required; every other map is optional and its layer is left out of the
+//! page when missing.
+
+use crate::base::error::{Error, Result};
+use crate::io::groundtruth::read_normal_map;
+use crate::io::imageio::read_mask;
+use crate::solve::metrics::angular_error_deg;
+use std::path::{Path, PathBuf};
+
+/// The maps of one output folder, full frame, row-major.
+#[derive(Clone, Debug)]
+pub struct RunFolder {
+    pub dir: PathBuf,
+    pub width: usize,
+    pub height: usize,
+    /// Unit normals, (0, 0, 0) outside the mask.
+    pub normals: Vec<[f32; 3]>,
+    /// Pixels with a normal.
+    pub mask: Vec<bool>,
+    /// Albedo, `H·W·albedo_channels` (all ones when the folder has none).
+    pub albedo: Vec<f32>,
+    pub albedo_channels: usize,
+    pub has_albedo: bool,
+    /// Height toward the camera (NaN outside).
+    pub depth: Option<Vec<f32>>,
+    /// The non-Lambertian statistic.
+    pub residual: Option<Vec<f32>>,
+    /// `light_status.npy`: light count and `N·H·W` statuses.
+    pub status: Option<(usize, Vec<u8>)>,
+    /// `unreliable_mask.png`.
+    pub unreliable: Option<Vec<bool>>,
+    /// `highlight.png` (recursive method).
+    pub highlight: Option<Vec<bool>>,
+    /// `fewer_than_three.png` (recursive method).
+    pub fewer_than_three: Option<Vec<bool>>,
+    /// Angular error against ground truth, degrees (NaN where there is none).
+    pub error_deg: Option<Vec<f32>>,
+    /// Where the ground truth came from.
+    pub ground_truth: Option<PathBuf>,
+    /// `report.json`, when present and valid.
+    pub report: Option<serde_json::Value>,
+    /// Remarks for the user (maps skipped and why).
+    pub notes: Vec<String>,
+}
+
+fn npy_err(path: &Path, e: impl std::fmt::Display) -> Error {
+    Error::file(path, format!("reading .npy failed: {e}"))
+}
+
+fn read_bool_png(path: &Path, w: usize, h: usize, notes: &mut Vec<String>) -> Option<Vec<bool>> {
+    if !path.is_file() {
+        return None;
+    }
+    match read_mask(path) {
+        Ok((hh, ww, m)) if (ww, hh) == (w, h) => Some(m),
+        Ok((hh, ww, _)) => {
+            notes.push(format!(
+                "{}: {ww}×{hh}, expected {w}×{h}; skipped",
+                path.display()
+            ));
+            None
+        }
+        Err(e) => {
+            notes.push(format!("{e}; skipped"));
+            None
+        }
+    }
+}
+
+impl RunFolder {
+    /// Reads `dir`. `ground_truth` overrides the ground-truth file named in `report.json`
+    /// (which is tried as written, then relative to `dir` and to its parent).
+    pub fn read(dir: &Path, ground_truth: Option<&Path>) -> Result<RunFolder> {
+        let np = dir.join("normals.npy");
+        if !np.is_file() {
+            return Err(Error::file(
+                dir,
+                "not an output folder of `photostereo run`: normals.npy is missing",
+            ));
+        }
+        let arr: ndarray::Array3<f32> = ndarray_npy::read_npy(&np).map_err(|e| npy_err(&np, e))?;
+        let (height, width, c) = arr.dim();
+        if c != 3 || width == 0 || height == 0 {
+            return Err(Error::file(
+                &np,
+                format!("shape ({height}, {width}, {c}): expected (H, W, 3)"),
+            ));
+        }
+        let normals: Vec<[f32; 3]> = arr
+            .as_standard_layout()
+            .as_slice()
+            .expect("standard layout")
+            .chunks_exact(3)
+            .map(|v| {
+                let n = [v[0], v[1], v[2]];
+                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+                if n.iter().all(|x| x.is_finite()) && len > 1e-6 {
+                    n.map(|x| x / len)
+                } else {
+                    [0.0; 3]
+                }
+            })
+            .collect();
+        drop(arr);
+        let mask: Vec<bool> = normals.iter().map(|n| *n != [0.0; 3]).collect();
+        let n_pix = width * height;
+        let mut notes = Vec::new();
+
+        let ap = dir.join("albedo.npy");
+        let (albedo, albedo_channels, has_albedo) = if ap.is_file() {
+            let a: ndarray::Array3<f32> =
+                ndarray_npy::read_npy(&ap).map_err(|e| npy_err(&ap, e))?;
+            let (h, w, ch) = a.dim();
+            if (h, w) != (height, width) || !(ch == 1 || ch == 3) {
+                return Err(Error::file(
+                    &ap,
+                    format!("shape ({h}, {w}, {ch}): expected ({height}, {width}, 1 or 3)"),
+                ));
+            }
+            (a.into_raw_vec_and_offset().0, ch, true)
+        } else {
+            notes.push("no albedo.npy: relighting with a uniform albedo".into());
+            (vec![1.0; n_pix], 1, false)
+        };
+
+        let read_2d = |name: &str| -> Result<Option<Vec<f32>>> {
+            let p = dir.join(name);
+            if !p.is_file() {
+                return Ok(None);
+            }
+            let a: ndarray::Array2<f32> = ndarray_npy::read_npy(&p).map_err(|e| npy_err(&p, e))?;
+            if a.dim() != (height, width) {
+                return Err(Error::file(
+                    &p,
+                    format!("shape {:?}: expected ({height}, {width})", a.dim()),
+                ));
+            }
+            Ok(Some(a.as_standard_layout().iter().copied().collect()))
+        };
+        let depth = read_2d("depth.npy")?;
+        let residual = read_2d("residual.npy")?;
+
+        let sp = dir.join("light_status.npy");
+        let status = if sp.is_file() {
+            let a: ndarray::Array3<u8> = ndarray_npy::read_npy(&sp).map_err(|e| npy_err(&sp, e))?;
+            let (n, h, w) = a.dim();
+            if (h, w) != (height, width) {
+                return Err(Error::file(
+                    &sp,
+                    format!("shape ({n}, {h}, {w}): expected (N, {height}, {width})"),
+                ));
+            }
+            Some((n, a.as_standard_layout().iter().copied().collect()))
+        } else {
+            None
+        };
+        let unreliable = read_bool_png(&dir.join("unreliable_mask.png"), width, height, &mut notes);
+        let highlight = read_bool_png(&dir.join("highlight.png"), width, height, &mut notes);
+        let fewer_than_three =
+            read_bool_png(&dir.join("fewer_than_three.png"), width, height, &mut notes);
+
+        let report: Option<serde_json::Value> = std::fs::read_to_string(dir.join("report.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str(&t).ok());
+
+        // Ground truth: given, or the one the run was scored against.
+        let gt_path = match ground_truth {
+            Some(p) => Some(p.to_path_buf()),
+            None => report
+                .as_ref()
+                .and_then(|r| r["parameters"]["ground_truth"].as_str())
+                .map(PathBuf::from)
+                .and_then(|p| {
+                    let mut tries = vec![p.clone()];
+                    if p.is_relative() {
+                        tries.push(dir.join(&p));
+                        if let Some(parent) = dir.parent() {
+                            tries.push(parent.join(&p));
+                        }
+                    }
+                    let found = tries.into_iter().find(|t| t.is_file());
+                    if found.is_none() {
+                        notes.push(format!(
+                            "the ground truth named in report.json ({}) was not found; \
+                             no error layer (give it with --gt)",
+                            p.display()
+                        ));
+                    }
+                    found
+                }),
+        };
+        let mut error_deg = None;
+        let mut ground_truth_used = None;
+        if let Some(p) = gt_path {
+            let gt = read_normal_map(&p)?;
+            if (gt.width, gt.height) != (width, height) {
+                return Err(Error::file(
+                    &p,
+                    format!(
+                        "ground truth is {}×{}: expected {width}×{height}",
+                        gt.width, gt.height
+                    ),
+                ));
+            }
+            error_deg = Some(
+                normals
+                    .iter()
+                    .zip(&gt.normals)
+                    .map(|(n, g)| {
+                        if *n == [0.0; 3] || *g == [0.0; 3] {
+                            f32::NAN
+                        } else {
+                            angular_error_deg(*n, *g) as f32
+                        }
+                    })
+                    .collect(),
+            );
+            ground_truth_used = Some(p);
+        }
+        Ok(RunFolder {
+            dir: dir.to_path_buf(),
+            width,
+            height,
+            normals,
+            mask,
+            albedo,
+            albedo_channels,
+            has_albedo,
+            depth,
+            residual,
+            status,
+            unreliable,
+            highlight,
+            fewer_than_three,
+            error_deg,
+            ground_truth: ground_truth_used,
+            report,
+            notes,
+        })
+    }
+
+    /// Lights with a status other than "used" at pixel `i` (0 outside the mask or without
+    /// `light_status.npy`).
+    pub fn unusable_count(&self, i: usize) -> usize {
+        match &self.status {
+            Some((n, s)) if self.mask[i] => {
+                let hw = self.width * self.height;
+                (0..*n)
+                    .filter(|k| !matches!(s[k * hw + i], 0 | 255))
+                    .count()
+            }
+            _ => 0,
+        }
+    }
+}

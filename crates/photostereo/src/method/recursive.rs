@@ -1,0 +1,1700 @@
+//! Recursive photometric stereo (Argyriou & Petrou, §3 and Fig. 2; ALGORITHMS.md §7).
+//!
+//! 1. Detect the non-Lambertian pixels E with the χ² test and attribute their faults
+//!    ([`crate::solve::detect`]); estimate every pixel from the lights it kept.
+//! 2. Integrate the normals into a height field, with low weight on the pixels of E (which
+//!    fills them from their reliable surroundings) and zero weight where fewer than three lights
+//!    remain.
+//! 3. From that surface, each light's attached shadow (n·l ≤ τ) and cast shadow (horizon sweep,
+//!    [`crate::geometry::shadows`]).
+//! 4. The highlight map H = E − (S₁ ∪ … ∪ S_N): unreliable pixels no shadow explains.
+//! 5. Per pixel, the usable lights: every light in geometric shadow is dropped; at the pixels of
+//!    E, the remaining lights are tested again and the faulty ones dropped one by one while the
+//!    χ² test fails — a light brighter than the Lambertian prediction of the others is a
+//!    highlight source (the paper's intensity threshold, set by the noise level and the test's
+//!    confidence rather than by hand), a darker one a shadow the surface missed.
+//! 6. Re-estimate every pixel from its usable lights, and repeat from 2 until the usable-light
+//!    sets change at fewer than `change_tolerance` of the pixels, or `max_iterations`.
+//!
+//! 7. The final estimate: each pixel's usable readings with the last surface's normal as a
+//!    robust prior ([`SurfacePrior`]), which steadies the pixels the readings determine
+//!    poorly (few usable lights, dark readings) and leaves the others.
+//!
+//! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
+//! completed by [`Fallback`].
+
+use crate::base::error::{Error, Result};
+use crate::base::progress::{Progress, Silent};
+use crate::geometry::integrate::{
+    gradients_from_normals, normal_from_depth_at, normals_from_depth, IntegrationParams,
+    IntegrationProblem, IntegratorKind, Poisson,
+};
+use crate::geometry::shadows::{shadow_maps, ShadowMaps, ShadowParams};
+use crate::model::capture::Capture;
+use crate::solve::detect::{Attributor, Detection, DetectionParams, NoiseModel};
+use crate::solve::estimate::Estimator;
+use crate::solve::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
+use crate::solve::metrics::angular_error_deg;
+use rayon::prelude::*;
+use serde::Serialize;
+use std::str::FromStr;
+use std::sync::Arc;
+use std::time::Instant;
+
+/// What to do at pixels with fewer than three usable lights.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Fallback {
+    #[serde(rename = "brightest")]
+    /// Complement them with the brightest remaining lights (the paper's choice).
+    BrightestLights,
+    /// Use the reliable neighbours: their albedo (median over the nearest reliable pixels) turns
+    /// two usable lights into a normal — two-source photometric stereo with known albedo, the
+    /// root closer to the integrated surface's normal — and with fewer than two lights the
+    /// normal of the integrated surface is taken.
+    #[serde(rename = "neighbours")]
+    Neighbours,
+}
+
+impl FromStr for Fallback {
+    type Err = crate::Error;
+    fn from_str(s: &str) -> Result<Self> {
+        if s == "neighbors" {
+            return Ok(Fallback::Neighbours);
+        }
+        crate::base::error::parse_name(s, Fallback::ALL, Fallback::name, "fallback")
+    }
+}
+
+impl Fallback {
+    /// Every choice, default first.
+    pub const ALL: &'static [Fallback] = &[Fallback::Neighbours, Fallback::BrightestLights];
+
+    /// The name accepted by `--fallback` (and the Python keyword `fallback`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Fallback::Neighbours => "neighbours",
+            Fallback::BrightestLights => "brightest",
+        }
+    }
+}
+
+/// Parameters of the recursive method; every default comes from a stated principle. The
+/// detector's parameters and the integrator are the reconstruction's own
+/// ([`DetectionParams`], [`IntegrationParams`]): one value of each serves every stage.
+#[derive(Clone, Debug, Serialize)]
+pub struct RecursiveParams {
+    /// Attached and cast shadow tolerances.
+    #[serde(skip)]
+    pub shadows: ShadowParams,
+    /// Iteration limit (default 5; the paper gives none).
+    pub max_iterations: usize,
+    /// Stop when the usable-light sets change at fewer than this share of the mask pixels
+    /// (default 0.002: the estimate then changes at a handful of pixels per thousand).
+    pub change_tolerance: f64,
+    /// Completion of pixels with fewer than three usable lights. Default [`Fallback::Neighbours`]:
+    /// on the built-in scenes under the four-light rig it roughly halves the error of those
+    /// pixels relative to the paper's brightest-lights choice, which feeds shadowed readings
+    /// back into the solve.
+    pub fallback: Fallback,
+    /// Radius of the spatial consensus of the usable lights ([`crate::solve::consensus`]): each
+    /// light's removal at a pixel follows the majority of its (2r + 1)² neighbourhood in the
+    /// mask, where the pixel's readings pass the χ² test with that set. Default 2 (5 × 5): a
+    /// fault region narrower than three pixels is not told apart from the test's noise-level
+    /// decisions; 0 turns the consensus off (the paper's per-pixel decisions).
+    pub consensus_radius: usize,
+    /// The final re-estimate takes the last integrated surface as a prior on each normal
+    /// ([`SurfacePrior`]): its angular standard deviation in degrees (default 1; 0 turns the
+    /// step off and the estimate is the usable lights' least squares).
+    pub surface_prior_deg: f64,
+}
+
+impl Default for RecursiveParams {
+    fn default() -> Self {
+        RecursiveParams {
+            shadows: ShadowParams::default(),
+            max_iterations: 10,
+            change_tolerance: 0.002,
+            fallback: Fallback::Neighbours,
+            consensus_radius: 2,
+            surface_prior_deg: 1.0,
+        }
+    }
+}
+
+/// Figures of one iteration.
+#[derive(Clone, Debug, Serialize)]
+pub struct IterationRecord {
+    pub iteration: usize,
+    /// Mask pixels whose usable-light set changed.
+    pub changed_pixels: usize,
+    pub changed_share: f64,
+    /// Pixels of the highlight map H.
+    pub highlight_pixels: usize,
+    /// Pixels left with fewer than three usable lights.
+    pub fewer_than_three: usize,
+    /// Pixels held at their set since they went back to an earlier one (the oscillation rule),
+    /// up to this iteration.
+    pub oscillating_pixels: usize,
+    /// Mean share of (pixel, light) pairs in geometric shadow.
+    pub shadowed_share: f64,
+    /// Mean angular error against ground truth, when given (degrees).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mean_error_deg: Option<f64>,
+    pub seconds: f64,
+}
+
+/// Maps and figures of a recursive run, beyond the normals, albedo and light statuses.
+#[derive(Clone, Debug)]
+pub struct RecursiveDiagnostics {
+    /// Shadow maps of the last surface.
+    pub shadows: ShadowMaps,
+    /// H, full frame.
+    pub highlight: Vec<bool>,
+    /// Pixels with fewer than three usable lights (before the fallback), full frame.
+    pub fewer_than_three: Vec<bool>,
+    /// The last intermediate surface, full frame, pixel units, NaN outside the mask.
+    pub depth: Vec<f32>,
+    /// Pixels whose usable lights pass the χ² test (or were never unreliable), full frame.
+    pub reliable: Vec<bool>,
+    /// Per-pixel integration trust of the final estimate, full frame, by the rule the
+    /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal; with
+    /// near lights, exactly determined pixels by their solve's relative precision); the input
+    /// of [`weighted_normals`] for the exported depth.
+    pub trust: Vec<f32>,
+    pub iterations: Vec<IterationRecord>,
+    pub fallback: Fallback,
+    /// Whether the usable-light sets settled: changed at fewer than `change_tolerance` of the
+    /// pixels before the iteration limit.
+    pub converged: bool,
+    /// The share of pixels whose usable-light set changed in the last iteration.
+    pub final_change: f64,
+    /// Why the recursion stopped, in words.
+    pub stop_reason: String,
+    /// The final re-estimate with the surface as prior, when it ran.
+    pub surface_prior: Option<SurfacePriorRecord>,
+}
+
+/// The normals, albedo and light statuses of a recursive run, and its diagnostics.
+#[derive(Clone, Debug)]
+pub struct RecursiveResult {
+    pub estimate: Estimate,
+    /// The initial χ² test over all lights (residual and unreliable maps, noise model), per
+    /// mask pixel; untested (nothing flagged) with three lights.
+    pub detection: Detection,
+    /// Seconds the initial test and attribution took (part of the method's run time).
+    pub detect_seconds: f64,
+    pub diagnostics: RecursiveDiagnostics,
+}
+
+/// The recursive method with everything it needs: its own parameters, the detector's and the
+/// integrator. As an [`Estimator`] it returns the estimate only; [`Recursive::run`] returns the
+/// diagnostics too.
+#[derive(Clone, Debug, Default)]
+pub struct Recursive {
+    pub params: RecursiveParams,
+    pub detection: DetectionParams,
+    pub integration: IntegrationParams,
+    /// Ground-truth normals (full frame, or one per mask pixel) for the per-iteration error
+    /// figures, when known.
+    pub truth: Option<Arc<Vec<[f32; 3]>>>,
+}
+
+impl Estimator for Recursive {
+    fn name(&self) -> &'static str {
+        "recursive"
+    }
+
+    fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
+        Ok(self.run(capture, progress, &mut |_| {})?.estimate)
+    }
+}
+
+impl RecursiveParams {
+    /// Checks the domains; errors name the parameter.
+    pub fn validate(&self) -> Result<()> {
+        if self.max_iterations == 0 {
+            return Err(Error::parameter(
+                "max_iterations",
+                "0: the recursive method needs at least one iteration",
+            ));
+        }
+        if !(self.surface_prior_deg.is_finite() && (0.0..=90.0).contains(&self.surface_prior_deg)) {
+            // Named as the front ends spell it (`--surface-prior`, `surface_prior=`).
+            return Err(Error::parameter(
+                "surface_prior",
+                format!(
+                    "{}: expected an angle in degrees in [0, 90] (0 turns the surface prior off)",
+                    self.surface_prior_deg
+                ),
+            ));
+        }
+        if !(0.0..=1.0).contains(&self.change_tolerance) {
+            return Err(Error::parameter(
+                "change_tolerance",
+                format!("{}: expected a share in [0, 1]", self.change_tolerance),
+            ));
+        }
+        Ok(())
+    }
+}
+
+impl Recursive {
+    /// Runs the method. `on_iteration` is called after each iteration.
+    pub fn run(
+        &self,
+        capture: &Capture,
+        progress: &dyn Progress,
+        on_iteration: &mut dyn FnMut(&IterationRecord),
+    ) -> Result<RecursiveResult> {
+        recursive(
+            capture,
+            &self.params,
+            &self.detection,
+            &self.integration,
+            self.truth.as_deref().map(|v| v.as_slice()),
+            progress,
+            on_iteration,
+        )
+    }
+}
+
+/// Runs the recursive method. `truth` (full-frame normals, or one per mask pixel) adds error
+/// figures per iteration; `on_iteration` is called after each iteration.
+pub fn recursive(
+    capture: &Capture,
+    params: &RecursiveParams,
+    detection_params: &DetectionParams,
+    integration: &IntegrationParams,
+    truth: Option<&[[f32; 3]]>,
+    progress: &dyn Progress,
+    on_iteration: &mut dyn FnMut(&IterationRecord),
+) -> Result<RecursiveResult> {
+    params.validate()?;
+    detection_params.validate()?;
+    integration.validate()?;
+    let n = capture.n_lights();
+    let np = capture.n_pixels();
+    let (w, h) = (capture.width, capture.height);
+    let c = capture.channels;
+    // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
+    // starts reliable and only the geometric shadows of the surface prune lights.
+    let detect_start = Instant::now();
+    let (mut detection, attributor) = if n >= 4 {
+        let detection = crate::solve::tiled::detect_tiles(capture, detection_params, progress)?;
+        let attributor = Attributor::new(capture, detection_params, detection.noise.clone())?;
+        (detection, Some(attributor))
+    } else {
+        (
+            Detection::untested(
+                &*crate::solve::tiled::statistics_view(capture)?,
+                detection_params,
+            ),
+            None,
+        )
+    };
+    let detect_seconds = detect_start.elapsed().as_secs_f64();
+    let unreliable = detection.unreliable.clone();
+    let noise = detection.noise.clone();
+    // The detector's statuses start the recursion: moved, not copied (the result's statuses
+    // are the estimate's; the detection keeps its residuals and flags).
+    let mut light_status = std::mem::take(&mut detection.light_status);
+    let mut est = crate::solve::tiled::solve_statuses(capture, &light_status)?;
+    if !noise.light_factor.is_empty() && capture.lights.near.is_none() {
+        // Lights with their own noise factors: the estimate is the weighted fit the test made.
+        let ids: Vec<usize> = (0..np).collect();
+        resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
+    }
+    // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
+    let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
+    let mut few = vec![false; np];
+    // Pixels of `few` whose normal came from two lights and the neighbours' albedo.
+    let mut solved_two = vec![false; np];
+    let mut records = Vec::new();
+    let mut last_maps = None;
+    let mut last_depth = Vec::new();
+    let mut highlight = vec![false; np];
+    // The per-pixel decisions of the last iteration before the spatial consensus, for the
+    // hysteresis of the attribution (the statuses held as their difference from the ones the
+    // iteration ended with).
+    let (mut raw_status, mut raw_consistent, mut raw_few) = (
+        OwnStatuses::default(),
+        Vec::<bool>::new(),
+        Vec::<bool>::new(),
+    );
+    // Per pixel, the attribution's input of the last iteration as bits (see below), in
+    // `key_bytes` bytes (3 under 24 lights).
+    let key_bytes = n.div_ceil(8);
+    let mut raw_key: Vec<u8> = Vec::new();
+    let near_lights = capture.lights.near.is_some();
+    // The truth at the mask pixels: borrowed when given per mask pixel, gathered otherwise.
+    let truth_masked = truth
+        .map(|t| crate::solve::metrics::truth_at_pixels(t, w, h, &capture.pixels))
+        .transpose()?;
+    progress.begin("recursive", params.max_iterations as u64);
+    // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
+    // iteration that reached the smallest change so far (stall detection).
+    let mut stop = StopRule::new(params, fingerprint(&light_status));
+    // Per pixel, a fingerprint of the usable set it had before its current one, and whether
+    // it went back to that set (see the oscillation rule below).
+    let mut earlier_print = vec![0u32; np];
+    let mut oscillating = vec![false; np];
+    let mut converged = false;
+    let mut stop_reason = String::new();
+    for iteration in 1..=params.max_iterations {
+        crate::base::progress::check_cancelled(progress)?;
+        let start = Instant::now();
+        // The last iteration's shadow maps are replaced below: not kept beside the new ones.
+        drop(last_maps.take());
+        // 2. The surface.
+        let masked_trust = pixel_trust(
+            &est,
+            &consistent,
+            &few,
+            &solved_two,
+            integration.unreliable_weight,
+        );
+        let mut masked_trust = masked_trust;
+        if near_lights {
+            exact_trust(capture, &light_status, &few, &mut masked_trust);
+        }
+        // Made from the mask pixels' estimate and trust: no full-frame copy of either.
+        let (normals_full, weights) = crate::geometry::integrate::weighted_normals_at(
+            w * h,
+            &capture.pixels,
+            &est.normals,
+            &|p, _| masked_trust[p],
+        );
+        drop(masked_trust);
+        let (depth, near_normals, shading) = match capture.lights.near.as_deref() {
+            None => {
+                // The last iteration's surface starts the solve: the normals changed at few
+                // pixels since, so the solver needs a fraction of its iterations. The normal
+                // map is dropped once its gradients are taken.
+                let depth = integrate(
+                    w,
+                    h,
+                    normals_full,
+                    &capture.mask,
+                    &weights,
+                    std::mem::take(&mut last_depth),
+                    integration,
+                )?;
+                // Attached shadows from the estimate where it is trusted (there the integrated
+                // normal was the estimate itself), from the surface elsewhere.
+                let mut shading = normals_from_depth(w, h, &depth.values, &capture.mask);
+                for (p, &i) in capture.pixels.iter().enumerate() {
+                    if weights[i as usize] >= 1.0 {
+                        shading[i as usize] = est.normals[p];
+                    }
+                }
+                (depth, None, shading)
+            }
+            // Near lights: the surface in mm through the camera, and the light vectors follow
+            // it (ALGORITHMS.md §9).
+            Some(near) => {
+                let (depth, surface_normals) =
+                    near_surface(capture, near, &normals_full, &weights, integration)?;
+                let shading: Vec<[f32; 3]> = (0..w * h)
+                    .map(|i| {
+                        if weights[i] >= 1.0 {
+                            normals_full[i]
+                        } else {
+                            surface_normals[i]
+                        }
+                    })
+                    .collect();
+                (depth, Some(surface_normals), shading)
+            }
+        };
+        drop(weights);
+        // 3. Shadows of every light (of point lights with a near model).
+        let maps = match capture.lights.near.as_deref() {
+            None => shadow_maps(
+                &depth.values,
+                &shading,
+                &capture.mask,
+                w,
+                h,
+                &capture.lights.directions,
+                &params.shadows,
+            )?,
+            Some(near) => crate::model::lightmodel::near_shadow_maps(
+                near,
+                &depth.values,
+                &shading,
+                &capture.mask,
+                w,
+                h,
+                &params.shadows,
+            )?,
+        };
+        drop(shading);
+        // 4–5. Usable lights. The shadows per mask pixel as bits (`key_bytes` per pixel).
+        let shadow_bits = maps.pixel_bits(&capture.pixels);
+        let in_shadow = |p: usize, k: usize| shadow_bits[p * key_bytes + k / 8] >> (k % 8) & 1 != 0;
+        let mut new_status = vec![status::USED; np * n];
+        let mut new_consistent = vec![false; np];
+        let mut new_few = vec![false; np];
+        let mut new_highlight = vec![false; np];
+        let mut new_key = vec![0u8; np * key_bytes];
+        // Tile by tile (the whole capture at once when it is held whole): `off` is the tile's
+        // first mask pixel, `tile` its view (local indices).
+        capture.for_each_tile(|off, tile| {
+            let tn = tile.n_pixels();
+            new_status[off * n..(off + tn) * n]
+                .par_chunks_mut(CHUNK * n)
+                .zip(new_consistent[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(new_few[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(new_highlight[off..off + tn].par_chunks_mut(CHUNK))
+                .zip(
+                    new_key[off * key_bytes..(off + tn) * key_bytes]
+                        .par_chunks_mut(CHUNK * key_bytes),
+                )
+                .enumerate()
+                .for_each_init(
+                    || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
+                    |(grey, scratch), (chunk, ((((st, cons), fw), hl), keys))| {
+                        for dp in 0..cons.len() {
+                            let lp = chunk * CHUNK + dp;
+                            let p = off + lp;
+                            let pix = capture.pixels[p] as usize;
+                            let s = &mut st[dp * n..(dp + 1) * n];
+                            channel_mean(tile.pixel_samples(lp), c, grey);
+                            // A light in the surface's shadow is dropped when its reading agrees
+                            // (at the shadow level); a clearly lit reading says the surface is off
+                            // there, and the light stays for the test to judge.
+                            let level = grey.iter().sum::<f64>() / n as f64;
+                            let dark = noise.shadow_level(detection_params, level);
+                            // The attribution's input beyond the fixed readings: the lights the
+                            // surface shadows where the reading agrees, as bits.
+                            let key = &mut keys[dp * key_bytes..(dp + 1) * key_bytes];
+                            key.fill(0);
+                            for k in 0..n {
+                                if in_shadow(p, k) && grey[k] <= dark {
+                                    key[k / 8] |= 1 << (k % 8);
+                                }
+                            }
+                            // Hysteresis: a usable set that passed the test in the last
+                            // iteration and already drops every light the new surface shadows
+                            // (where the reading agrees) stays; the recursion then settles
+                            // instead of trading equally good sets between iterations.
+                            let previous = if iteration > 1 {
+                                raw_status.at(p, &light_status, n)
+                            } else {
+                                &[]
+                            };
+                            if iteration > 1
+                                && raw_consistent[p]
+                                && !raw_few[p]
+                                && (0..n).all(|k| {
+                                    previous[k] != status::USED
+                                        || !(in_shadow(p, k) && grey[k] <= dark)
+                                })
+                            {
+                                s.copy_from_slice(previous);
+                                cons[dp] = true;
+                                hl[dp] = highlight[p];
+                                continue;
+                            }
+                            // In the first iteration, a pixel the surface shadows nowhere (where
+                            // the reading agrees) starts the attribution from every light, as
+                            // the detector did: its decisions are the detector's (distant lights).
+                            // (In the first iteration the current statuses are the detector's.)
+                            let detected = &light_status[p * n..(p + 1) * n];
+                            if iteration == 1
+                                && !near_lights
+                                && unreliable[p]
+                                && key.iter().all(|&b| b == 0)
+                                && detected.iter().filter(|&&x| x == status::USED).count() >= 3
+                            {
+                                s.copy_from_slice(detected);
+                                cons[dp] = detection.settled[p];
+                                hl[dp] = true;
+                                continue;
+                            }
+                            // The same input as in the last iteration gives the same
+                            // decisions (distant lights: the light vectors do not follow the
+                            // surface): they are reused, not recomputed.
+                            if iteration > 1
+                                && !near_lights
+                                && raw_key.get(p * key_bytes..(p + 1) * key_bytes) == Some(&*key)
+                            {
+                                s.copy_from_slice(previous);
+                                cons[dp] = raw_consistent[p];
+                                fw[dp] = raw_few[p];
+                                hl[dp] = highlight[p];
+                                continue;
+                            }
+                            let mut shadowed = 0;
+                            for (k, sk) in s.iter_mut().enumerate() {
+                                if in_shadow(p, k) && grey[k] <= dark {
+                                    *sk = status::SHADOW;
+                                    shadowed += 1;
+                                }
+                            }
+                            let count = if let (true, Some(att), Some(scratch)) =
+                                (unreliable[p], &attributor, scratch.as_mut())
+                            {
+                                hl[dp] = shadowed == 0;
+                                let (stat, count) = att.run_at(pix, grey, s, scratch);
+                                cons[dp] = count > 3 && stat <= att.threshold(count);
+                                count
+                            } else {
+                                cons[dp] = true;
+                                n - shadowed
+                            };
+                            let count = if near_lights && count == 3 {
+                                exact_dark_as_shadow(s, grey, dark)
+                            } else {
+                                count
+                            };
+                            if count < 3 {
+                                fw[dp] = true;
+                                cons[dp] = false;
+                                if params.fallback == Fallback::BrightestLights {
+                                    complete_with_brightest(s, grey, count);
+                                }
+                            }
+                        }
+                    },
+                );
+            Ok(())
+        })?;
+        // Spatial consensus: a fault is a region, not a pixel (see [`crate::solve::consensus`]). The
+        // neighbourhood proposes, the test disposes: a pixel takes the filtered set only when
+        // its own readings pass the χ² test with it (labels follow the final fit); otherwise
+        // its own decisions stand.
+        // From the second iteration, the filter and the settling are redone only near the
+        // pixels whose own decisions changed: elsewhere their inputs are the last iteration's,
+        // and so are their results (distant lights; near-light vectors follow the surface,
+        // and with them the settling's fit).
+        let redo = (iteration > 1 && params.consensus_radius > 0 && !near_lights).then(|| {
+            let seeds: Vec<bool> = (0..np)
+                .into_par_iter()
+                .map(|p| {
+                    raw_status.at(p, &light_status, n) != &new_status[p * n..(p + 1) * n]
+                        || raw_consistent[p] != new_consistent[p]
+                        || raw_few[p] != new_few[p]
+                })
+                .collect();
+            crate::solve::consensus::neighbourhood_of(capture, &seeds, params.consensus_radius)
+        });
+        // The pixels' own decisions become the last iteration's (moved: the last ones are not
+        // kept beside them); the consensus writes its result into a new array, so that three
+        // status arrays at most are held (current, own, filtered).
+        drop(std::mem::take(&mut raw_status));
+        let own_status = new_status;
+        raw_consistent.clone_from(&new_consistent);
+        raw_few.clone_from(&new_few);
+        raw_key = new_key;
+        let mut new_status = if params.consensus_radius > 0 {
+            let min_kept =
+                ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
+            let (filtered, _) = crate::solve::consensus::majority_filter_where(
+                capture,
+                &own_status,
+                params.consensus_radius,
+                min_kept,
+                redo.as_deref(),
+            );
+            filtered
+        } else {
+            own_status.clone()
+        };
+        if params.consensus_radius > 0 {
+            let redone = |p: usize| redo.as_ref().is_none_or(|r| r[p]);
+            let moved: Vec<usize> = (0..np)
+                .filter(|&p| redone(p) && usable_differs(&new_status, &own_status, p, n))
+                .collect();
+            for p in (0..np).filter(|&p| !redone(p)) {
+                new_status[p * n..(p + 1) * n].copy_from_slice(&light_status[p * n..(p + 1) * n]);
+                new_consistent[p] = consistent[p];
+                new_few[p] = few[p];
+            }
+            if let Some(att) = attributor.as_ref() {
+                let mut scratch = att.scratch();
+                let mut grey = vec![0f64; n];
+                capture.for_ids_by_tile(&moved, |sub, view| {
+                    for &p in sub {
+                        channel_mean(view.pixel_samples(p), c, &mut grey);
+                        let pix = capture.pixels[p] as usize;
+                        let s = &mut new_status[p * n..(p + 1) * n];
+                        let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
+                        if count > 3 && stat <= att.threshold(count) {
+                            new_consistent[p] = true;
+                            new_few[p] = false;
+                        } else {
+                            // The neighbours' set does not fit this pixel's readings: the
+                            // pixel's own decisions stand (the test disposes).
+                            s.copy_from_slice(&own_status[p * n..(p + 1) * n]);
+                        }
+                    }
+                    Ok(())
+                })?;
+            }
+        }
+        // Oscillation: a pixel whose new usable set is the one it had before its current set
+        // goes back and forth between two sets that both pass the test as the surface moves a
+        // little between iterations (both sets the recursion's own, not the detector's). It
+        // keeps its current set (and flags) from then on: the
+        // recursion settles instead of trading them, and the change it reports is the change
+        // of the other pixels.
+        new_status
+            .par_chunks_mut(n)
+            .zip(new_consistent.par_iter_mut())
+            .zip(new_few.par_iter_mut())
+            .zip(new_highlight.par_iter_mut())
+            .zip(oscillating.par_iter_mut())
+            .zip(earlier_print.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (((((row, cons), fw), hl), stuck), print))| {
+                let current = &light_status[p * n..(p + 1) * n];
+                if !usable_sets_differ(row, current) {
+                    return;
+                }
+                if *stuck || usable_print(row) == *print {
+                    *stuck = true;
+                    row.copy_from_slice(current);
+                    *cons = consistent[p];
+                    *fw = few[p];
+                    *hl = highlight[p];
+                } else if iteration > 1 {
+                    // (The detector's initial sets are not the recursion's decisions: a pixel
+                    // that returns to one is settling, not oscillating.)
+                    *print = usable_print(current);
+                }
+            });
+        let changed: Vec<bool> = (0..np)
+            .into_par_iter()
+            .map(|p| usable_differs(&new_status, &light_status, p, n))
+            .collect();
+        let changed_pixels = changed.iter().filter(|&&x| x).count();
+        // 6. Re-estimate. With distant lights a pixel's least-squares result depends only on
+        // its usable lights: only pixels whose set changed are solved again, and those the
+        // neighbour fill below rewrote in the last iteration or rewrites in this one.
+        // The last statuses have served: replaced before the re-estimate, not kept beside it.
+        light_status = new_status;
+        raw_status = OwnStatuses::of(&own_status, &light_status, n);
+        drop(own_status);
+        if near_lights {
+            est = crate::solve::tiled::solve_statuses(capture, &light_status)?;
+        } else {
+            let ids: Vec<usize> = (0..np)
+                .filter(|&p| changed[p] || few[p] || new_few[p])
+                .collect();
+            drop(changed);
+            resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
+        }
+        consistent = new_consistent;
+        few = new_few;
+        highlight = new_highlight;
+        if params.fallback == Fallback::Neighbours {
+            solved_two.fill(false);
+            let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();
+            fill_from_neighbours(
+                capture,
+                &few_ids,
+                &mut est,
+                &light_status,
+                &few,
+                &consistent,
+                &|i: usize| match &near_normals {
+                    Some(map) => map[i],
+                    None => normal_from_depth_at(i, w, h, &depth.values, &capture.mask),
+                },
+                &mut solved_two,
+            )?;
+        }
+        let shadowed_share =
+            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
+        let record = IterationRecord {
+            iteration,
+            changed_pixels,
+            changed_share: changed_pixels as f64 / np.max(1) as f64,
+            highlight_pixels: highlight.iter().filter(|&&x| x).count(),
+            fewer_than_three: few.iter().filter(|&&x| x).count(),
+            oscillating_pixels: oscillating.iter().filter(|&&x| x).count(),
+            shadowed_share,
+            mean_error_deg: truth_masked.as_ref().map(|t| mean_error(&est.normals, t)),
+            seconds: start.elapsed().as_secs_f64(),
+        };
+        on_iteration(&record);
+        progress.advance(1);
+        let change = record.changed_share;
+        records.push(record);
+        last_maps = Some(maps);
+        last_depth = depth.values;
+        let print = fingerprint(&light_status);
+        if let Some((done, reason)) = stop.after(iteration, change, print) {
+            converged = done;
+            stop_reason = reason;
+            break;
+        }
+    }
+    progress.end();
+    // 7. The final estimate: each pixel's usable lights with the last surface as a prior on its
+    // normal (distant lights; near lights keep their least-squares estimate).
+    let surface_prior = if params.surface_prior_deg > 0.0 && !near_lights && !last_depth.is_empty()
+    {
+        let scatter = usable_scatter(capture, &light_status, &few, &noise)?;
+        let prior = SurfacePrior {
+            sigma_rad: params.surface_prior_deg.to_radians(),
+            noise: NoiseModel {
+                kappa: scatter,
+                ..noise.clone()
+            },
+        };
+        Some(prior.apply(capture, &light_status, &few, &last_depth, &mut est)?)
+    } else {
+        None
+    };
+    let final_trust = pixel_trust(
+        &est,
+        &consistent,
+        &few,
+        &solved_two,
+        integration.unreliable_weight,
+    );
+    let mut final_trust = final_trust;
+    if near_lights {
+        exact_trust(capture, &light_status, &few, &mut final_trust);
+    }
+    let diagnostics = RecursiveDiagnostics {
+        trust: capture.scatter(&final_trust, 1, 0.0),
+        shadows: last_maps.expect("at least one iteration"),
+        highlight: capture.scatter(&highlight, 1, false),
+        fewer_than_three: capture.scatter(&few, 1, false),
+        depth: last_depth,
+        reliable: capture.scatter(&consistent, 1, false),
+        final_change: records.last().map_or(0.0, |r| r.changed_share),
+        iterations: records,
+        fallback: params.fallback,
+        converged,
+        stop_reason,
+        surface_prior,
+    };
+    est.light_status = Some(light_status);
+    Ok(RecursiveResult {
+        estimate: est,
+        detection,
+        detect_seconds,
+        diagnostics,
+    })
+}
+
+/// The recursive method's final step: a maximum a posteriori estimate of each pixel's scaled
+/// normal b = ρ n from its usable lights, with the last integrated surface as a prior on n.
+///
+/// The data term is the usable readings' weighted least squares under `noise` (σ_k² =
+/// c_k² (σ₀² + κ² Ī²), Ī the mean of the usable readings); the prior says b ≈ ρ̂ n_s with an isotropic standard deviation ρ̂ σ_s,
+/// n_s the surface's normal and ρ̂ the pixel's own least-squares albedo:
+/// b = (G + π I)⁻¹ (r + π ρ̂ n_s), G = Σ l_k l_kᵀ / σ_k², r = Σ l_k I_k / σ_k², π = 1 / (ρ̂ σ_s)².
+/// Where the readings determine the normal well (many lights, bright) the prior barely moves
+/// it; where they do not (few usable lights, dark, readings near the noise floor) the surface's
+/// normal — the integrable part of the neighbourhood's normals — steadies it. That removes
+/// the speckle of per-pixel usable sets without smoothing what the readings show: the prior is
+/// robust, its precision divided by 1 + a² / (3² (σ_s² + v)), a the angle between the
+/// least-squares normal and the surface's and v the least-squares normal's own angular
+/// variance, so that where the two disagree beyond three combined standard deviations (a
+/// crease or a step the integration smooths over) the readings decide.
+pub struct SurfacePrior {
+    /// σ_s, radians.
+    pub sigma_rad: f64,
+    /// The readings' noise: the detector's σ₀, floor and light factors, with κ the scatter of
+    /// the usable readings (`usable_scatter`; the test's κ is a decision threshold, this one
+    /// what the readings the estimate uses show).
+    pub noise: NoiseModel,
+}
+
+/// The model error κ of the readings the estimate uses: over a regular sample of at most 8192
+/// mask pixels with four usable lights or more (not flagged in `skip`), each pixel's weighted
+/// least-squares residual variance s² over its usable lights (light factors of `noise`), scaled
+/// to the median of its χ² distribution (so that the median over the pixels estimates the
+/// variance, whatever each pixel's degrees of freedom), gives κ_p² = (s² − σ₀²) / Ī², Ī the
+/// usable readings' mean; κ is the square root of the median of κ_p² (0 when negative or with
+/// fewer than 100 pixels). Unlike the capture's κ measured over all lights
+/// ([`crate::solve::detect::estimate_kappa`]), it leaves out the readings the recursion dropped:
+/// highlights and shadows do not count as the readings' scatter.
+fn usable_scatter(
+    capture: &Capture,
+    light_status: &[u8],
+    skip: &[bool],
+    noise: &NoiseModel,
+) -> Result<f64> {
+    use nalgebra::{Matrix3, Vector3};
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let np = capture.n_pixels();
+    let ids: Vec<usize> = (0..np)
+        .step_by(np.div_ceil(8192).max(1))
+        .filter(|&p| !skip[p])
+        .collect();
+    let mut dirs = crate::solve::detect::distant_directions(capture);
+    for (k, d) in dirs.iter_mut().enumerate() {
+        *d /= noise.light_factor.get(k).copied().unwrap_or(1.0);
+    }
+    // The median of χ²_ν / ν per degrees of freedom ν.
+    let chi2_median: Vec<f64> = (0..n.max(4))
+        .map(|dof| {
+            if dof == 0 {
+                1.0
+            } else {
+                crate::base::stats::chi2_quantile(0.5, dof) / dof as f64
+            }
+        })
+        .collect();
+    let mut k2 = Vec::with_capacity(ids.len());
+    let mut grey = vec![0f64; n];
+    capture.for_ids_by_tile(&ids, |sub, view| {
+        for &p in sub {
+            channel_mean(view.pixel_samples(p), c, &mut grey);
+            for (k, g) in grey.iter_mut().enumerate() {
+                *g /= noise.light_factor.get(k).copied().unwrap_or(1.0);
+            }
+            let used = |k: usize| light_status[p * n + k] == status::USED;
+            let count = (0..n).filter(|&k| used(k)).count();
+            if count < 4 {
+                continue;
+            }
+            let (mut gram, mut rhs, mut level) = (Matrix3::zeros(), Vector3::zeros(), 0.0);
+            for k in (0..n).filter(|&k| used(k)) {
+                gram += dirs[k] * dirs[k].transpose();
+                rhs += dirs[k] * grey[k];
+                level += grey[k];
+            }
+            let Some(gi) = gram.try_inverse() else {
+                continue;
+            };
+            let m = gi * rhs;
+            let rss: f64 = (0..n)
+                .filter(|&k| used(k))
+                .map(|k| (grey[k] - dirs[k].dot(&m)).powi(2))
+                .sum();
+            let dof = count - 3;
+            let level = level / count as f64;
+            if level > 0.0 {
+                let s2 = rss / dof as f64 / chi2_median[dof];
+                k2.push((s2 - noise.sigma0 * noise.sigma0) / (level * level));
+            }
+        }
+        Ok(())
+    })?;
+    if k2.len() < 100 {
+        return Ok(0.0);
+    }
+    Ok(crate::solve::metrics::median(&mut k2).max(0.0).sqrt())
+}
+
+/// What [`SurfacePrior::apply`] did, for the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct SurfacePriorRecord {
+    /// σ_s, degrees.
+    pub prior_deg: f64,
+    /// κ of the data term.
+    pub kappa: f64,
+    /// Pixels re-estimated (mask pixels with three usable lights or more and a surface normal).
+    pub pixels: usize,
+    /// Mean angle between the least-squares and the final normals, degrees.
+    pub mean_shift_deg: f64,
+}
+
+/// The prior is released where the least-squares normal and the surface disagree beyond this
+/// many combined standard deviations (a Cauchy weight with scale 3).
+const PRIOR_RELEASE_SIGMAS: f64 = 3.0;
+
+impl SurfacePrior {
+    /// Re-estimates the mask pixels of `est` not flagged in `skip` (they keep their estimate)
+    /// from their usable lights in `light_status` and the surface `depth` (full frame, pixel
+    /// units, NaN outside the mask). Distant lights.
+    pub fn apply(
+        &self,
+        capture: &Capture,
+        light_status: &[u8],
+        skip: &[bool],
+        depth: &[f32],
+        est: &mut Estimate,
+    ) -> Result<SurfacePriorRecord> {
+        let (n, c) = (capture.n_lights(), capture.channels);
+        let (w, h) = (capture.width, capture.height);
+        let factors = &self.noise.light_factor;
+        let dirs = crate::solve::detect::distant_directions(capture);
+        // The shift summed in nanodegrees as integers: the same total in any order, however
+        // the capture is tiled.
+        let (mut pixels, mut shift_nano) = (0usize, 0u64);
+        capture.for_each_tile(|off, tile| {
+            let tn = tile.n_pixels();
+            let sums: Vec<(usize, u64)> = est.normals[off..off + tn]
+                .par_chunks_mut(CHUNK)
+                .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+                .enumerate()
+                .map_init(
+                    || (vec![0f64; n], vec![false; n]),
+                    |(grey, used), (chunk, (normals, albedo))| {
+                        let (mut count, mut nano) = (0usize, 0u64);
+                        for (dp, old) in normals.iter_mut().enumerate() {
+                            let lp = chunk * CHUNK + dp;
+                            let p = off + lp;
+                            if skip[p] {
+                                continue;
+                            }
+                            let samples = tile.pixel_samples(lp);
+                            channel_mean(samples, c, grey);
+                            for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
+                                *u = st == status::USED;
+                            }
+                            let i = capture.pixels[p] as usize;
+                            let surface = normal_from_depth_at(i, w, h, depth, &capture.mask);
+                            let Some(m) = self.solve(&dirs, factors, grey, used, surface) else {
+                                continue;
+                            };
+                            let mut normal = [0f32; 3];
+                            write_normal_albedo_with(
+                                &capture.lights.directions,
+                                c,
+                                samples,
+                                &m,
+                                Some(used),
+                                &mut normal,
+                                &mut albedo[dp * c..(dp + 1) * c],
+                            );
+                            nano += (angular_error_deg(normal, *old) * 1e9).round() as u64;
+                            *old = normal;
+                            count += 1;
+                        }
+                        (count, nano)
+                    },
+                )
+                .collect();
+            for (count, nano) in sums {
+                pixels += count;
+                shift_nano += nano;
+            }
+            Ok(())
+        })?;
+        let shift = shift_nano as f64 * 1e-9;
+        Ok(SurfacePriorRecord {
+            prior_deg: self.sigma_rad.to_degrees(),
+            kappa: self.noise.kappa,
+            pixels,
+            mean_shift_deg: shift / pixels.max(1) as f64,
+        })
+    }
+
+    /// One pixel's scaled normal: `grey` its channel-mean readings, `used` its usable lights,
+    /// `surface` the surface's unit normal there ((0, 0, 0): none). `None` when the usable
+    /// lights do not determine a normal or there is no surface normal (the estimate stays).
+    fn solve(
+        &self,
+        dirs: &[nalgebra::Vector3<f64>],
+        factors: &[f64],
+        grey: &[f64],
+        used: &[bool],
+        surface: [f32; 3],
+    ) -> Option<nalgebra::Vector3<f64>> {
+        use nalgebra::{Matrix3, Vector3};
+        if surface == [0.0; 3] {
+            return None;
+        }
+        // The model error scales with the readings the fit uses (at a pixel most of whose
+        // lights are in shadow, the lit ones), not with the mean over every light.
+        let (sum, used_count) = grey
+            .iter()
+            .zip(used)
+            .filter(|(_, &u)| u)
+            .fold((0.0, 0usize), |(s, c), (g, _)| (s + g, c + 1));
+        if used_count < 3 {
+            return None;
+        }
+        let variance = self.noise.variance(sum / used_count as f64);
+        let (mut gram, mut rhs) = (Matrix3::<f64>::zeros(), Vector3::<f64>::zeros());
+        for k in (0..dirs.len()).filter(|&k| used[k]) {
+            let f = factors.get(k).copied().unwrap_or(1.0);
+            let inv = 1.0 / (variance * f * f);
+            gram += dirs[k] * dirs[k].transpose() * inv;
+            rhs += dirs[k] * (grey[k] * inv);
+        }
+        let gram_inv = gram.try_inverse()?;
+        let m = gram_inv * rhs;
+        let rho = m.norm();
+        if !(rho.is_finite() && rho > 1e-12) {
+            return None;
+        }
+        let normal = m / rho;
+        let prior = Vector3::new(surface[0] as f64, surface[1] as f64, surface[2] as f64);
+        // The least-squares normal's angular variance v: its covariance G⁻¹ / ρ² on the
+        // tangent plane; a: its angle to the surface's normal.
+        let tangent = Matrix3::identity() - normal * normal.transpose();
+        let own = (tangent * gram_inv * tangent).trace() / (rho * rho);
+        let angle = normal.dot(&prior).clamp(-1.0, 1.0).acos();
+        let s2 = self.sigma_rad * self.sigma_rad;
+        let release = 1.0 + angle * angle / (PRIOR_RELEASE_SIGMAS.powi(2) * (s2 + own));
+        let precision = 1.0 / (rho * rho * s2 * release);
+        (gram + Matrix3::identity() * precision)
+            .try_inverse()
+            .map(|g| g * (rhs + prior * (rho * precision)))
+    }
+}
+
+/// A status array of `n` lights per mask pixel held as its difference from another (the
+/// pixels' own decisions against the statuses after the consensus, which differ at a few
+/// pixels): the pixels where they differ and their statuses there.
+#[derive(Default)]
+struct OwnStatuses {
+    /// Mask pixels where the statuses differ, ascending.
+    ids: Vec<u32>,
+    /// Their statuses, `n` per pixel of `ids`.
+    codes: Vec<u8>,
+}
+
+impl OwnStatuses {
+    /// `own` held as its difference from `base` (both `n` statuses per mask pixel).
+    fn of(own: &[u8], base: &[u8], n: usize) -> OwnStatuses {
+        let mut held = OwnStatuses::default();
+        for (p, (o, b)) in own.chunks_exact(n).zip(base.chunks_exact(n)).enumerate() {
+            if o != b {
+                held.ids.push(p as u32);
+                held.codes.extend_from_slice(o);
+            }
+        }
+        held
+    }
+
+    /// Mask pixel `p`'s statuses, `base` (the array this was made against) where they agree.
+    fn at<'a>(&'a self, p: usize, base: &'a [u8], n: usize) -> &'a [u8] {
+        match self.ids.binary_search(&(p as u32)) {
+            Ok(j) => &self.codes[j * n..(j + 1) * n],
+            Err(_) => &base[p * n..(p + 1) * n],
+        }
+    }
+}
+
+/// Solves the mask pixels `ids` of `est` again with their usable lights in `statuses`
+/// ([`crate::solve::lambert::resolve_subsets_at`], lights weighted by `factors`), reading their
+/// samples from a sampled view when the capture is tiled.
+fn resolve_at(
+    capture: &Capture,
+    statuses: &[u8],
+    ids: &[usize],
+    est: &mut Estimate,
+    factors: &[f64],
+) -> Result<()> {
+    capture.for_ids_by_tile(ids, |sub, view| {
+        crate::solve::lambert::resolve_subsets_at(view, statuses, sub, est, factors);
+        Ok(())
+    })
+}
+
+/// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
+/// per pixel (labels of removed lights aside).
+fn usable_differs(a: &[u8], b: &[u8], p: usize, n: usize) -> bool {
+    usable_sets_differ(&a[p * n..(p + 1) * n], &b[p * n..(p + 1) * n])
+}
+
+/// Whether two status rows of one pixel differ in their usable-light sets.
+fn usable_sets_differ(a: &[u8], b: &[u8]) -> bool {
+    a.iter()
+        .zip(b)
+        .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
+}
+
+/// When the recursion stops, and why: the usable-light sets settled (the share of pixels that
+/// changed fell below the tolerance, or the sets did not change), they cycle (an iteration
+/// repeats the sets of an earlier one, not the last), the change stalled (no new smallest
+/// change for [`STALL_ITERATIONS`] iterations), or the iteration limit.
+struct StopRule {
+    tolerance: f64,
+    max_iterations: usize,
+    /// Fingerprints of the usable-light sets after each iteration (the initial sets first).
+    seen: Vec<u64>,
+    /// The smallest change so far and its iteration.
+    best_change: (f64, usize),
+}
+
+impl StopRule {
+    fn new(params: &RecursiveParams, initial: u64) -> Self {
+        StopRule {
+            tolerance: params.change_tolerance,
+            max_iterations: params.max_iterations,
+            seen: vec![initial],
+            best_change: (f64::INFINITY, 0),
+        }
+    }
+
+    /// After `iteration` (from 1), whose sets have fingerprint `print` and changed at a share
+    /// `change` of the pixels: `Some((converged, reason))` to stop, `None` to go on (the
+    /// iteration limit gives `Some((false, …))`).
+    fn after(&mut self, iteration: usize, change: f64, print: u64) -> Option<(bool, String)> {
+        let (pct, tol) = (100.0 * change, 100.0 * self.tolerance);
+        if change < self.tolerance {
+            return Some((
+                true,
+                format!(
+                    "converged after {iteration} iterations: {pct:.2}% of the pixels changed their usable lights (tolerance {tol:.2}%)"
+                ),
+            ));
+        }
+        if self.seen.last() == Some(&print) {
+            // Only labels changed: the usable sets, hence the estimate, are settled.
+            return Some((
+                true,
+                format!(
+                    "converged after {iteration} iterations: the usable-light sets did not change"
+                ),
+            ));
+        }
+        if let Some(at) = self.seen.iter().rposition(|&f| f == print) {
+            return Some((
+                false,
+                format!(
+                    "not converged: iteration {iteration} repeats the usable-light sets of iteration {at} (a cycle of period {}); {pct:.2}% of the pixels change per iteration against a tolerance of {tol:.2}%",
+                    iteration - at
+                ),
+            ));
+        }
+        self.seen.push(print);
+        if change < self.best_change.0 {
+            self.best_change = (change, iteration);
+        } else if iteration - self.best_change.1 >= STALL_ITERATIONS {
+            return Some((
+                false,
+                format!(
+                    "not converged: the change has not fallen below its smallest value ({:.2}% at iteration {}) for {STALL_ITERATIONS} iterations; {pct:.2}% of the pixels change per iteration against a tolerance of {tol:.2}%",
+                    100.0 * self.best_change.0,
+                    self.best_change.1
+                ),
+            ));
+        }
+        (iteration >= self.max_iterations).then(|| {
+            (
+                false,
+                format!(
+                    "not converged: stopped at the iteration limit ({iteration}) with {pct:.2}% of the pixels changing their usable lights (tolerance {tol:.2}%)"
+                ),
+            )
+        })
+    }
+}
+
+/// Iterations without a new smallest change after which the recursion is declared stalled
+/// (it wanders between nearly the same sets without settling).
+pub const STALL_ITERATIONS: usize = 10;
+
+/// A fingerprint of per-pixel light statuses (usable or not), for cycle detection.
+/// A 32-bit fingerprint (FNV-1a) of one pixel's usable-light set (its statuses `row`); never
+/// 0 for a set, so that 0 can stand for none.
+fn usable_print(row: &[u8]) -> u32 {
+    let mut h = 0x811c_9dc5u32;
+    for chunk in row.chunks(8) {
+        let mut bits = 0u8;
+        for (i, &s) in chunk.iter().enumerate() {
+            bits |= u8::from(s == status::USED) << i;
+        }
+        h = (h ^ u32::from(bits)).wrapping_mul(0x0100_0193);
+    }
+    h.max(1)
+}
+
+fn fingerprint(light_status: &[u8]) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    for chunk in light_status.chunks(64) {
+        let mut bits = 0u64;
+        for (i, &s) in chunk.iter().enumerate() {
+            bits |= u64::from(s == status::USED) << i;
+        }
+        bits.hash(&mut h);
+    }
+    h.finish()
+}
+
+/// The recursion's integration trust per mask pixel: 1 where the usable lights pass the test
+/// and at least three remain, `unreliable_weight` where they do not, 0 where the normal came
+/// from neither (fewer than three lights and no two-source solution).
+fn pixel_trust(
+    est: &Estimate,
+    consistent: &[bool],
+    few: &[bool],
+    solved_two: &[bool],
+    unreliable_weight: f32,
+) -> Vec<f32> {
+    (0..est.normals.len())
+        .map(|p| {
+            if few[p] && !solved_two[p] {
+                0.0
+            } else if consistent[p] && !few[p] {
+                1.0
+            } else {
+                unreliable_weight
+            }
+        })
+        .collect()
+}
+
+/// An intermediate surface: the weighted normals integrated with the reconstruction's
+/// integrator and slope cap.
+fn integrate(
+    w: usize,
+    h: usize,
+    normals: Vec<[f32; 3]>,
+    mask: &[bool],
+    weights: &[f32],
+    initial: Vec<f32>,
+    integration: &IntegrationParams,
+) -> Result<crate::geometry::integrate::Depth> {
+    let g = gradients_from_normals(w, h, &normals, Some(mask), integration.max_slope)?;
+    drop(normals);
+    let problem = IntegrationProblem {
+        weights: Some(weights),
+        ..IntegrationProblem::new(w, h, &g.p, &g.q, &g.mask)
+    };
+    match integration.method {
+        // `poisson` solves in the last surface's buffer: one depth map held, not two.
+        IntegratorKind::Poisson if !initial.is_empty() => {
+            Poisson::default().integrate_in_place(&problem, initial, &Silent)
+        }
+        _ => {
+            let problem = IntegrationProblem {
+                initial: (!initial.is_empty()).then_some(&initial[..]),
+                ..problem
+            };
+            integration.method.integrator().integrate(&problem, &Silent)
+        }
+    }
+}
+
+/// A near-light iteration's surface: the weighted normals integrated through the camera into
+/// Z (mm), made the light model's current surface, and its normals (for shading and shadows).
+fn near_surface(
+    capture: &Capture,
+    near: &crate::model::lightmodel::NearLights,
+    normals: &[[f32; 3]],
+    weights: &[f32],
+    integration: &IntegrationParams,
+) -> Result<(crate::geometry::integrate::Depth, Vec<[f32; 3]>)> {
+    let (w, h) = (capture.width, capture.height);
+    let s = crate::geometry::integrate::perspective::perspective_surface(
+        w,
+        h,
+        normals,
+        Some(&capture.mask),
+        Some(weights),
+        &near.camera,
+        near.mean_distance,
+        integration.method.integrator().as_ref(),
+        integration.max_slope,
+        &Silent,
+    )?;
+    near.set_surface(&s.depth.values);
+    let shading = crate::geometry::integrate::perspective::normals_from_z(
+        w,
+        h,
+        &s.depth.values,
+        &capture.mask,
+        &near.camera,
+    );
+    Ok((s.depth, shading))
+}
+
+/// The [`Fallback::Neighbours`] completion of the pixels `few_ids` (ascending), those with
+/// fewer than three usable lights; their samples are read a tile at a time.
+#[allow(clippy::too_many_arguments)]
+fn fill_from_neighbours(
+    capture: &Capture,
+    few_ids: &[usize],
+    est: &mut Estimate,
+    light_status: &[u8],
+    few: &[bool],
+    reliable: &[bool],
+    surface_normal: &dyn Fn(usize) -> [f32; 3],
+    solved: &mut [bool],
+) -> Result<()> {
+    let n = capture.n_lights();
+    let c = capture.channels;
+    let (w, h) = (capture.width, capture.height);
+    if few_ids.is_empty() {
+        return Ok(());
+    }
+    // Grey albedo of the reliable pixels, full frame (NaN elsewhere), from the estimate before
+    // any pixel is completed.
+    let mut albedo_map = vec![f32::NAN; w * h];
+    for (p, &i) in capture.pixels.iter().enumerate() {
+        if reliable[p] && !few[p] && est.normals[p] != [0.0; 3] {
+            albedo_map[i as usize] = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() / c as f32;
+        }
+    }
+    let mut lights = crate::model::lightmodel::PixelLights::of(capture);
+    let mut dirs = vec![[0f64; 3]; n];
+    let mut grey = vec![0f64; n];
+    let mut samples = Vec::new();
+    let mut used: Vec<usize> = Vec::with_capacity(n);
+    let mut flags = vec![false; n];
+    capture.for_ids_by_tile(few_ids, |sub, samples_of| {
+        for &p in sub {
+            let pix = capture.pixels[p] as usize;
+            let (row, col) = (pix / w, pix % w);
+            let surf = surface_normal(pix);
+            // Median albedo of the nearest reliable pixels (growing windows). Near lights: as
+            // far as the nearest reliable pixels are (a point light's cast shadow is wider in
+            // pixels the finer the image), as [`crate::solve::near_lobe::correct_two`] does.
+            let widest = if lights.is_near() { w.max(h) } else { 32 };
+            let rho = crate::solve::metrics::median_in_growing_window(
+                &albedo_map,
+                w,
+                h,
+                (row, col),
+                widest,
+                &mut samples,
+            );
+            used.clear();
+            used.extend((0..n).filter(|&k| light_status[p * n + k] == status::USED));
+            channel_mean(samples_of.pixel_samples(p), c, &mut grey);
+            dirs.copy_from_slice(lights.at(pix));
+            let two = if used.len() == 2 && rho.is_finite() && !lights.is_near() {
+                two_source_normal(
+                    dirs[used[0]],
+                    dirs[used[1]],
+                    grey[used[0]] / rho,
+                    grey[used[1]] / rho,
+                    surf,
+                )
+            } else if used.len() == 2 && rho.is_finite() {
+                // Scaled near-light vectors v = b·l: n · l = I / (ρ b).
+                let unit = |v: [f64; 3]| {
+                    let b = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    ([v[0] / b, v[1] / b, v[2] / b], b)
+                };
+                let ((l1, b1), (l2, b2)) = (unit(dirs[used[0]]), unit(dirs[used[1]]));
+                two_source_normal(
+                    l1,
+                    l2,
+                    grey[used[0]] / (rho * b1),
+                    grey[used[1]] / (rho * b2),
+                    surf,
+                )
+            } else {
+                None
+            };
+            solved[p] = two.is_some();
+            let nrm = match two {
+                Some(v) => v,
+                None if surf != [0.0; 3] => surf,
+                None => continue,
+            };
+            let m = nalgebra::Vector3::new(nrm[0] as f64, nrm[1] as f64, nrm[2] as f64);
+            for (k, f) in flags.iter_mut().enumerate() {
+                *f = used.contains(&k);
+            }
+            let mut out_n = [0f32; 3];
+            write_normal_albedo_with(
+                &dirs,
+                c,
+                samples_of.pixel_samples(p),
+                &m,
+                Some(&flags),
+                &mut out_n,
+                &mut est.albedo[p * c..(p + 1) * c],
+            );
+            est.normals[p] = nrm;
+        }
+        Ok(())
+    })
+}
+
+/// The unit normals n with n·l₁ = a and n·l₂ = b (two-source photometric stereo with known
+/// albedo): the root closer to `hint` (or the one facing the camera more when `hint` is zero).
+fn two_source_normal(
+    l1: [f64; 3],
+    l2: [f64; 3],
+    a: f64,
+    b: f64,
+    hint: [f32; 3],
+) -> Option<[f32; 3]> {
+    let v1 = nalgebra::Vector3::from(l1);
+    let v2 = nalgebra::Vector3::from(l2);
+    let cos = v1.dot(&v2);
+    let det = 1.0 - cos * cos;
+    if det < 1e-6 {
+        return None;
+    }
+    let alpha = (a - b * cos) / det;
+    let beta = (b - a * cos) / det;
+    let in_plane = v1 * alpha + v2 * beta;
+    let cross = v1.cross(&v2);
+    let gamma2 = (1.0 - in_plane.norm_squared()) / cross.norm_squared();
+    let gamma = gamma2.max(0.0).sqrt();
+    let hint = nalgebra::Vector3::new(hint[0] as f64, hint[1] as f64, hint[2] as f64);
+    let score = |n: &nalgebra::Vector3<f64>| if hint.norm() > 0.0 { n.dot(&hint) } else { n.z };
+    let candidates = [in_plane + cross * gamma, in_plane - cross * gamma];
+    let best = candidates
+        .iter()
+        .filter(|n| n.norm() > 1e-9)
+        .max_by(|x, y| score(x).total_cmp(&score(y)))?;
+    let best = best.normalize();
+    (best.z > 0.0).then(|| [best.x as f32, best.y as f32, best.z as f32])
+}
+
+/// Near lights, a pixel left with exactly three usable lights: nothing can test them, and a
+/// reading at the shadow level `dark` among them says only that the light does not reach the
+/// point (a cast shadow of a point light reads as dark as an attached one, whatever the normal),
+/// not that n · l is zero, which the exact solve would make it. Such readings are marked
+/// SHADOW; returns the usable lights left.
+fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize {
+    let mut count = 0;
+    for (s, &g) in status_row.iter_mut().zip(grey) {
+        if *s == status::USED {
+            if g <= dark {
+                *s = status::SHADOW;
+            } else {
+                count += 1;
+            }
+        }
+    }
+    count
+}
+
+/// Near lights: the integration trust of the pixels whose normal is exactly determined (three
+/// usable lights, nothing left for the χ² test, so no evidence beyond the noise level) is the
+/// precision of that solve relative to the solve with every light, both under the same noise:
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹), v the pixel's scaled light vectors at the current
+/// surface (0.5 for a four-light square), in place of 1 or the weight of unreliable pixels.
+/// Pixels `few` (completed from two lights or the surface) keep theirs.
+fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
+    let n = capture.n_lights();
+    let mut lights = crate::model::lightmodel::PixelLights::of(capture);
+    for (p, t) in trust.iter_mut().enumerate() {
+        let st = &light_status[p * n..(p + 1) * n];
+        if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {
+            continue;
+        }
+        if let Some(r) = relative_precision(lights.at(capture.pixels[p] as usize), st) {
+            *t = r as f32;
+        }
+    }
+}
+
+/// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹) over light vectors `v` (USED in `st`), in [0, 1]:
+/// the precision of the least-squares normal from the used lights relative to all of them,
+/// under the same noise. `None` when either sum has no inverse (near 0 when nearly singular).
+fn relative_precision(v: &[[f64; 3]], st: &[u8]) -> Option<f64> {
+    let (mut all, mut used) = (nalgebra::Matrix3::zeros(), nalgebra::Matrix3::zeros());
+    for (l, &sk) in v.iter().zip(st) {
+        let l = nalgebra::Vector3::from(*l);
+        let o = l * l.transpose();
+        all += o;
+        if sk == status::USED {
+            used += o;
+        }
+    }
+    let a = all.try_inverse()?.trace();
+    let u = used.try_inverse()?.trace();
+    Some((a / u).clamp(0.0, 1.0))
+}
+
+#[cfg(test)]
+mod exact_tests {
+    use super::*;
+
+    /// Three lights of a symmetric four-light square at any slant: Sherman–Morrison gives
+    /// tr(G₃⁻¹) = 2 tr(G₄⁻¹), a relative precision of exactly one half; every light kept, 1.
+    #[test]
+    fn three_of_a_square_have_half_the_precision_of_four() {
+        for slant in [15f64, 35.0, 60.0] {
+            let (s, c) = (slant.to_radians().sin(), slant.to_radians().cos());
+            let v: Vec<[f64; 3]> = (0..4)
+                .map(|k| {
+                    let phi = (45.0 + 90.0 * k as f64).to_radians();
+                    [s * phi.cos(), s * phi.sin(), c]
+                })
+                .collect();
+            for drop in 0..4 {
+                let mut st = [status::USED; 4];
+                st[drop] = status::SHADOW;
+                let r = relative_precision(&v, &st).unwrap();
+                assert!((r - 0.5).abs() < 1e-12, "slant {slant}, light {drop}: {r}");
+            }
+            let r = relative_precision(&v, &[status::USED; 4]).unwrap();
+            assert!((r - 1.0).abs() < 1e-12);
+            // Two lights: singular (no inverse, or one so large that nothing is left).
+            let st = [status::USED, status::USED, status::SHADOW, status::SHADOW];
+            let r = relative_precision(&v, &st);
+            assert!(r.is_none_or(|r| r < 1e-9), "{r:?}");
+        }
+    }
+
+    /// Readings at or under the shadow level leave the usable set; lights already removed
+    /// keep their labels.
+    #[test]
+    fn dark_readings_of_an_exact_set_become_shadows() {
+        let mut st = [status::USED, status::USED, status::HIGHLIGHT, status::USED];
+        let count = exact_dark_as_shadow(&mut st, &[0.5, 0.01, 0.9, 0.02], 0.02);
+        assert_eq!(count, 1);
+        assert_eq!(
+            st,
+            [
+                status::USED,
+                status::SHADOW,
+                status::HIGHLIGHT,
+                status::SHADOW
+            ]
+        );
+    }
+}
+
+/// Marks the brightest unused lights as used until three are.
+fn complete_with_brightest(status_row: &mut [u8], grey: &[f64], mut count: usize) {
+    while count < 3 {
+        let best = (0..status_row.len())
+            .filter(|&k| status_row[k] != status::USED)
+            .max_by(|&a, &b| grey[a].total_cmp(&grey[b]));
+        match best {
+            Some(k) => {
+                status_row[k] = status::USED;
+                count += 1;
+            }
+            None => break,
+        }
+    }
+}
+
+fn mean_error(normals: &[[f32; 3]], truth: &[[f32; 3]]) -> f64 {
+    let (mut sum, mut count) = (0.0, 0usize);
+    for (a, t) in normals.iter().zip(truth) {
+        if *t != [0.0; 3] {
+            let e = if *a == [0.0; 3] {
+                90.0
+            } else {
+                angular_error_deg(*a, *t)
+            };
+            sum += e;
+            count += 1;
+        }
+    }
+    sum / count.max(1) as f64
+}
+
+#[cfg(test)]
+mod stop_tests {
+    use super::*;
+
+    fn rule(tolerance: f64, max_iterations: usize) -> StopRule {
+        let params = RecursiveParams {
+            change_tolerance: tolerance,
+            max_iterations,
+            ..RecursiveParams::default()
+        };
+        StopRule::new(&params, 100)
+    }
+
+    #[test]
+    fn settling_below_the_tolerance_or_unchanged_sets_converge() {
+        let mut r = rule(0.01, 50);
+        assert_eq!(r.after(1, 0.2, 1), None);
+        let (done, why) = r.after(2, 0.005, 2).unwrap();
+        assert!(done && why.contains("0.50%"), "{why}");
+        let mut r = rule(0.0, 50);
+        assert_eq!(r.after(1, 0.2, 1), None);
+        let (done, why) = r.after(2, 0.0, 1).unwrap();
+        assert!(done && why.contains("did not change"), "{why}");
+    }
+
+    #[test]
+    fn a_repeated_set_is_a_cycle_with_its_period() {
+        let mut r = rule(0.001, 1000);
+        for (i, print) in [1u64, 2, 3].into_iter().enumerate() {
+            assert_eq!(r.after(i + 1, 0.1, print), None);
+        }
+        // Iteration 4 repeats iteration 2's sets: period 2.
+        let (done, why) = r.after(4, 0.1, 2).unwrap();
+        assert!(
+            !done && why.contains("iteration 2") && why.contains("period 2"),
+            "{why}"
+        );
+        // The initial sets count too (iteration 0).
+        let mut r = rule(0.001, 1000);
+        assert_eq!(r.after(1, 0.1, 7), None);
+        let (done, why) = r.after(2, 0.1, 100).unwrap();
+        assert!(!done && why.contains("period 2"), "{why}");
+    }
+
+    #[test]
+    fn a_stall_and_the_limit_stop_without_convergence() {
+        let mut r = rule(0.001, 1000);
+        assert_eq!(r.after(1, 0.05, 1), None);
+        for i in 2..=STALL_ITERATIONS {
+            assert_eq!(r.after(i, 0.06, i as u64), None, "iteration {i}");
+        }
+        let (done, why) = r.after(STALL_ITERATIONS + 1, 0.06, 999).unwrap();
+        assert!(!done && why.contains("has not fallen"), "{why}");
+        let mut r = rule(0.001, 3);
+        assert_eq!(r.after(1, 0.3, 1), None);
+        assert_eq!(r.after(2, 0.2, 2), None);
+        let (done, why) = r.after(3, 0.1, 3).unwrap();
+        assert!(!done && why.contains("iteration limit (3)"), "{why}");
+    }
+}
+
+#[cfg(test)]
+mod own_status_tests {
+    use super::*;
+
+    /// The difference form gives back every pixel's own statuses, whatever the base.
+    #[test]
+    fn own_statuses_are_recovered_from_their_difference() {
+        let n = 5;
+        let np = 200;
+        let mut rng = crate::base::rng::Pcg32::new(7, 1);
+        let base: Vec<u8> = (0..np * n).map(|_| (rng.next_u32() % 4) as u8).collect();
+        let mut own = base.clone();
+        for p in (0..np).filter(|p| p % 7 == 3 || p % 11 == 0) {
+            own[p * n + p % n] = (own[p * n + p % n] + 1) % 4;
+        }
+        let held = OwnStatuses::of(&own, &base, n);
+        assert_eq!(
+            held.ids.len(),
+            (0..np).filter(|p| p % 7 == 3 || p % 11 == 0).count()
+        );
+        for p in 0..np {
+            assert_eq!(held.at(p, &base, n), &own[p * n..(p + 1) * n], "pixel {p}");
+        }
+        // Equal arrays: nothing held.
+        assert!(OwnStatuses::of(&base, &base, n).ids.is_empty());
+    }
+
+    /// A usable set's fingerprint ignores why a light was dropped, tells the sets of 20 lights
+    /// with up to three dropped apart, and is never 0 (the "none" value).
+    #[test]
+    fn usable_prints_follow_the_usable_sets() {
+        let n = 20;
+        let set = |dropped: &[usize], label: u8| -> Vec<u8> {
+            (0..n)
+                .map(|k| {
+                    if dropped.contains(&k) {
+                        label
+                    } else {
+                        status::USED
+                    }
+                })
+                .collect()
+        };
+        assert_eq!(
+            usable_print(&set(&[2, 7], status::SHADOW)),
+            usable_print(&set(&[2, 7], status::HIGHLIGHT))
+        );
+        // Every set with one, two or three lights dropped: distinct prints.
+        let mut dropped_sets: Vec<Vec<usize>> = Vec::new();
+        for a in 0..n {
+            dropped_sets.push(vec![a]);
+            for b in a + 1..n {
+                dropped_sets.push(vec![a, b]);
+                for c in b + 1..n {
+                    dropped_sets.push(vec![a, b, c]);
+                }
+            }
+        }
+        let prints: std::collections::HashSet<u32> = dropped_sets
+            .iter()
+            .map(|d| usable_print(&set(d, status::REJECTED)))
+            .collect();
+        assert_eq!(prints.len(), dropped_sets.len());
+        assert!(!prints.contains(&0) && !prints.contains(&usable_print(&set(&[], 0))));
+    }
+}

@@ -1,0 +1,797 @@
+//! Capture loading: the DiLiGenT layout, the list-file layout and explicit image lists
+//! (CONVENTIONS.md, "Capture layouts"), decoded in parallel into one sample store.
+//!
+//! Samples are stored pixel-major for the pixels inside the mask only:
+//! `samples[(p * N + k) * C + c]` is channel `c` of light `k` at the `p`-th mask pixel, already
+//! divided by light `k`'s intensity. Memory is `4 · P · N · C` bytes (P mask pixels, N lights,
+//! C channels), with a transient second copy of the same size while loading from files; an
+//! in-memory stack ([`Capture::from_stack`]) is read straight into the store.
+
+use crate::base::error::{Error, Result};
+use crate::model::image::Image;
+use crate::model::lights::Lights;
+use crate::model::memory::MemoryPlan;
+use crate::model::store::SampleStore;
+use ndarray::{ArrayView2, ArrayView4, Axis};
+use rayon::prelude::*;
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// Images, lights and mask of one capture, intensity-normalised, restricted to the mask.
+#[derive(Clone, Debug)]
+pub struct Capture {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Channels per image (1 or 3).
+    pub channels: usize,
+    /// Bits per sample of the source images (8, 16 or 32); 32 for in-memory float data.
+    pub bit_depth: u8,
+    /// The lights, one per image, in image order.
+    pub lights: Lights,
+    /// `height * width` flags, row-major: true inside the object.
+    pub mask: Vec<bool>,
+    /// Row-major flat index (`row * width + col`) of each mask pixel, ascending.
+    pub pixels: Vec<u32>,
+    /// Intensity-normalised samples, `[pixel][light][channel]`; empty when the samples are in
+    /// a tiled [`SampleStore`] (`store`), which [`Capture::for_each_tile`] reads tile by tile.
+    /// After changing them in place once a method has run, call
+    /// [`Capture::forget_statistics`].
+    pub samples: Vec<f32>,
+    /// The tiled store, when the samples did not fit the memory budget as `f32`.
+    pub store: Option<Arc<SampleStore>>,
+    /// The plan the capture was loaded with (`None` for captures built in memory).
+    pub memory: Option<MemoryPlan>,
+    /// For a sampled view ([`Capture::sampled`]): the mask pixels whose samples `samples`
+    /// holds, ascending.
+    sparse: Option<Arc<Vec<u32>>>,
+    /// The image files, when loaded from files.
+    pub sources: Vec<PathBuf>,
+    /// Remarks made while loading (path resolution, renormalised lights…).
+    pub notes: Vec<String>,
+    /// The refinement of the lights from the readings, once applied
+    /// ([`Capture::apply_light_refinement`]): `lights` and the samples are then the refined
+    /// ones.
+    pub light_refinement: Option<crate::model::lights::LightRefinement>,
+    /// The capture-wide statistics once measured (noise level, dark floor, κ): every method
+    /// run on this capture reads them instead of measuring them again. A clone or any capture
+    /// derived from this one starts without them.
+    statistics: Statistics,
+}
+
+/// The capture-wide statistics of one [`Capture`], each measured on first use
+/// ([`crate::solve::detect::image_noise`], [`crate::solve::detect::dark_floor`],
+/// [`crate::solve::detect::estimate_kappa_weighted`], [`crate::solve::detect::light_noise_factors`]). They are a function of the samples, lights and mask, which
+/// the library never changes in place once a capture is built (the one capture whose samples
+/// change, the tile view of [`Capture::for_each_tile`], forgets them with each tile); cloning
+/// gives an empty memo, so a derived capture measures its own.
+#[derive(Debug, Default)]
+pub(crate) struct Statistics {
+    /// Sensor noise of the channel-mean images (`None`: too few interior pixels).
+    pub image_noise: std::sync::OnceLock<Option<f64>>,
+    /// The dark floor, in intensity-normalised units.
+    pub dark_floor: std::sync::OnceLock<f64>,
+    /// Statistics that depend on further arguments (κ for given σ₀, floor, shadow σ's and
+    /// light factors; the light factors for a noise model), keyed by a tag and the arguments'
+    /// bits.
+    keyed: std::sync::Mutex<Vec<(Vec<u64>, Vec<f64>)>>,
+}
+
+impl Statistics {
+    /// The values remembered under `key`, or those `measure` gives, then remembered. Measuring
+    /// runs outside the lock (two threads asking at once may both measure; both get the same
+    /// values).
+    pub fn remember(&self, key: Vec<u64>, measure: impl FnOnce() -> Vec<f64>) -> Vec<f64> {
+        let known = self
+            .keyed
+            .lock()
+            .ok()
+            .and_then(|m| m.iter().find(|(k, _)| *k == key).map(|(_, v)| v.clone()));
+        if let Some(values) = known {
+            return values;
+        }
+        let values = measure();
+        if let Ok(mut m) = self.keyed.lock() {
+            m.push((key, values.clone()));
+        }
+        values
+    }
+}
+
+impl Clone for Statistics {
+    fn clone(&self) -> Self {
+        Statistics::default()
+    }
+}
+
+/// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities): what
+/// a sample is multiplied by to divide it by its light's intensity.
+pub fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {
+    if channels == 1 {
+        let m = (intensity[0] + intensity[1] + intensity[2]) / 3.0;
+        [(1.0 / m) as f32; 3]
+    } else {
+        [
+            (1.0 / intensity[0]) as f32,
+            (1.0 / intensity[1]) as f32,
+            (1.0 / intensity[2]) as f32,
+        ]
+    }
+}
+
+/// Turns light-major planes (`planes[k][p * C + c]`) into the pixel-major sample store.
+pub fn interleave(planes: &[Vec<f32>], n_pixels: usize, channels: usize) -> Vec<f32> {
+    let n = planes.len();
+    let stride = n * channels;
+    let mut samples = vec![0f32; n_pixels * stride];
+    const CHUNK: usize = 1024;
+    samples
+        .par_chunks_mut(CHUNK * stride)
+        .enumerate()
+        .for_each(|(chunk, out)| {
+            let p0 = chunk * CHUNK;
+            for (k, plane) in planes.iter().enumerate() {
+                for (dp, px) in out.chunks_exact_mut(stride).enumerate() {
+                    let src = (p0 + dp) * channels;
+                    px[k * channels..(k + 1) * channels]
+                        .copy_from_slice(&plane[src..src + channels]);
+                }
+            }
+        });
+    samples
+}
+
+/// What a loader assembles a [`Capture`] from ([`Capture::from_parts`]); the fields are the
+/// capture's own.
+#[derive(Debug)]
+pub struct CaptureParts {
+    pub width: usize,
+    pub height: usize,
+    pub channels: usize,
+    pub bit_depth: u8,
+    pub lights: Lights,
+    pub mask: Vec<bool>,
+    pub pixels: Vec<u32>,
+    pub samples: Vec<f32>,
+    pub store: Option<Arc<SampleStore>>,
+    pub sources: Vec<PathBuf>,
+    pub notes: Vec<String>,
+}
+
+impl Capture {
+    /// The memo of this capture's statistics (see [`Statistics`]).
+    pub(crate) fn statistics(&self) -> &Statistics {
+        &self.statistics
+    }
+
+    /// Forgets the capture-wide statistics measured so far (noise level, dark floor, κ), which
+    /// every method run on this capture otherwise reuses: call it after changing `samples`,
+    /// `lights` or the mask in place. (Clones and captures derived by the library's functions
+    /// always measure their own.)
+    pub fn forget_statistics(&mut self) {
+        self.statistics = Statistics::default();
+    }
+
+    /// Makes `refinement`'s lights the capture's: directions replaced, light k's samples
+    /// divided by its gain (a tiled capture's store divides them as it reads them, with the
+    /// same rounding), intensities multiplied by it (the record of what the lights are),
+    /// statistics forgotten. Refused on a sampled view, on a capture already refined and on a
+    /// tiled capture whose store is shared with another capture.
+    pub fn apply_light_refinement(
+        &mut self,
+        refinement: crate::model::lights::LightRefinement,
+    ) -> Result<()> {
+        let n = self.n_lights();
+        if refinement.directions.len() != n || refinement.gains.len() != n {
+            return Err(Error::invalid(format!(
+                "light refinement: {} directions and {} gains for {} lights",
+                refinement.directions.len(),
+                refinement.gains.len(),
+                n
+            )));
+        }
+        if self.light_refinement.is_some() {
+            return Err(Error::invalid(
+                "light refinement: the lights were refined already",
+            ));
+        }
+        if self.sparse.is_some() || self.lights.near.is_some() {
+            return Err(Error::invalid(
+                "light refinement: applies to a whole capture under distant lights",
+            ));
+        }
+        if refinement
+            .gains
+            .iter()
+            .any(|g| !(g.is_finite() && *g > 0.0))
+        {
+            return Err(Error::invalid("light refinement: gains must be positive"));
+        }
+        let inverse: Vec<f32> = refinement.gains.iter().map(|g| (1.0 / g) as f32).collect();
+        let c = self.channels;
+        match self.store.as_mut() {
+            Some(store) => Arc::get_mut(store)
+                .ok_or_else(|| {
+                    Error::invalid(
+                        "light refinement: the tiled samples are shared with another capture",
+                    )
+                })?
+                .set_light_gains(inverse)?,
+            None => self.samples.par_chunks_mut(n * c).for_each(|pixel| {
+                for (light, &g) in pixel.chunks_exact_mut(c).zip(&inverse) {
+                    for v in light {
+                        *v *= g;
+                    }
+                }
+            }),
+        }
+        for (k, (d, g)) in refinement
+            .directions
+            .iter()
+            .zip(&refinement.gains)
+            .enumerate()
+        {
+            self.lights.directions[k] = *d;
+            if let Some(i) = self.lights.intensities.get_mut(k) {
+                for v in i.iter_mut() {
+                    *v *= g;
+                }
+            }
+        }
+        let mean = refinement.angle_deg.iter().sum::<f64>() / n as f64;
+        let max = refinement.angle_deg.iter().cloned().fold(0.0, f64::max);
+        let gain_spread = refinement
+            .gains
+            .iter()
+            .map(|g| (g - 1.0).abs())
+            .fold(0.0, f64::max);
+        self.notes.push(format!(
+            "lights refined from the readings: directions moved {mean:.2}° on average (at most \
+             {max:.2}°), intensities by up to {:.1}%; the pixels' median misfit {:.2}% → {:.2}% \
+             of their level",
+            100.0 * gain_spread,
+            100.0 * refinement.misfit_before,
+            100.0 * refinement.misfit_after
+        ));
+        self.light_refinement = Some(refinement);
+        self.forget_statistics();
+        Ok(())
+    }
+
+    /// Builds a capture from decoded images (all of one size and channel count), their lights
+    /// and an optional mask (`height * width`, row-major). Images are divided by the lights'
+    /// intensities as when loading files.
+    pub fn from_images(images: &[Image], lights: Lights, mask: Option<Vec<bool>>) -> Result<Self> {
+        if images.len() != lights.len() {
+            return Err(Error::invalid(format!(
+                "{} images but {} lights",
+                images.len(),
+                lights.len()
+            )));
+        }
+        if images.len() < 3 {
+            return Err(Error::invalid(
+                "photometric stereo needs at least three images",
+            ));
+        }
+        lights.check_rank()?;
+        let (w, h, c) = (images[0].width, images[0].height, images[0].channels);
+        for (k, img) in images.iter().enumerate() {
+            if (img.width, img.height, img.channels) != (w, h, c) {
+                return Err(Error::invalid(format!(
+                    "image {} is {}×{}×{}, expected {}×{}×{}",
+                    k + 1,
+                    img.width,
+                    img.height,
+                    img.channels,
+                    w,
+                    h,
+                    c
+                )));
+            }
+        }
+        let mask = mask.unwrap_or_else(|| vec![true; w * h]);
+        if mask.len() != w * h {
+            return Err(Error::invalid(format!(
+                "mask has {} pixels, images have {}",
+                mask.len(),
+                w * h
+            )));
+        }
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        if pixels.is_empty() {
+            return Err(Error::invalid("the mask is empty"));
+        }
+        let planes: Vec<Vec<f32>> = images
+            .par_iter()
+            .enumerate()
+            .map(|(k, img)| {
+                let s = light_scale(&lights.intensities[k], c);
+                let mut out = Vec::with_capacity(pixels.len() * c);
+                for &i in &pixels {
+                    let base = i as usize * c;
+                    out.extend(img.data[base..base + c].iter().zip(&s).map(|(v, f)| v * f));
+                }
+                out
+            })
+            .collect();
+        let samples = interleave(&planes, pixels.len(), c);
+        Ok(Capture::in_memory(
+            (w, h, c),
+            images[0].bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+        ))
+    }
+
+    /// A capture assembled by a loader from its parts (statistics not yet measured, lights not
+    /// refined).
+    pub fn from_parts(p: CaptureParts) -> Capture {
+        Capture {
+            width: p.width,
+            height: p.height,
+            channels: p.channels,
+            bit_depth: p.bit_depth,
+            lights: p.lights,
+            mask: p.mask,
+            pixels: p.pixels,
+            samples: p.samples,
+            store: p.store,
+            memory: None,
+            sparse: None,
+            sources: p.sources,
+            notes: p.notes,
+            statistics: Statistics::default(),
+            light_refinement: None,
+        }
+    }
+
+    /// A capture built in memory (no source files, no notes).
+    fn in_memory(
+        (width, height, channels): (usize, usize, usize),
+        bit_depth: u8,
+        lights: Lights,
+        mask: Vec<bool>,
+        pixels: Vec<u32>,
+        samples: Vec<f32>,
+    ) -> Capture {
+        Capture {
+            width,
+            height,
+            channels,
+            bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+            store: None,
+            memory: None,
+            sparse: None,
+            sources: Vec::new(),
+            notes: Vec::new(),
+            statistics: Statistics::default(),
+            light_refinement: None,
+        }
+    }
+
+    /// Builds a capture from one image stack in memory: `stack` is (N, H, W, C) with C = 1 or
+    /// 3, any strides (a transposed or sliced view is fine); integer samples are scaled to
+    /// [0, 1] by their type's full scale (255, 65535), float samples taken as they are. Each
+    /// sample is divided by its light's intensity. `mask` is (H, W), true inside the object
+    /// (default: the whole frame).
+    ///
+    /// The stack is read once, straight into the pixel-major sample store: that store is the
+    /// only copy made. Errors name what is wrong (shapes, counts, non-finite samples, an empty
+    /// mask, lights that do not determine a normal).
+    pub fn from_stack(
+        stack: Stack<'_>,
+        lights: Lights,
+        mask: Option<ArrayView2<'_, bool>>,
+    ) -> Result<Self> {
+        let (n, h, w, c) = stack.dim();
+        if n != lights.len() {
+            return Err(Error::invalid(format!(
+                "the image stack holds {n} images but {} lights were given: expected one light per image",
+                lights.len()
+            )));
+        }
+        if n < 3 {
+            return Err(Error::invalid(format!(
+                "{n} image(s): photometric stereo needs at least three"
+            )));
+        }
+        if h == 0 || w == 0 {
+            return Err(Error::invalid(format!(
+                "the images are {w}×{h} (width×height): expected at least one pixel"
+            )));
+        }
+        if c != 1 && c != 3 {
+            return Err(Error::invalid(format!(
+                "the images have {c} channels: expected 1 (grey) or 3 (RGB)"
+            )));
+        }
+        lights.check_rank()?;
+        let mask: Vec<bool> = match mask {
+            Some(m) => {
+                if m.dim() != (h, w) {
+                    return Err(Error::invalid(format!(
+                        "the mask is {}×{} (rows×columns) but the images are {h}×{w}",
+                        m.dim().0,
+                        m.dim().1
+                    )));
+                }
+                m.iter().copied().collect()
+            }
+            None => vec![true; w * h],
+        };
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        if pixels.is_empty() {
+            return Err(Error::invalid(
+                "the mask is empty (no pixel inside the object)",
+            ));
+        }
+        let scales: Vec<[f32; 3]> = lights
+            .intensities
+            .iter()
+            .map(|i| light_scale(i, c))
+            .collect();
+        let (samples, bit_depth) = match stack {
+            Stack::U8(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32 / 255.0), 8),
+            Stack::U16(v) => (
+                gather_stack(&v, &pixels, &scales, |x| x as f32 / 65535.0),
+                16,
+            ),
+            Stack::F32(v) => (gather_stack(&v, &pixels, &scales, |x| x), 32),
+            Stack::F64(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32), 32),
+        };
+        if let Some(bad) = samples.iter().position(|v| !v.is_finite()) {
+            let p = bad / (n * c);
+            let k = (bad / c) % n;
+            let i = pixels[p] as usize;
+            return Err(Error::invalid(format!(
+                "image {} has a non-finite sample at row {}, column {}: expected finite intensities",
+                k + 1,
+                i / w,
+                i % w
+            )));
+        }
+        Ok(Capture::in_memory(
+            (w, h, c),
+            bit_depth,
+            lights,
+            mask,
+            pixels,
+            samples,
+        ))
+    }
+
+    /// Number of lights (= images).
+    pub fn n_lights(&self) -> usize {
+        self.lights.len()
+    }
+
+    /// Number of pixels inside the mask.
+    pub fn n_pixels(&self) -> usize {
+        self.pixels.len()
+    }
+
+    /// The samples of mask pixel `p`: `N * C` values, light-major.
+    #[inline]
+    pub fn pixel_samples(&self, p: usize) -> &[f32] {
+        let stride = self.n_lights() * self.channels;
+        let j = match &self.sparse {
+            None => p,
+            Some(ids) => ids
+                .binary_search(&(p as u32))
+                .unwrap_or_else(|_| panic!("mask pixel {p} is not in this sampled view")),
+        };
+        &self.samples[j * stride..(j + 1) * stride]
+    }
+
+    /// (row, col) of mask pixel `p`.
+    #[inline]
+    pub fn pixel_position(&self, p: usize) -> (usize, usize) {
+        let i = self.pixels[p] as usize;
+        (i / self.width, i % self.width)
+    }
+
+    /// A capture with only the lights `keep` (in that order), for light-subset experiments.
+    pub fn select_lights(&self, keep: &[usize]) -> Result<Capture> {
+        let n = self.n_lights();
+        if let Some(&bad) = keep.iter().find(|&&k| k >= n) {
+            return Err(Error::invalid(format!(
+                "light index {} out of range 1..={n}",
+                bad + 1
+            )));
+        }
+        let lights = self.lights.permuted(keep);
+        lights.check_rank()?;
+        let sources = keep
+            .iter()
+            .filter_map(|&k| self.sources.get(k).cloned())
+            .collect();
+        if let Some(store) = &self.store {
+            return Ok(Capture {
+                lights,
+                store: Some(Arc::new(store.select_lights(keep)?)),
+                sources,
+                ..self.clone_without_samples()
+            });
+        }
+        let c = self.channels;
+        let stride_in = n * c;
+        let stride_out = keep.len() * c;
+        let mut samples = vec![0f32; self.n_pixels() * stride_out];
+        samples
+            .par_chunks_mut(stride_out)
+            .zip(self.samples.par_chunks(stride_in))
+            .for_each(|(out, src)| {
+                for (j, &k) in keep.iter().enumerate() {
+                    out[j * c..(j + 1) * c].copy_from_slice(&src[k * c..(k + 1) * c]);
+                }
+            });
+        Ok(Capture {
+            lights,
+            samples,
+            sources,
+            ..self.clone_without_samples()
+        })
+    }
+
+    /// Whether the samples are in a tiled store rather than whole in memory.
+    pub fn is_tiled(&self) -> bool {
+        self.store.is_some()
+    }
+
+    /// Runs `f` on every tile of the capture in turn, in mask-pixel order, with the index of
+    /// the tile's first mask pixel and a view of the tile: a capture of the tile's pixels only
+    /// (local indices `0..view.n_pixels()`, the same lights, channels and frame size, no mask),
+    /// whose `pixel_samples` are the `f32` values a capture held whole gives. A capture held
+    /// whole is its own single tile (no copy). Per-pixel stages run on the views; what needs
+    /// the whole frame does not belong in `f`.
+    pub fn for_each_tile(&self, mut f: impl FnMut(usize, &Capture) -> Result<()>) -> Result<()> {
+        let Some(store) = &self.store else {
+            return f(0, self);
+        };
+        let tiling = store.tiling();
+        let mut raw = Vec::new();
+        let mut view = Capture {
+            mask: Vec::new(),
+            pixels: Vec::new(),
+            sources: Vec::new(),
+            notes: Vec::new(),
+            memory: None,
+            ..self.clone_without_samples_and_mask()
+        };
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            if range.is_empty() {
+                continue;
+            }
+            store.read_tile(t, &mut raw, &mut view.samples)?;
+            view.forget_statistics();
+            view.pixels.clear();
+            view.pixels.extend_from_slice(&self.pixels[range.clone()]);
+            f(range.start, &view)?;
+        }
+        Ok(())
+    }
+
+    /// Runs `f` on the mask pixels `ids` (ascending global indices) one tile at a time, with
+    /// the tile's share of `ids` and a view whose `pixel_samples(p)` answers for those `p`
+    /// (the `f32` values a capture held whole gives). The view has the capture's lights,
+    /// channels and frame size but no mask or pixel list; a capture held whole is passed as it
+    /// is with all of `ids`. Memory: one tile's samples at most, however many pixels `ids`
+    /// names (the per-pixel re-solves of a large capture stay within the budget).
+    pub fn for_ids_by_tile(
+        &self,
+        ids: &[usize],
+        mut f: impl FnMut(&[usize], &Capture) -> Result<()>,
+    ) -> Result<()> {
+        let Some(store) = &self.store else {
+            return f(ids, self);
+        };
+        debug_assert!(ids.windows(2).all(|w| w[0] < w[1]), "ids must ascend");
+        let tiling = store.tiling();
+        let mut raw = Vec::new();
+        let mut view = Capture {
+            memory: None,
+            ..self.clone_without_samples_and_mask()
+        };
+        let mut j = 0;
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            let first = j;
+            while j < ids.len() && ids[j] < range.end {
+                j += 1;
+            }
+            if j == first {
+                continue;
+            }
+            let sub = &ids[first..j];
+            // The view holds the whole tile (no copy of the selected pixels' samples) and
+            // answers for the tile's pixels.
+            store.read_tile(t, &mut raw, &mut view.samples)?;
+            view.sparse = Some(Arc::new((range.start as u32..range.end as u32).collect()));
+            view.forget_statistics();
+            f(sub, &view)?;
+        }
+        Ok(())
+    }
+
+    /// A view holding the samples of the mask pixels `ids` only (any order, duplicates
+    /// allowed), for statistics over a regular sample of pixels: `pixel_samples(p)` answers for
+    /// those `p` (global indices) and panics for others; `n_pixels`, `pixels` and the mask are
+    /// the whole capture's. A capture held whole is returned as it is (cloned).
+    pub fn sampled(&self, ids: &[usize]) -> Result<Capture> {
+        let Some(store) = &self.store else {
+            return Ok(self.clone());
+        };
+        let mut ids: Vec<u32> = ids.iter().map(|&p| p as u32).collect();
+        ids.sort_unstable();
+        ids.dedup();
+        let stride = self.n_lights() * self.channels;
+        let mut samples = vec![0f32; ids.len() * stride];
+        let tiling = store.tiling();
+        let (mut raw, mut tile) = (Vec::new(), Vec::new());
+        let mut j = 0;
+        for t in 0..tiling.len() {
+            let range = tiling.pixels(t);
+            let first = j;
+            while j < ids.len() && (ids[j] as usize) < range.end {
+                j += 1;
+            }
+            if j == first {
+                continue;
+            }
+            store.read_tile(t, &mut raw, &mut tile)?;
+            for (i, &p) in ids[first..j].iter().enumerate() {
+                let local = p as usize - range.start;
+                samples[(first + i) * stride..(first + i + 1) * stride]
+                    .copy_from_slice(&tile[local * stride..(local + 1) * stride]);
+            }
+        }
+        Ok(Capture {
+            samples,
+            sparse: Some(Arc::new(ids)),
+            ..self.clone_without_samples()
+        })
+    }
+
+    fn clone_without_samples_and_mask(&self) -> Capture {
+        Capture {
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            bit_depth: self.bit_depth,
+            lights: self.lights.clone(),
+            mask: Vec::new(),
+            pixels: Vec::new(),
+            samples: Vec::new(),
+            store: None,
+            memory: None,
+            sparse: None,
+            sources: Vec::new(),
+            notes: Vec::new(),
+            statistics: Statistics::default(),
+            light_refinement: self.light_refinement.clone(),
+        }
+    }
+
+    fn clone_without_samples(&self) -> Capture {
+        Capture {
+            width: self.width,
+            height: self.height,
+            channels: self.channels,
+            bit_depth: self.bit_depth,
+            lights: self.lights.clone(),
+            mask: self.mask.clone(),
+            pixels: self.pixels.clone(),
+            samples: Vec::new(),
+            store: None,
+            memory: self.memory.clone(),
+            sparse: None,
+            sources: Vec::new(),
+            notes: self.notes.clone(),
+            statistics: Statistics::default(),
+            light_refinement: self.light_refinement.clone(),
+        }
+    }
+
+    /// The values of a full-frame map (row-major, one per frame pixel) at the mask pixels, in
+    /// mask order: the inverse of [`Capture::scatter`] with one value per pixel.
+    pub fn gather<T: Copy>(&self, frame: &[T]) -> Vec<T> {
+        self.pixels.iter().map(|&i| frame[i as usize]).collect()
+    }
+
+    /// Scatters per-mask-pixel values (`per_pixel` values each) into a full
+    /// `height × width × per_pixel` row-major buffer filled with `fill` outside the mask.
+    pub fn scatter<T: Copy + Send + Sync>(
+        &self,
+        values: &[T],
+        per_pixel: usize,
+        fill: T,
+    ) -> Vec<T> {
+        let mut out = vec![fill; self.width * self.height * per_pixel];
+        for (p, &i) in self.pixels.iter().enumerate() {
+            let i = i as usize;
+            out[i * per_pixel..(i + 1) * per_pixel]
+                .copy_from_slice(&values[p * per_pixel..(p + 1) * per_pixel]);
+        }
+        out
+    }
+}
+
+/// An (N, H, W, C) image stack in memory: N images of H rows, W columns and C channels, of
+/// one of the sample types cameras and arrays give. See [`Capture::from_stack`].
+#[derive(Clone, Debug)]
+pub enum Stack<'a> {
+    /// 8-bit samples, full scale 255.
+    U8(ArrayView4<'a, u8>),
+    /// 16-bit samples, full scale 65535.
+    U16(ArrayView4<'a, u16>),
+    /// Float samples, full scale 1.
+    F32(ArrayView4<'a, f32>),
+    /// Double samples, full scale 1 (stored as f32).
+    F64(ArrayView4<'a, f64>),
+}
+
+impl Stack<'_> {
+    /// (N, H, W, C).
+    pub fn dim(&self) -> (usize, usize, usize, usize) {
+        match self {
+            Stack::U8(v) => v.dim(),
+            Stack::U16(v) => v.dim(),
+            Stack::F32(v) => v.dim(),
+            Stack::F64(v) => v.dim(),
+        }
+    }
+}
+
+/// The pixel-major sample store (`[pixel][light][channel]`) of the mask pixels `pixels`, read
+/// from an (N, H, W, C) view of any strides, each sample scaled by `to_f32` and its light's
+/// intensity scale. Chunks of pixels run in parallel; within a chunk, light by light, so each
+/// image is read along its rows.
+fn gather_stack<T: Copy + Sync>(
+    view: &ArrayView4<'_, T>,
+    pixels: &[u32],
+    scales: &[[f32; 3]],
+    to_f32: impl Fn(T) -> f32 + Sync,
+) -> Vec<f32> {
+    let (n, _, w, c) = view.dim();
+    let stride = n * c;
+    let mut samples = vec![0f32; pixels.len() * stride];
+    const PIXELS_PER_TASK: usize = 4096;
+    samples
+        .par_chunks_mut(PIXELS_PER_TASK * stride)
+        .zip(pixels.par_chunks(PIXELS_PER_TASK))
+        .for_each(|(out, chunk)| {
+            for (k, scale) in scales.iter().enumerate() {
+                let image = view.index_axis(Axis(0), k);
+                for (dp, &i) in chunk.iter().enumerate() {
+                    let (row, col) = (i as usize / w, i as usize % w);
+                    let dst = &mut out[dp * stride + k * c..dp * stride + (k + 1) * c];
+                    for (ch, d) in dst.iter_mut().enumerate() {
+                        *d = to_f32(image[[row, col, ch]]) * scale[ch];
+                    }
+                }
+            }
+        });
+    samples
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interleave_transposes() {
+        let planes = vec![vec![1.0, 2.0, 3.0, 4.0], vec![5.0, 6.0, 7.0, 8.0]];
+        // 2 pixels, 2 channels, 2 lights
+        let s = interleave(&planes, 2, 2);
+        assert_eq!(s, vec![1.0, 2.0, 5.0, 6.0, 3.0, 4.0, 7.0, 8.0]);
+    }
+}

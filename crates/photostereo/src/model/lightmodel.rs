@@ -1,0 +1,772 @@
+//! The light model behind one door (ARCHITECTURE.md): "the light vector and brightness of light
+//! k at pixel p given the current surface", for distant lights (one direction per light, the
+//! same at every pixel) and for near point lights seen through a pinhole camera
+//! (CONVENTIONS.md, "Near lights and perspective cameras"; ALGORITHMS.md §9).
+//!
+//! Frames and units: the camera frame of CONVENTIONS.md (x right, y up, z toward the camera)
+//! with the **camera centre at the origin**, millimetres. Pixel (row v, col u) sees the ray
+//! r(p) = ((u − c_x)/f_x, −(v − c_y)/f_y, −1); the surface point is X(p) = Z(p) · r(p) with Z
+//! the depth along the optical axis (mm, positive).
+//!
+//! Near image model: I_k(p) = ρ(p) · E_k · cos^μ_k(θ_k) · max(0, n · l_k) / ‖s_k − X‖², with
+//! l_k = (s_k − X)/‖s_k − X‖ and θ_k the angle between the LED's axis and X − s_k. The capture
+//! divides each image by the brightness its light gives the object's centre C = (0, 0, −D)
+//! (E_k cos^μ_k / ‖s_k − C‖², so that the readings are near ρ n · l), and the kernel solves each
+//! pixel with the *scaled* light vectors v_k(p) = b_k(p) l_k(p), b_k(p) the brightness at X(p)
+//! relative to the one at C. The distant approximation of a near rig — directions and
+//! brightness at C — is the same capture with the near model removed
+//! ([`NearLights::centre_directions`]).
+
+use crate::base::error::{Error, Result};
+use std::sync::{Arc, RwLock};
+
+/// A pinhole camera: intrinsics in pixels (`K = [fx 0 cx; 0 fy cy; 0 0 1]`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Camera {
+    /// Focal length along the columns, pixels.
+    pub fx: f64,
+    /// Focal length along the rows, pixels.
+    pub fy: f64,
+    /// Principal point, column (pixels, 0 = centre of the first column).
+    pub cx: f64,
+    /// Principal point, row (pixels).
+    pub cy: f64,
+}
+
+impl Camera {
+    /// Checks that K is invertible and sensible (positive finite focal lengths, finite centre).
+    pub fn new(fx: f64, fy: f64, cx: f64, cy: f64) -> Result<Camera> {
+        if !(fx.is_finite() && fy.is_finite() && fx > 0.0 && fy > 0.0) {
+            return Err(Error::invalid(format!(
+                "camera focal lengths fx = {fx}, fy = {fy}: expected positive finite values (K must be invertible)"
+            )));
+        }
+        if !(cx.is_finite() && cy.is_finite()) {
+            return Err(Error::invalid(format!(
+                "camera principal point ({cx}, {cy}): expected finite values"
+            )));
+        }
+        Ok(Camera { fx, fy, cx, cy })
+    }
+
+    /// The ray of pixel (col, row): ((u − cx)/fx, −(v − cy)/fy, −1), camera frame; X = Z · ray.
+    #[inline]
+    pub fn ray(&self, col: f64, row: f64) -> [f64; 3] {
+        [(col - self.cx) / self.fx, -(row - self.cy) / self.fy, -1.0]
+    }
+
+    /// The pixel (col, row) where point `x` (camera frame, z < 0) projects, or None behind.
+    #[inline]
+    pub fn project(&self, x: [f64; 3]) -> Option<(f64, f64)> {
+        if x[2] >= -1e-9 {
+            return None;
+        }
+        let z = -x[2];
+        Some((self.cx + self.fx * x[0] / z, self.cy - self.fy * x[1] / z))
+    }
+}
+
+/// Near point lights (LEDs) seen through a pinhole camera, with the current surface.
+///
+/// The current surface (depth Z per pixel, mm, full frame) starts as the plane Z = D and is
+/// replaced by the reconstruction's alternation ([`NearLights::set_surface`]); it is shared by
+/// every clone of the capture that holds this model, so two near-light reconstructions of one
+/// capture must not run at the same time.
+#[derive(Debug)]
+pub struct NearLights {
+    /// The camera.
+    pub camera: Camera,
+    /// LED positions, mm, camera frame.
+    pub positions: Vec<[f64; 3]>,
+    /// Unit axes, from each LED toward the scene.
+    pub axes: Vec<[f64; 3]>,
+    /// Anisotropy μ ≥ 0 per LED (radiance ∝ cos^μ off the axis).
+    pub anisotropy: Vec<f64>,
+    /// The object's mean distance D along the optical axis, mm.
+    pub mean_distance: f64,
+    /// Relative brightness cos^μ/r² of each LED at the object's centre (0, 0, −D).
+    centre_brightness: Vec<f64>,
+    surface: RwLock<Arc<Vec<f32>>>,
+}
+
+impl PartialEq for NearLights {
+    fn eq(&self, other: &Self) -> bool {
+        self.camera == other.camera
+            && self.positions == other.positions
+            && self.axes == other.axes
+            && self.anisotropy == other.anisotropy
+            && self.mean_distance == other.mean_distance
+    }
+}
+
+impl NearLights {
+    /// A near rig. `axes`: `None` aims every LED at (0, 0, −D); `anisotropy`: `None` = isotropic.
+    /// Errors name the light (1-based) and what is wrong: a light behind the object (z ≤ −D, at
+    /// or beyond its mean depth) or behind the camera (z > 0), a non-positive or non-finite
+    /// distance, an axis that is zero or points away from the object, μ < 0.
+    pub fn new(
+        camera: Camera,
+        positions: Vec<[f64; 3]>,
+        axes: Option<Vec<[f64; 3]>>,
+        anisotropy: Option<Vec<f64>>,
+        mean_distance: f64,
+    ) -> Result<NearLights> {
+        if !(mean_distance.is_finite() && mean_distance > 0.0) {
+            return Err(Error::parameter(
+                "distance",
+                format!("{mean_distance}: expected the object's mean distance in mm, finite and positive"),
+            ));
+        }
+        let n = positions.len();
+        let centre = [0.0, 0.0, -mean_distance];
+        for (k, s) in positions.iter().enumerate() {
+            if s.iter().any(|v| !v.is_finite()) {
+                return Err(Error::invalid(format!(
+                    "light {} position {s:?}: expected finite millimetres",
+                    k + 1
+                )));
+            }
+            if s[2] <= -mean_distance {
+                return Err(Error::invalid(format!(
+                    "light {} at z = {} mm is behind the object (its mean depth is z = {} mm): near lights must be in front of it",
+                    k + 1,
+                    s[2],
+                    -mean_distance
+                )));
+            }
+            if s[2] > 1e-6 * mean_distance {
+                return Err(Error::invalid(format!(
+                    "light {} at z = {} mm is behind the camera (camera at z = 0, looking down −z): check the sign of z",
+                    k + 1,
+                    s[2]
+                )));
+            }
+        }
+        let axes = match axes {
+            Some(a) => {
+                if a.len() != n {
+                    return Err(Error::invalid(format!(
+                        "{} light axes for {n} light positions",
+                        a.len()
+                    )));
+                }
+                let mut out = Vec::with_capacity(n);
+                for (k, (v, s)) in a.iter().zip(&positions).enumerate() {
+                    let norm = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                    if !(norm.is_finite() && norm > 1e-12) {
+                        return Err(Error::invalid(format!(
+                            "light {} axis {v:?}: expected a non-zero finite vector",
+                            k + 1
+                        )));
+                    }
+                    let u = [v[0] / norm, v[1] / norm, v[2] / norm];
+                    let to_centre = sub(centre, *s);
+                    if dot(u, to_centre) <= 0.0 {
+                        return Err(Error::invalid(format!(
+                            "light {} axis {v:?} points away from the object (from the LED toward the scene is expected)",
+                            k + 1
+                        )));
+                    }
+                    out.push(u);
+                }
+                out
+            }
+            None => positions
+                .iter()
+                .map(|s| {
+                    let d = sub(centre, *s);
+                    let r = norm(d);
+                    [d[0] / r, d[1] / r, d[2] / r]
+                })
+                .collect(),
+        };
+        let anisotropy = match anisotropy {
+            Some(m) => {
+                if m.len() != n {
+                    return Err(Error::invalid(format!(
+                        "{} anisotropy values for {n} light positions",
+                        m.len()
+                    )));
+                }
+                for (k, &mu) in m.iter().enumerate() {
+                    if !(mu.is_finite() && mu >= 0.0) {
+                        return Err(Error::invalid(format!(
+                            "light {} anisotropy μ = {mu}: expected a finite value ≥ 0",
+                            k + 1
+                        )));
+                    }
+                }
+                m
+            }
+            None => vec![0.0; n],
+        };
+        let mut model = NearLights {
+            camera,
+            positions,
+            axes,
+            anisotropy,
+            mean_distance,
+            centre_brightness: Vec::new(),
+            surface: RwLock::new(Arc::new(Vec::new())),
+        };
+        model.centre_brightness = (0..n)
+            .map(|k| model.raw_light(k, centre).1)
+            .collect::<Vec<f64>>();
+        for (k, &b) in model.centre_brightness.iter().enumerate() {
+            if !(b.is_finite() && b > 0.0) {
+                return Err(Error::invalid(format!(
+                    "light {} gives the object's centre no light (it lies at or beyond 90° off the LED's axis)",
+                    k + 1
+                )));
+            }
+        }
+        Ok(model)
+    }
+
+    /// Number of lights.
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// True without lights.
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Unit direction and relative brightness cos^μ/r² (per unit E) of light k at point x (mm).
+    #[inline]
+    fn raw_light(&self, k: usize, x: [f64; 3]) -> ([f64; 3], f64) {
+        let d = sub(self.positions[k], x);
+        let r2 = dot(d, d).max(1e-12);
+        let r = r2.sqrt();
+        let l = [d[0] / r, d[1] / r, d[2] / r];
+        // Angle off the axis: between the axis and X − s = −l.
+        let cos = (-dot(self.axes[k], l)).max(0.0);
+        let mu = self.anisotropy[k];
+        let lobe = if mu == 0.0 { 1.0 } else { cos.powf(mu) };
+        (l, lobe / r2)
+    }
+
+    /// The brightness each light gives the object's centre (0, 0, −D) relative to its
+    /// on-axis radiance E at 1 mm: cos^μ(θ)/r² (1/mm²). A capture's images are divided by
+    /// E_k times this value.
+    pub fn centre_brightness(&self) -> &[f64] {
+        &self.centre_brightness
+    }
+
+    /// The directions toward each light from the object's centre: the distant approximation.
+    pub fn centre_directions(&self) -> Vec<[f64; 3]> {
+        let c = [0.0, 0.0, -self.mean_distance];
+        (0..self.len()).map(|k| self.raw_light(k, c).0).collect()
+    }
+
+    /// The surface point X = Z · ray of pixel (col, row) at depth `z` (mm).
+    #[inline]
+    pub fn point(&self, col: usize, row: usize, z: f64) -> [f64; 3] {
+        let r = self.camera.ray(col as f64, row as f64);
+        [z * r[0], z * r[1], z * r[2]]
+    }
+
+    /// Light k at point `x`: its unit direction and its brightness relative to the object's
+    /// centre (1 at (0, 0, −D)).
+    #[inline]
+    pub fn light_at_point(&self, k: usize, x: [f64; 3]) -> ([f64; 3], f64) {
+        let (l, b) = self.raw_light(k, x);
+        (l, b / self.centre_brightness[k])
+    }
+
+    /// The scaled light vectors v_k = b_k l_k of every light at pixel (col, row) with depth `z`
+    /// (mm), into `out` (length N).
+    #[inline]
+    pub fn vectors(&self, col: usize, row: usize, z: f64, out: &mut [[f64; 3]]) {
+        let x = self.point(col, row, z);
+        for (k, o) in out.iter_mut().enumerate() {
+            let (l, b) = self.light_at_point(k, x);
+            *o = [b * l[0], b * l[1], b * l[2]];
+        }
+    }
+
+    /// The current surface: depth Z per pixel (full frame, mm); empty for the plane Z = D.
+    pub fn surface(&self) -> Arc<Vec<f32>> {
+        self.surface
+            .read()
+            .map(|g| g.clone())
+            .unwrap_or_else(|e| e.into_inner().clone())
+    }
+
+    /// Replaces the current surface (full frame of the capture, mm). Non-finite or
+    /// non-positive values (no depth there) fall back to the mean distance.
+    pub fn set_surface(&self, depth: &[f32]) {
+        let d = self.mean_distance as f32;
+        let v: Vec<f32> = depth
+            .iter()
+            .map(|&z| if z.is_finite() && z > 0.0 { z } else { d })
+            .collect();
+        match self.surface.write() {
+            Ok(mut g) => *g = Arc::new(v),
+            Err(e) => *e.into_inner() = Arc::new(v),
+        }
+    }
+
+    /// Resets the current surface to the plane Z = D.
+    pub fn reset_surface(&self) {
+        self.set_surface(&[]);
+    }
+
+    /// The same rig with the lights reordered by `order` (a fresh plane surface).
+    pub fn permuted(&self, order: &[usize]) -> NearLights {
+        let mut m = NearLights {
+            camera: self.camera,
+            positions: order.iter().map(|&k| self.positions[k]).collect(),
+            axes: order.iter().map(|&k| self.axes[k]).collect(),
+            anisotropy: order.iter().map(|&k| self.anisotropy[k]).collect(),
+            mean_distance: self.mean_distance,
+            centre_brightness: order.iter().map(|&k| self.centre_brightness[k]).collect(),
+            surface: RwLock::new(Arc::new(Vec::new())),
+        };
+        m.surface = RwLock::new(self.surface());
+        m
+    }
+}
+
+/// Per-thread access to the light vectors of one pixel after another: the distant directions
+/// (no copy) or the near model's scaled vectors at the current surface. No allocation per pixel.
+pub struct PixelLights<'a> {
+    directions: &'a [[f64; 3]],
+    near: Option<(&'a NearLights, Arc<Vec<f32>>)>,
+    width: usize,
+    buf: Vec<[f64; 3]>,
+}
+
+impl<'a> PixelLights<'a> {
+    /// For lights `directions` (distant) and the near model when there is one, on images
+    /// `width` pixels wide.
+    pub fn new(directions: &'a [[f64; 3]], near: Option<&'a NearLights>, width: usize) -> Self {
+        PixelLights {
+            directions,
+            near: near.map(|m| (m, m.surface())),
+            width,
+            buf: vec![[0.0; 3]; directions.len()],
+        }
+    }
+
+    /// For a capture's lights.
+    pub fn of(capture: &'a crate::model::capture::Capture) -> Self {
+        Self::new(
+            &capture.lights.directions,
+            capture.lights.near.as_deref(),
+            capture.width,
+        )
+    }
+
+    /// Whether the vectors vary per pixel.
+    #[inline]
+    pub fn is_near(&self) -> bool {
+        self.near.is_some()
+    }
+
+    /// The light vectors at full-frame pixel `pixel`.
+    #[inline]
+    pub fn at(&mut self, pixel: usize) -> &[[f64; 3]] {
+        match &self.near {
+            None => self.directions,
+            Some((m, z)) => {
+                let depth = z.get(pixel).map_or(m.mean_distance, |&v| v as f64);
+                m.vectors(pixel % self.width, pixel / self.width, depth, &mut self.buf);
+                &self.buf
+            }
+        }
+    }
+}
+
+/// Rounds of the near-light alternation (estimate → integrate → update X) at most; 3–5 settle
+/// rigs at a few hundred millimetres (ALGORITHMS.md §9).
+pub const MAX_ROUNDS: usize = 5;
+/// The alternation stops when the mean |ΔZ| of a round falls below this share of the mean
+/// distance (0.1%: 0.3 mm at 300 mm, a tenth of a degree of light direction).
+pub const DEPTH_TOLERANCE: f64 = 1e-3;
+
+/// Shadow maps of near point lights from a depth map Z (mm along the optical axis, full frame,
+/// NaN outside the mask) and shading normals (full frame): attached where n · l_k(p) ≤
+/// `attached_tolerance`, cast where the segment from X(p) toward the LED passes behind the
+/// surface as the camera sees it (a ray march in steps of about one pixel; the surface hides
+/// the point when it is nearer the camera by more than `cast_tolerance_px` pixels of depth).
+/// Only mask pixels cast shadows. The result has the layout of [`ShadowMaps`].
+///
+/// Only the bounding box of the pixels with a depth is visited, and a march stops where its
+/// image point leaves that box (widened by the pixel the bilinear look-up reaches): the image
+/// of the segment is a segment walked in one direction, so it never comes back, and outside
+/// the box no depth can hide the light. The flags are those of the whole frame's march, bit
+/// for bit (`near_window_tests`). A step skips the look-up where the least depth of the
+/// 8 × 8 pixel cell it falls in cannot hide the light.
+pub fn near_shadow_maps(
+    near: &NearLights,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    params: &crate::geometry::shadows::ShadowParams,
+) -> Result<crate::geometry::shadows::ShadowMaps> {
+    let hw = width * height;
+    if depth.len() != hw || normals.len() != hw || mask.len() != hw {
+        return Err(Error::invalid(format!(
+            "near shadows: depth {}, normals {} and mask {} values for a {width}×{height} image",
+            depth.len(),
+            normals.len(),
+            mask.len()
+        )));
+    }
+    let ok = |i: usize| mask[i] && depth[i].is_finite() && depth[i] > 0.0;
+    let window = crate::geometry::shadows::Window::of(width, height, ok);
+    Ok(near_shadow_maps_in(
+        near, depth, normals, mask, width, height, params, window, true,
+    ))
+}
+
+/// [`near_shadow_maps`] over `window` (`None`: no pixel with a depth), which must hold every
+/// pixel with a depth; checked inputs. `cell_skip`: a step skips the look-up where no depth it
+/// could read is near enough to hide the light (the flags do not change).
+#[allow(clippy::too_many_arguments)]
+fn near_shadow_maps_in(
+    near: &NearLights,
+    depth: &[f32],
+    normals: &[[f32; 3]],
+    mask: &[bool],
+    width: usize,
+    height: usize,
+    params: &crate::geometry::shadows::ShadowParams,
+    window: Option<crate::geometry::shadows::Window>,
+    cell_skip: bool,
+) -> crate::geometry::shadows::ShadowMaps {
+    use crate::geometry::shadows::ShadowMaps;
+    let hw = width * height;
+    let n = near.len();
+    let Some(window) = window else {
+        return ShadowMaps::empty(width, height, n);
+    };
+    let ok = |i: usize| mask[i] && depth[i].is_finite() && depth[i] > 0.0;
+    // Beyond these image positions the look-up below finds no depth (its 2×2 block and its
+    // nearest pixel lie outside the window).
+    let (c_lo, c_hi) = (window.col0 as f64 - 1.0, window.col1 as f64);
+    let (r_lo, r_hi) = (window.row0 as f64 - 1.0, window.row1 as f64);
+    let z_min = (0..hw)
+        .filter(|&i| ok(i))
+        .map(|i| depth[i] as f64)
+        .fold(f64::INFINITY, f64::min);
+    let cam = &near.camera;
+    let f = cam.fx.min(cam.fy);
+    // Per cell of CELL × CELL pixels, the least depth the look-up below can read from an image
+    // position in the cell (its pixels and the next row and column: the 2×2 block and the
+    // nearest pixel of a position lie there); ∞ where none has a depth.
+    const CELL: usize = 8;
+    let (cells_w, cells_h) = (width.div_ceil(CELL), height.div_ceil(CELL));
+    let cell_min: Vec<f64> = (0..cells_w * cells_h)
+        .map(|j| {
+            let (cr, cc) = (j / cells_w * CELL, j % cells_w * CELL);
+            let mut m = f64::INFINITY;
+            for r in cr..(cr + CELL + 1).min(height) {
+                for c in cc..(cc + CELL + 1).min(width) {
+                    if ok(r * width + c) {
+                        m = m.min(depth[r * width + c] as f64);
+                    }
+                }
+            }
+            m
+        })
+        .collect();
+    // The surface's depth at image position (col, row): bilinear over mask pixels, nearest
+    // where the 2×2 block leaves the mask; None outside it.
+    let surface_at = |c: f64, r: f64| -> Option<f64> {
+        if c < 0.0 || r < 0.0 || c > (width - 1) as f64 || r > (height - 1) as f64 {
+            return None;
+        }
+        let (c0, r0) = (c.floor() as usize, r.floor() as usize);
+        let (c1, r1) = ((c0 + 1).min(width - 1), (r0 + 1).min(height - 1));
+        let (fc, fr) = (c - c0 as f64, r - r0 as f64);
+        let ids = [
+            r0 * width + c0,
+            r0 * width + c1,
+            r1 * width + c0,
+            r1 * width + c1,
+        ];
+        if ids.iter().all(|&i| ok(i)) {
+            let d = |i: usize| depth[ids[i]] as f64;
+            Some(
+                (1.0 - fr) * ((1.0 - fc) * d(0) + fc * d(1)) + fr * ((1.0 - fc) * d(2) + fc * d(3)),
+            )
+        } else {
+            let i =
+                (r.round() as usize).min(height - 1) * width + (c.round() as usize).min(width - 1);
+            ok(i).then(|| depth[i] as f64)
+        }
+    };
+    ShadowMaps::build(width, height, n, |k, out| {
+        let s = near.positions[k];
+        let rows = window.row0..window.row1;
+        let pixels = rows.flat_map(|r| (window.col0..window.col1).map(move |c| r * width + c));
+        for i in pixels.filter(|&i| ok(i)) {
+            let z = depth[i] as f64;
+            let x = near.point(i % width, i / width, z);
+            let d = sub(s, x);
+            let dist = norm(d);
+            let l = [d[0] / dist, d[1] / dist, d[2] / dist];
+            let nrm = normals[i];
+            let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+            if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
+                out[i] |= ShadowMaps::ATTACHED;
+            }
+            // March: one pixel's footprint at this depth per step.
+            let step = z / f;
+            let tol = params.cast_tolerance_px * step;
+            let mut t = 1.5 * step;
+            while t < dist {
+                let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
+                let pz = -p[2];
+                if pz < z_min - tol {
+                    break;
+                }
+                let Some((c, r)) = cam.project(p) else { break };
+                if c < c_lo || c > c_hi || r < r_lo || r > r_hi {
+                    break;
+                }
+                // No depth the look-up can read here is nearer than the ray by the tolerance
+                // (with a margin far above the rounding of its bilinear mean): nothing to read.
+                if cell_skip && c >= 0.0 && r >= 0.0 {
+                    let (cc, cr) = (c as usize / CELL, r as usize / CELL);
+                    if cc < cells_w
+                        && cr < cells_h
+                        && cell_min[cr * cells_w + cc] > pz - tol + 1e-9 * pz
+                    {
+                        t += pz / f;
+                        continue;
+                    }
+                }
+                match surface_at(c, r) {
+                    Some(zs) if zs < pz - tol => {
+                        out[i] |= ShadowMaps::CAST;
+                        break;
+                    }
+                    _ => {}
+                }
+                t += pz / f;
+            }
+        }
+    })
+}
+
+#[inline]
+pub(crate) fn sub(a: [f64; 3], b: [f64; 3]) -> [f64; 3] {
+    [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+#[inline]
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[inline]
+pub(crate) fn norm(a: [f64; 3]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn rig() -> NearLights {
+        let cam = Camera::new(768.0, 768.0, 127.5, 127.5).unwrap();
+        NearLights::new(
+            cam,
+            vec![[100.0, 0.0, 0.0], [0.0, 100.0, -50.0], [-80.0, -60.0, 0.0]],
+            None,
+            Some(vec![0.0, 1.0, 2.0]),
+            300.0,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn brightness_is_one_at_the_centre_and_follows_the_inverse_square() {
+        let m = rig();
+        let c = [0.0, 0.0, -300.0];
+        for k in 0..3 {
+            let (l, b) = m.light_at_point(k, c);
+            assert!((b - 1.0).abs() < 1e-12);
+            let d = sub(m.positions[k], c);
+            let r = norm(d);
+            for i in 0..3 {
+                assert!((l[i] - d[i] / r).abs() < 1e-12);
+            }
+        }
+        // Isotropic light 0: moving the point to twice... a point on the axis further away.
+        let s = m.positions[0];
+        let a = m.axes[0];
+        let r0 = norm(sub(s, c));
+        let far = [
+            s[0] + 2.0 * r0 * a[0],
+            s[1] + 2.0 * r0 * a[1],
+            s[2] + 2.0 * r0 * a[2],
+        ];
+        let (_, b) = m.light_at_point(0, far);
+        assert!((b - 0.25).abs() < 1e-9, "{b}");
+    }
+
+    #[test]
+    fn anisotropy_falls_as_cos_mu_off_the_axis() {
+        let m = rig();
+        let k = 2; // μ = 2
+        let s = m.positions[k];
+        let a = m.axes[k];
+        // A point at distance r0 on a direction 30° off the axis.
+        let r0 = norm(sub(s, [0.0, 0.0, -300.0]));
+        let perp = {
+            let t = [a[1], -a[0], 0.0];
+            let n = norm(t);
+            [t[0] / n, t[1] / n, 0.0]
+        };
+        let (c30, s30) = (30f64.to_radians().cos(), 30f64.to_radians().sin());
+        let dir = [
+            c30 * a[0] + s30 * perp[0],
+            c30 * a[1] + s30 * perp[1],
+            c30 * a[2] + s30 * perp[2],
+        ];
+        let x = [s[0] + r0 * dir[0], s[1] + r0 * dir[1], s[2] + r0 * dir[2]];
+        let (_, b) = m.light_at_point(k, x);
+        assert!((b - c30 * c30).abs() < 1e-9, "{b}");
+    }
+
+    #[test]
+    fn rays_project_back_to_their_pixels() {
+        let m = rig();
+        for &(col, row) in &[(0.0, 0.0), (200.0, 31.0), (127.5, 127.5)] {
+            let r = m.camera.ray(col, row);
+            let x = [r[0] * 290.0, r[1] * 290.0, r[2] * 290.0];
+            let (c, rr) = m.camera.project(x).unwrap();
+            assert!((c - col).abs() < 1e-9 && (rr - row).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn inconsistent_rigs_are_refused_with_the_light_named() {
+        let cam = Camera::new(768.0, 768.0, 127.5, 127.5).unwrap();
+        let e = NearLights::new(cam, vec![[0.0, 0.0, -400.0]; 3], None, None, 300.0)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("light 1") && e.contains("behind the object"),
+            "{e}"
+        );
+        let e = NearLights::new(cam, vec![[0.0, 0.0, 0.0]; 3], None, None, -1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("distance"), "{e}");
+        let e = NearLights::new(
+            cam,
+            vec![[0.0, 10.0, 0.0]; 3],
+            Some(vec![[0.0, 0.0, 1.0]; 3]),
+            None,
+            300.0,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains("points away"), "{e}");
+        assert!(Camera::new(0.0, 1.0, 0.0, 0.0).is_err());
+    }
+}
+
+#[cfg(test)]
+mod near_window_tests {
+    use super::*;
+    use crate::geometry::shadows::{ShadowMaps, ShadowParams, Window};
+
+    /// The march over the bounding box of the pixels with a depth, stopping where it leaves the
+    /// box and skipping the look-ups of cells too far from the camera, gives bit for bit the flags of the march over the whole frame that stops only at
+    /// the image's edge and reads the depth at every step: on blocks standing on a masked, tilted ground with a hole, off the
+    /// image's centre, walls along the box's edges, for LEDs on every side of the lens, near it and wide of it, level with
+    /// the camera and toward the object.
+    #[test]
+    fn the_bounding_box_march_equals_the_whole_frame_march() {
+        let (w, h) = (61, 47);
+        let cam = Camera::new(120.0, 118.0, 29.3, 24.1).unwrap();
+        let d = 300.0;
+        let mut depth = vec![f32::NAN; w * h];
+        let mut mask = vec![false; w * h];
+        for r in 9..40 {
+            for c in 14..55 {
+                let hole = (r - 30) * (r - 30) + (c - 22) * (c - 22) < 10;
+                if hole {
+                    continue;
+                }
+                // Ground tilted along both axes, two blocks (one tall, one low).
+                let mut z = d + 0.4 * (c as f64 - 30.0) - 0.25 * (r as f64 - 24.0);
+                if (15..24).contains(&r) && (30..38).contains(&c) {
+                    z -= 45.0;
+                }
+                if (28..35).contains(&r) && (40..52).contains(&c) {
+                    z -= 12.0;
+                }
+                // Walls on the box's edges: rays that graze them from just outside the box
+                // find them by the nearest-pixel look-up.
+                if c < 16 && r > 20 || c > 52 && r < 30 || r < 11 && c > 24 || r > 37 && c < 40 {
+                    z -= 30.0;
+                }
+                depth[r * w + c] = z as f32;
+                mask[r * w + c] = true;
+            }
+        }
+        // One mask pixel without a depth: masked but never marched.
+        depth[20 * w + 50] = f32::NAN;
+        let normals = vec![[0.0f32, 0.0, 1.0]; w * h];
+        let mut positions = Vec::new();
+        for t in 0..16 {
+            let phi = t as f64 * std::f64::consts::PI / 8.0 + 0.05;
+            let radius = [40.0, 120.0, 260.0, 600.0][t % 4];
+            let z = [0.0, -60.0, -150.0, -5.0][(t / 4) % 4];
+            positions.push([radius * phi.cos(), radius * phi.sin(), z]);
+        }
+        let near = NearLights::new(cam, positions, None, None, d).unwrap();
+        let params = ShadowParams::default();
+        let bbox = near_shadow_maps(&near, &depth, &normals, &mask, w, h, &params).unwrap();
+        let whole = Window {
+            row0: 0,
+            row1: h,
+            col0: 0,
+            col1: w,
+        };
+        let reference = near_shadow_maps_in(
+            &near,
+            &depth,
+            &normals,
+            &mask,
+            w,
+            h,
+            &params,
+            Some(whole),
+            false,
+        );
+        let cast = |m: &ShadowMaps| m.count(ShadowMaps::CAST);
+        for k in 0..near.len() {
+            let (a, b) = (bbox.flags_of(k), reference.flags_of(k));
+            let differ = a.iter().zip(&b).filter(|(x, y)| x != y).count();
+            assert_eq!(differ, 0, "light {k}: {differ} flags differ");
+        }
+        assert!(
+            cast(&reference) > 500,
+            "the blocks cast shadows: {}",
+            cast(&reference)
+        );
+        // No pixel with a depth: nothing to march, every flag zero.
+        let none = near_shadow_maps(
+            &near,
+            &vec![f32::NAN; w * h],
+            &normals,
+            &mask,
+            w,
+            h,
+            &params,
+        )
+        .unwrap();
+        assert_eq!(none.count(ShadowMaps::ATTACHED | ShadowMaps::CAST), 0);
+    }
+}

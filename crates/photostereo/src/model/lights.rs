@@ -1,0 +1,494 @@
+//! Light directions and intensities: parsing the text layouts of CONVENTIONS.md and checking
+//! that a rig can determine a normal at all.
+//!
+//! Directions are unit vectors in the camera frame (x right, y up, z toward the camera), from the
+//! surface toward the distant light. Intensities are per light and per channel (R, G, B); every
+//! image channel is divided by its light's intensity before estimation.
+
+use crate::base::error::{Error, Result};
+use serde::Serialize;
+use std::path::Path;
+
+/// A rig's directions above this condition number are refused as (near) coplanar: normals
+/// estimated with them would amplify the image noise by about that factor.
+pub const MAX_CONDITION_NUMBER: f64 = 1.0e3;
+
+/// A set of distant lights.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Lights {
+    /// Unit directions toward each light, camera frame.
+    pub directions: Vec<[f64; 3]>,
+    /// Relative intensity of each light per channel (R, G, B); grey captures use the mean.
+    pub intensities: Vec<[f64; 3]>,
+    /// How many input directions were not unit length and were normalised.
+    pub renormalised: usize,
+    /// Near point lights ([`crate::model::lightmodel`]): then `directions` and `intensities` are the
+    /// distant approximation at the object's centre (directions toward each LED and the
+    /// brightness it gives there), and the kernel asks the model for per-pixel vectors.
+    pub near: Option<std::sync::Arc<crate::model::lightmodel::NearLights>>,
+    /// A pinhole camera and the object's mean distance (mm) for distant lights seen through a
+    /// lens (`K.txt` without LED positions): the depth is then integrated through the camera,
+    /// Z in mm. Near lights carry their own camera.
+    pub camera: Option<(crate::model::lightmodel::Camera, f64)>,
+}
+
+impl Lights {
+    /// Lights with unit intensity. Directions are normalised; zero or non-finite ones are an error.
+    pub fn new(directions: &[[f64; 3]]) -> Result<Self> {
+        let mut out = Vec::with_capacity(directions.len());
+        let mut renormalised = 0;
+        for (k, d) in directions.iter().enumerate() {
+            out.push(
+                normalise_direction(*d, &mut renormalised).map_err(|m| {
+                    Error::invalid(format!("light {} direction {:?}: {m}", k + 1, d))
+                })?,
+            );
+        }
+        Ok(Lights {
+            intensities: vec![[1.0; 3]; out.len()],
+            directions: out,
+            renormalised,
+            near: None,
+            camera: None,
+        })
+    }
+
+    /// The camera and mean distance (mm) the depth is integrated with, if any: the near
+    /// model's, or the one given for distant lights.
+    pub fn perspective(&self) -> Option<(crate::model::lightmodel::Camera, f64)> {
+        match &self.near {
+            Some(m) => Some((m.camera, m.mean_distance)),
+            None => self.camera,
+        }
+    }
+
+    /// Number of lights.
+    pub fn len(&self) -> usize {
+        self.directions.len()
+    }
+
+    /// True when there is no light.
+    pub fn is_empty(&self) -> bool {
+        self.directions.is_empty()
+    }
+
+    /// Replaces the intensities (one RGB triple per light); each must be finite and positive.
+    pub fn with_intensities(mut self, intensities: Vec<[f64; 3]>) -> Result<Self> {
+        if intensities.len() != self.len() {
+            return Err(Error::invalid(format!(
+                "{} light intensities for {} light directions",
+                intensities.len(),
+                self.len()
+            )));
+        }
+        for (k, v) in intensities.iter().enumerate() {
+            if v.iter().any(|x| !x.is_finite() || *x <= 0.0) {
+                return Err(Error::invalid(format!(
+                    "light {} intensity {:?}: expected finite positive values",
+                    k + 1,
+                    v
+                )));
+            }
+        }
+        self.intensities = intensities;
+        Ok(self)
+    }
+
+    /// Reads directions from a text file: either the DiLiGenT layout (N rows `x y z`) or the
+    /// list layout (a first line with the count N, then N rows). Blank lines and lines starting
+    /// with `#` are skipped. Directions are normalised; a zero direction is an error.
+    pub fn read_directions(path: &Path) -> Result<Self> {
+        Self::parse_directions(&crate::io::limits::read_text(path)?, path)
+    }
+
+    /// [`read_directions`](Lights::read_directions) on text already read; `path` names the
+    /// source in messages.
+    pub fn parse_directions(text: &str, path: &Path) -> Result<Self> {
+        let rows = parse_rows(text, path, &[3], None)?;
+        let mut dirs = Vec::with_capacity(rows.len());
+        let mut renormalised = 0;
+        for (line, row) in &rows {
+            let d = [row[0], row[1], row[2]];
+            dirs.push(
+                normalise_direction(d, &mut renormalised)
+                    .map_err(|m| Error::parse(path, *line, m))?,
+            );
+        }
+        Ok(Lights {
+            intensities: vec![[1.0; 3]; dirs.len()],
+            directions: dirs,
+            renormalised,
+            near: None,
+            camera: None,
+        })
+    }
+
+    /// Reads per-light intensities (rows of 3 values R G B, or 1 value for all channels) and
+    /// attaches them. The row count must equal the light count.
+    pub fn read_intensities(self, path: &Path) -> Result<Self> {
+        let values = read_intensity_rows(path, Some(self.len()))?;
+        if values.len() != self.len() {
+            return Err(Error::file(
+                path,
+                format!(
+                    "{} intensity rows for {} light directions",
+                    values.len(),
+                    self.len()
+                ),
+            ));
+        }
+        self.with_intensities(values)
+    }
+
+    /// Checks that the rig determines normals: at least three lights and a light matrix of rank
+    /// three with condition number at most [`MAX_CONDITION_NUMBER`]. Returns the condition number.
+    pub fn check_rank(&self) -> Result<f64> {
+        if self.len() < 3 {
+            return Err(Error::invalid(format!(
+                "{} light(s): photometric stereo needs at least three",
+                self.len()
+            )));
+        }
+        let cond = self.condition_number();
+        if cond.is_nan() || cond > MAX_CONDITION_NUMBER {
+            return Err(Error::invalid(format!(
+                "the light directions have rank < 3 (coplanar or nearly so): condition number {:.3e} exceeds {:.0e}",
+                cond, MAX_CONDITION_NUMBER
+            )));
+        }
+        Ok(cond)
+    }
+
+    /// Condition number of the N×3 light matrix (ratio of its largest to smallest singular value).
+    pub fn condition_number(&self) -> f64 {
+        let ltl = self.gram();
+        let eig = nalgebra::SymmetricEigen::new(ltl).eigenvalues;
+        let max = eig.max().max(0.0);
+        let min = eig.min().max(0.0);
+        if min <= 0.0 {
+            f64::INFINITY
+        } else {
+            (max / min).sqrt()
+        }
+    }
+
+    /// LᵀL, the 3×3 normal matrix of all lights.
+    pub fn gram(&self) -> nalgebra::Matrix3<f64> {
+        let mut m = nalgebra::Matrix3::zeros();
+        for d in &self.directions {
+            let v = nalgebra::Vector3::from(*d);
+            m += v * v.transpose();
+        }
+        m
+    }
+
+    /// Returns the lights reordered by `order` (a permutation of 0..N).
+    pub fn permuted(&self, order: &[usize]) -> Lights {
+        Lights {
+            directions: order.iter().map(|&k| self.directions[k]).collect(),
+            intensities: order.iter().map(|&k| self.intensities[k]).collect(),
+            renormalised: self.renormalised,
+            near: self
+                .near
+                .as_ref()
+                .map(|m| std::sync::Arc::new(m.permuted(order))),
+            camera: self.camera,
+        }
+    }
+
+    /// Writes the directions in the DiLiGenT layout (N rows `x y z`).
+    pub fn write_directions(&self, path: &Path) -> Result<()> {
+        let mut s = String::new();
+        for d in &self.directions {
+            s.push_str(&format!("{:.6} {:.6} {:.6}\n", d[0], d[1], d[2]));
+        }
+        std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    }
+
+    /// Writes the intensities in the DiLiGenT layout (N rows `R G B`).
+    pub fn write_intensities(&self, path: &Path) -> Result<()> {
+        let mut s = String::new();
+        for v in &self.intensities {
+            s.push_str(&format!("{:.6} {:.6} {:.6}\n", v[0], v[1], v[2]));
+        }
+        std::fs::write(path, s).map_err(|e| Error::io(path, e))
+    }
+}
+
+/// Reads an intensity file: rows of 3 values R G B or 1 value for all channels, each positive.
+/// `lights` (the light count, when known) decides whether an ambiguous first line holding one
+/// whole number is a count line.
+pub fn read_intensity_rows(path: &Path, lights: Option<usize>) -> Result<Vec<[f64; 3]>> {
+    parse_intensity_rows(&crate::io::limits::read_text(path)?, path, lights)
+}
+
+/// [`read_intensity_rows`] on text already read; `path` names the source in messages.
+pub fn parse_intensity_rows(
+    text: &str,
+    path: &Path,
+    lights: Option<usize>,
+) -> Result<Vec<[f64; 3]>> {
+    let rows = parse_rows(text, path, &[1, 3], lights)?;
+    let mut values = Vec::with_capacity(rows.len());
+    for (line, row) in &rows {
+        let v = if row.len() == 1 {
+            [row[0]; 3]
+        } else {
+            [row[0], row[1], row[2]]
+        };
+        if v.iter().any(|x| *x <= 0.0) {
+            return Err(Error::parse(
+                path,
+                *line,
+                format!("intensity {:?}: expected positive values", row),
+            ));
+        }
+        values.push(v);
+    }
+    Ok(values)
+}
+
+/// The four lights of a rig closest to a square rig — slant `slant_deg`, tilts 90° apart at any
+/// common rotation — as indices in tilt order. For every light taken as the first corner, each
+/// of the four target directions gets its nearest light; the rotation with the smallest sum of
+/// angular distances wins. `None` with fewer than four lights or when two corners would share
+/// a light.
+pub fn closest_square_rig(lights: &Lights, slant_deg: f64) -> Option<[usize; 4]> {
+    let n = lights.len();
+    if n < 4 {
+        return None;
+    }
+    let slant = slant_deg.to_radians();
+    let angle = |a: &[f64; 3], b: &[f64; 3]| {
+        (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
+            .clamp(-1.0, 1.0)
+            .acos()
+    };
+    let mut best: Option<(f64, [usize; 4])> = None;
+    for d in &lights.directions {
+        let t0 = d[1].atan2(d[0]);
+        let mut pick = [0usize; 4];
+        let mut cost = 0.0;
+        for (j, slot) in pick.iter_mut().enumerate() {
+            let t = t0 + j as f64 * std::f64::consts::FRAC_PI_2;
+            let target = [slant.sin() * t.cos(), slant.sin() * t.sin(), slant.cos()];
+            let (k, a) = lights
+                .directions
+                .iter()
+                .enumerate()
+                .map(|(k, l)| (k, angle(l, &target)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))?;
+            *slot = k;
+            cost += a;
+        }
+        let distinct = (0..4).all(|i| (i + 1..4).all(|j| pick[i] != pick[j]));
+        if distinct && best.is_none_or(|(c, _)| cost < c) {
+            best = Some((cost, pick));
+        }
+    }
+    best.map(|(_, p)| p)
+}
+
+fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3], String> {
+    if d.iter().any(|x| !x.is_finite()) {
+        return Err(format!("direction {:?} is not finite", d));
+    }
+    let norm = (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt();
+    if norm < 1e-9 {
+        return Err("zero light direction: expected a non-zero vector x y z".into());
+    }
+    if (norm - 1.0).abs() > 1e-3 {
+        *renormalised += 1;
+    }
+    Ok([d[0] / norm, d[1] / norm, d[2] / norm])
+}
+
+/// Reads a whitespace-separated numeric table. Each data row must have one of `widths` numbers,
+/// all finite. A first line holding a single whole number is a count line (the list layout)
+/// when the rows after it are wider, or, where one-number rows are data too, when it equals the
+/// number of rows after it and `expected` (the light count, when known) says so; a count line
+/// that disagrees with the rows is an error naming both numbers. A leading UTF-8 byte-order
+/// mark is ignored. Returns (1-based line, values) pairs; `path` names the source in messages.
+pub(crate) fn parse_rows(
+    text: &str,
+    path: &Path,
+    widths: &[usize],
+    expected: Option<usize>,
+) -> Result<Vec<(usize, Vec<f64>)>> {
+    let mut rows: Vec<(usize, Vec<f64>)> = Vec::new();
+    for (i, raw) in text.lines().enumerate() {
+        let line = raw.trim().trim_start_matches('\u{feff}');
+        if line.is_empty() || line.starts_with('#') {
+            continue;
+        }
+        let mut vals = Vec::new();
+        for tok in line.split(|c: char| c.is_whitespace() || c == ',') {
+            if tok.is_empty() {
+                continue;
+            }
+            let v: f64 = tok.parse().map_err(|_| {
+                Error::parse(
+                    path,
+                    i + 1,
+                    format!("'{}' is not a number", tok.escape_debug()),
+                )
+            })?;
+            if !v.is_finite() {
+                return Err(Error::parse(path, i + 1, format!("'{tok}' is not finite")));
+            }
+            vals.push(v);
+        }
+        rows.push((i + 1, vals));
+    }
+    if let Some((line, first)) = rows.first() {
+        let line = *line;
+        let whole = first.len() == 1 && first[0] >= 0.0 && first[0].fract() == 0.0;
+        let following = rows.len() - 1;
+        let wider_after = rows.get(1).is_some_and(|(_, r)| r.len() > 1);
+        let count_line = if !whole {
+            false
+        } else if !widths.contains(&1) || wider_after {
+            true
+        } else {
+            // One-number rows are data too: a count line only when it is consistent.
+            first[0] as usize == following && expected.is_none_or(|n| n == following)
+        };
+        if count_line {
+            let announced = first[0];
+            if announced != following as f64 {
+                return Err(Error::file(
+                    path,
+                    format!(
+                        "the count line (line {line}) announces {announced} rows but {following} follow"
+                    ),
+                ));
+            }
+            rows.remove(0);
+        }
+    }
+    if rows.is_empty() {
+        return Err(Error::file(path, "no data rows"));
+    }
+    for (line, vals) in &rows {
+        if !widths.contains(&vals.len()) {
+            let want = widths
+                .iter()
+                .map(|w| w.to_string())
+                .collect::<Vec<_>>()
+                .join(" or ");
+            return Err(Error::parse(
+                path,
+                *line,
+                format!(
+                    "expected exactly {want} finite numbers, found {}",
+                    vals.len()
+                ),
+            ));
+        }
+    }
+    Ok(rows)
+}
+
+/// The refined lights and what the refinement changed.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct LightRefinement {
+    /// Refined unit directions, camera frame.
+    pub directions: Vec<[f64; 3]>,
+    /// Relative gain of each light: its readings are divided by it.
+    pub gains: Vec<f64>,
+    /// Angle between each given and refined direction, degrees.
+    pub angle_deg: Vec<f64>,
+    /// Pixels whose fits entered the last round.
+    pub pixels: usize,
+    /// Rounds run.
+    pub rounds: usize,
+    /// Largest direction change of the last round, degrees.
+    pub last_change_deg: f64,
+    /// The median relative misfit of the pixels' robust fits (robust scale over mean level)
+    /// with the given lights and with the refined ones.
+    pub misfit_before: f64,
+    pub misfit_after: f64,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(text: &str) -> tempfile::NamedTempFile {
+        let f = tempfile::NamedTempFile::new().unwrap();
+        std::fs::write(f.path(), text).unwrap();
+        f
+    }
+
+    #[test]
+    fn reads_both_layouts_and_normalises() {
+        let a = write("0 0 2\n1 0 1\n0 1 1\n");
+        let l = Lights::read_directions(a.path()).unwrap();
+        assert_eq!(l.len(), 3);
+        assert_eq!(l.renormalised, 3);
+        assert!((l.directions[1][0] - 0.5f64.sqrt()).abs() < 1e-12);
+        let b = write("3\n0 0 1\n1 0 1\n0 1 1\n");
+        assert_eq!(Lights::read_directions(b.path()).unwrap().len(), 3);
+    }
+
+    #[test]
+    fn bad_rows_name_the_line() {
+        let f = write("0 0 1\n1 0\n0 1 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("exactly 3"), "{e}");
+        let f = write("0 0 1\n0 0 0\n0 1 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2") && e.contains("zero"), "{e}");
+        let f = write("0 0 1\nnan 0 1\n");
+        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
+        assert!(e.contains("line 2"), "{e}");
+    }
+
+    #[test]
+    fn coplanar_lights_are_refused_with_condition_number() {
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let e = l.check_rank().unwrap_err().to_string();
+        assert!(e.contains("condition number"), "{e}");
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let c = l.check_rank().unwrap();
+        assert!(c > 1.0 && c < 10.0);
+    }
+
+    #[test]
+    fn square_rig_is_found_in_a_dense_rig() {
+        // A dense dome in 10° steps with the four exact corners at slant 35° hidden inside.
+        let mut dirs = Vec::new();
+        for s in [10.0f64, 25.0, 45.0, 60.0] {
+            for t in (0..36).map(|i| i as f64 * 10.0 + 3.0) {
+                let (s, t) = (s.to_radians(), t.to_radians());
+                dirs.push([s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]);
+            }
+        }
+        let corners: Vec<usize> = (0..4)
+            .map(|j| {
+                let (s, t) = (35f64.to_radians(), (20.0 + 90.0 * j as f64).to_radians());
+                dirs.push([s.sin() * t.cos(), s.sin() * t.sin(), s.cos()]);
+                dirs.len() - 1
+            })
+            .collect();
+        let l = Lights::new(&dirs).unwrap();
+        let mut got = closest_square_rig(&l, 35.0).unwrap().to_vec();
+        got.sort();
+        assert_eq!(got, corners);
+    }
+
+    #[test]
+    fn intensities_must_be_positive() {
+        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
+        let f = write("1 1 1\n0 1 1\n1 1 1\n");
+        let e = l
+            .clone()
+            .read_intensities(f.path())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 2") && e.contains("positive"), "{e}");
+        let f = write("2\n1\n1\n");
+        let l2 = l.read_intensities(f.path()).unwrap();
+        assert_eq!(l2.intensities[0], [2.0; 3]);
+    }
+}

@@ -1,0 +1,305 @@
+//! The memory budget and the plan a capture is loaded with (ALGORITHMS.md §10).
+//!
+//! A run needs, besides the samples, a few full-frame maps per pixel (normals, albedo, depth,
+//! weights, the integrator's work arrays, shadow maps and light statuses); these are the
+//! *full-frame stages* and are held whole. The samples go where the budget allows:
+//!
+//! 1. **in memory**, whole, as `f32` (the fastest; a capture that fits is loaded as always);
+//! 2. **tiles in memory** at the input's precision (`u16` for 8/16-bit images), converted to
+//!    `f32` one tile at a time;
+//! 3. **tiles in a spill file** beside the output, read back tile by tile.
+//!
+//! A budget that cannot hold the full-frame stages and one tile is refused with the smallest
+//! budget that works. The per-pixel figures below are those of the README's memory table;
+//! `report.json` `memory` records the plan and the measured peak.
+
+use crate::base::error::{Error, Result};
+use crate::base::machine::human_bytes;
+use crate::model::store::SampleType;
+
+/// Bytes per frame pixel of the full-frame stages, independent of the light count and of the
+/// mask: at their largest (the final integration, and the recursion's surface) the gradients,
+/// the weights and the integrator's work arrays beside the depth and the mask; at the end the
+/// exported maps. Set on measured peaks with a margin of about 10% (README, Memory): the
+/// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
+pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
+/// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit
+/// planes).
+pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
+/// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
+/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
+/// shadow bits and the attribution's keys (about 39 measured).
+pub const MASK_BYTES_PER_PIXEL: u64 = 44;
+/// Bytes per mask pixel and light held for the whole capture: the light statuses (the
+/// current ones, and while the recursion integrates the pixels' own decisions where they
+/// differ; about 1.9 measured).
+pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// Bytes per mask pixel of the ground truth when a run is scored (`--gt`): one normal, held at
+/// the mask pixels only.
+pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
+/// Bytes per mask pixel, per light and channel, of one tile in use: its `f32` view (4), its
+/// stored bytes while read and while loaded (2 × stored size, at most 8).
+pub const TILE_BYTES_PER_SAMPLE: u64 = 12;
+/// Fixed allowance: code, thread stacks, decoder state, small tables.
+pub const FIXED_BYTES: u64 = 48 << 20;
+/// Where a tile is never made larger (f32 bytes of its view): larger tiles gain nothing.
+pub const MAX_TILE_VIEW_BYTES: u64 = 256 << 20;
+
+/// The default budget: half of the memory available (`MemAvailable`, the cgroup's headroom,
+/// `PHOTOSTEREO_MAX_MEMORY`), or 4 GiB when none can be read.
+pub fn default_budget() -> u64 {
+    crate::base::machine::available_memory().map_or(4 << 30, |a| a / 2)
+}
+
+/// Where the samples live.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// Whole, `f32`, in memory.
+    InMemory,
+    /// Tiles at the input's precision, in memory.
+    Tiles,
+    /// Tiles at the input's precision, in a spill file.
+    Spill,
+}
+
+impl Layout {
+    /// The name `report.json` gives it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Layout::InMemory => "in memory",
+            Layout::Tiles => "tiles in memory",
+            Layout::Spill => "tiles in a spill file",
+        }
+    }
+}
+
+/// The sizes a plan is made from.
+#[derive(Clone, Copy, Debug)]
+pub struct CaptureSize {
+    pub width: usize,
+    pub height: usize,
+    /// Mask pixels.
+    pub pixels: usize,
+    pub lights: usize,
+    pub channels: usize,
+    /// The stored sample type (`U16` for 8/16-bit images).
+    pub sample_type: SampleType,
+    /// Decoding threads (each may hold one decoded image in the in-memory layout).
+    pub threads: usize,
+    /// Whether ground-truth normals are held for scoring the run.
+    pub ground_truth: bool,
+}
+
+impl CaptureSize {
+    fn frame(&self) -> u64 {
+        (self.width * self.height) as u64
+    }
+    fn samples(&self) -> u64 {
+        self.pixels as u64 * (self.lights * self.channels) as u64
+    }
+}
+
+/// The plan a capture is loaded with; `report.json` `memory` records it.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct MemoryPlan {
+    /// The budget, bytes.
+    pub budget: u64,
+    /// `in memory`, `tiles in memory` or `tiles in a spill file`.
+    pub layout: &'static str,
+    /// `f32` (in memory), `u16` or `f32` (tiles).
+    pub sample_type: &'static str,
+    /// Bytes of the stored samples.
+    pub sample_bytes: u64,
+    /// Bytes of the samples as `f32` (what holding them whole costs).
+    pub f32_bytes: u64,
+    /// Mask pixels per tile at most (the whole mask in memory).
+    pub tile_pixels: usize,
+    /// Tiles (1 in memory).
+    pub tiles: usize,
+    /// Bytes of the spill file (0 when none).
+    pub spill_bytes: u64,
+    /// The full-frame stages' estimate, bytes.
+    pub full_frame_bytes: u64,
+    /// The smallest budget that works for this capture.
+    pub minimum_budget: u64,
+}
+
+/// A size as `--memory-limit` takes it: whole MiB rounded up (`219M`), or GiB with one
+/// decimal from 10 GiB on, rounded up (`13.9G`).
+pub fn size_flag(bytes: u64) -> String {
+    let mib = bytes.div_ceil(1 << 20);
+    if mib >= 10 << 10 {
+        format!("{:.1}G", (mib as f64 / 1024.0 * 10.0).ceil() / 10.0)
+    } else {
+        format!("{mib}M")
+    }
+}
+
+/// The full-frame stages' bytes (see the constants).
+pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
+    let n = s.lights as u64;
+    s.frame() * FRAME_BYTES_PER_PIXEL
+        + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
+        + s.pixels as u64
+            * (MASK_BYTES_PER_PIXEL
+                + MASK_BYTES_PER_PIXEL_LIGHT * n
+                + if s.ground_truth {
+                    TRUTH_BYTES_PER_MASK_PIXEL
+                } else {
+                    0
+                })
+        + FIXED_BYTES
+}
+
+/// Bytes of one tile of `pixels` mask pixels in use.
+fn tile_bytes(s: &CaptureSize, pixels: u64) -> u64 {
+    pixels * (s.lights * s.channels) as u64 * TILE_BYTES_PER_SAMPLE
+}
+
+/// The loaders' row buffers: one row per light (streaming decoders) plus their state.
+fn decoder_bytes(s: &CaptureSize) -> u64 {
+    s.lights as u64 * (s.width as u64 * s.channels as u64 * 4 + (256 << 10))
+}
+
+/// The smallest budget that works: the full-frame stages and a tile of the widest row.
+pub fn minimum_budget(s: &CaptureSize) -> u64 {
+    full_frame_bytes(s) + tile_bytes(s, s.width as u64) + decoder_bytes(s)
+}
+
+/// Options of a plan beyond the budget, for tests and experiments: a forced layout and tile
+/// size (within the budget's minimum).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Force {
+    /// Use this layout whatever the budget allows.
+    pub layout: Option<Layout>,
+    /// Mask pixels per tile.
+    pub tile_pixels: Option<usize>,
+}
+
+/// Chooses where the samples of a capture of size `s` go under `budget` bytes. Errors when the
+/// budget is below [`minimum_budget`], naming the parameter `memory_limit` and that minimum.
+pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, MemoryPlan)> {
+    let minimum = minimum_budget(s);
+    if budget < minimum {
+        return Err(Error::parameter(
+            "memory_limit",
+            format!(
+                "{}: too small for this capture ({}×{} pixels{}, {} lights × {} channel(s)); \
+                 its full-frame stages alone need {}: the smallest budget that works is {}",
+                size_flag(budget),
+                s.width,
+                s.height,
+                if s.pixels > 0 {
+                    format!(", {} mask pixels", s.pixels)
+                } else {
+                    String::new()
+                },
+                s.lights,
+                s.channels,
+                human_bytes(full_frame_bytes(s)),
+                size_flag(minimum)
+            ),
+        ));
+    }
+    let full = full_frame_bytes(s);
+    let f32_bytes = s.samples() * 4;
+    let stored = s.samples() * s.sample_type.bytes() as u64;
+    // Whole f32 samples, their transient second copy while loading, one image per thread.
+    let in_memory_need = full
+        + 2 * f32_bytes
+        + s.threads as u64 * s.frame() * s.channels as u64 * 6
+        + decoder_bytes(s);
+    let layout = force.layout.unwrap_or(if in_memory_need <= budget {
+        Layout::InMemory
+    } else if full + stored + tile_bytes(s, s.pixels.div_ceil(8) as u64) + decoder_bytes(s)
+        <= budget
+    {
+        Layout::Tiles
+    } else {
+        Layout::Spill
+    });
+    let per_pixel = tile_bytes(s, 1).max(1);
+    let (tile_pixels, tiles) = match layout {
+        Layout::InMemory => (s.pixels, 1),
+        _ => {
+            let held = if layout == Layout::Tiles { stored } else { 0 };
+            let left = budget.saturating_sub(full + held + decoder_bytes(s));
+            let by_budget = left / per_pixel;
+            let by_cap = MAX_TILE_VIEW_BYTES / (4 * (s.lights * s.channels) as u64).max(1);
+            let tp = force
+                .tile_pixels
+                .unwrap_or(by_budget.min(by_cap).max(s.width as u64) as usize)
+                .max(1);
+            (tp, s.pixels.div_ceil(tp).max(1))
+        }
+    };
+    let plan = MemoryPlan {
+        budget,
+        layout: layout.name(),
+        sample_type: match (layout, s.sample_type) {
+            (Layout::InMemory, _) | (_, SampleType::F32) => "f32",
+            (_, SampleType::U16) => "u16",
+        },
+        sample_bytes: if layout == Layout::InMemory {
+            f32_bytes
+        } else {
+            stored
+        },
+        f32_bytes,
+        tile_pixels,
+        tiles,
+        spill_bytes: if layout == Layout::Spill { stored } else { 0 },
+        full_frame_bytes: full,
+        minimum_budget: minimum,
+    };
+    Ok((layout, plan))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn size(w: usize, h: usize, n: usize) -> CaptureSize {
+        CaptureSize {
+            width: w,
+            height: h,
+            pixels: w * h,
+            lights: n,
+            channels: 3,
+            sample_type: SampleType::U16,
+            threads: 2,
+            ground_truth: false,
+        }
+    }
+
+    #[test]
+    fn plans_follow_the_budget() {
+        let s = size(1000, 1000, 24);
+        let (l, p) = plan(&s, 8 << 30, Force::default()).unwrap();
+        assert_eq!(l, Layout::InMemory);
+        assert_eq!(p.tiles, 1);
+        // Room for the u16 store (144 MB) but not for f32 twice (576 MB).
+        let (l, p) = plan(&s, full_frame_bytes(&s) + (400 << 20), Force::default()).unwrap();
+        assert_eq!(l, Layout::Tiles);
+        assert_eq!(p.sample_bytes, 144_000_000);
+        assert!(p.tiles > 1);
+        let (l, p) = plan(&s, minimum_budget(&s) + (1 << 20), Force::default()).unwrap();
+        assert_eq!(l, Layout::Spill);
+        assert_eq!(p.spill_bytes, 144_000_000);
+        // Scoring against ground truth holds one normal per mask pixel more.
+        let scored = CaptureSize {
+            ground_truth: true,
+            ..s
+        };
+        assert_eq!(
+            full_frame_bytes(&scored) - full_frame_bytes(&s),
+            s.pixels as u64 * TRUTH_BYTES_PER_MASK_PIXEL
+        );
+        let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
+        let m = e.to_string();
+        assert!(
+            m.contains("memory_limit") && m.contains("smallest budget"),
+            "{m}"
+        );
+    }
+}
