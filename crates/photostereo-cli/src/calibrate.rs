@@ -134,9 +134,12 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
             "sphere_source": source,
         }));
     }
-    lights.write_directions(&folder.file("light_directions.txt"))?;
+    photostereo::io::light_files::write_directions(&lights, &folder.file("light_directions.txt"))?;
     if matte_info.is_some() {
-        lights.write_intensities(&folder.file("light_intensities.txt"))?;
+        photostereo::io::light_files::write_intensities(
+            &lights,
+            &folder.file("light_intensities.txt"),
+        )?;
     }
     calibration_figure(&loaded.images, &cal).save(&folder.file("calibration.png"))?;
     let per_light: Vec<serde_json::Value> = cal

@@ -10,11 +10,10 @@ use photostereo::base::progress::Silent;
 use photostereo::io::export::{write_json, OutputFolder, OutputKind};
 use photostereo::io::figure::{heat_map, normals_picture, text_width, Canvas};
 use photostereo::io::maps::{nice_ceil, tick_label};
+use photostereo::io::synth::write_capture;
 use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
 use photostereo::model::image::Image;
-use photostereo::scene::{
-    spec_scene, synthesize_scene, write_capture, Brdf, Rig, Scene, SceneKind, SynthSpec,
-};
+use photostereo::scene::{spec_scene, synthesize_scene, Brdf, Rig, Scene, SceneKind, SynthSpec};
 use photostereo::solve::metrics::{evaluate, ErrorStats};
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -57,7 +56,7 @@ pub fn main(a: DemoArgs) -> Result<()> {
     let rigs: Vec<Rig> = a
         .rigs
         .iter()
-        .map(|r| Rig::parse(r))
+        .map(|r| photostereo::io::light_files::parse_rig(r))
         .collect::<photostereo::Result<_>>()?;
     // The demo replaces its own folder without being asked.
     let ours = photostereo::io::export::marker_kind(&a.output) == Some(OutputKind::Demo);

@@ -4,9 +4,8 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Result};
 use clap::Args;
-use photostereo::scene::{
-    render::LightIntensities, synth_to_folder, Brdf, MaskShape, Rig, SceneKind, SynthSpec,
-};
+use photostereo::io::synth::synth_to_folder;
+use photostereo::scene::{render::LightIntensities, Brdf, MaskShape, Rig, SceneKind, SynthSpec};
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -82,7 +81,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
         }
         return near(&a, scene, rig, mask, textured_albedo);
     }
-    let mut spec = SynthSpec::new(scene, Rig::parse(&a.rig)?);
+    let mut spec = SynthSpec::new(scene, photostereo::io::light_files::parse_rig(&a.rig)?);
     spec.size = width;
     spec.height = (height != width).then_some(height);
     spec.mask = mask;
@@ -125,7 +124,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
         }
         let bar = a.out.progress();
         let (s, lights, target) =
-            photostereo::scene::render::synth_streamed(&spec, &output, a.out.force, &bar)?;
+            photostereo::io::synth::synth_streamed(&spec, &output, a.out.force, &bar)?;
         if a.out.json {
             print_json(&serde_json::json!({
                 "output": target.display().to_string(),
@@ -194,7 +193,8 @@ fn near(
     mask: Option<MaskShape>,
     textured_albedo: bool,
 ) -> Result<()> {
-    use photostereo::scene::near::{near_synth_to_folder, NearSpec};
+    use photostereo::io::synth::near_synth_to_folder;
+    use photostereo::scene::near::NearSpec;
     if a.shot != 0.0 || a.intensities != "uniform" {
         bail!("--shot and --intensities apply to distant rigs; near rigs have their own LED radiances");
     }

@@ -7,7 +7,6 @@ use clap::Args;
 use photostereo::io::viewer::{
     openlime::export_openlime, serve::Server, write_view, RunFolder, ViewOptions, ViewSummary,
 };
-use photostereo::Lights;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
@@ -88,7 +87,7 @@ pub fn main(a: ViewArgs) -> Result<()> {
     }
     if !a.no_write {
         let lights = match &a.lights {
-            Some(p) => Some(Lights::read_directions(p)?.directions),
+            Some(p) => Some(photostereo::io::light_files::read_directions(p)?.directions),
             None => None,
         };
         let options = ViewOptions {

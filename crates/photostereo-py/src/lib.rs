@@ -11,14 +11,16 @@ use numpy::{IntoPyArray, PyReadonlyArray2, PyReadonlyArray3, PyReadonlyArray4};
 use photostereo::app::pipeline::{LightSubset, RunOptions};
 use photostereo::base::progress::Progress;
 use photostereo::io::layouts::CaptureFiles;
+use photostereo::io::synth::near_synth_to_folder;
+use photostereo::io::synth::synth_to_folder;
 use photostereo::method::engine::{Method, Params, Reconstruction};
 use photostereo::method::recursive::Fallback;
 use photostereo::model::capture::{Capture, Stack};
 use photostereo::model::image::Image;
 use photostereo::model::lightmodel::Camera;
 use photostereo::model::lights::Lights;
-use photostereo::scene::near::{near_synth_to_folder, synthesize_near, NearRig, NearSpec};
-use photostereo::scene::{synth_to_folder, Brdf, Rig, SceneKind, SynthSpec};
+use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
+use photostereo::scene::{Brdf, SceneKind, SynthSpec};
 use photostereo::solve::detect::NoiseEstimate;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
@@ -1081,7 +1083,10 @@ fn spec_from(
         return Err(bad(format!("noise {noise}: expected a finite value ≥ 0")));
     }
     let scene: SceneKind = name.parse().map_err(py_err)?;
-    let mut spec = SynthSpec::new(scene, Rig::parse(rig).map_err(py_err)?);
+    let mut spec = SynthSpec::new(
+        scene,
+        photostereo::io::light_files::parse_rig(rig).map_err(py_err)?,
+    );
     spec.size = size;
     spec.render.brdf = brdf.parse::<Brdf>().map_err(py_err)?;
     spec.render.noise_sigma = noise;

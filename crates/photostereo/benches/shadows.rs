@@ -6,7 +6,6 @@ use criterion::{criterion_group, criterion_main, Criterion};
 use photostereo::geometry::shadows::{
     cast_shadows, cast_shadows_ray_march, shadow_maps, ShadowParams,
 };
-use photostereo::Lights;
 use std::hint::black_box;
 use std::path::Path;
 
@@ -69,7 +68,7 @@ fn lights() -> Vec<[f64; 3]> {
         env!("CARGO_MANIFEST_DIR"),
         "/../../../shared/data/diligent/ballPNG/light_directions.txt"
     ));
-    Lights::read_directions(path)
+    photostereo::io::light_files::read_directions(path)
         .map(|l| l.directions)
         .unwrap_or_else(|_| {
             // Without the shared data: 96 lights on 4 rings.

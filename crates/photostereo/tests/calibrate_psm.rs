@@ -68,7 +68,7 @@ fn chrome() -> Calibration {
 }
 
 fn reference() -> Lights {
-    Lights::read_directions(&psm("lights.reference.txt")).unwrap()
+    photostereo::io::light_files::read_directions(&psm("lights.reference.txt")).unwrap()
 }
 
 #[test]

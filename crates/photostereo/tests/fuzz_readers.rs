@@ -736,7 +736,7 @@ fn fuzz_light_file() {
     ];
     fuzz("light_file", seeds, text_mutations, |b| {
         text(b).is_some_and(|t| {
-            photostereo::Lights::parse_directions(&t, Path::new("lights.txt"))
+            photostereo::io::light_files::parse_directions(&t, Path::new("lights.txt"))
                 .and_then(|l| l.check_rank())
                 .is_ok()
         })
@@ -775,7 +775,7 @@ fn fuzz_intensity_file() {
     .unwrap();
     fuzz("intensity_file", seeds, text_mutations, move |b| {
         text(b).is_some_and(|t| {
-            photostereo::model::lights::parse_intensity_rows(
+            photostereo::io::light_files::parse_intensity_rows(
                 &t,
                 Path::new("intensities.txt"),
                 Some(4),

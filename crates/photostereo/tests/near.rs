@@ -3,10 +3,9 @@
 //! read back from disk.
 
 use photostereo::base::progress::Silent;
+use photostereo::io::synth::write_near_capture;
 use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
-use photostereo::scene::near::{
-    oracle_error, synthesize_near, write_near_capture, NearRendered, NearRig, NearSpec,
-};
+use photostereo::scene::near::{oracle_error, synthesize_near, NearRendered, NearRig, NearSpec};
 use photostereo::scene::{Brdf, SceneKind};
 use photostereo::{Capture, CaptureFiles};
 
@@ -283,7 +282,7 @@ fn point_light_shadow_maps_match_the_rendered_shadows() {
     let t = &r.rendered.truth;
     let capture = r.capture().unwrap();
     let near = capture.lights.near.as_deref().unwrap();
-    let maps = photostereo::model::lightmodel::near_shadow_maps(
+    let maps = photostereo::geometry::shadows::near::near_shadow_maps(
         near,
         &t.depth,
         &t.normals,

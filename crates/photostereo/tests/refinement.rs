@@ -3,9 +3,10 @@
 
 use photostereo::base::progress::Silent;
 use photostereo::io::layouts::{CaptureFiles, LoadOptions};
+use photostereo::io::synth::synth_to_folder;
 use photostereo::method::engine::{reconstruct, Method, Params};
 use photostereo::model::memory::{Force, Layout};
-use photostereo::scene::{synth_to_folder, synthesize, Brdf, Rendered, Rig, SceneKind, SynthSpec};
+use photostereo::scene::{synthesize, Brdf, Rendered, Rig, SceneKind, SynthSpec};
 use photostereo::solve::metrics::evaluate;
 use photostereo::solve::refine::{refine_capture_lights, refine_lights, RefineParams};
 

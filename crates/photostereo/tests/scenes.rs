@@ -2,14 +2,15 @@
 //! checked against an independent truth (analytic formulas, brute force, least squares).
 
 use photostereo::base::progress::Silent;
+use photostereo::base::rng::Pcg32;
 use photostereo::io::groundtruth::read_normal_map;
 use photostereo::io::layouts::CaptureFiles;
+use photostereo::io::synth::synth_to_folder;
 use photostereo::model::lights::Lights;
 use photostereo::scene::rigs::slant_tilt_lights;
-use photostereo::scene::rng::Pcg32;
 use photostereo::scene::{
-    cast_shadows, ray_march_shadows, render, synth_to_folder, synthesize, Brdf, Frame,
-    LightIntensities, MaskShape, RenderOptions, Rig, Scene, SceneKind, SynthSpec,
+    cast_shadows, ray_march_shadows, render, synthesize, Brdf, Frame, LightIntensities, MaskShape,
+    RenderOptions, Rig, Scene, SceneKind, SynthSpec,
 };
 use photostereo::solve::estimate::{Estimator, LeastSquares};
 use photostereo::solve::metrics::evaluate;
@@ -203,13 +204,15 @@ fn least_squares_through_the_written_files_recovers_the_normals() {
     let dir = tempfile::tempdir().unwrap();
     // A light file: six lights at slant 25°.
     let light_file = dir.path().join("six.txt");
-    slant_tilt_lights(25.0, &[10.0, 70.0, 130.0, 190.0, 250.0, 310.0])
-        .write_directions(&light_file)
-        .unwrap();
+    let six = slant_tilt_lights(25.0, &[10.0, 70.0, 130.0, 190.0, 250.0, 310.0]);
+    photostereo::io::light_files::write_directions(&six, &light_file).unwrap();
     for (kind, rig) in [
         (SceneKind::Sphere, Rig::Square4),
         (SceneKind::Face, Rig::Ring(8)),
-        (SceneKind::Cavities, Rig::File(light_file.clone())),
+        (
+            SceneKind::Cavities,
+            photostereo::io::light_files::parse_rig(light_file.to_str().unwrap()).unwrap(),
+        ),
     ] {
         let mut spec = SynthSpec::new(kind, rig);
         spec.render = noise_free(Brdf::Lambert);

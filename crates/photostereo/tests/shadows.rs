@@ -5,6 +5,9 @@
 mod shadows_scenes;
 
 use photostereo::geometry::shadows::*;
+use photostereo::io::shadow_figure::{
+    shadow_maps_montage, shadow_montage, shadow_montage_outlined,
+};
 use photostereo::scene;
 use shadows_scenes::*;
 
@@ -276,7 +279,7 @@ fn shadow_maps_match_single_light_sweeps_and_respect_the_mask() {
     // The montage read from the bit planes is the one drawn from per-light union maps.
     let unions: Vec<Vec<bool>> = (0..maps.lights).map(|k| maps.union(k)).collect();
     let drawn = shadow_montage_outlined(&unions, Some(&f.mask), f.width, f.height);
-    let from_bits = maps.montage_outlined(Some(&f.mask));
+    let from_bits = shadow_maps_montage(&maps, Some(&f.mask));
     assert_eq!(
         (drawn.width, drawn.height),
         (from_bits.width, from_bits.height)

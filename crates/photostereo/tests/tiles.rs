@@ -6,10 +6,11 @@
 
 use photostereo::base::progress::{Progress, Silent};
 use photostereo::io::layouts::{CaptureFiles, LoadOptions};
+use photostereo::io::synth::synth_to_folder;
 use photostereo::method::engine::{reconstruct, Method, Params, Reconstruction};
 use photostereo::model::capture::Capture;
 use photostereo::model::memory::{Force, Layout};
-use photostereo::scene::{synth_to_folder, Rig, SceneKind, SynthSpec};
+use photostereo::scene::{Rig, SceneKind, SynthSpec};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
@@ -264,7 +265,7 @@ fn synth_one_light_at_a_time_writes_the_images_of_synth_whole() {
     spec.size = 40;
     let (_, whole) = synth_to_folder(&spec, &out.path().join("whole"), false).unwrap();
     let (_, _, streamed) =
-        photostereo::scene::render::synth_streamed(&spec, &out.path().join("s"), false, &Silent)
+        photostereo::io::synth::synth_streamed(&spec, &out.path().join("s"), false, &Silent)
             .unwrap();
     for name in [
         "001.png",

@@ -131,8 +131,7 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         crate::io::maps::write_unusable_lights(dir, rec)?;
     }
     if let Some(r) = &rec.recursive {
-        r.shadows
-            .montage_outlined(Some(&rec.mask))
+        crate::io::shadow_figure::shadow_maps_montage(&r.shadows, Some(&rec.mask))
             .save(&dir.join("shadows.png"))?;
         let bytes = |m: &[bool]| {
             m.iter()

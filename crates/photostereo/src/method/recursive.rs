@@ -418,7 +418,7 @@ pub fn recursive(
                 &capture.lights.directions,
                 &params.shadows,
             )?,
-            Some(near) => crate::model::lightmodel::near_shadow_maps(
+            Some(near) => crate::geometry::shadows::near::near_shadow_maps(
                 near,
                 &depth.values,
                 &shading,
@@ -1321,7 +1321,7 @@ fn fill_from_neighbours(
             albedo_map[i as usize] = est.albedo[p * c..(p + 1) * c].iter().sum::<f32>() / c as f32;
         }
     }
-    let mut lights = crate::model::lightmodel::PixelLights::of(capture);
+    let mut lights = capture.pixel_lights();
     let mut dirs = vec![[0f64; 3]; n];
     let mut grey = vec![0f64; n];
     let mut samples = Vec::new();
@@ -1459,7 +1459,7 @@ fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize
 /// Pixels `few` (completed from two lights or the surface) keep theirs.
 fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
     let n = capture.n_lights();
-    let mut lights = crate::model::lightmodel::PixelLights::of(capture);
+    let mut lights = capture.pixel_lights();
     for (p, t) in trust.iter_mut().enumerate() {
         let st = &light_status[p * n..(p + 1) * n];
         if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {

@@ -165,6 +165,16 @@ impl Capture {
         &self.statistics
     }
 
+    /// Per-thread access to the light vectors of one pixel after another
+    /// ([`crate::model::lightmodel::PixelLights`]) for this capture's lights.
+    pub fn pixel_lights(&self) -> crate::model::lightmodel::PixelLights<'_> {
+        crate::model::lightmodel::PixelLights::new(
+            &self.lights.directions,
+            self.lights.near.as_deref(),
+            self.width,
+        )
+    }
+
     /// Forgets the capture-wide statistics measured so far (noise level, dark floor, κ), which
     /// every method run on this capture otherwise reuses: call it after changing `samples`,
     /// `lights` or the mask in place. (Clones and captures derived by the library's functions

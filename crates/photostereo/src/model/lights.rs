@@ -7,7 +7,6 @@
 
 use crate::base::error::{Error, Result};
 use serde::Serialize;
-use std::path::Path;
 
 /// A rig's directions above this condition number are refused as (near) coplanar: normals
 /// estimated with them would amplify the image noise by about that factor.
@@ -94,52 +93,6 @@ impl Lights {
         Ok(self)
     }
 
-    /// Reads directions from a text file: either the DiLiGenT layout (N rows `x y z`) or the
-    /// list layout (a first line with the count N, then N rows). Blank lines and lines starting
-    /// with `#` are skipped. Directions are normalised; a zero direction is an error.
-    pub fn read_directions(path: &Path) -> Result<Self> {
-        Self::parse_directions(&crate::io::limits::read_text(path)?, path)
-    }
-
-    /// [`read_directions`](Lights::read_directions) on text already read; `path` names the
-    /// source in messages.
-    pub fn parse_directions(text: &str, path: &Path) -> Result<Self> {
-        let rows = parse_rows(text, path, &[3], None)?;
-        let mut dirs = Vec::with_capacity(rows.len());
-        let mut renormalised = 0;
-        for (line, row) in &rows {
-            let d = [row[0], row[1], row[2]];
-            dirs.push(
-                normalise_direction(d, &mut renormalised)
-                    .map_err(|m| Error::parse(path, *line, m))?,
-            );
-        }
-        Ok(Lights {
-            intensities: vec![[1.0; 3]; dirs.len()],
-            directions: dirs,
-            renormalised,
-            near: None,
-            camera: None,
-        })
-    }
-
-    /// Reads per-light intensities (rows of 3 values R G B, or 1 value for all channels) and
-    /// attaches them. The row count must equal the light count.
-    pub fn read_intensities(self, path: &Path) -> Result<Self> {
-        let values = read_intensity_rows(path, Some(self.len()))?;
-        if values.len() != self.len() {
-            return Err(Error::file(
-                path,
-                format!(
-                    "{} intensity rows for {} light directions",
-                    values.len(),
-                    self.len()
-                ),
-            ));
-        }
-        self.with_intensities(values)
-    }
-
     /// Checks that the rig determines normals: at least three lights and a light matrix of rank
     /// three with condition number at most [`MAX_CONDITION_NUMBER`]. Returns the condition number.
     pub fn check_rank(&self) -> Result<f64> {
@@ -195,57 +148,6 @@ impl Lights {
             camera: self.camera,
         }
     }
-
-    /// Writes the directions in the DiLiGenT layout (N rows `x y z`).
-    pub fn write_directions(&self, path: &Path) -> Result<()> {
-        let mut s = String::new();
-        for d in &self.directions {
-            s.push_str(&format!("{:.6} {:.6} {:.6}\n", d[0], d[1], d[2]));
-        }
-        std::fs::write(path, s).map_err(|e| Error::io(path, e))
-    }
-
-    /// Writes the intensities in the DiLiGenT layout (N rows `R G B`).
-    pub fn write_intensities(&self, path: &Path) -> Result<()> {
-        let mut s = String::new();
-        for v in &self.intensities {
-            s.push_str(&format!("{:.6} {:.6} {:.6}\n", v[0], v[1], v[2]));
-        }
-        std::fs::write(path, s).map_err(|e| Error::io(path, e))
-    }
-}
-
-/// Reads an intensity file: rows of 3 values R G B or 1 value for all channels, each positive.
-/// `lights` (the light count, when known) decides whether an ambiguous first line holding one
-/// whole number is a count line.
-pub fn read_intensity_rows(path: &Path, lights: Option<usize>) -> Result<Vec<[f64; 3]>> {
-    parse_intensity_rows(&crate::io::limits::read_text(path)?, path, lights)
-}
-
-/// [`read_intensity_rows`] on text already read; `path` names the source in messages.
-pub fn parse_intensity_rows(
-    text: &str,
-    path: &Path,
-    lights: Option<usize>,
-) -> Result<Vec<[f64; 3]>> {
-    let rows = parse_rows(text, path, &[1, 3], lights)?;
-    let mut values = Vec::with_capacity(rows.len());
-    for (line, row) in &rows {
-        let v = if row.len() == 1 {
-            [row[0]; 3]
-        } else {
-            [row[0], row[1], row[2]]
-        };
-        if v.iter().any(|x| *x <= 0.0) {
-            return Err(Error::parse(
-                path,
-                *line,
-                format!("intensity {:?}: expected positive values", row),
-            ));
-        }
-        values.push(v);
-    }
-    Ok(values)
 }
 
 /// The four lights of a rig closest to a square rig — slant `slant_deg`, tilts 90° apart at any
@@ -289,7 +191,9 @@ pub fn closest_square_rig(lights: &Lights, slant_deg: f64) -> Option<[usize; 4]>
     best.map(|(_, p)| p)
 }
 
-fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3], String> {
+/// `d` as a unit vector, counting in `renormalised` a direction that was not unit length;
+/// the message says why a zero or non-finite direction is refused.
+pub fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3], String> {
     if d.iter().any(|x| !x.is_finite()) {
         return Err(format!("direction {:?} is not finite", d));
     }
@@ -301,92 +205,6 @@ fn normalise_direction(d: [f64; 3], renormalised: &mut usize) -> Result<[f64; 3]
         *renormalised += 1;
     }
     Ok([d[0] / norm, d[1] / norm, d[2] / norm])
-}
-
-/// Reads a whitespace-separated numeric table. Each data row must have one of `widths` numbers,
-/// all finite. A first line holding a single whole number is a count line (the list layout)
-/// when the rows after it are wider, or, where one-number rows are data too, when it equals the
-/// number of rows after it and `expected` (the light count, when known) says so; a count line
-/// that disagrees with the rows is an error naming both numbers. A leading UTF-8 byte-order
-/// mark is ignored. Returns (1-based line, values) pairs; `path` names the source in messages.
-pub(crate) fn parse_rows(
-    text: &str,
-    path: &Path,
-    widths: &[usize],
-    expected: Option<usize>,
-) -> Result<Vec<(usize, Vec<f64>)>> {
-    let mut rows: Vec<(usize, Vec<f64>)> = Vec::new();
-    for (i, raw) in text.lines().enumerate() {
-        let line = raw.trim().trim_start_matches('\u{feff}');
-        if line.is_empty() || line.starts_with('#') {
-            continue;
-        }
-        let mut vals = Vec::new();
-        for tok in line.split(|c: char| c.is_whitespace() || c == ',') {
-            if tok.is_empty() {
-                continue;
-            }
-            let v: f64 = tok.parse().map_err(|_| {
-                Error::parse(
-                    path,
-                    i + 1,
-                    format!("'{}' is not a number", tok.escape_debug()),
-                )
-            })?;
-            if !v.is_finite() {
-                return Err(Error::parse(path, i + 1, format!("'{tok}' is not finite")));
-            }
-            vals.push(v);
-        }
-        rows.push((i + 1, vals));
-    }
-    if let Some((line, first)) = rows.first() {
-        let line = *line;
-        let whole = first.len() == 1 && first[0] >= 0.0 && first[0].fract() == 0.0;
-        let following = rows.len() - 1;
-        let wider_after = rows.get(1).is_some_and(|(_, r)| r.len() > 1);
-        let count_line = if !whole {
-            false
-        } else if !widths.contains(&1) || wider_after {
-            true
-        } else {
-            // One-number rows are data too: a count line only when it is consistent.
-            first[0] as usize == following && expected.is_none_or(|n| n == following)
-        };
-        if count_line {
-            let announced = first[0];
-            if announced != following as f64 {
-                return Err(Error::file(
-                    path,
-                    format!(
-                        "the count line (line {line}) announces {announced} rows but {following} follow"
-                    ),
-                ));
-            }
-            rows.remove(0);
-        }
-    }
-    if rows.is_empty() {
-        return Err(Error::file(path, "no data rows"));
-    }
-    for (line, vals) in &rows {
-        if !widths.contains(&vals.len()) {
-            let want = widths
-                .iter()
-                .map(|w| w.to_string())
-                .collect::<Vec<_>>()
-                .join(" or ");
-            return Err(Error::parse(
-                path,
-                *line,
-                format!(
-                    "expected exactly {want} finite numbers, found {}",
-                    vals.len()
-                ),
-            ));
-        }
-    }
-    Ok(rows)
 }
 
 /// The refined lights and what the refinement changed.
@@ -413,36 +231,6 @@ pub struct LightRefinement {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn write(text: &str) -> tempfile::NamedTempFile {
-        let f = tempfile::NamedTempFile::new().unwrap();
-        std::fs::write(f.path(), text).unwrap();
-        f
-    }
-
-    #[test]
-    fn reads_both_layouts_and_normalises() {
-        let a = write("0 0 2\n1 0 1\n0 1 1\n");
-        let l = Lights::read_directions(a.path()).unwrap();
-        assert_eq!(l.len(), 3);
-        assert_eq!(l.renormalised, 3);
-        assert!((l.directions[1][0] - 0.5f64.sqrt()).abs() < 1e-12);
-        let b = write("3\n0 0 1\n1 0 1\n0 1 1\n");
-        assert_eq!(Lights::read_directions(b.path()).unwrap().len(), 3);
-    }
-
-    #[test]
-    fn bad_rows_name_the_line() {
-        let f = write("0 0 1\n1 0\n0 1 1\n");
-        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
-        assert!(e.contains("line 2") && e.contains("exactly 3"), "{e}");
-        let f = write("0 0 1\n0 0 0\n0 1 1\n");
-        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
-        assert!(e.contains("line 2") && e.contains("zero"), "{e}");
-        let f = write("0 0 1\nnan 0 1\n");
-        let e = Lights::read_directions(f.path()).unwrap_err().to_string();
-        assert!(e.contains("line 2"), "{e}");
-    }
 
     #[test]
     fn coplanar_lights_are_refused_with_condition_number() {
@@ -475,20 +263,5 @@ mod tests {
         let mut got = closest_square_rig(&l, 35.0).unwrap().to_vec();
         got.sort();
         assert_eq!(got, corners);
-    }
-
-    #[test]
-    fn intensities_must_be_positive() {
-        let l = Lights::new(&[[1.0, 0.0, 1.0], [0.0, 1.0, 1.0], [-1.0, 0.0, 1.0]]).unwrap();
-        let f = write("1 1 1\n0 1 1\n1 1 1\n");
-        let e = l
-            .clone()
-            .read_intensities(f.path())
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("line 2") && e.contains("positive"), "{e}");
-        let f = write("2\n1\n1\n");
-        let l2 = l.read_intensities(f.path()).unwrap();
-        assert_eq!(l2.intensities[0], [2.0; 3]);
     }
 }

@@ -8,8 +8,8 @@
 //! - [`reflectance`]: the reflectance models ([`Brdf`]).
 //! - [`shadows`]: cast shadows by a fine ray march against the height field, independent of any
 //!   horizon sweep an estimator may use, so that errors cannot cancel.
-//! - [`render`]: rendering to images and ground truth in memory ([`synthesize`], [`render`]) and
-//!   writing the DiLiGenT layout plus `gt/` ([`write_capture`], [`synth_to_folder`]).
+//! - [`render`]: rendering to images and ground truth in memory ([`synthesize`], [`render`]), or
+//!   one light at a time ([`render::LightByLight`]); [`crate::io::synth`] writes them as folders.
 //!
 //! Frame (CONVENTIONS.md): x right, y up (opposite to the row index), z toward the camera; a
 //! height field f has ∂f/∂col = −n_x/n_z and ∂f/∂row = +n_y/n_z. Light directions point from
@@ -19,14 +19,13 @@ pub mod near;
 pub mod reflectance;
 pub mod render;
 pub mod rigs;
-pub use crate::base::rng;
 pub mod shadows;
 pub mod surfaces;
 
 pub use reflectance::Brdf;
 pub use render::{
-    render, spec_scene, synth_to_folder, synthesize, synthesize_scene, write_capture, CaptureStats,
-    GroundTruth, LightIntensities, RenderOptions, Rendered, SynthSpec,
+    render, spec_scene, synthesize, synthesize_scene, CaptureStats, GroundTruth, LightIntensities,
+    RenderOptions, Rendered, SynthSpec,
 };
 pub use rigs::Rig;
 pub use shadows::{cast_shadows, ray_march_shadows};

@@ -13,16 +13,15 @@
 
 use super::reflectance::{BLINN_PHONG_EXPONENT, BLINN_PHONG_KS};
 use super::render::{gather_lights, GroundTruth, LightResult, Rendered};
-use super::rng::{splitmix64, Pcg32};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Brdf;
 use crate::base::error::{Error, Result};
+use crate::base::rng::{splitmix64, Pcg32};
 use crate::model::capture::Capture;
 use crate::model::image::Image;
 use crate::model::lightmodel::{dot, norm, sub, Camera, NearLights};
 use crate::model::lights::Lights;
 use rayon::prelude::*;
-use std::path::Path;
 use std::sync::Arc;
 
 /// The near-light rigs of `synth --rig`.
@@ -506,37 +505,6 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
     })
 }
 
-/// Writes a near-light scene in the near-light layout: everything [`super::write_capture`]
-/// writes (`light_directions.txt` then holds the distant approximation at the object's centre,
-/// which a near-light capture does not read, and `gt/depth.npy` Z in mm), with
-/// `light_intensities.txt` replaced by each LED's radiance at 1 mm, plus `K.txt`,
-/// `light_positions.txt`, `light_axes.txt`, `light_anisotropy.txt` and `mean_distance.txt`.
-pub fn write_near_capture(dir: &Path, near: &NearRendered) -> Result<()> {
-    super::write_capture(dir, &near.rendered, None)?;
-    let write = |name: &str, text: String| {
-        let p = dir.join(name);
-        std::fs::write(&p, text).map_err(|e| Error::io(&p, e))
-    };
-    let rows3 = |v: &[[f64; 3]]| {
-        v.iter()
-            .map(|r| format!("{:.9} {:.9} {:.9}\n", r[0], r[1], r[2]))
-            .collect::<String>()
-    };
-    let k = &near.camera;
-    write(
-        "K.txt",
-        format!("{} 0 {}\n0 {} {}\n0 0 1\n", k.fx, k.cx, k.fy, k.cy),
-    )?;
-    write("light_positions.txt", rows3(&near.positions))?;
-    write("light_axes.txt", rows3(&near.axes))?;
-    write("light_intensities.txt", rows3(&near.radiance))?;
-    write(
-        "light_anisotropy.txt",
-        near.anisotropy.iter().map(|m| format!("{m}\n")).collect(),
-    )?;
-    write("mean_distance.txt", format!("{}\n", near.distance))
-}
-
 /// The oracle of the acceptance test: least squares on the truly lit lights of every pixel
 /// (those not in the ground truth's attached or cast shadow) with the true per-pixel light
 /// vectors (at the true depth). Returns its mean angular error in degrees over the mask.
@@ -564,22 +532,4 @@ pub fn oracle_error(near: &NearRendered) -> Result<f64> {
     let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
     let (_, stats) = crate::solve::metrics::evaluate(&normals, &truth.normals, Some(&truth.mask))?;
     Ok(stats.mean_deg)
-}
-
-/// Renders `spec` and writes it in the near-light layout to `output` atomically; refuses an
-/// existing `output` unless `force`. Returns the rendering and the final path.
-pub fn near_synth_to_folder(
-    spec: &NearSpec,
-    output: &Path,
-    force: bool,
-) -> Result<(NearRendered, std::path::PathBuf)> {
-    let folder = crate::io::export::OutputFolder::create(
-        output,
-        force,
-        crate::io::export::OutputKind::Synth,
-    )?;
-    let rendered = synthesize_near(spec)?;
-    write_near_capture(folder.path(), &rendered)?;
-    let target = folder.commit()?;
-    Ok((rendered, target))
 }

@@ -15,19 +15,16 @@
 
 use super::reflectance::Brdf;
 use super::rigs::Rig;
-use super::rng::{splitmix64, Pcg32};
 use super::shadows::{cast_shadows_in, ShadowField};
 use super::surfaces::{MaskShape, SceneKind};
 use super::Scene;
 use crate::base::error::{Error, Result};
-use crate::io::export::{write_json, write_npy_bool, write_npy_f32, OutputFolder, OutputKind};
-use crate::io::imageio::{write_png16, write_png8};
+use crate::base::rng::{splitmix64, Pcg32};
 use crate::model::capture::Capture;
 use crate::model::image::Image;
 use crate::model::lights::Lights;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::path::{Path, PathBuf};
 
 /// Smallest specular contribution (fraction of full scale) that counts as a highlight.
 pub const HIGHLIGHT_MIN_FULL_SCALE: f64 = 0.02;
@@ -310,12 +307,17 @@ pub fn render(scene: &Scene, lights: &Lights, options: &RenderOptions) -> Result
 }
 
 /// One light's rendering: its 16-bit RGB image as f32 and its ground-truth maps.
-pub(crate) struct LightResult {
-    pub(crate) image: Vec<f32>,
-    pub(crate) shadow: Vec<bool>,
-    pub(crate) cast: Vec<bool>,
-    pub(crate) highlight: Vec<bool>,
-    pub(crate) clipped: usize,
+pub struct LightResult {
+    /// `height * width * 3` samples in [0, 1], quantised to 16 bits ([`to_u16`]).
+    pub image: Vec<f32>,
+    /// `height * width` flags: shadowed (attached or cast).
+    pub shadow: Vec<bool>,
+    /// `height * width` flags: cast shadow.
+    pub cast: Vec<bool>,
+    /// `height * width` flags: highlight (module documentation's rule).
+    pub highlight: Vec<bool>,
+    /// Clipped mask pixels.
+    pub clipped: usize,
 }
 
 /// The lights' renderings as the capture's images (`width` × `height`, RGB, 16-bit), their maps
@@ -444,112 +446,11 @@ fn render_light(
 /// [0, 65535] the fraction x − trunc(x) is exact, so comparing it with ½ rounds half away from
 /// zero as `f32::round` does.
 #[inline]
-fn to_u16(v: f32) -> u16 {
+pub fn to_u16(v: f32) -> u16 {
     let x = v.clamp(0.0, 1.0) * 65535.0;
     let whole = x as u32; // truncation; NaN gives 0, as `NaN as u16` does
     let up = x - whole as f32 >= 0.5;
     (whole + up as u32) as u16
-}
-
-/// Parameters and statistics written to `synth.json`.
-#[derive(Serialize)]
-struct SynthRecord<'a> {
-    scene: &'a str,
-    rig: &'a str,
-    width: usize,
-    height: usize,
-    lights: usize,
-    brdf: Option<&'a str>,
-    noise_sigma: Option<f64>,
-    shot_full_well: Option<f64>,
-    seed: Option<u64>,
-    mask: Option<&'a str>,
-    textured_albedo: Option<bool>,
-    intensities: Option<&'a str>,
-    highlight_rule: String,
-    stats: &'a CaptureStats,
-}
-
-/// Writes a rendered capture into `dir` (an existing folder, e.g. an [`OutputFolder`]'s staging
-/// folder): the DiLiGenT layout — `001.png`… (16-bit RGB), `filenames.txt`,
-/// `light_directions.txt`, `light_intensities.txt`, `mask.png` (8-bit, 255 = object) — and
-/// `gt/normal.npy` (float32 (H, W, 3)), `gt/depth.npy` (float32 (H, W), NaN outside the mask),
-/// `gt/albedo.npy` (float32 (H, W, 3)), `gt/shadow.npy` and `gt/highlight.npy` (bool (N, H, W)),
-/// and `synth.json` (parameters and statistics; `spec` fills the parameters when given).
-pub fn write_capture(dir: &Path, rendered: &Rendered, spec: Option<&SynthSpec>) -> Result<()> {
-    let (w, h) = (rendered.truth.width, rendered.truth.height);
-    let n = rendered.images.len();
-    let digits = n.to_string().len().max(3);
-    let names: Vec<String> = (1..=n).map(|k| format!("{k:0digits$}.png")).collect();
-    rendered
-        .images
-        .par_iter()
-        .zip(&names)
-        .try_for_each(|(img, name)| {
-            let data: Vec<u16> = img.data.iter().map(|&v| to_u16(v)).collect();
-            write_png16(&dir.join(name), w, h, img.channels, &data)
-        })?;
-    let list = dir.join("filenames.txt");
-    std::fs::write(&list, names.join("\n") + "\n").map_err(|e| Error::io(&list, e))?;
-    rendered
-        .lights
-        .write_directions(&dir.join("light_directions.txt"))?;
-    rendered
-        .lights
-        .write_intensities(&dir.join("light_intensities.txt"))?;
-    let mask: Vec<u8> = rendered
-        .truth
-        .mask
-        .iter()
-        .map(|&m| if m { 255 } else { 0 })
-        .collect();
-    write_png8(&dir.join("mask.png"), w, h, 1, &mask)?;
-    let gt = dir.join("gt");
-    // Not create_dir_all: an interrupted run's removed staging folder must not come back.
-    if !gt.is_dir() {
-        std::fs::create_dir(&gt).map_err(|e| Error::io(&gt, e))?;
-    }
-    let t = &rendered.truth;
-    let flat3 = |v: &[[f32; 3]]| v.iter().flatten().copied().collect::<Vec<f32>>();
-    write_npy_f32(&gt.join("normal.npy"), &[h, w, 3], &flat3(&t.normals))?;
-    write_npy_f32(&gt.join("depth.npy"), &[h, w], &t.depth)?;
-    write_npy_f32(&gt.join("albedo.npy"), &[h, w, 3], &flat3(&t.albedo))?;
-    let stack = |v: &[Vec<bool>]| v.iter().flatten().copied().collect::<Vec<bool>>();
-    write_npy_bool(&gt.join("shadow.npy"), &[n, h, w], &stack(&t.shadow))?;
-    write_npy_bool(&gt.join("highlight.npy"), &[n, h, w], &stack(&t.highlight))?;
-    let record = SynthRecord {
-        scene: &rendered.scene,
-        rig: &rendered.rig,
-        width: w,
-        height: h,
-        lights: n,
-        brdf: spec.map(|s| s.render.brdf.name()),
-        noise_sigma: spec.map(|s| s.render.noise_sigma),
-        shot_full_well: spec.map(|s| s.render.shot_full_well),
-        seed: spec.map(|s| s.render.seed),
-        mask: spec.map(|s| s.mask.unwrap_or(s.scene.default_mask()).name()),
-        textured_albedo: spec.map(|s| s.textured_albedo),
-        intensities: spec.map(|s| s.intensities.name()),
-        highlight_rule: format!(
-            "not shadowed and mean-over-channels specular > max({HIGHLIGHT_MIN_FULL_SCALE}, {HIGHLIGHT_MIN_SIGMAS}·noise σ) of full scale"
-        ),
-        stats: &rendered.stats,
-    };
-    write_json(&dir.join("synth.json"), &record)
-}
-
-/// Renders `spec` and writes it to `output` atomically (staging folder renamed into place);
-/// refuses an existing `output` unless `force`. Returns the rendering and the final path.
-pub fn synth_to_folder(
-    spec: &SynthSpec,
-    output: &Path,
-    force: bool,
-) -> Result<(Rendered, PathBuf)> {
-    let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
-    let rendered = synthesize(spec)?;
-    write_capture(folder.path(), &rendered, Some(spec))?;
-    let target = folder.commit()?;
-    Ok((rendered, target))
 }
 
 /// Bytes [`synthesize`] holds for a spec (every image as `f32`, the per-light maps, the scene
@@ -565,156 +466,67 @@ pub fn streamed_bytes(width: usize, height: usize) -> u64 {
     (width * height) as u64 * 64
 }
 
-/// Writes the header of a `.npy` file of booleans of `shape`; the data follows.
-fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::Result<()> {
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let mut dict = format!(
-        "{{'descr': '|b1', 'fortran_order': False, 'shape': ({}{}), }}",
-        dims.join(", "),
-        if shape.len() == 1 { "," } else { "" }
-    );
-    let unpadded = 10 + dict.len() + 1;
-    dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
-    dict.push('\n');
-    file.write_all(b"\x93NUMPY\x01\x00")?;
-    file.write_all(&(dict.len() as u16).to_le_bytes())?;
-    file.write_all(dict.as_bytes())
+/// A scene rendered one light at a time, for captures too large to render whole: the scene and
+/// its shadow field are built once and each light's image and maps made on demand, so memory
+/// holds the scene and one light ([`streamed_bytes`]) whatever the light count. Each light is
+/// rendered as [`synthesize`] renders it, pixel for pixel.
+pub struct LightByLight {
+    /// The scene.
+    pub scene: Scene,
+    /// The rig's lights with the spec's intensities.
+    pub lights: Lights,
+    field: ShadowField,
+    options: RenderOptions,
+    seed: u64,
+    threshold: f64,
 }
 
-/// [`synth_to_folder`] for captures too large to render whole: the scene is built once, each
-/// light is rendered and written at once (its image, and its rows of `gt/shadow.npy` and
-/// `gt/highlight.npy`, which are streamed), so memory holds the scene and one light
-/// ([`streamed_bytes`]) whatever the light count. The files are those of [`synth_to_folder`],
-/// pixel for pixel (the same renderer per light). `progress` sees one unit per light.
-pub fn synth_streamed(
-    spec: &SynthSpec,
-    output: &Path,
-    force: bool,
-    progress: &dyn crate::base::progress::Progress,
-) -> Result<(CaptureStats, Lights, PathBuf)> {
-    use std::io::Write;
-    let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
-    let dir = folder.path();
-    let scene = match spec.height {
-        None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,
-        Some(h) => Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo)?,
-    };
-    let mut lights = spec.rig.lights()?;
-    let intensities = (0..lights.len())
-        .map(|k| spec.intensities.of_light(k))
-        .collect();
-    lights = lights.with_intensities(intensities)?;
-    let options = &spec.render;
-    let (w, h) = (scene.width, scene.height);
-    let n = lights.len();
-    let threshold = HIGHLIGHT_MIN_FULL_SCALE.max(HIGHLIGHT_MIN_SIGMAS * options.noise_sigma);
-    let seed = splitmix64(options.seed);
-    let digits = n.to_string().len().max(3);
-    let names: Vec<String> = (1..=n).map(|k| format!("{k:0digits$}.png")).collect();
-    let gt = dir.join("gt");
-    std::fs::create_dir(&gt).map_err(|e| Error::io(&gt, e))?;
-    let open = |name: &str| -> Result<std::io::BufWriter<std::fs::File>> {
-        let p = gt.join(name);
-        let mut f =
-            std::io::BufWriter::new(std::fs::File::create(&p).map_err(|e| Error::io(&p, e))?);
-        npy_bool_header(&mut f, &[n, h, w]).map_err(|e| Error::io(&p, e))?;
-        Ok(f)
-    };
-    let mut shadow_file = open("shadow.npy")?;
-    let mut highlight_file = open("highlight.npy")?;
-    let mask_pixels = scene.mask.iter().filter(|&&m| m).count().max(1) as f64;
-    let mut stats = CaptureStats::default();
-    let field = ShadowField::new(&scene);
-    progress.begin("rendering", n as u64);
-    for (k, name) in names.iter().enumerate() {
-        crate::base::progress::check_cancelled(progress)?;
-        let r = render_light(
-            &scene,
-            &field,
-            k,
-            lights.directions[k],
-            lights.intensities[k],
+impl LightByLight {
+    /// Builds `spec`'s scene and lights.
+    pub fn new(spec: &SynthSpec) -> Result<Self> {
+        let scene = match spec.height {
+            None => Scene::builtin(spec.scene, spec.size, spec.mask, spec.textured_albedo)?,
+            Some(h) => {
+                Scene::builtin_wh(spec.scene, spec.size, h, spec.mask, spec.textured_albedo)?
+            }
+        };
+        let lights = spec.rig.lights()?;
+        let intensities = (0..lights.len())
+            .map(|k| spec.intensities.of_light(k))
+            .collect();
+        let lights = lights.with_intensities(intensities)?;
+        let options = spec.render.clone();
+        let threshold = HIGHLIGHT_MIN_FULL_SCALE.max(HIGHLIGHT_MIN_SIGMAS * options.noise_sigma);
+        Ok(LightByLight {
+            field: ShadowField::new(&scene),
+            seed: splitmix64(options.seed),
+            scene,
+            lights,
             options,
-            seed,
             threshold,
-        );
-        let count = |v: &[bool]| v.iter().filter(|&&b| b).count() as f64 / mask_pixels;
-        stats.shadow_fraction += count(&r.shadow);
-        stats.cast_shadow_fraction += count(&r.cast);
-        stats.highlight_fraction += count(&r.highlight);
-        stats.clipped_fraction += r.clipped as f64 / mask_pixels;
-        let bytes = |v: &[bool]| v.iter().map(|&b| b as u8).collect::<Vec<u8>>();
-        shadow_file
-            .write_all(&bytes(&r.shadow))
-            .map_err(|e| Error::io(gt.join("shadow.npy"), e))?;
-        highlight_file
-            .write_all(&bytes(&r.highlight))
-            .map_err(|e| Error::io(gt.join("highlight.npy"), e))?;
-        drop((r.shadow, r.cast, r.highlight));
-        let data: Vec<u16> = r.image.iter().map(|&v| to_u16(v)).collect();
-        drop(r.image);
-        write_png16(&dir.join(name), w, h, 3, &data)?;
-        progress.advance(1);
+        })
     }
-    progress.end();
-    for (f, name) in [
-        (shadow_file, "shadow.npy"),
-        (highlight_file, "highlight.npy"),
-    ] {
-        f.into_inner()
-            .map_err(|e| Error::io(gt.join(name), e.into_error()))?;
+
+    /// Light `k`'s image and maps.
+    pub fn render(&self, k: usize) -> LightResult {
+        render_light(
+            &self.scene,
+            &self.field,
+            k,
+            self.lights.directions[k],
+            self.lights.intensities[k],
+            &self.options,
+            self.seed,
+            self.threshold,
+        )
     }
-    stats.shadow_fraction /= n as f64;
-    stats.cast_shadow_fraction /= n as f64;
-    stats.highlight_fraction /= n as f64;
-    stats.clipped_fraction /= n as f64;
-    let list = dir.join("filenames.txt");
-    std::fs::write(&list, names.join("\n") + "\n").map_err(|e| Error::io(&list, e))?;
-    lights.write_directions(&dir.join("light_directions.txt"))?;
-    lights.write_intensities(&dir.join("light_intensities.txt"))?;
-    let mask: Vec<u8> = scene
-        .mask
-        .iter()
-        .map(|&m| if m { 255 } else { 0 })
-        .collect();
-    write_png8(&dir.join("mask.png"), w, h, 1, &mask)?;
-    drop(mask);
-    let masked3 = |v: &[[f32; 3]]| {
-        v.iter()
-            .zip(&scene.mask)
-            .flat_map(|(x, &m)| if m { *x } else { [0.0; 3] })
-            .collect::<Vec<f32>>()
-    };
-    write_npy_f32(&gt.join("normal.npy"), &[h, w, 3], &masked3(&scene.normals))?;
-    write_npy_f32(&gt.join("albedo.npy"), &[h, w, 3], &masked3(&scene.albedo))?;
-    let depth: Vec<f32> = scene
-        .depth
-        .iter()
-        .zip(&scene.mask)
-        .map(|(d, &m)| if m { *d } else { f32::NAN })
-        .collect();
-    write_npy_f32(&gt.join("depth.npy"), &[h, w], &depth)?;
-    let record = SynthRecord {
-        scene: &scene.name,
-        rig: &spec.rig.name(),
-        width: w,
-        height: h,
-        lights: n,
-        brdf: Some(spec.render.brdf.name()),
-        noise_sigma: Some(spec.render.noise_sigma),
-        shot_full_well: Some(spec.render.shot_full_well),
-        seed: Some(spec.render.seed),
-        mask: Some(spec.mask.unwrap_or(spec.scene.default_mask()).name()),
-        textured_albedo: Some(spec.textured_albedo),
-        intensities: Some(spec.intensities.name()),
-        highlight_rule: format!(
-            "not shadowed and mean-over-channels specular > max({HIGHLIGHT_MIN_FULL_SCALE}, {HIGHLIGHT_MIN_SIGMAS}·noise σ) of full scale"
-        ),
-        stats: &stats,
-    };
-    write_json(&dir.join("synth.json"), &record)?;
-    let target = folder.commit()?;
-    Ok((stats, lights, target))
+}
+
+/// The ground-truth highlight rule as `synth.json` states it.
+pub fn highlight_rule() -> String {
+    format!(
+        "not shadowed and mean-over-channels specular > max({HIGHLIGHT_MIN_FULL_SCALE}, {HIGHLIGHT_MIN_SIGMAS}·noise σ) of full scale"
+    )
 }
 
 #[cfg(test)]

@@ -4,7 +4,6 @@
 
 use crate::base::error::{Error, Result};
 use crate::model::lights::Lights;
-use std::path::{Path, PathBuf};
 
 /// Slant of the `square4` rig, degrees (the paper's rig).
 pub const SQUARE4_SLANT_DEG: f64 = 35.0;
@@ -23,15 +22,17 @@ pub enum Rig {
     /// `n` lights on a golden-angle (Fibonacci) spiral covering the cap of slant 0°..60° with
     /// equal solid angle per light.
     Dome(usize),
-    /// Directions read from a light file (DiLiGenT or list layout).
-    File(PathBuf),
+    /// Directions given as lights, e.g. read from a light file
+    /// ([`crate::io::light_files::parse_rig`]); `name` says where they come from.
+    Given { name: String, lights: Lights },
 }
 
 impl Rig {
     /// Names of the built-in rigs, as `--list` shows them.
     pub const NAMES: &'static [&'static str] = &["square4", "ring8", "ring-N", "dome-N"];
 
-    /// Parses `square4`, `ring8`, `ring-N`, `dome-N` (N ≥ 3), or a path to an existing light file.
+    /// Parses `square4`, `ring8`, `ring-N`, `dome-N` (N ≥ 3). A light file is read by
+    /// [`crate::io::light_files::parse_rig`].
     pub fn parse(s: &str) -> Result<Rig> {
         let count = |rest: &str, what: &str| -> Result<usize> {
             match rest.parse::<usize>() {
@@ -51,10 +52,6 @@ impl Rig {
                 if let Some(rest) = s.strip_prefix("ring-") {
                     return Ok(Rig::Ring(count(rest, "ring")?));
                 }
-                let path = Path::new(s);
-                if path.is_file() {
-                    return Ok(Rig::File(path.to_path_buf()));
-                }
                 Err(Error::invalid(format!(
                     "unknown rig '{s}': expected square4, ring8, ring-N, dome-N or an existing light file"
                 )))
@@ -69,7 +66,7 @@ impl Rig {
             Rig::Ring(8) => "ring8".into(),
             Rig::Ring(n) => format!("ring-{n}"),
             Rig::Dome(n) => format!("dome-{n}"),
-            Rig::File(p) => p.display().to_string(),
+            Rig::Given { name, .. } => name.clone(),
         }
     }
 
@@ -85,7 +82,7 @@ impl Rig {
                 Ok(slant_tilt_lights(RING_SLANT_DEG, &tilts))
             }
             Rig::Dome(n) => Ok(dome_lights(*n, DOME_MAX_SLANT_DEG)),
-            Rig::File(p) => Lights::read_directions(p),
+            Rig::Given { lights, .. } => Ok(lights.clone()),
         }
     }
 }

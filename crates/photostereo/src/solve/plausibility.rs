@@ -2,7 +2,7 @@
 //! with an [`Error`], what is merely doubtful becomes a note (which `run` prints and writes into
 //! `report.json`'s `notes`).
 //!
-//! Refused: the same image file listed more than once; every light at or below the horizon
+//! Refused: every light at or below the horizon
 //! (z ≤ 0: no light reaches a surface that faces the camera); no pixel of the mask with three
 //! lights whose readings are neither black nor saturated (all-black or saturated images).
 //!
@@ -15,7 +15,6 @@
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
 use std::collections::HashMap;
-use std::path::PathBuf;
 
 /// Share of mask pixels saturated in an image above which a note is made.
 pub const MAX_SATURATED_SHARE: f64 = 0.2;
@@ -30,7 +29,6 @@ const LISTED: usize = 6;
 /// otherwise the notes for what is doubtful.
 pub fn check_capture(capture: &Capture) -> Result<Vec<String>> {
     let mut notes = Vec::new();
-    check_sources(&capture.sources)?;
     check_lights(capture, &mut notes)?;
     check_images(capture, &mut notes)?;
     Ok(notes)
@@ -51,33 +49,6 @@ pub fn unestimated_note(normals: &[[f32; 3]], mask: &[bool]) -> Option<String> {
             100.0 * missing as f64 / inside.max(1) as f64
         )
     })
-}
-
-fn check_sources(sources: &[PathBuf]) -> Result<()> {
-    let mut seen: HashMap<PathBuf, Vec<usize>> = HashMap::new();
-    for (k, p) in sources.iter().enumerate() {
-        let key = std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
-        seen.entry(key).or_default().push(k);
-    }
-    let mut dups: Vec<(&PathBuf, &Vec<usize>)> = seen.iter().filter(|(_, v)| v.len() > 1).collect();
-    dups.sort_by_key(|(_, v)| v[0]);
-    if let Some((_, ks)) = dups.first() {
-        let path = &sources[ks[0]];
-        return Err(Error::file(
-            path,
-            format!(
-                "the same image file is listed {} times (images {}){}: each light needs its own image",
-                ks.len(),
-                list(ks.iter().map(|k| k + 1)),
-                if dups.len() > 1 {
-                    format!(", and {} other file(s) are repeated too", dups.len() - 1)
-                } else {
-                    String::new()
-                }
-            ),
-        ));
-    }
-    Ok(())
 }
 
 fn check_lights(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
@@ -273,7 +244,7 @@ fn check_images(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
 }
 
 /// "a, b, c" with at most [`LISTED`] items, then "and K more".
-fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
+pub fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
     let all: Vec<String> = items.map(|i| i.to_string()).collect();
     if all.len() <= LISTED {
         all.join(", ")
@@ -387,20 +358,6 @@ mod tests {
                 .iter()
                 .any(|n| n.contains("saturated") && n.contains("image 2 100%")),
             "{notes:?}"
-        );
-    }
-
-    #[test]
-    fn repeated_files_are_refused() {
-        let mut cap =
-            Capture::from_images(&sphere(&RIG, 8, 0.8), Lights::new(&RIG).unwrap(), None).unwrap();
-        cap.sources = ["a.png", "b.png", "a.png", "c.png"]
-            .map(PathBuf::from)
-            .to_vec();
-        let e = check_capture(&cap).unwrap_err().to_string();
-        assert!(
-            e.contains("a.png") && e.contains("listed 2 times") && e.contains("images 1, 3"),
-            "{e}"
         );
     }
 

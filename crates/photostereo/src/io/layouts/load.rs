@@ -99,6 +99,7 @@ impl CaptureFiles {
             )?
         };
         capture.memory = Some(plan);
+        super::check_sources(&capture.sources)?;
         let notes = crate::solve::plausibility::check_capture(&capture)?;
         capture.notes.extend(notes);
         let (w, h) = (capture.width, capture.height);

@@ -10,6 +10,7 @@ pub mod sphere;
 
 use crate::base::error::{Error, Result};
 use crate::model::lights::Lights;
+use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 /// Where a capture's files are: the images, their lights and an optional mask.
@@ -153,7 +154,7 @@ impl CaptureFiles {
                 "missing: the DiLiGenT layout needs light_directions.txt (or pass --lights)",
             ));
         }
-        let lights = Lights::read_directions(&lights_path)?;
+        let lights = crate::io::light_files::read_directions(&lights_path)?;
         let names = dir.join("filenames.txt");
         let images = folder_images(dir)?;
         let source = if names.exists() {
@@ -183,7 +184,7 @@ impl CaptureFiles {
     /// (see [`read_list_file`]); lights from a separate file.
     pub fn list_file(list: &Path, lights_path: &Path) -> Result<Self> {
         let listed = read_list_file(list)?;
-        let lights = Lights::read_directions(lights_path)?;
+        let lights = crate::io::light_files::read_directions(lights_path)?;
         check_light_count(
             listed.images.len(),
             &format!("listed in {}", list.display()),
@@ -207,7 +208,7 @@ impl CaptureFiles {
         intensities: Option<&Path>,
         mask: Option<PathBuf>,
     ) -> Result<Self> {
-        let mut lights = Lights::read_directions(lights_path)?;
+        let mut lights = crate::io::light_files::read_directions(lights_path)?;
         let source = "given on the command line";
         check_light_count(images.len(), source, &lights, lights_path)?;
         if let Some(p) = intensities {
@@ -422,7 +423,7 @@ fn check_light_count(images: usize, source: &str, lights: &Lights, path: &Path) 
 
 /// Reads an intensity file and attaches it, naming the file and the counts on a mismatch.
 fn attach_intensities(lights: Lights, path: &Path, images: usize, source: &str) -> Result<Lights> {
-    let rows = crate::model::lights::read_intensity_rows(path, Some(lights.len()))?;
+    let rows = crate::io::light_files::read_intensity_rows(path, Some(lights.len()))?;
     if rows.len() != lights.len() {
         return Err(Error::file(
             path,
@@ -434,4 +435,49 @@ fn attach_intensities(lights: Lights, path: &Path, images: usize, source: &str) 
         ));
     }
     lights.with_intensities(rows)
+}
+
+/// Refuses a capture that lists the same image file more than once (after resolving links):
+/// each light needs its own image.
+pub fn check_sources(sources: &[PathBuf]) -> Result<()> {
+    let mut seen: std::collections::HashMap<PathBuf, Vec<usize>> = HashMap::new();
+    for (k, p) in sources.iter().enumerate() {
+        let key = std::fs::canonicalize(p).unwrap_or_else(|_| p.clone());
+        seen.entry(key).or_default().push(k);
+    }
+    let mut dups: Vec<(&PathBuf, &Vec<usize>)> = seen.iter().filter(|(_, v)| v.len() > 1).collect();
+    dups.sort_by_key(|(_, v)| v[0]);
+    if let Some((_, ks)) = dups.first() {
+        let path = &sources[ks[0]];
+        return Err(Error::file(
+            path,
+            format!(
+                "the same image file is listed {} times (images {}){}: each light needs its own image",
+                ks.len(),
+                crate::solve::plausibility::list(ks.iter().map(|k| k + 1)),
+                if dups.len() > 1 {
+                    format!(", and {} other file(s) are repeated too", dups.len() - 1)
+                } else {
+                    String::new()
+                }
+            ),
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn repeated_files_are_refused() {
+        let sources = ["a.png", "b.png", "a.png", "c.png"].map(PathBuf::from);
+        let e = check_sources(&sources).unwrap_err().to_string();
+        assert!(
+            e.contains("a.png") && e.contains("listed 2 times") && e.contains("images 1, 3"),
+            "{e}"
+        );
+        check_sources(&sources[..2]).unwrap();
+    }
 }

@@ -6,8 +6,9 @@
 
 use crate::base::error::{Error, Result};
 use crate::io::layouts::CaptureFiles;
+use crate::io::light_files::{parse_intensity_rows, parse_rows};
 use crate::model::lightmodel::{Camera, NearLights};
-use crate::model::lights::{parse_intensity_rows, parse_rows, Lights};
+use crate::model::lights::Lights;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 

@@ -133,7 +133,7 @@ impl ColemanJain {
         let mut spreads = Vec::new();
         let stride = (capture.n_pixels() / 2000).max(1);
         // Near lights: each sampled pixel's own vectors at the current surface.
-        let mut lights = crate::model::lightmodel::PixelLights::of(capture);
+        let mut lights = capture.pixel_lights();
         let mut buf = vec![[0f64; 3]; n];
         for p in (0..capture.n_pixels()).step_by(stride) {
             channel_mean(capture.pixel_samples(p), c, &mut grey);
@@ -238,7 +238,7 @@ impl ColemanJain {
                     (
                         vec![0f64; n],
                         vec![true; n],
-                        crate::model::lightmodel::PixelLights::of(capture),
+                        capture.pixel_lights(),
                         vec![[0f64; 3]; n],
                     )
                 },
