@@ -12,6 +12,7 @@ mod demo;
 mod eval;
 mod integrate;
 mod run;
+mod serve;
 mod synth;
 mod view;
 

@@ -2,10 +2,11 @@
 //! and `photostereo export-openlime`: write what OpenLIME's BRDF layer reads.
 
 use crate::common::print_json;
+use crate::serve::Server;
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use photostereo::io::viewer::{
-    openlime::export_openlime, serve::Server, write_view, RunFolder, ViewOptions, ViewSummary,
+    openlime::export_openlime, write_view, RunFolder, ViewOptions, ViewSummary,
 };
 use std::path::{Path, PathBuf};
 

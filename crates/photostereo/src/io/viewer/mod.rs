@@ -20,7 +20,6 @@ pub mod mesh;
 pub mod openlime;
 pub mod page;
 pub mod relight;
-pub mod serve;
 pub mod tiles;
 
 pub use folder::RunFolder;

@@ -3,7 +3,7 @@
 //! hidden components are refused, and so is any request outside the root after resolving links.
 //! One thread per connection, `Connection: close`.
 
-use crate::base::error::{Error, Result};
+use photostereo::{Error, Result};
 use std::io::{BufRead, BufReader, Read, Write};
 use std::net::{Ipv4Addr, SocketAddr, TcpListener, TcpStream};
 use std::path::{Path, PathBuf};
