@@ -133,10 +133,26 @@ pub fn prepare(capture: &mut Capture, params: &Params) -> Result<bool> {
     if !params.refine_lights {
         return Ok(false);
     }
-    crate::solve::refine::refine_capture_lights(
-        capture,
-        &crate::solve::refine::RefineParams::default(),
-    )
+    let refine = crate::solve::refine::RefineParams::default();
+    let changed = crate::solve::refine::refine_capture_lights(capture, &refine)?;
+    if !changed && capture.light_refinement.is_none() {
+        let n = capture.n_lights();
+        let why = if capture.lights.near.is_some() {
+            "they are near point lights (the refinement fits distant directions)".to_string()
+        } else if n < 6 {
+            format!("{n} lights are too few (the refinement needs six or more)")
+        } else {
+            format!(
+                "the readings do not determine them (fewer than 100 usable pixels for a light, \
+                 or a change beyond {}°)",
+                refine.max_angle_deg
+            )
+        };
+        capture.notes.push(format!(
+            "the lights were not refined: {why}; they are used as given"
+        ));
+    }
+    Ok(changed)
 }
 
 impl Params {

@@ -31,6 +31,13 @@ impl CaptureFiles {
             .budget
             .unwrap_or_else(crate::model::memory::default_budget);
         let info = crate::io::imageio::probe(&self.images[0])?;
+        if let Some((camera, _)) = self.lights.perspective() {
+            if let Err(m) = camera.check_frame(info.width, info.height) {
+                let folder = self.images[0].parent().unwrap_or(Path::new("."));
+                let k = folder.join("K.txt");
+                return Err(Error::file(if k.exists() { k } else { folder.into() }, m));
+            }
+        }
         let mut size = CaptureSize {
             width: info.width,
             height: info.height,
