@@ -75,7 +75,13 @@ fn remove_output_on_signals() {}
 fn message(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for cause in e.chain() {
-        let text = cause.to_string();
+        let text = match cause.downcast_ref::<photostereo::Error>() {
+            // The library names its parameters; the command line spells them as flags.
+            Some(photostereo::Error::Parameter { name, message }) => {
+                format!("--{} {message}", name.replace('_', "-"))
+            }
+            _ => cause.to_string(),
+        };
         if out.contains(&text) {
             continue;
         }

@@ -160,30 +160,6 @@ impl NearLights {
                 )));
             }
         }
-        // Seen from the object's centre the LEDs must spread over more than the model's own
-        // precision: at a distance so large that they all arrive from one direction (1 mrad,
-        // below any rig's calibration error) no normal is determined.
-        let toward = |s: &[f64; 3]| {
-            let d = sub(*s, centre);
-            let l = norm(d);
-            [d[0] / l, d[1] / l, d[2] / l]
-        };
-        let spread = positions
-            .iter()
-            .flat_map(|a| positions.iter().map(move |b| (a, b)))
-            .map(|(a, b)| dot(toward(a), toward(b)).clamp(-1.0, 1.0).acos())
-            .fold(0.0f64, f64::max);
-        if n >= 2 && spread < 1e-3 {
-            return Err(Error::parameter(
-                "distance",
-                format!(
-                    "{mean_distance:e}: at that distance (mm) the {n} LEDs are seen within {:.4}° of one \
-                     another, a single direction that determines no normal; expected the object's \
-                     mean distance in millimetres",
-                    spread.to_degrees()
-                ),
-            ));
-        }
         let axes = match axes {
             Some(a) => {
                 if a.len() != n {
@@ -242,6 +218,30 @@ impl NearLights {
             }
             None => vec![0.0; n],
         };
+        // Seen from the object's centre the LEDs must spread over more than the model's own
+        // precision: at a distance so large that they all arrive from one direction (1 mrad,
+        // below any rig's calibration error) no normal is determined.
+        let toward = |s: &[f64; 3]| {
+            let d = sub(*s, centre);
+            let l = norm(d);
+            [d[0] / l, d[1] / l, d[2] / l]
+        };
+        let spread = positions
+            .iter()
+            .flat_map(|a| positions.iter().map(move |b| (a, b)))
+            .map(|(a, b)| dot(toward(a), toward(b)).clamp(-1.0, 1.0).acos())
+            .fold(0.0f64, f64::max);
+        if n >= 2 && spread < 1e-3 {
+            return Err(Error::parameter(
+                "distance",
+                format!(
+                    "{mean_distance:e}: at that distance (mm) the {n} LEDs are seen within {:.4}° of one \
+                     another, a single direction that determines no normal; expected the object's \
+                     mean distance in millimetres",
+                    spread.to_degrees()
+                ),
+            ));
+        }
         let mut model = NearLights {
             camera,
             positions,

@@ -240,7 +240,11 @@ impl NearLayout {
             self.anisotropy.clone(),
             self.distance,
         )
-        .map_err(|e| Error::file(positions, e.to_string()))?;
+        .map_err(|e| match e {
+            // A parameter at fault (the distance) is named as the front end spells it.
+            Error::Parameter { .. } => e,
+            other => Error::file(positions, other.to_string()),
+        })?;
         let centre = model.centre_brightness().to_vec();
         let lights = Lights::new(&model.centre_directions())?.with_intensities(
             self.intensities
