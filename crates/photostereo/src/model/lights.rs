@@ -1,5 +1,5 @@
-//! Light directions and intensities: parsing the text layouts of CONVENTIONS.md and checking
-//! that a rig can determine a normal at all.
+//! Light directions and intensities, and the check that a rig can determine a normal at all
+//! (the light files themselves are read by [`crate::io::light_files`]).
 //!
 //! Directions are unit vectors in the camera frame (x right, y up, z toward the camera), from the
 //! surface toward the distant light. Intensities are per light and per channel (R, G, B); every
