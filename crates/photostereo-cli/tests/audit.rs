@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{photostereo, write_sphere_capture};
+use common::{photostereo, report_notes as notes, write_sphere_capture};
 use std::path::Path;
 use std::process::Output;
 
@@ -29,17 +29,6 @@ fn capture() -> tempfile::TempDir {
     std::fs::create_dir(d.path().join("cap")).unwrap();
     write_sphere_capture(&d.path().join("cap"));
     d
-}
-
-fn notes(report: &Path) -> Vec<String> {
-    let v: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
-    v["notes"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|n| n.as_str().unwrap().to_string())
-        .collect()
 }
 
 #[test]
