@@ -278,24 +278,7 @@ pub fn reconstruct_with_truth(
     progress: &dyn Progress,
 ) -> Result<Reconstruction> {
     params.validate()?;
-    let method = params.method;
-    let mut report = Report::new(method.name());
-    report.input = InputSummary::of(capture);
-    report.notes.extend(capture.notes.iter().cloned());
-    for (name, value) in params
-        .to_json()
-        .as_object()
-        .into_iter()
-        .flat_map(|m| m.iter())
-    {
-        report.param(name, value.clone());
-    }
-    if let Some(plan) = &capture.memory {
-        report.extra.insert(
-            "memory".into(),
-            serde_json::to_value(plan).unwrap_or_default(),
-        );
-    }
+    let mut report = start_report(capture, params);
     let can_detect = capture.n_lights() >= 4;
     if params.detect && !can_detect {
         report
@@ -316,27 +299,8 @@ pub fn reconstruct_with_truth(
     };
     check_cancelled(progress)?;
     if let Some(d) = &detection {
-        report.extra.insert(
-            "detection".into(),
-            serde_json::json!({
-                "noise": d.noise,
-                "light_kappa": d.noise.light_kappa(),
-                "threshold_chi2": d.threshold,
-                "confidence": d.params.confidence,
-                "unreliable_share": d.unreliable_share(),
-                "kappa_measured": crate::solve::detect::estimate_kappa_weighted(
-                    &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
-                    &d.noise.light_factor,
-                ),
-                "shadow_labels": match estimate.light_status.as_ref() {
-                    Some(s) => Some(tiled_shadow_labels(capture, &estimate, s)?),
-                    None => None,
-                },
-            }),
-        );
+        record_detection(capture, &estimate, d, &mut report)?;
     }
-    let (w, h) = (capture.width, capture.height);
-    let full_normals = || capture.scatter(&estimate.normals, 1, [0.0; 3]);
     // The recursive method's trust map is moved out of its diagnostics, not copied.
     // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
@@ -357,50 +321,7 @@ pub fn reconstruct_with_truth(
         [&mut d.highlight, &mut d.fewer_than_three, &mut d.reliable]
             .map(|map| capture.gather(&std::mem::take(map)))
     });
-    let surface = if params.integrate && capture.lights.perspective().is_some() {
-        let t = Instant::now();
-        let surface = near_integration(
-            capture,
-            params,
-            &full_normals(),
-            &capture.scatter(&trust, 1, 0.0),
-            progress,
-        )?;
-        report.extra.insert("integration".into(), surface.summary());
-        report.time("integrate", t);
-        Some(surface)
-    } else if params.integrate {
-        let t = Instant::now();
-        // The output's normal map is made after the solve: during it only the gradients,
-        // the weights and the integrator's arrays are held whole.
-        let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
-            w * h,
-            &capture.pixels,
-            &estimate.normals,
-            &|p, _| trust[p],
-        );
-        // The weighted copy of the normal map is dropped once its gradients are taken.
-        let gradients = gradients_from_normals(
-            w,
-            h,
-            &weighted,
-            Some(&capture.mask),
-            params.integration.max_slope,
-        )?;
-        drop(weighted);
-        let surface = surface_from_gradients(
-            gradients,
-            Some(&weights),
-            params.integration.method.integrator().as_ref(),
-            params.integration.max_slope,
-            progress,
-        )?;
-        report.extra.insert("integration".into(), surface.summary());
-        report.time("integrate", t);
-        Some(surface)
-    } else {
-        None
-    };
+    let surface = final_surface(capture, params, &estimate, &trust, progress, &mut report)?;
     let trust = capture.scatter(&trust, 1, 0.0);
     if let (Some(d), Some([highlight, few, reliable])) = (diagnostics.as_mut(), flags_at_mask) {
         d.highlight = capture.scatter(&highlight, 1, false);
@@ -408,7 +329,7 @@ pub fn reconstruct_with_truth(
         d.reliable = capture.scatter(&reliable, 1, false);
     }
     // The full-frame maps replace the per-mask-pixel estimate: each freed once scattered.
-    let normals = full_normals();
+    let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
     drop(std::mem::take(&mut estimate.normals));
     let albedo = capture.scatter(&estimate.albedo, capture.channels, 0.0);
     drop(std::mem::take(&mut estimate.albedo));
@@ -421,37 +342,10 @@ pub fn reconstruct_with_truth(
         estimate.light_status.take(),
     );
     crate::method::indicators::record(capture, &light_status, statuses_decided, &mut report);
-    let recursive = diagnostics.map(|d| {
-        let few = d.fewer_than_three.iter().filter(|&&f| f).count();
-        report.extra.insert(
-            "recursive".into(),
-            serde_json::json!({
-                "iterations": d.iterations,
-                "fewer_than_three_pixels": few,
-                "fallback": d.fallback,
-                "converged": d.converged,
-                "final_change": d.final_change,
-                "stop_reason": d.stop_reason,
-                "surface_prior": d.surface_prior,
-            }),
-        );
-        if !d.converged {
-            report.notes.push(format!("recursive: {}", d.stop_reason));
-        }
-        report
-            .extra
-            .insert("fewer_than_three_pixels".into(), few.into());
-        RecursiveMaps {
-            shadows: d.shadows,
-            highlight: d.highlight,
-            fewer_than_three: d.fewer_than_three,
-            reliable: d.reliable,
-            iterations: d.iterations,
-        }
-    });
+    let recursive = diagnostics.map(|d| recursive_maps(d, &mut report));
     Ok(Reconstruction {
-        width: w,
-        height: h,
+        width: capture.width,
+        height: capture.height,
         channels: capture.channels,
         n_lights: capture.n_lights(),
         albedo,
@@ -472,6 +366,143 @@ pub fn reconstruct_with_truth(
         error_map: None,
         report,
     })
+}
+
+/// The report of a reconstruction before it runs: the method, the input, the capture's notes,
+/// every parameter and the memory plan.
+fn start_report(capture: &Capture, params: &Params) -> Report {
+    let mut report = Report::new(params.method.name());
+    report.input = InputSummary::of(capture);
+    report.notes.extend(capture.notes.iter().cloned());
+    for (name, value) in params
+        .to_json()
+        .as_object()
+        .into_iter()
+        .flat_map(|m| m.iter())
+    {
+        report.param(name, value.clone());
+    }
+    if let Some(plan) = &capture.memory {
+        report.extra.insert(
+            "memory".into(),
+            serde_json::to_value(plan).unwrap_or_default(),
+        );
+    }
+    report
+}
+
+/// The report's `detection` entry: the noise model, the test's threshold and confidence, the
+/// unreliable share, κ as measured on the capture, and the labels of the shadowed readings.
+fn record_detection(
+    capture: &Capture,
+    estimate: &Estimate,
+    d: &Detection,
+    report: &mut Report,
+) -> Result<()> {
+    report.extra.insert(
+        "detection".into(),
+        serde_json::json!({
+            "noise": d.noise,
+            "light_kappa": d.noise.light_kappa(),
+            "threshold_chi2": d.threshold,
+            "confidence": d.params.confidence,
+            "unreliable_share": d.unreliable_share(),
+            "kappa_measured": crate::solve::detect::estimate_kappa_weighted(
+                &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
+                &d.noise.light_factor,
+            ),
+            "shadow_labels": match estimate.light_status.as_ref() {
+                Some(s) => Some(tiled_shadow_labels(capture, estimate, s)?),
+                None => None,
+            },
+        }),
+    );
+    Ok(())
+}
+
+/// The final integration of the estimate's normals with the per-mask-pixel `trust` (the same
+/// weighting rule the recursive method uses): through the camera with a perspective model,
+/// orthographic otherwise; none unless `params.integrate`.
+fn final_surface(
+    capture: &Capture,
+    params: &Params,
+    estimate: &Estimate,
+    trust: &[f32],
+    progress: &dyn Progress,
+    report: &mut Report,
+) -> Result<Option<Surface>> {
+    if !params.integrate {
+        return Ok(None);
+    }
+    let (w, h) = (capture.width, capture.height);
+    let t = Instant::now();
+    let surface = if capture.lights.perspective().is_some() {
+        near_integration(
+            capture,
+            params,
+            &capture.scatter(&estimate.normals, 1, [0.0; 3]),
+            &capture.scatter(trust, 1, 0.0),
+            progress,
+        )?
+    } else {
+        // The output's normal map is made after the solve: during it only the gradients,
+        // the weights and the integrator's arrays are held whole.
+        let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
+            w * h,
+            &capture.pixels,
+            &estimate.normals,
+            &|p, _| trust[p],
+        );
+        // The weighted copy of the normal map is dropped once its gradients are taken.
+        let gradients = gradients_from_normals(
+            w,
+            h,
+            &weighted,
+            Some(&capture.mask),
+            params.integration.max_slope,
+        )?;
+        drop(weighted);
+        surface_from_gradients(
+            gradients,
+            Some(&weights),
+            params.integration.method.integrator().as_ref(),
+            params.integration.max_slope,
+            progress,
+        )?
+    };
+    report.extra.insert("integration".into(), surface.summary());
+    report.time("integrate", t);
+    Ok(Some(surface))
+}
+
+/// The recursive method's maps for the reconstruction, its figures into the report.
+fn recursive_maps(d: RecursiveDiagnostics, report: &mut Report) -> RecursiveMaps {
+    let few = d.fewer_than_three.iter().filter(|&&f| f).count();
+    report.extra.insert(
+        "recursive".into(),
+        serde_json::json!({
+            "iterations": d.iterations,
+            "fewer_than_three_pixels": few,
+            "fallback": d.fallback,
+            "converged": d.converged,
+            "final_change": d.final_change,
+            "stop_reason": d.stop_reason,
+            "surface_prior": d.surface_prior,
+        }),
+    );
+    if !d.converged {
+        report.notes.push(format!("recursive: {}", d.stop_reason));
+    }
+    report
+        .extra
+        .insert("fewer_than_three_pixels".into(), few.into());
+    RecursiveMaps {
+        shadows: d.shadows,
+        highlight: d.highlight,
+        fewer_than_three: d.fewer_than_three,
+        reliable: d.reliable,
+        iterations: d.iterations,
+    }
 }
 
 /// Integration trust: the recursive method's own; unreliable pixels low for the methods that
