@@ -557,6 +557,79 @@ fn near_integration(
     )
 }
 
+/// One round's highlight modelling of the recursive method with near lights
+/// ([`crate::solve::near_lobe`]): the lobe fitted at the pixels whose diffuse fit fails (they
+/// are then trusted in the integration), and at the pixels left without a spare light the
+/// capture's lobe taken out (`capture_lobe`, set when the recursion has diagnostics). `result`
+/// is the round's estimate, detection and diagnostics; the detection must be there.
+fn model_highlights(
+    capture: &Capture,
+    near: &crate::model::lightmodel::NearLights,
+    params: &Params,
+    result: &mut (Estimate, Option<Detection>, Option<RecursiveDiagnostics>),
+    lobe_memory: &mut crate::solve::near_lobe::LobeMemory,
+    capture_lobe: &mut Option<crate::solve::near_lobe::SpareSummary>,
+) -> Result<crate::solve::near_lobe::LobeSummary> {
+    let d = result.1.as_ref().expect("a detection");
+    let (summary, refined) = crate::solve::near_lobe::refine(
+        capture,
+        near,
+        &mut result.0,
+        &d.noise,
+        d.params.confidence,
+        lobe_memory,
+    )?;
+    if let Some(diag) = result.2.as_mut() {
+        for (p, &i) in capture.pixels.iter().enumerate() {
+            if refined[p] {
+                diag.trust[i as usize] = 1.0;
+            }
+        }
+    }
+    // Pixels left without a spare light: the capture's lobe taken out.
+    if let Some(diag) = result.2.as_ref() {
+        let reliable: Vec<bool> = capture
+            .pixels
+            .iter()
+            .map(|&i| diag.reliable[i as usize])
+            .collect();
+        let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
+            let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
+            let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
+            Ok(crate::geometry::integrate::perspective::normals_from_z(
+                capture.width,
+                capture.height,
+                &s.depth.values,
+                &capture.mask,
+                &near.camera,
+            ))
+        };
+        *capture_lobe = crate::solve::near_lobe::correct_without_spare(
+            capture,
+            near,
+            &mut result.0,
+            &reliable,
+            &refined,
+            surface,
+        )?;
+    }
+    Ok(summary)
+}
+
+/// The mean absolute change of the depth `z` from `previous` over the mask pixels where `z` is
+/// finite (mm).
+fn mean_abs_change(capture: &Capture, z: &[f32], previous: &[f32]) -> f64 {
+    let (sum, count) = capture
+        .pixels
+        .iter()
+        .map(|&i| i as usize)
+        .filter(|&i| z[i].is_finite())
+        .fold((0f64, 0usize), |(s, c), i| {
+            (s + (z[i] as f64 - previous[i] as f64).abs(), c + 1)
+        });
+    sum / count.max(1) as f64
+}
+
 /// The near-light alternation (ALGORITHMS.md §9): from the plane Z = D, estimate with each
 /// pixel's light vectors, integrate through the camera, update X, and repeat until the mean
 /// |ΔZ| of a round falls below [`crate::model::lightmodel::DEPTH_TOLERANCE`] of D or
@@ -586,50 +659,16 @@ fn alternate(
         let t = Instant::now();
         let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
         // The recursive method's highlights, modelled where no light is free of them.
-        if let (Method::Recursive, Some(d)) = (method, result.1.as_ref()) {
+        if method == Method::Recursive && result.1.is_some() {
             let t = Instant::now();
-            let (summary, refined) = crate::solve::near_lobe::refine(
+            let summary = model_highlights(
                 capture,
                 near,
-                &mut result.0,
-                &d.noise,
-                d.params.confidence,
+                params,
+                &mut result,
                 &mut lobe_memory,
+                &mut capture_lobe,
             )?;
-            if let Some(diag) = result.2.as_mut() {
-                for (p, &i) in capture.pixels.iter().enumerate() {
-                    if refined[p] {
-                        diag.trust[i as usize] = 1.0;
-                    }
-                }
-            }
-            // Pixels left without a spare light: the capture's lobe taken out.
-            if let Some(diag) = result.2.as_ref() {
-                let reliable: Vec<bool> = capture
-                    .pixels
-                    .iter()
-                    .map(|&i| diag.reliable[i as usize])
-                    .collect();
-                let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
-                    let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
-                    let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
-                    Ok(crate::geometry::integrate::perspective::normals_from_z(
-                        capture.width,
-                        capture.height,
-                        &s.depth.values,
-                        &capture.mask,
-                        &near.camera,
-                    ))
-                };
-                capture_lobe = crate::solve::near_lobe::correct_without_spare(
-                    capture,
-                    near,
-                    &mut result.0,
-                    &reliable,
-                    &refined,
-                    surface,
-                )?;
-            }
             report.time("highlight_lobe", t);
             lobe = Some(summary);
         }
@@ -643,15 +682,7 @@ fn alternate(
             &crate::base::progress::Silent,
         )?;
         let z = &surface.depth.values;
-        let (sum, count) = capture
-            .pixels
-            .iter()
-            .map(|&i| i as usize)
-            .filter(|&i| z[i].is_finite())
-            .fold((0f64, 0usize), |(s, c), i| {
-                (s + (z[i] as f64 - previous[i] as f64).abs(), c + 1)
-            });
-        let change = sum / count.max(1) as f64;
+        let change = mean_abs_change(capture, z, &previous);
         near.set_surface(z);
         previous.clone_from(z);
         let error = match truth {
