@@ -267,6 +267,30 @@ fn a_mask_shifted_off_the_sphere_is_warned_of() {
 }
 
 #[test]
+fn a_lit_background_is_not_taken_for_a_cut_sphere() {
+    // A dark sphere wholly inside a brighter frame: the brightest region is the background.
+    let c = sphere();
+    let mut images = render_rig(&c, &rig(), Render::default());
+    for img in &mut images {
+        for (i, v) in img.data.iter_mut().enumerate() {
+            let (r, col) = ((i / W) as f64, (i % W) as f64);
+            if (col - c.cx).powi(2) + (r - c.cy).powi(2) > c.r * c.r {
+                *v = 0.6;
+            }
+        }
+    }
+    let e = calibrate(&images, None, None, &CalibrationOptions::default())
+        .unwrap_err()
+        .to_string();
+    println!("{e}");
+    assert!(e.contains("pass --mask"), "{e}");
+    assert!(
+        e.contains("not the sphere") && !e.contains("of the sphere's outline"),
+        "{e}"
+    );
+}
+
+#[test]
 fn detects_the_sphere_without_a_mask() {
     let c = sphere();
     let lights = rig();
