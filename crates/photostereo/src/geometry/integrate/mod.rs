@@ -24,12 +24,17 @@
 //! gradients are replaced by a harmonic interpolation (Laplace's equation) of the reliable
 //! gradients around them before integration (ALGORITHMS.md §4), so garbage there cannot leak.
 
+mod bilateral;
 mod multigrid;
 mod paths;
 pub mod perspective;
 mod poisson;
 mod spectral;
 
+pub use bilateral::{
+    bilateral_reference, Bilateral, DEFAULT_ENERGY_TOLERANCE, DEFAULT_REWEIGHTINGS,
+    DEFAULT_SHARPNESS,
+};
 pub use paths::Paths;
 pub use poisson::{InitialGuess, Poisson};
 pub use spectral::{Dct, Fft};
@@ -61,25 +66,85 @@ pub struct Gradients {
     pub p: Vec<f32>,
     /// `∂f/∂row`, `height * width`, 0 outside the mask.
     pub q: Vec<f32>,
-    /// Pixels with a usable normal (inside the given mask, finite, non-zero, `n_z > 0`).
+    /// Pixels with a usable normal (inside the given mask, finite, non-zero, facing the camera).
     pub mask: Vec<bool>,
     /// Pixels of the given mask dropped for a NaN/infinite or zero normal.
     pub rejected_invalid: usize,
-    /// Pixels of the given mask dropped because `n_z ≤ 0` (facing away from the camera).
+    /// Pixels of the given mask dropped because they face away from the camera (`n_z ≤ 0`
+    /// orthographic, `n · ray ≥ 0` perspective).
     pub rejected_backfacing: usize,
+    /// Without a mask: non-zero vectors left out because they are not of unit length while most
+    /// are (a background colour of a normal-map image, e.g. white decoding to (1, 1, 1)).
+    pub not_unit: usize,
     /// Pixels whose |p| or |q| was clamped to `max_slope`.
     pub capped: usize,
 }
 
-/// Computes `p = −n_x/n_z`, `q = n_y/n_z` (clamped to ±`max_slope`) over `mask` (default: the
-/// pixels with a non-zero normal). Bad normals (NaN, zero, `n_z ≤ 0`) are dropped from the mask
-/// and counted. Errors on wrong lengths or a non-positive `max_slope`.
+/// Length band `|‖n‖ − 1|` within which a vector counts as a unit normal when no mask is given.
+const UNIT_BAND: f64 = 0.1;
+
+/// The default mask of a normal map: the non-zero vectors, less those not of unit length when
+/// most of them are (see [`Gradients::not_unit`]). Returns the mask and the count left out for
+/// their length.
+pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
+    let length_ok = |v: &[f32; 3]| {
+        let l2 = v.iter().map(|&x| x as f64 * x as f64).sum::<f64>();
+        (l2.sqrt() - 1.0).abs() <= UNIT_BAND
+    };
+    let (nonzero, unit) = normals
+        .par_iter()
+        .fold(
+            || (0usize, 0usize),
+            |(a, b), v| {
+                if *v == [0.0; 3] {
+                    (a, b)
+                } else {
+                    (a + 1, b + usize::from(length_ok(v)))
+                }
+            },
+        )
+        .reduce(|| (0, 0), |x, y| (x.0 + y.0, x.1 + y.1));
+    // Scaled normals (all off unit length, e.g. albedo times normal) are directions all the same.
+    let by_length = unit * 2 > nonzero && unit < nonzero;
+    let mask: Vec<bool> = normals
+        .par_iter()
+        .map(|v| *v != [0.0; 3] && (!by_length || length_ok(v)))
+        .collect();
+    (mask, if by_length { nonzero - unit } else { 0 })
+}
+
+/// Computes `p = −n_x/n_z`, `q = n_y/n_z` (clamped to ±`max_slope`) over `mask` (default:
+/// [`default_mask`]). Bad normals (NaN, zero, `n_z ≤ 0`) are dropped from the mask and
+/// counted. Errors on wrong lengths or a non-positive `max_slope`.
 pub fn gradients_from_normals(
     width: usize,
     height: usize,
     normals: &[[f32; 3]],
     mask: Option<&[bool]>,
     max_slope: f32,
+) -> Result<Gradients> {
+    gradients_with(
+        width,
+        height,
+        normals,
+        mask,
+        max_slope,
+        [1.0; 2],
+        |_, [x, y, z]| (z > 0.0).then(|| (-x / z, y / z)),
+    )
+}
+
+/// [`gradients_from_normals`] with the slopes of pixel `i`'s normal `n` given by `slopes(i, n)`
+/// (`None`: facing away), clamped to ±`max_slope`, then multiplied by `scale` (along the
+/// columns, along the rows).
+pub(crate) fn gradients_with(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    max_slope: f32,
+    scale: [f64; 2],
+    slopes: impl Fn(usize, [f64; 3]) -> Option<(f64, f64)> + Sync,
 ) -> Result<Gradients> {
     let n = width * height;
     if normals.len() != n {
@@ -101,6 +166,11 @@ pub fn gradients_from_normals(
             "max_slope {max_slope}: expected a positive finite number"
         )));
     }
+    let (default, not_unit) = match mask {
+        Some(_) => (Vec::new(), 0),
+        None => default_mask(normals),
+    };
+    let wanted_mask: &[bool] = mask.unwrap_or(&default);
     let mut g = Gradients {
         width,
         height,
@@ -109,6 +179,7 @@ pub fn gradients_from_normals(
         mask: vec![false; n],
         rejected_invalid: 0,
         rejected_backfacing: 0,
+        not_unit,
         capped: 0,
     };
     let cap = max_slope as f64;
@@ -123,35 +194,27 @@ pub fn gradients_from_normals(
                 let mut counts = [0usize; 3];
                 for c in 0..p_row.len() {
                     let i = r * w + c;
-                    let v = normals[i];
-                    let zero = v == [0.0; 3];
-                    let wanted = match mask {
-                        Some(m) => m[i],
-                        None => !zero,
-                    };
-                    if !wanted {
+                    if !wanted_mask[i] {
                         continue;
                     }
+                    let v = normals[i];
                     let finite = v.iter().all(|x| x.is_finite());
                     let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
                     // f32 components cannot overflow a sum of squares in f64; |n| < 1e-12.
                     let tiny = x * x + y * y + z * z < 1e-24;
-                    if !finite || zero || tiny {
+                    if !finite || tiny {
                         counts[0] += 1;
                         continue;
                     }
-                    if z <= 0.0 {
+                    let Some((p, q)) = slopes(i, [x, y, z]) else {
                         counts[1] += 1;
                         continue;
-                    }
-                    let inv_z = 1.0 / z;
-                    let p = -x * inv_z;
-                    let q = y * inv_z;
+                    };
                     if p.abs() > cap || q.abs() > cap {
                         counts[2] += 1;
                     }
-                    p_row[c] = p.clamp(-cap, cap) as f32;
-                    q_row[c] = q.clamp(-cap, cap) as f32;
+                    p_row[c] = (p.clamp(-cap, cap) * scale[0]) as f32;
+                    q_row[c] = (q.clamp(-cap, cap) * scale[1]) as f32;
                     m_row[c] = true;
                 }
                 counts
@@ -408,6 +471,8 @@ pub struct IntegrationStats {
     /// — the same as `dct`'s there — were solved exactly by the DCT (0 iterations; the relative
     /// residual is the true one of the solution).
     pub direct: bool,
+    /// `bilateral`: reweighting iterations (solves of the reweighted system before the last).
+    pub reweightings: usize,
     pub notes: Vec<String>,
 }
 
@@ -419,6 +484,9 @@ pub struct Depth {
     /// `height * width`, pixel units toward the camera, NaN outside the mask.
     pub values: Vec<f32>,
     pub stats: IntegrationStats,
+    /// Discontinuity-preserving integrators: per pixel, how sharply the surface breaks at its
+    /// edges (0 continuous … 1 a jump), NaN outside the mask. `None` for the others.
+    pub discontinuities: Option<Vec<f32>>,
 }
 
 /// Something that turns gradients into depth.
@@ -441,6 +509,8 @@ pub enum IntegratorKind {
     Fft,
     /// Averaged path integration (eqs. 11–12).
     Paths,
+    /// Discontinuity-preserving bilaterally weighted least squares (any mask).
+    Bilateral,
 }
 
 impl IntegratorKind {
@@ -450,6 +520,7 @@ impl IntegratorKind {
         IntegratorKind::Dct,
         IntegratorKind::Fft,
         IntegratorKind::Paths,
+        IntegratorKind::Bilateral,
     ];
 
     /// The name accepted by `--method` / `--integrator`.
@@ -459,6 +530,7 @@ impl IntegratorKind {
             IntegratorKind::Dct => "dct",
             IntegratorKind::Fft => "fft",
             IntegratorKind::Paths => "paths",
+            IntegratorKind::Bilateral => "bilateral",
         }
     }
 
@@ -469,6 +541,7 @@ impl IntegratorKind {
             IntegratorKind::Dct => Box::new(Dct::default()),
             IntegratorKind::Fft => Box::new(Fft::default()),
             IntegratorKind::Paths => Box::new(Paths::default()),
+            IntegratorKind::Bilateral => Box::new(Bilateral::default()),
         }
     }
 }
@@ -622,11 +695,22 @@ pub struct Surface {
     pub mean_abs_curl: f64,
     pub rejected_invalid: usize,
     pub rejected_backfacing: usize,
+    /// See [`Gradients::not_unit`].
+    pub not_unit: usize,
     pub capped: usize,
     pub max_slope: f32,
 }
 
 impl Surface {
+    /// Pixels the integrator found on a jump (discontinuity above ½; 0 for integrators that do
+    /// not look for jumps).
+    pub fn discontinuity_pixels(&self) -> usize {
+        self.depth
+            .discontinuities
+            .as_ref()
+            .map_or(0, |d| d.par_iter().filter(|&&v| v > 0.5).count())
+    }
+
     /// The figures for `report.json`.
     pub fn summary(&self) -> serde_json::Value {
         serde_json::json!({
@@ -642,6 +726,9 @@ impl Surface {
             "capped_pixels": self.capped,
             "rejected_invalid_normals": self.rejected_invalid,
             "rejected_backfacing_normals": self.rejected_backfacing,
+            "not_unit_normals": self.not_unit,
+            "reweightings": self.depth.stats.reweightings,
+            "discontinuity_pixels": self.discontinuity_pixels(),
             "notes": self.depth.stats.notes,
         })
     }
@@ -686,6 +773,7 @@ pub fn surface_from_gradients(
         mean_abs_curl,
         rejected_invalid: g.rejected_invalid,
         rejected_backfacing: g.rejected_backfacing,
+        not_unit: g.not_unit,
         capped: g.capped,
         max_slope,
     })
@@ -1155,6 +1243,7 @@ pub(crate) fn to_depth(
         height,
         values,
         stats,
+        discontinuities: None,
     }
 }
 
@@ -1179,5 +1268,6 @@ pub(crate) fn into_depth(
         height,
         values,
         stats,
+        discontinuities: None,
     }
 }
