@@ -79,6 +79,15 @@ impl OutputKind {
         }
     }
 
+    /// "a" or "an", as the name reads.
+    fn article(self) -> &'static str {
+        if self.name().starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        }
+    }
+
     fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|k| k.name() == name.trim())
     }
@@ -221,14 +230,17 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
         return match marker_kind(target) {
             Some(k) if k == kind => Ok(()),
             Some(k) => why(format!(
-                "it holds a {} folder, and --force replaces only a {} folder; \
+                "it holds {} {} folder, and --force replaces only {} {} folder; \
                  choose another output (-o)",
+                k.article(),
                 k.name(),
+                kind.article(),
                 kind.name()
             )),
             None => why(format!(
                 "an earlier photostereo wrote it without recording what it holds, and --force \
-                 replaces only a {} folder; remove it yourself or choose another output (-o)",
+                 replaces only {} {} folder; remove it yourself or choose another output (-o)",
+                kind.article(),
                 kind.name()
             )),
         };
@@ -410,7 +422,13 @@ impl OutputFolder {
         if staging.exists() {
             std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         }
-        std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
+        // The user named the target: a parent they cannot write in is reported on it.
+        std::fs::create_dir(&staging).map_err(|e| {
+            Error::file(
+                target,
+                format!("cannot write the output in {}: {e}", parent.display()),
+            )
+        })?;
         register(&staging);
         let folder = OutputFolder {
             target: target.to_path_buf(),
