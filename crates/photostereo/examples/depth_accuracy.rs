@@ -133,13 +133,27 @@ fn env<T: std::str::FromStr>(name: &str, default: T) -> T {
         .unwrap_or(default)
 }
 
+struct Reference(photostereo::geometry::integrate::Bilateral);
+impl photostereo::geometry::integrate::Integrator for Reference {
+    fn name(&self) -> &'static str {
+        "reference"
+    }
+    fn integrate(
+        &self,
+        problem: &photostereo::geometry::integrate::IntegrationProblem,
+        _: &dyn photostereo::base::progress::Progress,
+    ) -> photostereo::base::error::Result<photostereo::geometry::integrate::Depth> {
+        photostereo::geometry::integrate::bilateral_reference(&self.0, problem)
+    }
+}
+
 fn integrator(kind: IntegratorKind) -> Box<dyn photostereo::geometry::integrate::Integrator> {
     use photostereo::geometry::integrate::Bilateral;
     if kind != IntegratorKind::Bilateral {
         return kind.integrator();
     }
     let d = Bilateral::default();
-    Box::new(Bilateral {
+    let b = Bilateral {
         k: env("BIL_K", d.k),
         max_iterations: env("BIL_ITER", d.max_iterations),
         tolerance: env("BIL_TOL", d.tolerance),
@@ -148,7 +162,12 @@ fn integrator(kind: IntegratorKind) -> Box<dyn photostereo::geometry::integrate:
         min_edge_weight: env("BIL_FLOOR", d.min_edge_weight),
         slope_weighting: env("BIL_SLOPEW", d.slope_weighting),
         ..d
-    })
+    };
+    if std::env::var("BIL_REF").is_ok() {
+        Box::new(Reference(b))
+    } else {
+        Box::new(b)
+    }
 }
 
 fn main() {

@@ -87,9 +87,11 @@ const UNIT_BAND: f64 = 0.1;
 /// most of them are (see [`Gradients::not_unit`]). Returns the mask and the count left out for
 /// their length.
 pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
+    // A NaN or infinite vector is not judged by its length: it stays in the mask, to be
+    // counted as invalid with the zero-length ones.
     let length_ok = |v: &[f32; 3]| {
         let l2 = v.iter().map(|&x| x as f64 * x as f64).sum::<f64>();
-        (l2.sqrt() - 1.0).abs() <= UNIT_BAND
+        !l2.is_finite() || (l2.sqrt() - 1.0).abs() <= UNIT_BAND
     };
     let (nonzero, unit) = normals
         .par_iter()
