@@ -84,8 +84,11 @@ pub struct Gradients {
 const UNIT_BAND: f64 = 0.1;
 
 /// The default mask of a normal map: the non-zero vectors, less those not of unit length when
-/// most of them are (see [`Gradients::not_unit`]). Returns the mask and the count left out for
-/// their length.
+/// the map is one of unit normals (see [`Gradients::not_unit`]). A map is taken for one of unit
+/// normals when most of its non-zero vectors are of unit length, or when some are and all the
+/// others are one and the same vector (a uniform background, e.g. white decoding to (1, 1, 1),
+/// however large); a map of scaled normals (albedo times normal), whose lengths vary, keeps
+/// every non-zero vector. Returns the mask and the count left out for their length.
 pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
     // A NaN or infinite vector is not judged by its length: it stays in the mask, to be
     // counted as invalid with the zero-length ones.
@@ -93,6 +96,7 @@ pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
         let l2 = v.iter().map(|&x| x as f64 * x as f64).sum::<f64>();
         !l2.is_finite() || (l2.sqrt() - 1.0).abs() <= UNIT_BAND
     };
+    let off_unit = |v: &[f32; 3]| *v != [0.0; 3] && !length_ok(v);
     let (nonzero, unit) = normals
         .par_iter()
         .fold(
@@ -106,8 +110,12 @@ pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
             },
         )
         .reduce(|| (0, 0), |x, y| (x.0 + y.0, x.1 + y.1));
-    // Scaled normals (all off unit length, e.g. albedo times normal) are directions all the same.
-    let by_length = unit * 2 > nonzero && unit < nonzero;
+    let uniform_background = unit > 0
+        && normals.par_iter().find_first(|v| off_unit(v)).is_some_and(|first| {
+            let first = *first;
+            normals.par_iter().all(|v| !off_unit(v) || *v == first)
+        });
+    let by_length = (unit * 2 > nonzero || uniform_background) && unit < nonzero;
     let mask: Vec<bool> = normals
         .par_iter()
         .map(|v| *v != [0.0; 3] && (!by_length || length_ok(v)))
@@ -503,7 +511,6 @@ pub trait Integrator: Send + Sync {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum IntegratorKind {
     /// Masked weighted least squares by multigrid-preconditioned CG (any mask).
-    #[default]
     Poisson,
     /// Full-rectangle least squares by DCT (Neumann).
     Dct,
@@ -511,18 +518,21 @@ pub enum IntegratorKind {
     Fft,
     /// Averaged path integration (eqs. 11–12).
     Paths,
-    /// Discontinuity-preserving bilaterally weighted least squares (any mask).
+    /// Discontinuity-preserving bilaterally weighted least squares (any mask; the default: on
+    /// real objects with depth jumps it is several times more accurate than `poisson`, and on
+    /// smooth surfaces it finds no jump and gives `poisson`'s surface).
+    #[default]
     Bilateral,
 }
 
 impl IntegratorKind {
     /// Every method, default first.
     pub const ALL: &'static [IntegratorKind] = &[
+        IntegratorKind::Bilateral,
         IntegratorKind::Poisson,
         IntegratorKind::Dct,
         IntegratorKind::Fft,
         IntegratorKind::Paths,
-        IntegratorKind::Bilateral,
     ];
 
     /// The name accepted by `--method` / `--integrator`.
@@ -583,7 +593,7 @@ pub fn integrate_normals(
 /// method's intermediate surfaces and the exported depth.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct IntegrationParams {
-    /// The integrator (default `poisson`, the only one that honours any mask and weights).
+    /// The integrator (default `bilateral`; it and `poisson` honour any mask and weights).
     #[serde(serialize_with = "serialize_kind")]
     pub method: IntegratorKind,
     /// Cap on |p| and |q| in pixel units per pixel (default [`DEFAULT_MAX_SLOPE`]).
