@@ -296,7 +296,7 @@ mod tests {
         // the normals point away from the optical axis's direction (n_z < 0) yet face their
         // own rays.
         let size = 96;
-        let (cam, normals, z, mask) = sphere_seen(size, 0.5, [60.0, 0.0, -100.0], 30.0, 0.08);
+        let (cam, normals, z, mask) = sphere_seen(size, 0.5, [90.0, 0.0, -100.0], 30.0, 0.08);
         let behind = (0..size * size)
             .filter(|&i| mask[i] && normals[i][2] <= 0.0)
             .count();
