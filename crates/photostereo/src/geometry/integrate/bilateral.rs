@@ -42,8 +42,8 @@ use crate::base::error::Result;
 use crate::base::progress::Progress;
 use rayon::prelude::*;
 
-/// Default sharpness `k` of the sigmoid (B3): the published setting (Cao et al., ECCV 2022,
-/// Sec. 5), whose argument is in the same units here (squared height differences in pixels
+/// Default sharpness `k` of the sigmoid (B3): the setting published with the method (Cao et al.,
+/// ECCV 2022), whose argument is in the same units here (squared height differences in pixels
 /// times `n_z²`, orthographic and perspective alike).
 pub const DEFAULT_SHARPNESS: f32 = 2.0;
 /// Default relative change of the energy (B2) at which the reweighting stops.

@@ -762,6 +762,78 @@ pub fn surface_from_normals(
     surface_from_gradients(g, weights, integrator, max_slope, progress)
 }
 
+/// How [`integrate_normal_map`] integrates a normal map.
+#[derive(Clone, Copy, Debug)]
+pub struct NormalMapIntegration<'a> {
+    /// The integrator, with its default parameters (default `bilateral`).
+    pub method: IntegratorKind,
+    /// Cap on the slopes, pixels per pixel (default [`DEFAULT_MAX_SLOPE`]).
+    pub max_slope: f32,
+    /// A pinhole camera and the object's mean distance along its axis (mm): the depth is then
+    /// Z in mm ([`perspective::perspective_surface`]); `None`, heights in pixels.
+    pub camera: Option<(&'a crate::model::lightmodel::Camera, f64)>,
+}
+
+impl Default for NormalMapIntegration<'_> {
+    fn default() -> Self {
+        NormalMapIntegration {
+            method: IntegratorKind::default(),
+            max_slope: DEFAULT_MAX_SLOPE,
+            camera: None,
+        }
+    }
+}
+
+/// A normal map (`height * width` vectors, row-major) into a [`Surface`], orthographic or
+/// through a camera: the entry point of the front ends. `mask` defaults to [`default_mask`];
+/// `weights` (0..1) trust each pixel. The result holds the depth (NaN outside the integrated
+/// pixels), the curl map, the discontinuity map of `bilateral` (`depth.discontinuities`), the
+/// counts of dropped and capped pixels and the integrator's figures and notes. Errors name
+/// the parameter at fault (`max_slope`, `distance`, wrong lengths).
+pub fn integrate_normal_map(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    weights: Option<&[f32]>,
+    how: &NormalMapIntegration,
+    progress: &dyn Progress,
+) -> Result<Surface> {
+    let integrator = how.method.integrator();
+    match how.camera {
+        Some((camera, distance)) => {
+            if !(distance.is_finite() && distance > 0.0) {
+                return Err(Error::parameter(
+                    "distance",
+                    format!("{distance}: expected the object's mean distance in mm, positive"),
+                ));
+            }
+            perspective::perspective_surface(
+                width,
+                height,
+                normals,
+                mask,
+                weights,
+                camera,
+                distance,
+                integrator.as_ref(),
+                how.max_slope,
+                progress,
+            )
+        }
+        None => surface_from_normals(
+            width,
+            height,
+            normals,
+            mask,
+            weights,
+            integrator.as_ref(),
+            how.max_slope,
+            progress,
+        ),
+    }
+}
+
 /// [`surface_from_normals`] from gradients already taken (`max_slope` the cap they were
 /// taken with): the caller can drop its normal map before the integrator runs.
 pub fn surface_from_gradients(
