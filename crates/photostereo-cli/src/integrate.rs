@@ -4,8 +4,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use photostereo::geometry::integrate::{
-    surface_from_normals, Bilateral, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE,
-    DEFAULT_TOLERANCE,
+    surface_from_normals, Bilateral, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
 };
 use photostereo::io::export::{write_json, OutputFolder, OutputKind};
 use photostereo::io::groundtruth::read_normal_map;

@@ -383,7 +383,9 @@ fn a_white_background_without_mask_is_left_out_with_a_note() {
     let err = String::from_utf8_lossy(&o.stderr);
     let background = W * H - 20 * 30;
     assert!(
-        err.contains(&format!("{background} pixel(s) whose vector is not of unit length")),
+        err.contains(&format!(
+            "{background} pixel(s) whose vector is not of unit length"
+        )),
         "{err}"
     );
     let d = read_depth(&out);

@@ -56,10 +56,10 @@ fn load(dir: &Path) -> Object {
 fn measure(o: &Object, z: &[f32]) -> (f64, usize, Vec<f32>) {
     let mut ratios = Vec::new();
     let mut nan = 0;
-    for i in 0..z.len() {
-        if o.mask[i] && o.truth[i].is_finite() {
-            if z[i].is_finite() {
-                ratios.push(o.truth[i] as f64 / z[i] as f64);
+    for ((&zi, &inside), &t) in z.iter().zip(&o.mask).zip(&o.truth) {
+        if inside && t.is_finite() {
+            if zi.is_finite() {
+                ratios.push(t as f64 / zi as f64);
             } else {
                 nan += 1;
             }
@@ -69,10 +69,10 @@ fn measure(o: &Object, z: &[f32]) -> (f64, usize, Vec<f32>) {
     let s = ratios[ratios.len() / 2];
     let mut map = vec![f32::NAN; z.len()];
     let (mut sum, mut count) = (0f64, 0usize);
-    for i in 0..z.len() {
+    for (i, m) in map.iter_mut().enumerate() {
         if o.mask[i] && o.truth[i].is_finite() && z[i].is_finite() {
             let e = (s * z[i] as f64 - o.truth[i] as f64).abs();
-            map[i] = e as f32;
+            *m = e as f32;
             sum += e;
             count += 1;
         }

@@ -220,9 +220,9 @@ impl Pixels<'_> {
                         continue;
                     }
                     let om = self.omega(i) as f64;
-                    for axis in 0..2 {
+                    for (axis, pl) in plus.iter().enumerate() {
                         let g = self.gradient(i, axis) as f64;
-                        let wp = plus[axis][i] as f64;
+                        let wp = pl[i] as f64;
                         if let Some(j) = self.next(i, axis) {
                             let d = f[j].into() - f[i].into() - g;
                             e += om * wp * d * d; // (B2)
@@ -250,8 +250,8 @@ impl Pixels<'_> {
                     continue;
                 }
                 let mut d = 0f32;
-                for axis in 0..2 {
-                    let cut = |a: usize, b: usize| (plus[axis][b] - plus[axis][a]).clamp(0.0, 1.0);
+                for (axis, pl) in plus.iter().enumerate() {
+                    let cut = |a: usize, b: usize| (pl[b] - pl[a]).clamp(0.0, 1.0);
                     if let Some(j) = self.next(i, axis) {
                         d = d.max(cut(i, j));
                     }
@@ -722,16 +722,9 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
             if let Some(prior) = problem.prior {
                 b[i] += lambda * prior.depth[i] as f64;
             }
-            for axis in 0..2 {
+            for (axis, pl) in plus.iter().enumerate() {
                 if let Some(j) = px.next(i, axis) {
-                    let (we, wd) = px.edge(
-                        i,
-                        j,
-                        axis,
-                        plus[axis][i],
-                        plus[axis][j],
-                        params.min_edge_weight,
-                    );
+                    let (we, wd) = px.edge(i, j, axis, pl[i], pl[j], params.min_edge_weight);
                     let (we, wd) = (we as f64, wd as f64); // (B4)
                     edges.push((i, j, we));
                     diag[i] += we;
@@ -755,10 +748,10 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
             break;
         }
         reweightings += 1;
-        for axis in 0..2 {
-            for i in 0..n {
+        for (axis, pl) in plus.iter_mut().enumerate() {
+            for (i, wp) in pl.iter_mut().enumerate() {
                 if px.mask[i] {
-                    plus[axis][i] = px.weight_from(params.k, &f, i, axis); // (B3)
+                    *wp = px.weight_from(params.k, &f, i, axis); // (B3)
                 }
             }
         }

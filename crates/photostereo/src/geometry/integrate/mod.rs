@@ -111,10 +111,13 @@ pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
         )
         .reduce(|| (0, 0), |x, y| (x.0 + y.0, x.1 + y.1));
     let uniform_background = unit > 0
-        && normals.par_iter().find_first(|v| off_unit(v)).is_some_and(|first| {
-            let first = *first;
-            normals.par_iter().all(|v| !off_unit(v) || *v == first)
-        });
+        && normals
+            .par_iter()
+            .find_first(|v| off_unit(v))
+            .is_some_and(|first| {
+                let first = *first;
+                normals.par_iter().all(|v| !off_unit(v) || *v == first)
+            });
     let by_length = (unit * 2 > nonzero || uniform_background) && unit < nonzero;
     let mask: Vec<bool> = normals
         .par_iter()

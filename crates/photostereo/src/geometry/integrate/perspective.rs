@@ -323,8 +323,8 @@ mod tests {
         )
         .unwrap();
         assert_eq!(s.rejected_backfacing, 0);
-        for i in 0..size * size {
-            assert_eq!(s.depth.values[i].is_finite(), mask[i], "pixel {i}");
+        for (i, &inside) in mask.iter().enumerate() {
+            assert_eq!(s.depth.values[i].is_finite(), inside, "pixel {i}");
         }
     }
 
@@ -371,7 +371,6 @@ mod tests {
             normals[i] = m.map(|v| (v / len) as f32);
             truth[i] = 300.0 - mm * height(c, r);
         }
-        let mask = vec![true; n];
         let mean = truth.iter().sum::<f64>() / n as f64;
         let range = mm * (0.5 * (size as f64 - 11.0) + radius);
         // The contour pixels (either side of each side) may be claimed by either side.
