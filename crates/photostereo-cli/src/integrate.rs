@@ -4,7 +4,7 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use photostereo::geometry::integrate::{
-    surface_from_normals, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
+    surface_from_normals, Bilateral, IntegratorKind, Poisson, DEFAULT_MAX_SLOPE, DEFAULT_TOLERANCE,
 };
 use photostereo::io::export::{write_json, OutputFolder, OutputKind};
 use photostereo::io::groundtruth::read_normal_map;
@@ -17,16 +17,18 @@ use std::time::Instant;
 pub struct IntegrateArgs {
     /// Normal map: .npy (H, W, 3), DiLiGenT .mat, 16-bit normal-map PNG, or float EXR/TIFF.
     pub normals: PathBuf,
-    /// Mask image (non-zero = object). Default: the pixels with a non-zero normal.
+    /// Mask image (non-zero = object). Default: the pixels with a non-zero normal, less a
+    /// uniform background that is not of unit length (e.g. white, decoded (1, 1, 1)).
     #[arg(long)]
     pub mask: Option<PathBuf>,
-    /// Integration method: poisson (any mask), dct, fft (full rectangle), paths.
-    #[arg(long, default_value = "poisson", value_parser = parse_kind)]
+    /// Integration method: bilateral (keeps depth jumps, any mask; writes
+    /// discontinuities.npy/.png), poisson (any mask), dct, fft (full rectangle), paths.
+    #[arg(long, visible_alias = "integrator", default_value = IntegratorKind::default().name(), value_parser = parse_kind)]
     pub method: IntegratorKind,
     /// Cap on |∂f/∂col| and |∂f/∂row| (pixels per pixel) for near-grazing normals.
     #[arg(long, default_value_t = DEFAULT_MAX_SLOPE)]
     pub max_slope: f32,
-    /// Relative residual at which poisson stops.
+    /// Relative residual at which poisson (bilateral: its last solve) stops.
     #[arg(long, default_value_t = DEFAULT_TOLERANCE)]
     pub tolerance: f64,
     /// Perspective integration (log-depth) through this pinhole camera (K.txt: fx 0 cx / 0 fy
@@ -118,6 +120,13 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
                 ..Poisson::default()
             })
         }
+        IntegratorKind::Bilateral => {
+            report.param("tolerance", a.tolerance);
+            Box::new(Bilateral {
+                final_tolerance: a.tolerance,
+                ..Bilateral::default()
+            })
+        }
         other => other.integrator(),
     };
     let progress = a.out.progress();
@@ -184,8 +193,27 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
     }
     if surface.rejected_backfacing > 0 {
         report.notes.push(format!(
-            "{} normal(s) facing away from the camera (n_z ≤ 0) were dropped",
-            surface.rejected_backfacing
+            "{} normal(s) facing away from the camera ({}) were dropped",
+            surface.rejected_backfacing,
+            if a.camera.is_some() {
+                "n · ray ≥ 0 along their own ray"
+            } else {
+                "n_z ≤ 0"
+            }
+        ));
+    }
+    if surface.not_unit > 0 {
+        report.notes.push(format!(
+            "{} pixel(s) whose vector is not of unit length (a background colour such as white, decoded (1, 1, 1)) were left out of the default mask; pass --mask to choose the object's pixels",
+            surface.not_unit
+        ));
+    }
+    if surface.capped > 0 {
+        report.notes.push(format!(
+            "{} pixel(s) steeper than --max-slope {} (normals within {:.1}° of grazing) had their slopes capped: depth changes there are underestimated; a larger --max-slope keeps them",
+            surface.capped,
+            a.max_slope,
+            (1.0 / a.max_slope as f64).atan().to_degrees()
         ));
     }
     let mut summary = surface.summary();
@@ -229,13 +257,30 @@ pub fn main(a: IntegrateArgs) -> Result<()> {
             s.iterations
         );
         println!(
-            "mean |curl| {:.4}; masked out: {} invalid (zero, NaN or infinite), {} facing away; {} slopes capped at {}",
+            "mean |curl| {:.4} {}; masked out: {} invalid (zero, NaN or infinite), {} facing away{}; {} slopes capped at {}",
             surface.mean_abs_curl,
+            if a.camera.is_some() {
+                "(of f·ln Z, in pixels)"
+            } else {
+                "(pixels)"
+            },
             invalid,
             surface.rejected_backfacing,
+            if surface.not_unit > 0 {
+                format!(", {} not of unit length", surface.not_unit)
+            } else {
+                String::new()
+            },
             surface.capped,
             a.max_slope
         );
+        if surface.depth.discontinuities.is_some() {
+            println!(
+                "{} pixels on a depth jump (discontinuities.png), {} reweightings",
+                surface.discontinuity_pixels(),
+                s.reweightings
+            );
+        }
         println!("wrote {}", a.output.display());
     }
     Ok(())

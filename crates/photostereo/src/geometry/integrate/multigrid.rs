@@ -349,6 +349,15 @@ impl<'a> Level<'a> {
         self.w * self.h
     }
 
+    /// The east and south edge weights of a stored level, given back for reuse (empty vectors
+    /// for a computed level).
+    pub fn into_edges(self) -> (Vec<f32>, Vec<f32>) {
+        match self.kind {
+            Kind::Stored { east, south, .. } => (east, south),
+            _ => (Vec::new(), Vec::new()),
+        }
+    }
+
     /// The same operator with its rows stored (bit for bit what [`Level::rows`] computes).
     pub fn stored(&self) -> Level<'static> {
         let (w, h) = (self.w, self.h);
@@ -1094,6 +1103,11 @@ impl<'a> Hierarchy<'a> {
             zeros,
             sweeps: 1,
         }
+    }
+
+    /// The finest level, the others dropped.
+    pub fn into_fine(mut self) -> Level<'a> {
+        self.levels.swap_remove(0)
     }
 
     /// The finest level.
