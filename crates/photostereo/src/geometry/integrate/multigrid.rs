@@ -17,7 +17,7 @@
 //! The coarsest grid (at most 8×8) is solved exactly by a dense Cholesky factorisation, with one
 //! diagonal entry doubled in each component that nothing anchors.
 //!
-//! Storage (bounded memory, issue 12): the finest level stores nothing — its edge weights, extra
+//! Storage (bounded memory): the finest level stores nothing — its edge weights, extra
 //! diagonal and `1/d` are computed row by row from the caller's mask and per-pixel weights
 //! ([`Level::problem`], [`Level::fill`]) into a few scratch rows per thread. The coarse levels
 //! (a third of the fine cells together) store their weights in f32. Every vector is f32 (the
