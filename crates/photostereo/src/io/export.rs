@@ -3,7 +3,7 @@
 //! [`OutputFolder::commit`]; dropping an uncommitted folder removes the staging folder, so an
 //! interrupted or failed run never leaves half-written output behind.
 //!
-//! Safety of `--force`: an existing target is replaced only when the same kind of command wrote
+//! Safety of `force`: an existing target is replaced only when the same kind of command wrote
 //! it there ([`OutputKind`]: a run folder by a run, an error map by an error map; the kind is
 //! recorded in the [`MARKER`] file every output folder gets, and in a `tEXt` chunk of an output
 //! PNG) or when it is an empty folder, and never when it is, or holds, one of the command's
@@ -15,12 +15,12 @@
 //! output created in the same parent folder removes such leftovers of processes that no longer
 //! run ([`remove_stale`]).
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param, Error, Result};
 use crate::io::imageio::{write_exr_rgb, write_png16_rows};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
 
-/// The marker file in every folder photostereo writes: `--force` replaces only such folders
+/// The marker file in every folder photostereo writes: `force` replaces only such folders
 /// (or empty ones).
 pub const MARKER: &str = ".photostereo";
 /// Markers of earlier versions (`demo` wrote its own).
@@ -191,45 +191,58 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
             path: target.to_path_buf(),
         });
     }
-    let why = |m: String| Err(Error::file(target, format!("--force refused: {m}")));
+    let why = |m: String| {
+        Err(Error::file(
+            target,
+            format!("{} refused: {m}", param("force")),
+        ))
+    };
     let t = resolved(target);
     for input in inputs {
         let i = resolved(input);
         if i == t {
-            return why("it is an input of this command; choose another output (-o)".into());
+            return why(format!(
+                "it is an input of this command; choose another {}",
+                param("output")
+            ));
         }
         if i.starts_with(&t) {
             return why(format!(
-                "it holds an input of this command ({}); choose another output (-o)",
-                input.display()
+                "it holds an input of this command ({}); choose another {}",
+                input.display(),
+                param("output")
             ));
         }
     }
     if meta.file_type().is_symlink() {
-        return why(
-            "it is a symbolic link; --force replaces only a folder that photostereo wrote or an empty folder"
-                .to_string(),
-        );
+        return why(format!(
+            "it is a symbolic link; {} replaces only a folder that photostereo wrote or an empty folder",
+            param("force")
+        ));
     }
     if !meta.is_dir() {
-        return why(
-            "it is a file, not a folder; --force replaces only a folder that photostereo wrote or an empty folder"
-                .into(),
-        );
+        return why(format!(
+            "it is a file, not a folder; {} replaces only a folder that photostereo wrote or an empty folder",
+            param("force")
+        ));
     }
     if has_marker(target) {
         return match marker_kind(target) {
             Some(k) if k == kind => Ok(()),
             Some(k) => why(format!(
-                "it holds a {} folder, and --force replaces only a {} folder; \
-                 choose another output (-o)",
+                "it holds a {} folder, and {} replaces only a {} folder; \
+                 choose another {}",
                 k.name(),
-                kind.name()
+                param("force"),
+                kind.name(),
+                param("output")
             )),
             None => why(format!(
-                "an earlier photostereo wrote it without recording what it holds, and --force \
-                 replaces only a {} folder; remove it yourself or choose another output (-o)",
-                kind.name()
+                "an earlier photostereo wrote it without recording what it holds, and {} \
+                 replaces only a {} folder; remove it yourself or choose another {}",
+                param("force"),
+                kind.name(),
+                param("output")
             )),
         };
     }
@@ -423,7 +436,7 @@ impl OutputFolder {
         std::fs::write(
             folder.file(MARKER),
             format!(
-                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n\
+                "written by photostereo {} on host {} (process {}); photostereo may replace this folder when forced\n\
                  {MARKER_KIND}{}\n",
                 env!("CARGO_PKG_VERSION"),
                 host_name(),
@@ -496,7 +509,7 @@ impl Drop for OutputFolder {
 
 /// One output PNG written under a temporary name beside it (`.NAME.tmp-PID`) and renamed into
 /// place by [`commit`](OutputFile::commit), which first records its [`OutputKind`] in a `tEXt`
-/// chunk; removed when dropped uncommitted or on a signal. `--force` replaces an existing file
+/// chunk; removed when dropped uncommitted or on a signal. `force` replaces an existing file
 /// only when it is a PNG that the same kind of command wrote (or empty), and never one of the
 /// inputs.
 #[derive(Debug)]
@@ -574,7 +587,12 @@ fn check_output_file(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pa
             path: target.to_path_buf(),
         });
     }
-    let why = |m: &str| Err(Error::file(target, format!("--force refused: {m}")));
+    let why = |m: &str| {
+        Err(Error::file(
+            target,
+            format!("{} refused: {m}", param("force")),
+        ))
+    };
     let t = resolved(target);
     if inputs.iter().any(|i| resolved(i) == t) {
         return why("it is an input of this command; choose another output file");
@@ -586,7 +604,8 @@ fn check_output_file(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pa
         return Ok(());
     }
     let replaces = format!(
-        "--force replaces only a PNG that photostereo wrote as {}",
+        "{} replaces only a PNG that photostereo wrote as {}",
+        param("force"),
         kind.name()
     );
     match png_kind(target) {

@@ -183,7 +183,7 @@ impl RunFolder {
                     if found.is_none() {
                         notes.push(format!(
                             "the ground truth named in report.json ({}) was not found; \
-                             no error layer (give it with --gt)",
+                             no error layer (give the ground truth, `gt`)",
                             p.display()
                         ));
                     }

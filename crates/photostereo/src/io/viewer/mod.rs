@@ -282,7 +282,7 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
     std::fs::rename(&tmp, &index).map_err(|e| Error::io(&index, e))?;
     if lights.is_none() && n_lights.is_some() {
         notes.push(
-            "light directions unknown (give --lights FILE): the probe lists lights by number only"
+            "light directions unknown (give the light directions, `lights`): the probe lists lights by number only"
                 .into(),
         );
     }
