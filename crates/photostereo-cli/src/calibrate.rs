@@ -4,12 +4,14 @@
 use crate::common::{print_json, OutputOpts};
 use anyhow::{Context, Result};
 use clap::Args;
+use photostereo::base::progress::Progress;
 use photostereo::calibrate::{
-    calibrate, matte_intensities, sphere_circle, CalibrationOptions, HighlightOptions,
+    calibrate, matte_intensities, sphere_circle, Calibration, CalibrationOptions, HighlightOptions,
 };
 use photostereo::io::calibration_figure::calibration_figure;
 use photostereo::io::export::{write_json, OutputFolder, OutputKind};
 use photostereo::io::layouts::sphere::SphereFiles;
+use photostereo::model::lights::Lights;
 use std::path::PathBuf;
 
 #[derive(Args, Debug)]
@@ -48,21 +50,7 @@ pub struct CalibrateArgs {
 }
 
 pub fn main(a: CalibrateArgs) -> Result<()> {
-    if !(a.min_contrast > 0.0 && a.min_contrast < 1.0) {
-        anyhow::bail!(
-            "--min-contrast {}: expected a value in (0, 1)",
-            a.min_contrast
-        );
-    }
-    if !(0.0..=1.0).contains(&a.min_confidence) {
-        anyhow::bail!(
-            "--min-confidence {}: expected a value in [0, 1]",
-            a.min_confidence
-        );
-    }
-    if a.min_blob_pixels == 0 {
-        anyhow::bail!("--min-blob-pixels 0: expected at least 1");
-    }
+    check_args(&a)?;
     let mut files = SphereFiles::resolve(&a.input)?;
     if let Some(m) = &a.mask {
         files.mask = Some(m.clone());
@@ -97,43 +85,19 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
         &options,
     )?;
     if !a.out.quiet {
-        for n in &files.notes {
-            eprintln!("note: {n}");
-        }
-        for w in &cal.warnings {
-            match w.image {
-                Some(k) => eprintln!(
-                    "warning: image {} ({}): {}",
-                    k + 1,
-                    files.images[k].display(),
-                    w.message
-                ),
-                None => eprintln!("warning: {}", w.message),
-            }
-        }
+        print_warnings(&files, &cal);
     }
-    let mut lights = cal.to_lights()?;
+    let lights = cal.to_lights()?;
     let rank_note = lights.check_rank().err().map(|e| e.to_string());
     if let (Some(n), false) = (&rank_note, a.out.quiet) {
         eprintln!("warning: {n}");
     }
-    let mut matte_info = None;
-    if !a.matte.is_empty() {
-        let mut mfiles = SphereFiles::resolve(&a.matte).context("--matte")?;
-        if let Some(m) = &a.matte_mask {
-            mfiles.mask = Some(m.clone());
-        }
-        let mloaded = mfiles.load(&progress).context("--matte")?;
-        let (fit, source) = sphere_circle(&mloaded).context("--matte")?;
-        let intensities = matte_intensities(&mloaded.images, &fit.circle, &lights.directions)
-            .context("--matte")?;
-        lights = lights.with_intensities(intensities)?;
-        matte_info = Some(serde_json::json!({
-            "images": mfiles.images.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
-            "sphere": fit,
-            "sphere_source": source,
-        }));
-    }
+    let (lights, matte_info) = if a.matte.is_empty() {
+        (lights, None)
+    } else {
+        let (lights, info) = matte_intensities_of(&a, lights, &progress)?;
+        (lights, Some(info))
+    };
     photostereo::io::light_files::write_directions(&lights, &folder.file("light_directions.txt"))?;
     if matte_info.is_some() {
         photostereo::io::light_files::write_intensities(
@@ -178,53 +142,112 @@ pub fn main(a: CalibrateArgs) -> Result<()> {
         v["output"] = serde_json::Value::from(target.display().to_string());
         print_json(&v);
     } else if a.out.text() {
-        let c = cal.sphere.circle;
-        println!(
-            "sphere ({:?}): centre ({:.2}, {:.2}) px, radius {:.2} px, outline RMS {:.2} px",
-            cal.sphere_source, c.cx, c.cy, c.r, cal.sphere.rms_residual_px
-        );
-        println!(
-            "{:>3} {:>17} {:>28} {:>6}{}",
-            "#",
-            "highlight (x, y)",
-            "direction (x, y, z)",
-            "conf",
-            if matte_info.is_some() {
-                "  intensity"
-            } else {
-                ""
-            }
-        );
-        for (k, l) in cal.lights.iter().enumerate() {
-            let (Some(h), Some(d)) = (l.highlight, l.direction) else {
-                continue;
-            };
-            let intensity = if matte_info.is_some() {
-                format!("  {:.3}", lights.intensities[k].iter().sum::<f64>() / 3.0)
-            } else {
-                String::new()
-            };
-            println!(
-                "{:>3} ({:>7.2}, {:>7.2}) ({:>8.5}, {:>8.5}, {:>8.5}) {:>6.2}{}",
-                k + 1,
-                h.x,
-                h.y,
-                d[0],
-                d[1],
-                d[2],
-                l.confidence,
-                intensity
-            );
-        }
-        println!(
-            "wrote {} (light_directions.txt{}, calibration.json, calibration.png)",
-            target.display(),
-            if matte_info.is_some() {
-                ", light_intensities.txt"
-            } else {
-                ""
-            }
-        );
+        print_table(&cal, &lights, matte_info.is_some(), &target);
     }
     Ok(())
+}
+
+/// The option values' domains, checked before any file is read.
+fn check_args(a: &CalibrateArgs) -> Result<()> {
+    if !(a.min_contrast > 0.0 && a.min_contrast < 1.0) {
+        anyhow::bail!(
+            "--min-contrast {}: expected a value in (0, 1)",
+            a.min_contrast
+        );
+    }
+    if !(0.0..=1.0).contains(&a.min_confidence) {
+        anyhow::bail!(
+            "--min-confidence {}: expected a value in [0, 1]",
+            a.min_confidence
+        );
+    }
+    if a.min_blob_pixels == 0 {
+        anyhow::bail!("--min-blob-pixels 0: expected at least 1");
+    }
+    Ok(())
+}
+
+/// The layout's notes and the calibration's warnings on stderr, each image by number and file.
+fn print_warnings(files: &SphereFiles, cal: &Calibration) {
+    for n in &files.notes {
+        eprintln!("note: {n}");
+    }
+    for w in &cal.warnings {
+        match w.image {
+            Some(k) => eprintln!(
+                "warning: image {} ({}): {}",
+                k + 1,
+                files.images[k].display(),
+                w.message
+            ),
+            None => eprintln!("warning: {}", w.message),
+        }
+    }
+}
+
+/// `--matte`: the lights with the relative intensities a matte sphere under them shows, and the
+/// matte capture's entry of calibration.json (its images and fitted sphere).
+fn matte_intensities_of(
+    a: &CalibrateArgs,
+    lights: Lights,
+    progress: &dyn Progress,
+) -> Result<(Lights, serde_json::Value)> {
+    let mut mfiles = SphereFiles::resolve(&a.matte).context("--matte")?;
+    if let Some(m) = &a.matte_mask {
+        mfiles.mask = Some(m.clone());
+    }
+    let mloaded = mfiles.load(progress).context("--matte")?;
+    let (fit, source) = sphere_circle(&mloaded).context("--matte")?;
+    let intensities =
+        matte_intensities(&mloaded.images, &fit.circle, &lights.directions).context("--matte")?;
+    let lights = lights.with_intensities(intensities)?;
+    let info = serde_json::json!({
+        "images": mfiles.images.iter().map(|p| p.display().to_string()).collect::<Vec<_>>(),
+        "sphere": fit,
+        "sphere_source": source,
+    });
+    Ok((lights, info))
+}
+
+/// The text summary: the sphere, one line per light found, and what was written where.
+fn print_table(cal: &Calibration, lights: &Lights, matte: bool, target: &std::path::Path) {
+    let c = cal.sphere.circle;
+    println!(
+        "sphere ({:?}): centre ({:.2}, {:.2}) px, radius {:.2} px, outline RMS {:.2} px",
+        cal.sphere_source, c.cx, c.cy, c.r, cal.sphere.rms_residual_px
+    );
+    println!(
+        "{:>3} {:>17} {:>28} {:>6}{}",
+        "#",
+        "highlight (x, y)",
+        "direction (x, y, z)",
+        "conf",
+        if matte { "  intensity" } else { "" }
+    );
+    for (k, l) in cal.lights.iter().enumerate() {
+        let (Some(h), Some(d)) = (l.highlight, l.direction) else {
+            continue;
+        };
+        let intensity = if matte {
+            format!("  {:.3}", lights.intensities[k].iter().sum::<f64>() / 3.0)
+        } else {
+            String::new()
+        };
+        println!(
+            "{:>3} ({:>7.2}, {:>7.2}) ({:>8.5}, {:>8.5}, {:>8.5}) {:>6.2}{}",
+            k + 1,
+            h.x,
+            h.y,
+            d[0],
+            d[1],
+            d[2],
+            l.confidence,
+            intensity
+        );
+    }
+    println!(
+        "wrote {} (light_directions.txt{}, calibration.json, calibration.png)",
+        target.display(),
+        if matte { ", light_intensities.txt" } else { "" }
+    );
 }

@@ -43,7 +43,7 @@ pub struct CompareArgs {
     /// Also write each method's output folder, as `run` writes it, into OUTPUT/<method>/.
     #[arg(long)]
     pub save_runs: bool,
-    /// Longest side of a panel of the figure, pixels.
+    /// Longest side of a panel of the figure, pixels (32 to 2048).
     #[arg(long, default_value_t = 360)]
     pub panel_size: usize,
     /// The algorithm's parameters, one flag each (docs/parameters.md).
@@ -80,6 +80,9 @@ pub fn main(a: CompareArgs) -> Result<()> {
     if a.light == Some(0) {
         bail!("--light 0: lights are numbered from 1");
     }
+    if !(32..=2048).contains(&a.panel_size) {
+        bail!("--panel-size {}: expected 32 to 2048 pixels", a.panel_size);
+    }
     let mut methods = Vec::new();
     for m in &a.methods {
         if !methods.contains(m) {
@@ -105,7 +108,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
         light_subset: a.light_subset.clone(),
         figure_light: a.light.map(|k| k - 1),
         save_runs: a.save_runs,
-        panel_size: a.panel_size.clamp(32, 2048),
+        panel_size: a.panel_size,
     };
     let name = capture_name(&a.input);
     let progress = a.out.progress();

@@ -17,7 +17,7 @@ mod serve;
 mod synth;
 mod view;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Parser, Subcommand};
 use std::process::ExitCode;
 
 /// Photometric stereo: normals, albedo and error figures from images under known distant lights.
@@ -92,10 +92,40 @@ fn message(e: &anyhow::Error) -> String {
     out
 }
 
+/// `command` with every option that takes a value accepting a negative number as that value
+/// (`--distance -5` reaches the option's own check instead of being read as a flag), in every
+/// subcommand.
+fn negative_values_allowed(command: clap::Command) -> clap::Command {
+    command
+        .mut_args(|a| {
+            if a.get_action().takes_values() && !a.is_positional() {
+                a.allow_negative_numbers(true)
+            } else {
+                a
+            }
+        })
+        .mut_subcommands(negative_values_allowed)
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let matches = negative_values_allowed(Cli::command()).get_matches();
+    let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     remove_output_on_signals();
-    let result = match cli.command {
+    let result = photostereo::base::machine::check_memory_limit_var()
+        .map_err(anyhow::Error::from)
+        .and_then(|()| run_command(cli.command));
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {}", message(&e));
+            ExitCode::from(2)
+        }
+    }
+}
+
+/// Runs one subcommand.
+fn run_command(command: Command) -> anyhow::Result<()> {
+    match command {
         Command::Run(a) => run::main(a),
         Command::Eval(a) => eval::main(a),
         Command::Compare(a) => compare::main(a),
@@ -105,12 +135,5 @@ fn main() -> ExitCode {
         Command::Synth(a) => synth::main(a),
         Command::View(a) => view::main(a),
         Command::ExportOpenlime(a) => view::export_main(a),
-    };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {}", message(&e));
-            ExitCode::from(2)
-        }
     }
 }

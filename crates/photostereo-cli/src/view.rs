@@ -83,6 +83,12 @@ pub fn describe(s: &ViewSummary) -> String {
 }
 
 pub fn main(a: ViewArgs) -> Result<()> {
+    if !(a.error_max > 0.0 && a.error_max <= 180.0) {
+        bail!(
+            "--error-max {}: expected an angle in (0, 180] degrees",
+            a.error_max
+        );
+    }
     if !a.folder.is_dir() {
         bail!("{}: no such folder", a.folder.display());
     }

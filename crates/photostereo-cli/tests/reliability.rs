@@ -108,14 +108,7 @@ impl Fixture {
         err
     }
     fn notes(&self, report: &str) -> Vec<String> {
-        let v: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(self.path(report)).unwrap()).unwrap();
-        v["notes"]
-            .as_array()
-            .unwrap()
-            .iter()
-            .map(|n| n.as_str().unwrap().to_string())
-            .collect()
+        common::report_notes(&self.path(report))
     }
 }
 

@@ -74,3 +74,15 @@ pub fn write_sphere_capture(dir: &Path) {
         .collect();
     write_png8(&dir.join("mask.png"), SIZE, SIZE, 1, &mask).unwrap();
 }
+
+/// The notes of a run's `report.json`.
+pub fn report_notes(report: &Path) -> Vec<String> {
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(report).unwrap()).unwrap();
+    v["notes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|n| n.as_str().unwrap().to_string())
+        .collect()
+}

@@ -400,6 +400,9 @@ fn input_panel(view: &View, capture: &Capture, k: usize) -> (Canvas, f32) {
     (panel, white)
 }
 
+/// The comparison figure for shadow light `k`: a row of the input (and the true normals), then
+/// per method its normals, shaded relief, shadow map of light `k`, highlight-light count and
+/// (with ground truth) angular error, under common colour scales; legends below.
 fn draw(
     capture: &Capture,
     truth: Option<&[[f32; 3]]>,
@@ -417,8 +420,6 @@ fn draw(
         1
     };
     let n = capture.n_lights();
-    let l = capture.lights.directions[k];
-    let slant = l[2].clamp(-1.0, 1.0).acos().to_degrees();
     let hl_max = nice_ceil(
         kept.iter()
             .map(|m| percentile(m.highlights.iter().copied(), 0.99))
@@ -435,31 +436,7 @@ fn draw(
         .collect();
     p95.sort_by(|a, b| a.total_cmp(b));
     let err_max = (!p95.is_empty()).then(|| nice_ceil(p95[(p95.len() - 1) / 2].max(1.0)));
-    let mut grid = Grid {
-        title: vec![
-            format!(
-                "{name}: {n} lights, {w}x{h}, {}-bit, {} object pixels",
-                capture.bit_depth,
-                capture.n_pixels()
-            ),
-            format!(
-                "shadows: light {} (slant {slant:.0}°); relief: depth lit from the upper left, 65° from the view",
-                k + 1
-            ),
-        ],
-        headings: vec![
-            "normals".into(),
-            "relief".into(),
-            format!("shadow, light {}", k + 1),
-            "highlight lights".into(),
-        ],
-        headings_at: 1,
-        scale: s,
-        ..Grid::default()
-    };
-    if err_max.is_some() {
-        grid.headings.push("angular error".into());
-    }
+    let mut grid = figure_frame(capture, k, name, s, err_max.is_some());
     let (input, _) = input_panel(&view, capture, k);
     let mut top = vec![input];
     if let Some(t) = truth {
@@ -484,30 +461,77 @@ fn draw(
         if let (Some(e), Some(max)) = (&m.error, err_max) {
             panels.push(view.heat_panel(e, max));
         }
-        let hl = &r.indicators.highlights;
-        let sh = &r.indicators.shadows;
-        let mut label = r.method.name().to_string();
-        if let Some(e) = &r.report.error {
-            label += &format!(": MAE {:.2}°", e.mean_deg);
-        }
-        label += &match &hl.mean_intensity_255 {
-            Some(m) => format!(
-                "  highlights {:.1}/255 ({:.1}% of pairs)",
-                m.grey,
-                100.0 * hl.share_of_pairs
-            ),
-            None => "  no highlight classified".into(),
-        };
-        label += &match &sh.mean_intensity_255 {
-            Some(m) => format!(
-                "  shadows {:.1}/255 ({:.1}%)",
-                m.grey,
-                100.0 * sh.share_of_pairs
-            ),
-            None => "  no shadow classified".into(),
-        };
-        grid.rows.push((label, panels));
+        grid.rows.push((method_label(r), panels));
     }
+    grid.footer.push(legends(results, hl_max, err_max, s));
+    grid.render()
+}
+
+/// The figure's title lines and column headings, before its rows.
+fn figure_frame(capture: &Capture, k: usize, name: &str, s: usize, with_error: bool) -> Grid {
+    let (w, h) = (capture.width, capture.height);
+    let n = capture.n_lights();
+    let l = capture.lights.directions[k];
+    let slant = l[2].clamp(-1.0, 1.0).acos().to_degrees();
+    let mut grid = Grid {
+        title: vec![
+            format!(
+                "{name}: {n} lights, {w}x{h}, {}-bit, {} object pixels",
+                capture.bit_depth,
+                capture.n_pixels()
+            ),
+            format!(
+                "shadows: light {} (slant {slant:.0}°); relief: depth lit from the upper left, 65° from the view",
+                k + 1
+            ),
+        ],
+        headings: vec![
+            "normals".into(),
+            "relief".into(),
+            format!("shadow, light {}", k + 1),
+            "highlight lights".into(),
+        ],
+        headings_at: 1,
+        scale: s,
+        ..Grid::default()
+    };
+    if with_error {
+        grid.headings.push("angular error".into());
+    }
+    grid
+}
+
+/// A method's row caption: its name, mean angular error (with ground truth), and the mean
+/// intensities and shares of the readings it classified as highlights and shadows.
+fn method_label(r: &MethodResult) -> String {
+    let hl = &r.indicators.highlights;
+    let sh = &r.indicators.shadows;
+    let mut label = r.method.name().to_string();
+    if let Some(e) = &r.report.error {
+        label += &format!(": MAE {:.2}°", e.mean_deg);
+    }
+    label += &match &hl.mean_intensity_255 {
+        Some(m) => format!(
+            "  highlights {:.1}/255 ({:.1}% of pairs)",
+            m.grey,
+            100.0 * hl.share_of_pairs
+        ),
+        None => "  no highlight classified".into(),
+    };
+    label += &match &sh.mean_intensity_255 {
+        Some(m) => format!(
+            "  shadows {:.1}/255 ({:.1}%)",
+            m.grey,
+            100.0 * sh.share_of_pairs
+        ),
+        None => "  no shadow classified".into(),
+    };
+    label
+}
+
+/// The figure's footer: the colour bars of the highlight count and of the error, and a key to
+/// the shadow maps with the mean intensity of all object pairs.
+fn legends(results: &[MethodResult], hl_max: f32, err_max: Option<f32>, s: usize) -> Canvas {
     let bar_h = 120 * s;
     let mut legends = vec![colour_bar(
         bar_h,
@@ -556,6 +580,5 @@ fn draw(
         c
     };
     legends.push(key);
-    grid.footer.push(titled(&hstack(&legends, 24 * s), "", 1));
-    grid.render()
+    titled(&hstack(&legends, 24 * s), "", 1)
 }

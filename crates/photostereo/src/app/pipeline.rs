@@ -45,12 +45,24 @@ impl FromStr for LightSubset {
         }
         let idx: std::result::Result<Vec<usize>, _> =
             s.split(',').map(|t| t.trim().parse::<usize>()).collect();
-        match idx {
-            Ok(v) if !v.is_empty() && v.iter().all(|&i| i >= 1) => Ok(LightSubset::Indices(v.into_iter().map(|i| i - 1).collect())),
-            _ => Err(Error::invalid(format!(
-                "light subset '{s}': expected 'square', 'square:SLANT' or 1-based indices like 1,5,9,13"
-            ))),
+        let v = match idx {
+            Ok(v) if !v.is_empty() && v.iter().all(|&i| i >= 1) => v,
+            _ => {
+                return Err(Error::invalid(format!(
+                    "light subset '{s}': expected 'square', 'square:SLANT' or 1-based indices like 1,5,9,13"
+                )))
+            }
+        };
+        // A light named twice would count its image twice in every fit.
+        if let Some((i, &k)) = v.iter().enumerate().find(|(i, k)| v[..*i].contains(k)) {
+            return Err(Error::invalid(format!(
+                "light subset '{s}': light {k} is named twice (positions {} and {}); each light \
+                 may be used once",
+                v.iter().position(|&x| x == k).unwrap() + 1,
+                i + 1
+            )));
         }
+        Ok(LightSubset::Indices(v.into_iter().map(|i| i - 1).collect()))
     }
 }
 

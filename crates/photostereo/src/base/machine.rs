@@ -76,7 +76,26 @@ pub fn parse_bytes(s: &str) -> Option<u64> {
         _ => (s, 0),
     };
     let v: f64 = num.trim().parse().ok()?;
-    (v.is_finite() && v >= 0.0).then(|| (v * (1u64 << shift) as f64) as u64)
+    let bytes = v * (1u64 << shift) as f64;
+    // A size beyond what 64 bits count is refused rather than saturated.
+    (v.is_finite() && v >= 0.0 && bytes < u64::MAX as f64).then_some(bytes as u64)
+}
+
+/// Checks the [`MEMORY_LIMIT_VAR`] environment variable: unset, or a size [`parse_bytes`]
+/// reads and greater than zero. Front ends call it before any work, so that a value the
+/// library cannot read is refused instead of being passed over.
+pub fn check_memory_limit_var() -> crate::Result<()> {
+    match std::env::var(MEMORY_LIMIT_VAR) {
+        Err(std::env::VarError::NotPresent) => Ok(()),
+        Ok(v) if parse_bytes(&v).is_some_and(|b| b > 0) => Ok(()),
+        Ok(v) => Err(crate::Error::invalid(format!(
+            "environment variable {MEMORY_LIMIT_VAR}={v}: expected a size in bytes such as 8G, \
+             500M or 1.5G (powers of 1024)"
+        ))),
+        Err(_) => Err(crate::Error::invalid(format!(
+            "environment variable {MEMORY_LIMIT_VAR} is not valid Unicode: expected a size such as 8G"
+        ))),
+    }
 }
 
 /// A byte count for messages: `512 B`, `3.4 MB`, `60.0 GB` (powers of 1000).
@@ -139,6 +158,9 @@ mod tests {
         assert_eq!(parse_bytes("512MiB"), Some(512 << 20));
         assert_eq!(parse_bytes("1000"), Some(1000));
         assert_eq!(parse_bytes("x"), None);
+        assert_eq!(parse_bytes("99999999999999999999T"), None);
+        assert_eq!(parse_bytes("15E"), None);
+        assert_eq!(parse_bytes("16777215T"), Some(16_777_215 << 40));
         assert_eq!(human_bytes(60_000_000_000), "60.0 GB");
         assert_eq!(human_bytes(12), "12 B");
     }

@@ -190,6 +190,59 @@ pub fn calibrate(
     mask_name: Option<&str>,
     options: &CalibrationOptions,
 ) -> Result<Calibration> {
+    let (w, h) = check_images(images, options)?;
+    let (sphere, source) = match mask {
+        Some(m) => (
+            fit_mask_circle(m, w, h, mask_name.unwrap_or("the sphere mask"))?,
+            SphereSource::Mask,
+        ),
+        None => (detect_sphere(images)?.1, SphereSource::Detected),
+    };
+    let mut warnings = sphere_warnings(&sphere, source);
+    let circle = sphere.circle;
+    let searches: Vec<HighlightSearch> = images
+        .par_iter()
+        .map(|img| find_highlight(img, &circle, &options.highlight))
+        .collect();
+    let mut lights = Vec::with_capacity(images.len());
+    for (k, search) in searches.into_iter().enumerate() {
+        let light = match search {
+            HighlightSearch::Missing(reason) => {
+                warnings.push(CalibrationWarning {
+                    image: Some(k),
+                    kind: WarningKind::Missing,
+                    message: reason,
+                });
+                LightEstimate {
+                    highlight: None,
+                    normal: None,
+                    direction: None,
+                    confidence: 0.0,
+                    confidence_parts: None,
+                }
+            }
+            HighlightSearch::Found(hl) => light_from(k, hl, &circle, options, &mut warnings),
+        };
+        lights.push(light);
+    }
+    if !lights
+        .iter()
+        .any(|l| l.direction.is_some() && l.confidence >= options.min_confidence)
+    {
+        return Err(Error::invalid(refusal(&lights, &warnings, options)));
+    }
+    Ok(Calibration {
+        width: w,
+        height: h,
+        sphere,
+        sphere_source: source,
+        lights,
+        warnings,
+    })
+}
+
+/// The images' common size; errors when there is none or `min_confidence` is outside [0, 1].
+fn check_images(images: &[Image], options: &CalibrationOptions) -> Result<(usize, usize)> {
     let first = images
         .first()
         .ok_or_else(|| Error::invalid("no sphere image given"))?;
@@ -212,13 +265,12 @@ pub fn calibrate(
             )));
         }
     }
-    let (sphere, source) = match mask {
-        Some(m) => (
-            fit_mask_circle(m, w, h, mask_name.unwrap_or("the sphere mask"))?,
-            SphereSource::Mask,
-        ),
-        None => (detect_sphere(images)?.1, SphereSource::Detected),
-    };
+    Ok((w, h))
+}
+
+/// Warnings about the sphere as a whole: cut by the image border, or a detected outline
+/// rough for its circle.
+fn sphere_warnings(sphere: &CircleFit, source: SphereSource) -> Vec<CalibrationWarning> {
     let mut warnings = Vec::new();
     if sphere.touches_frame {
         warnings.push(CalibrationWarning {
@@ -243,171 +295,167 @@ pub fn calibrate(
             ),
         });
     }
-    let circle = sphere.circle;
-    let searches: Vec<HighlightSearch> = images
-        .par_iter()
-        .map(|img| find_highlight(img, &circle, &options.highlight))
-        .collect();
+    warnings
+}
+
+/// Image `k`'s light from its highlight `hl` on the sphere `circle`: the sphere's normal there
+/// (a centroid just outside the disc, a rim highlight, is pulled onto the rim), the mirror
+/// direction ([`reflect_view`]) and the confidence; the image's problems go to `warnings`.
+fn light_from(
+    k: usize,
+    hl: Highlight,
+    circle: &Circle,
+    options: &CalibrationOptions,
+    warnings: &mut Vec<CalibrationWarning>,
+) -> LightEstimate {
+    let (mut nx, mut ny) = ((hl.x - circle.cx) / circle.r, (circle.cy - hl.y) / circle.r);
+    let rho = (nx * nx + ny * ny).sqrt();
+    if rho > 1.0 {
+        nx /= rho;
+        ny /= rho;
+    }
+    let nz = (1.0 - nx * nx - ny * ny).max(0.0).sqrt();
+    let normal = [nx, ny, nz];
+    let direction = reflect_view(normal);
     let disc_area = std::f64::consts::PI * circle.r * circle.r;
-    let mut lights = Vec::with_capacity(images.len());
-    for (k, search) in searches.into_iter().enumerate() {
-        let hl = match search {
-            HighlightSearch::Missing(reason) => {
-                warnings.push(CalibrationWarning {
-                    image: Some(k),
-                    kind: WarningKind::Missing,
-                    message: reason,
-                });
-                lights.push(LightEstimate {
-                    highlight: None,
-                    normal: None,
-                    direction: None,
-                    confidence: 0.0,
-                    confidence_parts: None,
-                });
-                continue;
-            }
-            HighlightSearch::Found(hl) => hl,
-        };
-        // A centroid just outside the disc (rim highlight) is pulled onto the rim.
-        let (mut nx, mut ny) = ((hl.x - circle.cx) / circle.r, (circle.cy - hl.y) / circle.r);
-        let rho = (nx * nx + ny * ny).sqrt();
-        if rho > 1.0 {
-            nx /= rho;
-            ny /= rho;
-        }
-        let nz = (1.0 - nx * nx - ny * ny).max(0.0).sqrt();
-        let normal = [nx, ny, nz];
-        let direction = reflect_view(normal);
-        if hl.second_blob_share >= options.highlight.doubled_mass_share {
-            let s = hl.second_blob.unwrap_or([f64::NAN; 2]);
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::Doubled,
-                message: format!(
-                    "two highlights: a second bright blob at ({:.1}, {:.1}) carries {:.0}% of the \
-                     first's weight (at ({:.1}, {:.1})); the first was used",
-                    s[0],
-                    s[1],
-                    100.0 * hl.second_blob_share,
-                    hl.x,
-                    hl.y
-                ),
-            });
-        }
-        if hl.saturated as f64 > options.highlight.max_saturated_share * disc_area {
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::Clipped,
-                message: format!(
-                    "clipped highlight: {} saturated pixels ({:.2}% of the sphere, at most {:.2}% \
-                     expected); lower the exposure",
-                    hl.saturated,
-                    100.0 * hl.saturated as f64 / disc_area,
-                    100.0 * options.highlight.max_saturated_share
-                ),
-            });
-        }
-        if rho > options.near_rim {
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::NearRim,
-                message: format!(
-                    "the highlight is at {:.0}% of the radius from the centre: the direction is imprecise",
-                    100.0 * rho.min(1.0)
-                ),
-            });
-        }
-        let broad = hl.disc_share > options.highlight.max_disc_share;
-        if broad {
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::NotMirror,
-                message: format!(
-                    "not a mirror sphere's highlight: the brightest region covers {:.1}% of the \
-                     sphere's disc, a mirror's highlight of a small light at most {:.0}% (a matte \
-                     sphere's shading, or a grossly overexposed highlight?); confidence 0",
-                    100.0 * hl.disc_share,
-                    100.0 * options.highlight.max_disc_share
-                ),
-            });
-        }
-        let faint =
-            hl.significance.is_nan() || hl.significance < options.highlight.min_significance;
-        if faint {
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::Faint,
-                message: format!(
-                    "no highlight stands out of the noise: the brightest spot is {:.1}σ above the \
-                     sphere's median (σ = {:.4}), at least {:.0}σ expected; confidence 0",
-                    hl.significance, hl.noise, options.highlight.min_significance
-                ),
-            });
-        }
-        let parts = ConfidenceParts {
-            contrast: (((hl.peak - hl.background) / hl.peak.max(1e-6)) as f64).clamp(0.0, 1.0),
-            compactness: hl.compactness.clamp(0.0, 1.0).sqrt(),
-            saturation: 1.0 - 0.25 * hl.saturated as f64 / hl.pixels.max(1) as f64,
-            rim: nz,
-            uniqueness: (1.0 - hl.second_blob_share).clamp(0.0, 1.0),
-            mirror: if broad || faint { 0.0 } else { 1.0 },
-        };
-        let confidence = parts.contrast
-            * parts.compactness
-            * parts.saturation
-            * parts.rim
-            * parts.uniqueness
-            * parts.mirror;
-        if confidence < options.min_confidence && !broad && !faint {
-            let factors = [
-                ("contrast", parts.contrast),
-                ("compactness", parts.compactness),
-                ("saturation", parts.saturation),
-                ("rim", parts.rim),
-                ("uniqueness", parts.uniqueness),
-            ];
-            let weak: Vec<String> = factors
-                .iter()
-                .filter(|(_, v)| *v < 0.75)
-                .map(|(n, v)| format!("{n} {v:.2}"))
-                .collect();
-            warnings.push(CalibrationWarning {
-                image: Some(k),
-                kind: WarningKind::LowConfidence,
-                message: format!(
-                    "low confidence {confidence:.2} (below {:.2}){}: check this light's direction",
-                    options.min_confidence,
-                    if weak.is_empty() {
-                        String::new()
-                    } else {
-                        format!("; weak factors: {}", weak.join(", "))
-                    }
-                ),
-            });
-        }
-        lights.push(LightEstimate {
-            highlight: Some(hl),
-            normal: Some(normal),
-            direction: Some(direction),
-            confidence,
-            confidence_parts: Some(parts),
-        });
+    let mut warn = |kind: WarningKind, message: String| {
+        warnings.push(CalibrationWarning {
+            image: Some(k),
+            kind,
+            message,
+        })
+    };
+    let (broad, faint) = highlight_warnings(&hl, rho, disc_area, options, &mut warn);
+    let parts = ConfidenceParts {
+        contrast: (((hl.peak - hl.background) / hl.peak.max(1e-6)) as f64).clamp(0.0, 1.0),
+        compactness: hl.compactness.clamp(0.0, 1.0).sqrt(),
+        saturation: 1.0 - 0.25 * hl.saturated as f64 / hl.pixels.max(1) as f64,
+        rim: nz,
+        uniqueness: (1.0 - hl.second_blob_share).clamp(0.0, 1.0),
+        mirror: if broad || faint { 0.0 } else { 1.0 },
+    };
+    let confidence = parts.contrast
+        * parts.compactness
+        * parts.saturation
+        * parts.rim
+        * parts.uniqueness
+        * parts.mirror;
+    if confidence < options.min_confidence && !broad && !faint {
+        warn(
+            WarningKind::LowConfidence,
+            low_confidence(confidence, &parts, options),
+        );
     }
-    if !lights
+    LightEstimate {
+        highlight: Some(hl),
+        normal: Some(normal),
+        direction: Some(direction),
+        confidence,
+        confidence_parts: Some(parts),
+    }
+}
+
+/// The problems of one image's highlight, in order: doubled, clipped, near the rim (`rho` its
+/// distance from the centre in radii), too broad for a mirror, too faint for the noise; each
+/// given to `warn`. Returns (broad, faint): either sets the confidence to 0.
+fn highlight_warnings(
+    hl: &Highlight,
+    rho: f64,
+    disc_area: f64,
+    options: &CalibrationOptions,
+    warn: &mut impl FnMut(WarningKind, String),
+) -> (bool, bool) {
+    let limits = &options.highlight;
+    if hl.second_blob_share >= limits.doubled_mass_share {
+        let s = hl.second_blob.unwrap_or([f64::NAN; 2]);
+        warn(
+            WarningKind::Doubled,
+            format!(
+                "two highlights: a second bright blob at ({:.1}, {:.1}) carries {:.0}% of the \
+                 first's weight (at ({:.1}, {:.1})); the first was used",
+                s[0],
+                s[1],
+                100.0 * hl.second_blob_share,
+                hl.x,
+                hl.y
+            ),
+        );
+    }
+    if hl.saturated as f64 > limits.max_saturated_share * disc_area {
+        warn(
+            WarningKind::Clipped,
+            format!(
+                "clipped highlight: {} saturated pixels ({:.2}% of the sphere, at most {:.2}% \
+                 expected); lower the exposure",
+                hl.saturated,
+                100.0 * hl.saturated as f64 / disc_area,
+                100.0 * limits.max_saturated_share
+            ),
+        );
+    }
+    if rho > options.near_rim {
+        warn(
+            WarningKind::NearRim,
+            format!(
+                "the highlight is at {:.0}% of the radius from the centre: the direction is imprecise",
+                100.0 * rho.min(1.0)
+            ),
+        );
+    }
+    let broad = hl.disc_share > limits.max_disc_share;
+    if broad {
+        warn(
+            WarningKind::NotMirror,
+            format!(
+                "not a mirror sphere's highlight: the brightest region covers {:.1}% of the \
+                 sphere's disc, a mirror's highlight of a small light at most {:.0}% (a matte \
+                 sphere's shading, or a grossly overexposed highlight?); confidence 0",
+                100.0 * hl.disc_share,
+                100.0 * limits.max_disc_share
+            ),
+        );
+    }
+    let faint = hl.significance.is_nan() || hl.significance < limits.min_significance;
+    if faint {
+        warn(
+            WarningKind::Faint,
+            format!(
+                "no highlight stands out of the noise: the brightest spot is {:.1}σ above the \
+                 sphere's median (σ = {:.4}), at least {:.0}σ expected; confidence 0",
+                hl.significance, hl.noise, limits.min_significance
+            ),
+        );
+    }
+    (broad, faint)
+}
+
+/// The warning of a light below the confidence threshold, naming its weak factors.
+fn low_confidence(
+    confidence: f64,
+    parts: &ConfidenceParts,
+    options: &CalibrationOptions,
+) -> String {
+    let factors = [
+        ("contrast", parts.contrast),
+        ("compactness", parts.compactness),
+        ("saturation", parts.saturation),
+        ("rim", parts.rim),
+        ("uniqueness", parts.uniqueness),
+    ];
+    let weak: Vec<String> = factors
         .iter()
-        .any(|l| l.direction.is_some() && l.confidence >= options.min_confidence)
-    {
-        return Err(Error::invalid(refusal(&lights, &warnings, options)));
-    }
-    Ok(Calibration {
-        width: w,
-        height: h,
-        sphere,
-        sphere_source: source,
-        lights,
-        warnings,
-    })
+        .filter(|(_, v)| *v < 0.75)
+        .map(|(n, v)| format!("{n} {v:.2}"))
+        .collect();
+    format!(
+        "low confidence {confidence:.2} (below {:.2}){}: check this light's direction",
+        options.min_confidence,
+        if weak.is_empty() {
+            String::new()
+        } else {
+            format!("; weak factors: {}", weak.join(", "))
+        }
+    )
 }
 
 /// Why no light of a capture is confident: the image counts and figures of each kind of

@@ -79,6 +79,15 @@ impl OutputKind {
         }
     }
 
+    /// "a" or "an", as the name reads.
+    fn article(self) -> &'static str {
+        if self.name().starts_with(['a', 'e', 'i', 'o', 'u']) {
+            "an"
+        } else {
+            "a"
+        }
+    }
+
     fn from_name(name: &str) -> Option<Self> {
         Self::ALL.into_iter().find(|k| k.name() == name.trim())
     }
@@ -202,13 +211,13 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
         let i = resolved(input);
         if i == t {
             return why(format!(
-                "it is an input of this command; choose another {}",
+                "it is an input of this command; choose another output ({})",
                 param("output")
             ));
         }
         if i.starts_with(&t) {
             return why(format!(
-                "it holds an input of this command ({}); choose another {}",
+                "it holds an input of this command ({}); choose another output ({})",
                 input.display(),
                 param("output")
             ));
@@ -230,17 +239,20 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
         return match marker_kind(target) {
             Some(k) if k == kind => Ok(()),
             Some(k) => why(format!(
-                "it holds a {} folder, and {} replaces only a {} folder; \
-                 choose another {}",
+                "it holds {} {} folder, and {} replaces only {} {} folder; \
+                 choose another output ({})",
+                k.article(),
                 k.name(),
                 param("force"),
+                kind.article(),
                 kind.name(),
                 param("output")
             )),
             None => why(format!(
                 "an earlier photostereo wrote it without recording what it holds, and {} \
-                 replaces only a {} folder; remove it yourself or choose another {}",
+                 replaces only {} {} folder; remove it yourself or choose another output ({})",
                 param("force"),
+                kind.article(),
                 kind.name(),
                 param("output")
             )),
@@ -255,7 +267,8 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
     }
     why(format!(
         "the folder was not written by photostereo (it has no {MARKER} marker) and is not empty; \
-         remove it yourself or choose another output (-o)"
+         remove it yourself or choose another output ({})",
+        param("output")
     ))
 }
 
@@ -423,7 +436,13 @@ impl OutputFolder {
         if staging.exists() {
             std::fs::remove_dir_all(&staging).map_err(|e| Error::io(&staging, e))?;
         }
-        std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
+        // The user named the target: a parent they cannot write in is reported on it.
+        std::fs::create_dir(&staging).map_err(|e| {
+            Error::file(
+                target,
+                format!("cannot write the output in {}: {e}", parent.display()),
+            )
+        })?;
         register(&staging);
         let folder = OutputFolder {
             target: target.to_path_buf(),

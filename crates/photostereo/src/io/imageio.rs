@@ -429,6 +429,9 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
             .max(declared.decode_bytes())
             .max(shown.decode_bytes());
     }
+    if let Some(grey) = meta.headers.first().and_then(grey_channel) {
+        return decode_exr_grey(bytes, &grey);
+    }
     let mut reader =
         image::ImageReader::with_format(Cursor::new(bytes), image::ImageFormat::OpenExr);
     let mut limits = image::Limits::no_limits();
@@ -447,6 +450,72 @@ fn decode_exr(bytes: &[u8]) -> Result<Image, String> {
         channels: 3,
         bit_depth: 32,
         data: rgb.into_raw(),
+    })
+}
+
+/// The channel of a grey OpenEXR: none of R, G and B, and either a `Y` channel or a single
+/// channel of any name (how photostereo writes `depth.exr`).
+fn grey_channel(header: &exr::meta::header::Header) -> Option<String> {
+    let names: Vec<String> = header
+        .channels
+        .list
+        .iter()
+        .map(|c| c.name.to_string())
+        .collect();
+    if names.iter().any(|n| matches!(n.as_str(), "R" | "G" | "B")) {
+        return None;
+    }
+    names
+        .iter()
+        .find(|n| n.as_str() == "Y")
+        .or(if names.len() == 1 {
+            names.first()
+        } else {
+            None
+        })
+        .cloned()
+}
+
+/// Decodes the channel `name` of a grey OpenEXR (sizes already checked) as a one-channel image
+/// over its data window, which must be the display window.
+fn decode_exr_grey(bytes: &[u8], name: &str) -> Result<crate::model::image::Image, String> {
+    type Picture = crate::model::image::Image;
+    use exr::prelude::{read, FlatSamples, ReadChannels, ReadLayers};
+    let image = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .all_channels()
+        .first_valid_layer()
+        .all_attributes()
+        .from_buffered(Cursor::new(bytes))
+        .map_err(|e| format!("corrupt or unsupported OpenEXR: {e}"))?;
+    let layer = &image.layer_data;
+    if layer.size != image.attributes.display_window.size {
+        return Err(format!(
+            "grey OpenEXR whose data window ({}×{}) is not its display window ({}×{})",
+            layer.size.width(),
+            layer.size.height(),
+            image.attributes.display_window.size.width(),
+            image.attributes.display_window.size.height()
+        ));
+    }
+    let channel = layer
+        .channel_data
+        .list
+        .iter()
+        .find(|c| c.name.to_string() == name)
+        .ok_or_else(|| format!("OpenEXR channel {name} missing"))?;
+    let data: Vec<f32> = match &channel.sample_data {
+        FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+        FlatSamples::F32(v) => v.clone(),
+        FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+    };
+    Ok(Picture {
+        width: layer.size.width(),
+        height: layer.size.height(),
+        channels: 1,
+        bit_depth: 32,
+        data,
     })
 }
 
@@ -680,7 +749,9 @@ pub fn write_exr_grey(path: &Path, width: usize, height: usize, data: &[f32]) ->
         .map_err(|e| crate::base::error::Error::file(path, format!("OpenEXR encoding failed: {e}")))
 }
 
-/// Reads a mask image: a pixel is inside when any channel is non-zero.
+/// Reads a mask image: a pixel is inside when any colour channel is non-zero. A PNG whose
+/// colour channels are black everywhere but whose alpha channel is not (a cut-out saved with
+/// the object in alpha only) is read from its alpha: inside where alpha is non-zero.
 pub fn read_mask(path: &Path) -> Result<(usize, usize, Vec<bool>)> {
     let img = read_image(path)?;
     let mask: Vec<bool> = img
@@ -688,12 +759,91 @@ pub fn read_mask(path: &Path) -> Result<(usize, usize, Vec<bool>)> {
         .chunks_exact(img.channels)
         .map(|px| px.iter().any(|v| *v > 0.0))
         .collect();
-    Ok((img.height, img.width, mask))
+    if mask.iter().any(|&m| m) {
+        return Ok((img.height, img.width, mask));
+    }
+    let bytes = crate::io::limits::read_file(path)?;
+    match png_alpha(&bytes) {
+        Some(alpha) if alpha.len() == mask.len() && alpha.iter().any(|&a| a) => {
+            Ok((img.height, img.width, alpha))
+        }
+        _ => Ok((img.height, img.width, mask)),
+    }
+}
+
+/// The alpha channel of a PNG with one (grey or colour with alpha, or a transparency chunk) as
+/// flags, true where alpha is non-zero; `None` for other files. Sizes were checked by
+/// [`read_image`] on the same bytes.
+fn png_alpha(bytes: &[u8]) -> Option<Vec<bool>> {
+    if sniff(bytes) != Some(Format::Png) {
+        return None;
+    }
+    let mut decoder = png::Decoder::new(Cursor::new(bytes));
+    decoder.set_transformations(png::Transformations::EXPAND);
+    let mut reader = decoder.read_info().ok()?;
+    let (color, depth) = reader.output_color_type();
+    let channels = match color {
+        png::ColorType::GrayscaleAlpha => 2,
+        png::ColorType::Rgba => 4,
+        _ => return None,
+    };
+    let bytes_per_sample = if depth == png::BitDepth::Sixteen {
+        2
+    } else {
+        1
+    };
+    let mut buf = vec![0; reader.output_buffer_size()?];
+    let info = reader.next_frame(&mut buf).ok()?;
+    let stride = channels * bytes_per_sample;
+    let alpha_at = (channels - 1) * bytes_per_sample;
+    Some(
+        buf[..info.buffer_size()]
+            .chunks_exact(stride)
+            .map(|px| px[alpha_at..].iter().any(|&b| b != 0))
+            .collect(),
+    )
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_mask_with_its_object_in_alpha_only_is_read_from_alpha() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("mask.png");
+        // 3 × 2 RGBA, black everywhere, opaque at (0, 1) and (1, 2) only.
+        let mut px = vec![0u8; 3 * 2 * 4];
+        for i in [1usize, 5] {
+            px[i * 4 + 3] = 255;
+        }
+        let mut enc = png::Encoder::new(std::fs::File::create(&p).unwrap(), 3, 2);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&px).unwrap();
+        let (h, w, m) = read_mask(&p).unwrap();
+        assert_eq!((h, w), (2, 3));
+        assert_eq!(m, vec![false, true, false, false, false, true]);
+        // Colour wins where it marks the object.
+        px[0] = 255;
+        let mut enc = png::Encoder::new(std::fs::File::create(&p).unwrap(), 3, 2);
+        enc.set_color(png::ColorType::Rgba);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.write_header().unwrap().write_image_data(&px).unwrap();
+        let (_, _, m) = read_mask(&p).unwrap();
+        assert_eq!(m, vec![true, false, false, false, false, false]);
+    }
+
+    #[test]
+    fn a_grey_openexr_is_read_as_one_channel() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("depth.exr");
+        let data: Vec<f32> = (0..12).map(|i| i as f32 * 0.25 - 1.0).collect();
+        write_exr_grey(&p, 4, 3, &data).unwrap();
+        let img = read_image(&p).unwrap();
+        assert_eq!((img.width, img.height, img.channels), (4, 3, 1));
+        assert_eq!(img.data, data);
+    }
 
     #[test]
     fn png16_round_trip_keeps_full_depth() {

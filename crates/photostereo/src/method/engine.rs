@@ -135,10 +135,26 @@ pub fn prepare(capture: &mut Capture, params: &Params) -> Result<bool> {
     if !params.refine_lights {
         return Ok(false);
     }
-    crate::solve::refine::refine_capture_lights(
-        capture,
-        &crate::solve::refine::RefineParams::default(),
-    )
+    let refine = crate::solve::refine::RefineParams::default();
+    let changed = crate::solve::refine::refine_capture_lights(capture, &refine)?;
+    if !changed && capture.light_refinement.is_none() {
+        let n = capture.n_lights();
+        let why = if capture.lights.near.is_some() {
+            "they are near point lights (the refinement fits distant directions)".to_string()
+        } else if n < 6 {
+            format!("{n} lights are too few (the refinement needs six or more)")
+        } else {
+            format!(
+                "the readings do not determine them (fewer than 100 usable pixels for a light, \
+                 or a change beyond {}°)",
+                refine.max_angle_deg
+            )
+        };
+        capture.notes.push(format!(
+            "the lights were not refined: {why}; they are used as given"
+        ));
+    }
+    Ok(changed)
 }
 
 impl Params {
@@ -280,24 +296,7 @@ pub fn reconstruct_with_truth(
     progress: &dyn Progress,
 ) -> Result<Reconstruction> {
     params.validate()?;
-    let method = params.method;
-    let mut report = Report::new(method.name());
-    report.input = InputSummary::of(capture);
-    report.notes.extend(capture.notes.iter().cloned());
-    for (name, value) in params
-        .to_json()
-        .as_object()
-        .into_iter()
-        .flat_map(|m| m.iter())
-    {
-        report.param(name, value.clone());
-    }
-    if let Some(plan) = &capture.memory {
-        report.extra.insert(
-            "memory".into(),
-            serde_json::to_value(plan).unwrap_or_default(),
-        );
-    }
+    let mut report = start_report(capture, params);
     let can_detect = capture.n_lights() >= 4;
     if params.detect && !can_detect {
         report
@@ -318,27 +317,8 @@ pub fn reconstruct_with_truth(
     };
     check_cancelled(progress)?;
     if let Some(d) = &detection {
-        report.extra.insert(
-            "detection".into(),
-            serde_json::json!({
-                "noise": d.noise,
-                "light_kappa": d.noise.light_kappa(),
-                "threshold_chi2": d.threshold,
-                "confidence": d.params.confidence,
-                "unreliable_share": d.unreliable_share(),
-                "kappa_measured": crate::solve::detect::estimate_kappa_weighted(
-                    &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
-                    &d.noise.light_factor,
-                ),
-                "shadow_labels": match estimate.light_status.as_ref() {
-                    Some(s) => Some(tiled_shadow_labels(capture, &estimate, s)?),
-                    None => None,
-                },
-            }),
-        );
+        record_detection(capture, &estimate, d, &mut report)?;
     }
-    let (w, h) = (capture.width, capture.height);
-    let full_normals = || capture.scatter(&estimate.normals, 1, [0.0; 3]);
     // The recursive method's trust map is moved out of its diagnostics, not copied.
     // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
@@ -359,50 +339,7 @@ pub fn reconstruct_with_truth(
         [&mut d.highlight, &mut d.fewer_than_three, &mut d.reliable]
             .map(|map| capture.gather(&std::mem::take(map)))
     });
-    let surface = if params.integrate && capture.lights.perspective().is_some() {
-        let t = Instant::now();
-        let surface = near_integration(
-            capture,
-            params,
-            &full_normals(),
-            &capture.scatter(&trust, 1, 0.0),
-            progress,
-        )?;
-        report.extra.insert("integration".into(), surface.summary());
-        report.time("integrate", t);
-        Some(surface)
-    } else if params.integrate {
-        let t = Instant::now();
-        // The output's normal map is made after the solve: during it only the gradients,
-        // the weights and the integrator's arrays are held whole.
-        let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
-            w * h,
-            &capture.pixels,
-            &estimate.normals,
-            &|p, _| trust[p],
-        );
-        // The weighted copy of the normal map is dropped once its gradients are taken.
-        let gradients = gradients_from_normals(
-            w,
-            h,
-            &weighted,
-            Some(&capture.mask),
-            params.integration.max_slope,
-        )?;
-        drop(weighted);
-        let surface = surface_from_gradients(
-            gradients,
-            Some(&weights),
-            params.integration.method.integrator().as_ref(),
-            params.integration.max_slope,
-            progress,
-        )?;
-        report.extra.insert("integration".into(), surface.summary());
-        report.time("integrate", t);
-        Some(surface)
-    } else {
-        None
-    };
+    let surface = final_surface(capture, params, &estimate, &trust, progress, &mut report)?;
     let trust = capture.scatter(&trust, 1, 0.0);
     if let (Some(d), Some([highlight, few, reliable])) = (diagnostics.as_mut(), flags_at_mask) {
         d.highlight = capture.scatter(&highlight, 1, false);
@@ -410,7 +347,7 @@ pub fn reconstruct_with_truth(
         d.reliable = capture.scatter(&reliable, 1, false);
     }
     // The full-frame maps replace the per-mask-pixel estimate: each freed once scattered.
-    let normals = full_normals();
+    let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
     drop(std::mem::take(&mut estimate.normals));
     let albedo = capture.scatter(&estimate.albedo, capture.channels, 0.0);
     drop(std::mem::take(&mut estimate.albedo));
@@ -423,37 +360,10 @@ pub fn reconstruct_with_truth(
         estimate.light_status.take(),
     );
     crate::method::indicators::record(capture, &light_status, statuses_decided, &mut report);
-    let recursive = diagnostics.map(|d| {
-        let few = d.fewer_than_three.iter().filter(|&&f| f).count();
-        report.extra.insert(
-            "recursive".into(),
-            serde_json::json!({
-                "iterations": d.iterations,
-                "fewer_than_three_pixels": few,
-                "fallback": d.fallback,
-                "converged": d.converged,
-                "final_change": d.final_change,
-                "stop_reason": d.stop_reason,
-                "surface_prior": d.surface_prior,
-            }),
-        );
-        if !d.converged {
-            report.notes.push(format!("recursive: {}", d.stop_reason));
-        }
-        report
-            .extra
-            .insert("fewer_than_three_pixels".into(), few.into());
-        RecursiveMaps {
-            shadows: d.shadows,
-            highlight: d.highlight,
-            fewer_than_three: d.fewer_than_three,
-            reliable: d.reliable,
-            iterations: d.iterations,
-        }
-    });
+    let recursive = diagnostics.map(|d| recursive_maps(d, &mut report));
     Ok(Reconstruction {
-        width: w,
-        height: h,
+        width: capture.width,
+        height: capture.height,
         channels: capture.channels,
         n_lights: capture.n_lights(),
         albedo,
@@ -474,6 +384,143 @@ pub fn reconstruct_with_truth(
         error_map: None,
         report,
     })
+}
+
+/// The report of a reconstruction before it runs: the method, the input, the capture's notes,
+/// every parameter and the memory plan.
+fn start_report(capture: &Capture, params: &Params) -> Report {
+    let mut report = Report::new(params.method.name());
+    report.input = InputSummary::of(capture);
+    report.notes.extend(capture.notes.iter().cloned());
+    for (name, value) in params
+        .to_json()
+        .as_object()
+        .into_iter()
+        .flat_map(|m| m.iter())
+    {
+        report.param(name, value.clone());
+    }
+    if let Some(plan) = &capture.memory {
+        report.extra.insert(
+            "memory".into(),
+            serde_json::to_value(plan).unwrap_or_default(),
+        );
+    }
+    report
+}
+
+/// The report's `detection` entry: the noise model, the test's threshold and confidence, the
+/// unreliable share, κ as measured on the capture, and the labels of the shadowed readings.
+fn record_detection(
+    capture: &Capture,
+    estimate: &Estimate,
+    d: &Detection,
+    report: &mut Report,
+) -> Result<()> {
+    report.extra.insert(
+        "detection".into(),
+        serde_json::json!({
+            "noise": d.noise,
+            "light_kappa": d.noise.light_kappa(),
+            "threshold_chi2": d.threshold,
+            "confidence": d.params.confidence,
+            "unreliable_share": d.unreliable_share(),
+            "kappa_measured": crate::solve::detect::estimate_kappa_weighted(
+                &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
+                &d.noise.light_factor,
+            ),
+            "shadow_labels": match estimate.light_status.as_ref() {
+                Some(s) => Some(tiled_shadow_labels(capture, estimate, s)?),
+                None => None,
+            },
+        }),
+    );
+    Ok(())
+}
+
+/// The final integration of the estimate's normals with the per-mask-pixel `trust` (the same
+/// weighting rule the recursive method uses): through the camera with a perspective model,
+/// orthographic otherwise; none unless `params.integrate`.
+fn final_surface(
+    capture: &Capture,
+    params: &Params,
+    estimate: &Estimate,
+    trust: &[f32],
+    progress: &dyn Progress,
+    report: &mut Report,
+) -> Result<Option<Surface>> {
+    if !params.integrate {
+        return Ok(None);
+    }
+    let (w, h) = (capture.width, capture.height);
+    let t = Instant::now();
+    let surface = if capture.lights.perspective().is_some() {
+        near_integration(
+            capture,
+            params,
+            &capture.scatter(&estimate.normals, 1, [0.0; 3]),
+            &capture.scatter(trust, 1, 0.0),
+            progress,
+        )?
+    } else {
+        // The output's normal map is made after the solve: during it only the gradients,
+        // the weights and the integrator's arrays are held whole.
+        let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
+            w * h,
+            &capture.pixels,
+            &estimate.normals,
+            &|p, _| trust[p],
+        );
+        // The weighted copy of the normal map is dropped once its gradients are taken.
+        let gradients = gradients_from_normals(
+            w,
+            h,
+            &weighted,
+            Some(&capture.mask),
+            params.integration.max_slope,
+        )?;
+        drop(weighted);
+        surface_from_gradients(
+            gradients,
+            Some(&weights),
+            params.integration.method.integrator().as_ref(),
+            params.integration.max_slope,
+            progress,
+        )?
+    };
+    report.extra.insert("integration".into(), surface.summary());
+    report.time("integrate", t);
+    Ok(Some(surface))
+}
+
+/// The recursive method's maps for the reconstruction, its figures into the report.
+fn recursive_maps(d: RecursiveDiagnostics, report: &mut Report) -> RecursiveMaps {
+    let few = d.fewer_than_three.iter().filter(|&&f| f).count();
+    report.extra.insert(
+        "recursive".into(),
+        serde_json::json!({
+            "iterations": d.iterations,
+            "fewer_than_three_pixels": few,
+            "fallback": d.fallback,
+            "converged": d.converged,
+            "final_change": d.final_change,
+            "stop_reason": d.stop_reason,
+            "surface_prior": d.surface_prior,
+        }),
+    );
+    if !d.converged {
+        report.notes.push(format!("recursive: {}", d.stop_reason));
+    }
+    report
+        .extra
+        .insert("fewer_than_three_pixels".into(), few.into());
+    RecursiveMaps {
+        shadows: d.shadows,
+        highlight: d.highlight,
+        fewer_than_three: d.fewer_than_three,
+        reliable: d.reliable,
+        iterations: d.iterations,
+    }
 }
 
 /// Integration trust: the recursive method's own; unreliable pixels low for the methods that
@@ -528,6 +575,79 @@ fn near_integration(
     )
 }
 
+/// One round's highlight modelling of the recursive method with near lights
+/// ([`crate::solve::near_lobe`]): the lobe fitted at the pixels whose diffuse fit fails (they
+/// are then trusted in the integration), and at the pixels left without a spare light the
+/// capture's lobe taken out (`capture_lobe`, set when the recursion has diagnostics). `result`
+/// is the round's estimate, detection and diagnostics; the detection must be there.
+fn model_highlights(
+    capture: &Capture,
+    near: &crate::model::lightmodel::NearLights,
+    params: &Params,
+    result: &mut (Estimate, Option<Detection>, Option<RecursiveDiagnostics>),
+    lobe_memory: &mut crate::solve::near_lobe::LobeMemory,
+    capture_lobe: &mut Option<crate::solve::near_lobe::SpareSummary>,
+) -> Result<crate::solve::near_lobe::LobeSummary> {
+    let d = result.1.as_ref().expect("a detection");
+    let (summary, refined) = crate::solve::near_lobe::refine(
+        capture,
+        near,
+        &mut result.0,
+        &d.noise,
+        d.params.confidence,
+        lobe_memory,
+    )?;
+    if let Some(diag) = result.2.as_mut() {
+        for (p, &i) in capture.pixels.iter().enumerate() {
+            if refined[p] {
+                diag.trust[i as usize] = 1.0;
+            }
+        }
+    }
+    // Pixels left without a spare light: the capture's lobe taken out.
+    if let Some(diag) = result.2.as_ref() {
+        let reliable: Vec<bool> = capture
+            .pixels
+            .iter()
+            .map(|&i| diag.reliable[i as usize])
+            .collect();
+        let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
+            let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
+            let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
+            Ok(crate::geometry::integrate::perspective::normals_from_z(
+                capture.width,
+                capture.height,
+                &s.depth.values,
+                &capture.mask,
+                &near.camera,
+            ))
+        };
+        *capture_lobe = crate::solve::near_lobe::correct_without_spare(
+            capture,
+            near,
+            &mut result.0,
+            &reliable,
+            &refined,
+            surface,
+        )?;
+    }
+    Ok(summary)
+}
+
+/// The mean absolute change of the depth `z` from `previous` over the mask pixels where `z` is
+/// finite (mm).
+fn mean_abs_change(capture: &Capture, z: &[f32], previous: &[f32]) -> f64 {
+    let (sum, count) = capture
+        .pixels
+        .iter()
+        .map(|&i| i as usize)
+        .filter(|&i| z[i].is_finite())
+        .fold((0f64, 0usize), |(s, c), i| {
+            (s + (z[i] as f64 - previous[i] as f64).abs(), c + 1)
+        });
+    sum / count.max(1) as f64
+}
+
 /// The near-light alternation (ALGORITHMS.md §9): from the plane Z = D, estimate with each
 /// pixel's light vectors, integrate through the camera, update X, and repeat until the mean
 /// |ΔZ| of a round falls below [`crate::model::lightmodel::DEPTH_TOLERANCE`] of D or
@@ -557,50 +677,16 @@ fn alternate(
         let t = Instant::now();
         let mut result = estimate(capture, params, truth, can_detect, progress, report)?;
         // The recursive method's highlights, modelled where no light is free of them.
-        if let (Method::Recursive, Some(d)) = (method, result.1.as_ref()) {
+        if method == Method::Recursive && result.1.is_some() {
             let t = Instant::now();
-            let (summary, refined) = crate::solve::near_lobe::refine(
+            let summary = model_highlights(
                 capture,
                 near,
-                &mut result.0,
-                &d.noise,
-                d.params.confidence,
+                params,
+                &mut result,
                 &mut lobe_memory,
+                &mut capture_lobe,
             )?;
-            if let Some(diag) = result.2.as_mut() {
-                for (p, &i) in capture.pixels.iter().enumerate() {
-                    if refined[p] {
-                        diag.trust[i as usize] = 1.0;
-                    }
-                }
-            }
-            // Pixels left without a spare light: the capture's lobe taken out.
-            if let Some(diag) = result.2.as_ref() {
-                let reliable: Vec<bool> = capture
-                    .pixels
-                    .iter()
-                    .map(|&i| diag.reliable[i as usize])
-                    .collect();
-                let surface = |est: &Estimate| -> Result<Vec<[f32; 3]>> {
-                    let normals = capture.scatter(&est.normals, 1, [0.0; 3]);
-                    let s = near_integration(capture, params, &normals, &diag.trust, &Silent)?;
-                    Ok(crate::geometry::integrate::perspective::normals_from_z(
-                        capture.width,
-                        capture.height,
-                        &s.depth.values,
-                        &capture.mask,
-                        &near.camera,
-                    ))
-                };
-                capture_lobe = crate::solve::near_lobe::correct_without_spare(
-                    capture,
-                    near,
-                    &mut result.0,
-                    &reliable,
-                    &refined,
-                    surface,
-                )?;
-            }
             report.time("highlight_lobe", t);
             lobe = Some(summary);
         }
@@ -614,15 +700,7 @@ fn alternate(
             &crate::base::progress::Silent,
         )?;
         let z = &surface.depth.values;
-        let (sum, count) = capture
-            .pixels
-            .iter()
-            .map(|&i| i as usize)
-            .filter(|&i| z[i].is_finite())
-            .fold((0f64, 0usize), |(s, c), i| {
-                (s + (z[i] as f64 - previous[i] as f64).abs(), c + 1)
-            });
-        let change = sum / count.max(1) as f64;
+        let change = mean_abs_change(capture, z, &previous);
         near.set_surface(z);
         previous.clone_from(z);
         let error = match truth {

@@ -1087,7 +1087,7 @@ mod tests {
         let sources = [
             include_str!("engine.rs"),
             include_str!("recursive.rs"),
-            include_str!("../solve/detect.rs"),
+            include_str!("../solve/detect/params.rs"),
             include_str!("../geometry/integrate/mod.rs"),
             include_str!("../geometry/shadows/mod.rs"),
         ];

@@ -31,7 +31,9 @@ use crate::geometry::integrate::{
 };
 use crate::geometry::shadows::{shadow_maps, ShadowMaps, ShadowParams};
 use crate::model::capture::Capture;
-use crate::solve::detect::{Attributor, Detection, DetectionParams, NoiseModel};
+use crate::solve::detect::{
+    AttributionScratch, Attributor, Detection, DetectionParams, NoiseModel,
+};
 use crate::solve::estimate::Estimator;
 use crate::solve::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::solve::metrics::angular_error_deg;
@@ -281,6 +283,13 @@ impl Recursive {
 
 /// Runs the recursive method. `truth` (full-frame normals, or one per mask pixel) adds error
 /// figures per iteration; `on_iteration` is called after each iteration.
+///
+/// The paper's flow chart (Fig. 2), step by step as the module's list numbers them: detect the
+/// unreliable pixels E and estimate every pixel from the lights it kept (1), then repeat —
+/// integrate the surface (2), its shadow maps (3), each pixel's usable lights (4–5) with the
+/// spatial consensus and the oscillation rule, the re-estimate with the completion of pixels
+/// left with fewer than three lights (6) — until the stop rule ends it; last, the final
+/// estimate with the surface as prior (7).
 pub fn recursive(
     capture: &Capture,
     params: &RecursiveParams,
@@ -293,100 +302,368 @@ pub fn recursive(
     params.validate()?;
     detection_params.validate()?;
     integration.validate()?;
-    let n = capture.n_lights();
-    let np = capture.n_pixels();
-    let (w, h) = (capture.width, capture.height);
-    let c = capture.channels;
-    // With three lights there is no linear test (N − 3 = 0 degrees of freedom): every pixel
-    // starts reliable and only the geometric shadows of the surface prune lights.
     let detect_start = Instant::now();
-    let (mut detection, attributor) = if n >= 4 {
-        let detection = crate::solve::tiled::detect_tiles(capture, detection_params, progress)?;
-        let attributor = Attributor::new(capture, detection_params, detection.noise.clone())?;
-        (detection, Some(attributor))
-    } else {
-        (
-            Detection::untested(
-                &*crate::solve::tiled::statistics_view(capture)?,
-                detection_params,
-            ),
-            None,
-        )
-    };
+    let (mut detection, attributor) = detect_and_attribute(capture, detection_params, progress)?;
     let detect_seconds = detect_start.elapsed().as_secs_f64();
-    let unreliable = detection.unreliable.clone();
-    let noise = detection.noise.clone();
     // The detector's statuses start the recursion: moved, not copied (the result's statuses
     // are the estimate's; the detection keeps its residuals and flags).
-    let mut light_status = std::mem::take(&mut detection.light_status);
-    let mut est = crate::solve::tiled::solve_statuses(capture, &light_status)?;
-    if !noise.light_factor.is_empty() && capture.lights.near.is_none() {
-        // Lights with their own noise factors: the estimate is the weighted fit the test made.
-        let ids: Vec<usize> = (0..np).collect();
-        resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
-    }
-    // Whether each pixel's usable lights pass the test (initially: the pixels outside E).
-    let mut consistent: Vec<bool> = unreliable.iter().map(|&u| !u).collect();
-    let mut few = vec![false; np];
-    // Pixels of `few` whose normal came from two lights and the neighbours' albedo.
-    let mut solved_two = vec![false; np];
-    let mut records = Vec::new();
-    let mut last_maps = None;
-    let mut last_depth = Vec::new();
-    let mut highlight = vec![false; np];
-    // The per-pixel decisions of the last iteration before the spatial consensus, for the
-    // hysteresis of the attribution (the statuses held as their difference from the ones the
-    // iteration ended with).
-    let (mut raw_status, mut raw_consistent, mut raw_few) = (
-        OwnStatuses::default(),
-        Vec::<bool>::new(),
-        Vec::<bool>::new(),
-    );
-    // Per pixel, the attribution's input of the last iteration as bits (see below), in
-    // `key_bytes` bytes (3 under 24 lights).
-    let key_bytes = n.div_ceil(8);
-    let mut raw_key: Vec<u8> = Vec::new();
-    let near_lights = capture.lights.near.is_some();
+    let light_status = std::mem::take(&mut detection.light_status);
+    let setting = Setting {
+        capture,
+        params,
+        detection_params,
+        integration,
+        detection: &detection,
+        attributor,
+    };
+    let mut state = Recursion::start(&setting, light_status)?;
     // The truth at the mask pixels: borrowed when given per mask pixel, gathered otherwise.
+    let (w, h) = (capture.width, capture.height);
     let truth_masked = truth
         .map(|t| crate::solve::metrics::truth_at_pixels(t, w, h, &capture.pixels))
         .transpose()?;
     progress.begin("recursive", params.max_iterations as u64);
-    // Fingerprints of the usable-light sets after each iteration (cycle detection), and the
-    // iteration that reached the smallest change so far (stall detection).
-    let mut stop = StopRule::new(params, fingerprint(&light_status));
-    // Per pixel, a fingerprint of the usable set it had before its current one, and whether
-    // it went back to that set (see the oscillation rule below).
-    let mut earlier_print = vec![0u32; np];
-    let mut oscillating = vec![false; np];
-    let mut converged = false;
-    let mut stop_reason = String::new();
+    let mut stop = StopRule::new(params, fingerprint(&state.light_status));
+    let mut records = Vec::new();
+    let (mut converged, mut stop_reason) = (false, String::new());
     for iteration in 1..=params.max_iterations {
         crate::base::progress::check_cancelled(progress)?;
         let start = Instant::now();
-        // The last iteration's shadow maps are replaced below: not kept beside the new ones.
-        drop(last_maps.take());
-        // 2. The surface.
-        let masked_trust = pixel_trust(
-            &est,
-            &consistent,
-            &few,
-            &solved_two,
-            integration.unreliable_weight,
-        );
-        let mut masked_trust = masked_trust;
-        if near_lights {
-            exact_trust(capture, &light_status, &few, &mut masked_trust);
+        let mut record = state.iterate(&setting, iteration)?;
+        record.mean_error_deg = truth_masked
+            .as_ref()
+            .map(|t| mean_error(&state.est.normals, t));
+        record.seconds = start.elapsed().as_secs_f64();
+        on_iteration(&record);
+        progress.advance(1);
+        let change = record.changed_share;
+        records.push(record);
+        if let Some((done, reason)) =
+            stop.after(iteration, change, fingerprint(&state.light_status))
+        {
+            converged = done;
+            stop_reason = reason;
+            break;
         }
+    }
+    progress.end();
+    let (estimate, diagnostics) = state.finish(&setting, records, converged, stop_reason)?;
+    Ok(RecursiveResult {
+        estimate,
+        detection,
+        detect_seconds,
+        diagnostics,
+    })
+}
+
+/// Step 1 (paper eqs. 4–6, ALGORITHMS.md §2): the χ² test over all lights flags the
+/// non-Lambertian pixels E and attributes their faults to lights; the attributor re-runs that
+/// attribution in the iterations. With three lights there is no linear test (N − 3 = 0 degrees
+/// of freedom): every pixel starts reliable and only the geometric shadows of the surface prune
+/// lights.
+fn detect_and_attribute<'a>(
+    capture: &'a Capture,
+    detection_params: &'a DetectionParams,
+    progress: &dyn Progress,
+) -> Result<(Detection, Option<Attributor<'a>>)> {
+    if capture.n_lights() >= 4 {
+        let detection = crate::solve::tiled::detect_tiles(capture, detection_params, progress)?;
+        let attributor = Attributor::new(capture, detection_params, detection.noise.clone())?;
+        Ok((detection, Some(attributor)))
+    } else {
+        let view = crate::solve::tiled::statistics_view(capture)?;
+        Ok((Detection::untested(&view, detection_params), None))
+    }
+}
+
+/// What every step of the recursion reads and none changes: the capture, the parameters, the
+/// initial detection and the attribution.
+struct Setting<'a> {
+    capture: &'a Capture,
+    params: &'a RecursiveParams,
+    detection_params: &'a DetectionParams,
+    integration: &'a IntegrationParams,
+    /// The initial test: E (`unreliable`), the noise model and the verdicts on the lights its
+    /// attribution kept (`settled`).
+    detection: &'a Detection,
+    /// The attribution of faults to lights (none with three lights).
+    attributor: Option<Attributor<'a>>,
+}
+
+impl Setting<'_> {
+    fn n_lights(&self) -> usize {
+        self.capture.n_lights()
+    }
+
+    fn n_pixels(&self) -> usize {
+        self.capture.n_pixels()
+    }
+
+    fn near_lights(&self) -> bool {
+        self.capture.lights.near.is_some()
+    }
+
+    /// Bytes of one pixel's shadow bits and attribution key (3 under 24 lights).
+    fn key_bytes(&self) -> usize {
+        self.n_lights().div_ceil(8)
+    }
+}
+
+/// The recursion's state between iterations, per mask pixel: the usable lights and the
+/// estimate made from them, the test's verdict on them, and what the hysteresis and the
+/// oscillation rule remember of earlier iterations.
+struct Recursion {
+    /// The usable lights, `n` statuses per pixel.
+    light_status: Vec<u8>,
+    est: Estimate,
+    /// Whether each pixel's usable lights pass the test (initially: the pixels outside E).
+    consistent: Vec<bool>,
+    /// Pixels left with fewer than three usable lights (the paper's Fig. 13).
+    few: Vec<bool>,
+    /// Pixels of `few` whose normal came from two lights and the neighbours' albedo.
+    solved_two: Vec<bool>,
+    /// H (eq. 13): unreliable pixels no shadow explains.
+    highlight: Vec<bool>,
+    /// The pixels' own decisions of the last iteration, before the spatial consensus.
+    own: OwnDecisions,
+    /// Per pixel, a fingerprint of the usable set it had before its current one (the
+    /// oscillation rule).
+    earlier_print: Vec<u32>,
+    /// Pixels held at their set since they went back to an earlier one.
+    oscillating: Vec<bool>,
+    /// The last iteration's shadow maps.
+    last_maps: Option<ShadowMaps>,
+    /// The last intermediate surface, full frame, pixel units.
+    last_depth: Vec<f32>,
+}
+
+/// The per-pixel decisions of the last iteration before the spatial consensus, for the
+/// hysteresis of the attribution and the reuse of decisions whose input did not change.
+#[derive(Default)]
+struct OwnDecisions {
+    /// The statuses, held as their difference from the ones the iteration ended with.
+    status: OwnStatuses,
+    consistent: Vec<bool>,
+    few: Vec<bool>,
+    /// Per pixel, the attribution's input as bits (the lights the surface shadows where the
+    /// reading agrees), `key_bytes` per pixel.
+    key: Vec<u8>,
+}
+
+/// One iteration's surface: the height field and, with near lights, its normals (the light
+/// vectors follow the surface).
+struct Surface {
+    depth: crate::geometry::integrate::Depth,
+    near_normals: Option<Vec<[f32; 3]>>,
+}
+
+impl Surface {
+    /// The surface's unit normal at full-frame pixel `i`.
+    fn normal_at(&self, i: usize, capture: &Capture) -> [f32; 3] {
+        match &self.near_normals {
+            Some(map) => map[i],
+            None => normal_from_depth_at(
+                i,
+                capture.width,
+                capture.height,
+                &self.depth.values,
+                &capture.mask,
+            ),
+        }
+    }
+}
+
+/// Per mask pixel, the lights the surface shadows, as bits (`key_bytes` per pixel, bit `k % 8`
+/// of byte `k / 8` for light `k`).
+struct ShadowBits {
+    bits: Vec<u8>,
+    key_bytes: usize,
+}
+
+impl ShadowBits {
+    #[inline]
+    fn at(&self, p: usize, k: usize) -> bool {
+        self.bits[p * self.key_bytes + k / 8] >> (k % 8) & 1 != 0
+    }
+}
+
+/// The usable-light decisions of an iteration, per mask pixel.
+struct Decisions {
+    /// `n` statuses per pixel.
+    status: Vec<u8>,
+    /// The usable lights pass the χ² test.
+    consistent: Vec<bool>,
+    /// Fewer than three usable lights.
+    few: Vec<bool>,
+    /// The pixel is in H.
+    highlight: Vec<bool>,
+}
+
+/// The decisions of a run of pixels, as slices of [`Decisions`].
+struct DecisionChunk<'d> {
+    status: &'d mut [u8],
+    consistent: &'d mut [bool],
+    few: &'d mut [bool],
+    highlight: &'d mut [bool],
+}
+
+/// One pixel's decision, written in place.
+struct PixelDecision<'d> {
+    status: &'d mut [u8],
+    consistent: &'d mut bool,
+    few: &'d mut bool,
+    highlight: &'d mut bool,
+}
+
+impl Decisions {
+    /// Every light usable, nothing flagged, for `np` pixels of `n` lights.
+    fn new(np: usize, n: usize) -> Self {
+        Decisions {
+            status: vec![status::USED; np * n],
+            consistent: vec![false; np],
+            few: vec![false; np],
+            highlight: vec![false; np],
+        }
+    }
+
+    /// The decisions of mask pixels `range`, in chunks of `per` pixels.
+    fn par_chunks(
+        &mut self,
+        range: std::ops::Range<usize>,
+        per: usize,
+        n: usize,
+    ) -> impl IndexedParallelIterator<Item = DecisionChunk<'_>> {
+        self.status[range.start * n..range.end * n]
+            .par_chunks_mut(per * n)
+            .zip(self.consistent[range.clone()].par_chunks_mut(per))
+            .zip(self.few[range.clone()].par_chunks_mut(per))
+            .zip(self.highlight[range].par_chunks_mut(per))
+            .map(|(((status, consistent), few), highlight)| DecisionChunk {
+                status,
+                consistent,
+                few,
+                highlight,
+            })
+    }
+}
+
+impl DecisionChunk<'_> {
+    /// The decision of the chunk's pixel `dp`.
+    fn pixel(&mut self, dp: usize, n: usize) -> PixelDecision<'_> {
+        PixelDecision {
+            status: &mut self.status[dp * n..(dp + 1) * n],
+            consistent: &mut self.consistent[dp],
+            few: &mut self.few[dp],
+            highlight: &mut self.highlight[dp],
+        }
+    }
+}
+
+impl Recursion {
+    /// The state after step 1: every pixel estimated from the lights the detector kept.
+    fn start(setting: &Setting, light_status: Vec<u8>) -> Result<Self> {
+        let capture = setting.capture;
+        let np = setting.n_pixels();
+        let noise = &setting.detection.noise;
+        let mut est = crate::solve::tiled::solve_statuses(capture, &light_status)?;
+        if !noise.light_factor.is_empty() && !setting.near_lights() {
+            // Lights with their own noise factors: the estimate is the weighted fit the test
+            // made.
+            let ids: Vec<usize> = (0..np).collect();
+            resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
+        }
+        Ok(Recursion {
+            light_status,
+            est,
+            consistent: setting.detection.unreliable.iter().map(|&u| !u).collect(),
+            few: vec![false; np],
+            solved_two: vec![false; np],
+            highlight: vec![false; np],
+            own: OwnDecisions::default(),
+            earlier_print: vec![0u32; np],
+            oscillating: vec![false; np],
+            last_maps: None,
+            last_depth: Vec::new(),
+        })
+    }
+
+    /// One pass of the loop of Fig. 2 (steps 2–6); the record lacks the error figure and the
+    /// time, which the driver adds.
+    fn iterate(&mut self, setting: &Setting, iteration: usize) -> Result<IterationRecord> {
+        let (n, np) = (setting.n_lights(), setting.n_pixels());
+        // The last iteration's shadow maps are replaced below: not kept beside the new ones.
+        drop(self.last_maps.take());
+        // 2. The surface, and 3. its shadows.
+        let (surface, shading) = self.integrate_surface(setting)?;
+        let maps = shadows_of(setting, &surface, &shading)?;
+        drop(shading);
+        // 4–5. The usable lights: each pixel's own decisions, the neighbourhood's consensus,
+        // and the oscillation rule.
+        let (own, keys) = self.decide_usable_lights(setting, iteration, &maps)?;
+        let (mut new, own_status) = self.consensus(setting, iteration, own, keys)?;
+        self.hold_oscillating(iteration, n, &mut new);
+        // 6. The re-estimate, and the completion of the pixels left with fewer than three.
+        let changed: Vec<bool> = (0..np)
+            .into_par_iter()
+            .map(|p| usable_differs(&new.status, &self.light_status, p, n))
+            .collect();
+        let changed_pixels = changed.iter().filter(|&&x| x).count();
+        self.re_estimate(setting, new, own_status, changed)?;
+        if setting.params.fallback == Fallback::Neighbours {
+            self.fill_few(setting, &surface)?;
+        }
+        let shadowed_share =
+            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
+        let count = |v: &[bool]| v.iter().filter(|&&x| x).count();
+        let record = IterationRecord {
+            iteration,
+            changed_pixels,
+            changed_share: changed_pixels as f64 / np.max(1) as f64,
+            highlight_pixels: count(&self.highlight),
+            fewer_than_three: count(&self.few),
+            oscillating_pixels: count(&self.oscillating),
+            shadowed_share,
+            mean_error_deg: None,
+            seconds: 0.0,
+        };
+        self.last_maps = Some(maps);
+        self.last_depth = surface.depth.values;
+        Ok(record)
+    }
+
+    /// The integration trust of the current estimate per mask pixel ([`pixel_trust`]; with near
+    /// lights, exactly determined pixels by their solve's relative precision, [`exact_trust`]).
+    fn trust(&self, setting: &Setting) -> Vec<f32> {
+        let mut trust = pixel_trust(
+            &self.est,
+            &self.consistent,
+            &self.few,
+            &self.solved_two,
+            setting.integration.unreliable_weight,
+        );
+        if setting.near_lights() {
+            exact_trust(setting.capture, &self.light_status, &self.few, &mut trust);
+        }
+        trust
+    }
+
+    /// Step 2 (paper eqs. 11–12, ALGORITHMS.md §5): the normals integrated into a height field,
+    /// with low weight on the pixels of E (which fills them from their reliable surroundings)
+    /// and zero weight where fewer than three lights remain. Returns the surface and the normals
+    /// its shadows are shaded with (the estimate where it is trusted, the surface elsewhere).
+    fn integrate_surface(&mut self, setting: &Setting) -> Result<(Surface, Vec<[f32; 3]>)> {
+        let capture = setting.capture;
+        let (w, h) = (capture.width, capture.height);
+        let masked_trust = self.trust(setting);
         // Made from the mask pixels' estimate and trust: no full-frame copy of either.
         let (normals_full, weights) = crate::geometry::integrate::weighted_normals_at(
             w * h,
             &capture.pixels,
-            &est.normals,
+            &self.est.normals,
             &|p, _| masked_trust[p],
         );
         drop(masked_trust);
-        let (depth, near_normals, shading) = match capture.lights.near.as_deref() {
+        match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few
                 // pixels since, so the solver needs a fraction of its iterations. The normal
@@ -397,24 +674,28 @@ pub fn recursive(
                     normals_full,
                     &capture.mask,
                     &weights,
-                    std::mem::take(&mut last_depth),
-                    integration,
+                    std::mem::take(&mut self.last_depth),
+                    setting.integration,
                 )?;
                 // Attached shadows from the estimate where it is trusted (there the integrated
                 // normal was the estimate itself), from the surface elsewhere.
                 let mut shading = normals_from_depth(w, h, &depth.values, &capture.mask);
                 for (p, &i) in capture.pixels.iter().enumerate() {
                     if weights[i as usize] >= 1.0 {
-                        shading[i as usize] = est.normals[p];
+                        shading[i as usize] = self.est.normals[p];
                     }
                 }
-                (depth, None, shading)
+                let surface = Surface {
+                    depth,
+                    near_normals: None,
+                };
+                Ok((surface, shading))
             }
             // Near lights: the surface in mm through the camera, and the light vectors follow
             // it (ALGORITHMS.md §9).
             Some(near) => {
                 let (depth, surface_normals) =
-                    near_surface(capture, near, &normals_full, &weights, integration)?;
+                    near_surface(capture, near, &normals_full, &weights, setting.integration)?;
                 let shading: Vec<[f32; 3]> = (0..w * h)
                     .map(|i| {
                         if weights[i] >= 1.0 {
@@ -424,382 +705,485 @@ pub fn recursive(
                         }
                     })
                     .collect();
-                (depth, Some(surface_normals), shading)
+                let surface = Surface {
+                    depth,
+                    near_normals: Some(surface_normals),
+                };
+                Ok((surface, shading))
             }
+        }
+    }
+
+    /// Steps 4–5 at every pixel ([`Recursion::decide_pixel`]), tile by tile (the whole capture
+    /// at once when it is held whole): the pixels' own decisions, and their attribution keys.
+    fn decide_usable_lights(
+        &self,
+        setting: &Setting,
+        iteration: usize,
+        maps: &ShadowMaps,
+    ) -> Result<(Decisions, Vec<u8>)> {
+        let capture = setting.capture;
+        let (n, np, c) = (setting.n_lights(), setting.n_pixels(), capture.channels);
+        let key_bytes = setting.key_bytes();
+        let shadow = ShadowBits {
+            bits: maps.pixel_bits(&capture.pixels),
+            key_bytes,
         };
-        drop(weights);
-        // 3. Shadows of every light (of point lights with a near model).
-        let maps = match capture.lights.near.as_deref() {
-            None => shadow_maps(
-                &depth.values,
-                &shading,
-                &capture.mask,
-                w,
-                h,
-                &capture.lights.directions,
-                &params.shadows,
-            )?,
-            Some(near) => crate::geometry::shadows::near::near_shadow_maps(
-                near,
-                &depth.values,
-                &shading,
-                &capture.mask,
-                w,
-                h,
-                &params.shadows,
-            )?,
-        };
-        drop(shading);
-        // 4–5. Usable lights. The shadows per mask pixel as bits (`key_bytes` per pixel).
-        let shadow_bits = maps.pixel_bits(&capture.pixels);
-        let in_shadow = |p: usize, k: usize| shadow_bits[p * key_bytes + k / 8] >> (k % 8) & 1 != 0;
-        let mut new_status = vec![status::USED; np * n];
-        let mut new_consistent = vec![false; np];
-        let mut new_few = vec![false; np];
-        let mut new_highlight = vec![false; np];
-        let mut new_key = vec![0u8; np * key_bytes];
-        // Tile by tile (the whole capture at once when it is held whole): `off` is the tile's
-        // first mask pixel, `tile` its view (local indices).
+        let mut own = Decisions::new(np, n);
+        let mut keys = vec![0u8; np * key_bytes];
+        // `off` is the tile's first mask pixel, `tile` its view (local indices).
         capture.for_each_tile(|off, tile| {
             let tn = tile.n_pixels();
-            new_status[off * n..(off + tn) * n]
-                .par_chunks_mut(CHUNK * n)
-                .zip(new_consistent[off..off + tn].par_chunks_mut(CHUNK))
-                .zip(new_few[off..off + tn].par_chunks_mut(CHUNK))
-                .zip(new_highlight[off..off + tn].par_chunks_mut(CHUNK))
+            own.par_chunks(off..off + tn, CHUNK, n)
                 .zip(
-                    new_key[off * key_bytes..(off + tn) * key_bytes]
-                        .par_chunks_mut(CHUNK * key_bytes),
+                    keys[off * key_bytes..(off + tn) * key_bytes].par_chunks_mut(CHUNK * key_bytes),
                 )
                 .enumerate()
                 .for_each_init(
-                    || (vec![0f64; n], attributor.as_ref().map(|a| a.scratch())),
-                    |(grey, scratch), (chunk, ((((st, cons), fw), hl), keys))| {
-                        for dp in 0..cons.len() {
+                    || {
+                        let scratch = setting.attributor.as_ref().map(|a| a.scratch());
+                        (vec![0f64; n], scratch)
+                    },
+                    |(grey, scratch), (chunk, (mut decisions, keys))| {
+                        for dp in 0..decisions.consistent.len() {
                             let lp = chunk * CHUNK + dp;
-                            let p = off + lp;
-                            let pix = capture.pixels[p] as usize;
-                            let s = &mut st[dp * n..(dp + 1) * n];
                             channel_mean(tile.pixel_samples(lp), c, grey);
-                            // A light in the surface's shadow is dropped when its reading agrees
-                            // (at the shadow level); a clearly lit reading says the surface is off
-                            // there, and the light stays for the test to judge.
-                            let level = grey.iter().sum::<f64>() / n as f64;
-                            let dark = noise.shadow_level(detection_params, level);
-                            // The attribution's input beyond the fixed readings: the lights the
-                            // surface shadows where the reading agrees, as bits.
                             let key = &mut keys[dp * key_bytes..(dp + 1) * key_bytes];
-                            key.fill(0);
-                            for k in 0..n {
-                                if in_shadow(p, k) && grey[k] <= dark {
-                                    key[k / 8] |= 1 << (k % 8);
-                                }
-                            }
-                            // Hysteresis: a usable set that passed the test in the last
-                            // iteration and already drops every light the new surface shadows
-                            // (where the reading agrees) stays; the recursion then settles
-                            // instead of trading equally good sets between iterations.
-                            let previous = if iteration > 1 {
-                                raw_status.at(p, &light_status, n)
-                            } else {
-                                &[]
+                            let pixel = PixelInput {
+                                p: off + lp,
+                                grey,
+                                shadow: &shadow,
                             };
-                            if iteration > 1
-                                && raw_consistent[p]
-                                && !raw_few[p]
-                                && (0..n).all(|k| {
-                                    previous[k] != status::USED
-                                        || !(in_shadow(p, k) && grey[k] <= dark)
-                                })
-                            {
-                                s.copy_from_slice(previous);
-                                cons[dp] = true;
-                                hl[dp] = highlight[p];
-                                continue;
-                            }
-                            // In the first iteration, a pixel the surface shadows nowhere (where
-                            // the reading agrees) starts the attribution from every light, as
-                            // the detector did: its decisions are the detector's (distant lights).
-                            // (In the first iteration the current statuses are the detector's.)
-                            let detected = &light_status[p * n..(p + 1) * n];
-                            if iteration == 1
-                                && !near_lights
-                                && unreliable[p]
-                                && key.iter().all(|&b| b == 0)
-                                && detected.iter().filter(|&&x| x == status::USED).count() >= 3
-                            {
-                                s.copy_from_slice(detected);
-                                cons[dp] = detection.settled[p];
-                                hl[dp] = true;
-                                continue;
-                            }
-                            // The same input as in the last iteration gives the same
-                            // decisions (distant lights: the light vectors do not follow the
-                            // surface): they are reused, not recomputed.
-                            if iteration > 1
-                                && !near_lights
-                                && raw_key.get(p * key_bytes..(p + 1) * key_bytes) == Some(&*key)
-                            {
-                                s.copy_from_slice(previous);
-                                cons[dp] = raw_consistent[p];
-                                fw[dp] = raw_few[p];
-                                hl[dp] = highlight[p];
-                                continue;
-                            }
-                            let mut shadowed = 0;
-                            for (k, sk) in s.iter_mut().enumerate() {
-                                if in_shadow(p, k) && grey[k] <= dark {
-                                    *sk = status::SHADOW;
-                                    shadowed += 1;
-                                }
-                            }
-                            let count = if let (true, Some(att), Some(scratch)) =
-                                (unreliable[p], &attributor, scratch.as_mut())
-                            {
-                                hl[dp] = shadowed == 0;
-                                let (stat, count) = att.run_at(pix, grey, s, scratch);
-                                cons[dp] = count > 3 && stat <= att.threshold(count);
-                                count
-                            } else {
-                                cons[dp] = true;
-                                n - shadowed
-                            };
-                            let count = if near_lights && count == 3 {
-                                exact_dark_as_shadow(s, grey, dark)
-                            } else {
-                                count
-                            };
-                            if count < 3 {
-                                fw[dp] = true;
-                                cons[dp] = false;
-                                if params.fallback == Fallback::BrightestLights {
-                                    complete_with_brightest(s, grey, count);
-                                }
-                            }
+                            let d = decisions.pixel(dp, n);
+                            self.decide_pixel(setting, iteration, &pixel, key, scratch.as_mut(), d);
                         }
                     },
                 );
             Ok(())
         })?;
-        // Spatial consensus: a fault is a region, not a pixel (see [`crate::solve::consensus`]). The
-        // neighbourhood proposes, the test disposes: a pixel takes the filtered set only when
-        // its own readings pass the χ² test with it (labels follow the final fit); otherwise
-        // its own decisions stand.
+        Ok((own, keys))
+    }
+
+    /// Steps 4–5 at mask pixel `p`: every light in geometric shadow is dropped where its
+    /// reading agrees (at the shadow level; a clearly lit reading says the surface is off there
+    /// and the light stays for the test to judge); at the pixels of E the remaining lights are
+    /// tested again and the faulty ones dropped one by one while the χ² test fails — a light
+    /// brighter than the Lambertian prediction of the others is a highlight source, a darker
+    /// one a shadow the surface missed. The pixel is in H (eq. 13) when no shadow explains its
+    /// fault. Fewer than three usable lights: recorded, and completed with the brightest ones
+    /// under [`Fallback::BrightestLights`]. `key` receives the attribution's input beyond the
+    /// fixed readings.
+    fn decide_pixel<'a>(
+        &self,
+        setting: &Setting<'a>,
+        iteration: usize,
+        pixel: &PixelInput,
+        key: &mut [u8],
+        scratch: Option<&mut AttributionScratch<'a>>,
+        mut d: PixelDecision,
+    ) {
+        let (n, p, grey) = (setting.n_lights(), pixel.p, pixel.grey);
+        let level = grey.iter().sum::<f64>() / n as f64;
+        let dark = setting
+            .detection
+            .noise
+            .shadow_level(setting.detection_params, level);
+        // The lights the surface shadows where the reading agrees, as bits.
+        key.fill(0);
+        for k in 0..n {
+            if pixel.shadow.at(p, k) && grey[k] <= dark {
+                key[k / 8] |= 1 << (k % 8);
+            }
+        }
+        if self.reuse_decision(setting, iteration, pixel, dark, key, &mut d) {
+            return;
+        }
+        let unreliable = setting.detection.unreliable[p];
+        let s = d.status;
+        let mut shadowed = 0;
+        for (k, sk) in s.iter_mut().enumerate() {
+            if pixel.shadow.at(p, k) && grey[k] <= dark {
+                *sk = status::SHADOW;
+                shadowed += 1;
+            }
+        }
+        let count =
+            if let (true, Some(att), Some(scratch)) = (unreliable, &setting.attributor, scratch) {
+                *d.highlight = shadowed == 0;
+                let pix = setting.capture.pixels[p] as usize;
+                let (stat, count) = att.run_at(pix, grey, s, scratch);
+                *d.consistent = count > 3 && stat <= att.threshold(count);
+                count
+            } else {
+                *d.consistent = true;
+                n - shadowed
+            };
+        let count = if setting.near_lights() && count == 3 {
+            exact_dark_as_shadow(s, grey, dark)
+        } else {
+            count
+        };
+        if count < 3 {
+            *d.few = true;
+            *d.consistent = false;
+            if setting.params.fallback == Fallback::BrightestLights {
+                complete_with_brightest(s, grey, count);
+            }
+        }
+    }
+
+    /// The decisions a pixel takes over instead of attributing again (writes them into `d`
+    /// and returns true):
+    /// - hysteresis: a usable set that passed the test in the last iteration and already drops
+    ///   every light the new surface shadows (where the reading agrees) stays; the recursion
+    ///   then settles instead of trading equally good sets between iterations;
+    /// - in the first iteration, a pixel of E the surface shadows nowhere (where the reading
+    ///   agrees) keeps the detector's decisions, made from every light (distant lights);
+    /// - the same attribution input as in the last iteration gives the same decisions
+    ///   (distant lights: the light vectors do not follow the surface): reused, not recomputed.
+    fn reuse_decision(
+        &self,
+        setting: &Setting,
+        iteration: usize,
+        pixel: &PixelInput,
+        dark: f64,
+        key: &[u8],
+        d: &mut PixelDecision,
+    ) -> bool {
+        let (n, p, grey) = (setting.n_lights(), pixel.p, pixel.grey);
+        let key_bytes = setting.key_bytes();
+        let near_lights = setting.near_lights();
+        let own = &self.own;
+        let previous = if iteration > 1 {
+            own.status.at(p, &self.light_status, n)
+        } else {
+            &[]
+        };
+        if iteration > 1
+            && own.consistent[p]
+            && !own.few[p]
+            && (0..n)
+                .all(|k| previous[k] != status::USED || !(pixel.shadow.at(p, k) && grey[k] <= dark))
+        {
+            d.status.copy_from_slice(previous);
+            *d.consistent = true;
+            *d.highlight = self.highlight[p];
+            return true;
+        }
+        // (In the first iteration the current statuses are the detector's.)
+        let detected = &self.light_status[p * n..(p + 1) * n];
+        if iteration == 1
+            && !near_lights
+            && setting.detection.unreliable[p]
+            && key.iter().all(|&b| b == 0)
+            && detected.iter().filter(|&&x| x == status::USED).count() >= 3
+        {
+            d.status.copy_from_slice(detected);
+            *d.consistent = setting.detection.settled[p];
+            *d.highlight = true;
+            return true;
+        }
+        if iteration > 1
+            && !near_lights
+            && own.key.get(p * key_bytes..(p + 1) * key_bytes) == Some(key)
+        {
+            d.status.copy_from_slice(previous);
+            *d.consistent = own.consistent[p];
+            *d.few = own.few[p];
+            *d.highlight = self.highlight[p];
+            return true;
+        }
+        false
+    }
+}
+
+/// What a pixel's decision reads: its mask index, its grey readings and the surface's shadows.
+struct PixelInput<'i> {
+    p: usize,
+    grey: &'i [f64],
+    shadow: &'i ShadowBits,
+}
+
+/// Step 3 (paper eq. 13's S_k, ALGORITHMS.md §6): each light's attached shadow (n·l ≤ τ, with
+/// the `shading` normals) and cast shadow (horizon sweep) on the surface; of point lights with
+/// a near model.
+fn shadows_of(setting: &Setting, surface: &Surface, shading: &[[f32; 3]]) -> Result<ShadowMaps> {
+    let capture = setting.capture;
+    let (w, h) = (capture.width, capture.height);
+    let depth = &surface.depth.values;
+    let params = &setting.params.shadows;
+    match capture.lights.near.as_deref() {
+        None => shadow_maps(
+            depth,
+            shading,
+            &capture.mask,
+            w,
+            h,
+            &capture.lights.directions,
+            params,
+        ),
+        Some(near) => crate::geometry::shadows::near::near_shadow_maps(
+            near,
+            depth,
+            shading,
+            &capture.mask,
+            w,
+            h,
+            params,
+        ),
+    }
+}
+
+impl Recursion {
+    /// The spatial consensus of the usable lights: a fault is a region, not a pixel (see
+    /// [`crate::solve::consensus`]). The neighbourhood proposes, the test disposes: a pixel takes
+    /// the filtered set only when its own readings pass the χ² test with it (labels follow the
+    /// final fit); otherwise its own decisions stand. The pixels' `own` decisions become the
+    /// last iteration's; returns the decisions after the consensus and the own statuses.
+    fn consensus(
+        &mut self,
+        setting: &Setting,
+        iteration: usize,
+        own: Decisions,
+        keys: Vec<u8>,
+    ) -> Result<(Decisions, Vec<u8>)> {
+        let (capture, params) = (setting.capture, setting.params);
+        let (n, np) = (setting.n_lights(), setting.n_pixels());
+        let radius = params.consensus_radius;
         // From the second iteration, the filter and the settling are redone only near the
         // pixels whose own decisions changed: elsewhere their inputs are the last iteration's,
         // and so are their results (distant lights; near-light vectors follow the surface,
         // and with them the settling's fit).
-        let redo = (iteration > 1 && params.consensus_radius > 0 && !near_lights).then(|| {
+        let redo = (iteration > 1 && radius > 0 && !setting.near_lights()).then(|| {
             let seeds: Vec<bool> = (0..np)
                 .into_par_iter()
                 .map(|p| {
-                    raw_status.at(p, &light_status, n) != &new_status[p * n..(p + 1) * n]
-                        || raw_consistent[p] != new_consistent[p]
-                        || raw_few[p] != new_few[p]
+                    self.own.status.at(p, &self.light_status, n) != &own.status[p * n..(p + 1) * n]
+                        || self.own.consistent[p] != own.consistent[p]
+                        || self.own.few[p] != own.few[p]
                 })
                 .collect();
-            crate::solve::consensus::neighbourhood_of(capture, &seeds, params.consensus_radius)
+            crate::solve::consensus::neighbourhood_of(capture, &seeds, radius)
         });
         // The pixels' own decisions become the last iteration's (moved: the last ones are not
         // kept beside them); the consensus writes its result into a new array, so that three
         // status arrays at most are held (current, own, filtered).
-        drop(std::mem::take(&mut raw_status));
-        let own_status = new_status;
-        raw_consistent.clone_from(&new_consistent);
-        raw_few.clone_from(&new_few);
-        raw_key = new_key;
-        let mut new_status = if params.consensus_radius > 0 {
-            let min_kept =
-                ((detection_params.min_kept_share * n as f64).ceil() as usize).clamp(3, n.max(3));
-            let (filtered, _) = crate::solve::consensus::majority_filter_where(
-                capture,
-                &own_status,
-                params.consensus_radius,
-                min_kept,
-                redo.as_deref(),
-            );
-            filtered
-        } else {
-            own_status.clone()
-        };
-        if params.consensus_radius > 0 {
-            let redone = |p: usize| redo.as_ref().is_none_or(|r| r[p]);
-            let moved: Vec<usize> = (0..np)
-                .filter(|&p| redone(p) && usable_differs(&new_status, &own_status, p, n))
-                .collect();
-            for p in (0..np).filter(|&p| !redone(p)) {
-                new_status[p * n..(p + 1) * n].copy_from_slice(&light_status[p * n..(p + 1) * n]);
-                new_consistent[p] = consistent[p];
-                new_few[p] = few[p];
-            }
-            if let Some(att) = attributor.as_ref() {
-                let mut scratch = att.scratch();
-                let mut grey = vec![0f64; n];
-                capture.for_ids_by_tile(&moved, |sub, view| {
-                    for &p in sub {
-                        channel_mean(view.pixel_samples(p), c, &mut grey);
-                        let pix = capture.pixels[p] as usize;
-                        let s = &mut new_status[p * n..(p + 1) * n];
-                        let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
-                        if count > 3 && stat <= att.threshold(count) {
-                            new_consistent[p] = true;
-                            new_few[p] = false;
-                        } else {
-                            // The neighbours' set does not fit this pixel's readings: the
-                            // pixel's own decisions stand (the test disposes).
-                            s.copy_from_slice(&own_status[p * n..(p + 1) * n]);
-                        }
-                    }
-                    Ok(())
-                })?;
-            }
+        drop(std::mem::take(&mut self.own.status));
+        let Decisions {
+            status: own_status,
+            mut consistent,
+            mut few,
+            highlight,
+        } = own;
+        self.own.consistent.clone_from(&consistent);
+        self.own.few.clone_from(&few);
+        self.own.key = keys;
+        if radius == 0 {
+            let status = own_status.clone();
+            return Ok((
+                Decisions {
+                    status,
+                    consistent,
+                    few,
+                    highlight,
+                },
+                own_status,
+            ));
         }
-        // Oscillation: a pixel whose new usable set is the one it had before its current set
-        // goes back and forth between two sets that both pass the test as the surface moves a
-        // little between iterations (both sets the recursion's own, not the detector's). It
-        // keeps its current set (and flags) from then on: the
-        // recursion settles instead of trading them, and the change it reports is the change
-        // of the other pixels.
-        new_status
-            .par_chunks_mut(n)
-            .zip(new_consistent.par_iter_mut())
-            .zip(new_few.par_iter_mut())
-            .zip(new_highlight.par_iter_mut())
-            .zip(oscillating.par_iter_mut())
-            .zip(earlier_print.par_iter_mut())
+        let min_kept = ((setting.detection_params.min_kept_share * n as f64).ceil() as usize)
+            .clamp(3, n.max(3));
+        let (mut status, _) = crate::solve::consensus::majority_filter_where(
+            capture,
+            &own_status,
+            radius,
+            min_kept,
+            redo.as_deref(),
+        );
+        let redone = |p: usize| redo.as_ref().is_none_or(|r| r[p]);
+        let moved: Vec<usize> = (0..np)
+            .filter(|&p| redone(p) && usable_differs(&status, &own_status, p, n))
+            .collect();
+        for p in (0..np).filter(|&p| !redone(p)) {
+            status[p * n..(p + 1) * n].copy_from_slice(&self.light_status[p * n..(p + 1) * n]);
+            consistent[p] = self.consistent[p];
+            few[p] = self.few[p];
+        }
+        let mut filtered = Decisions {
+            status,
+            consistent,
+            few,
+            highlight,
+        };
+        if let Some(att) = setting.attributor.as_ref() {
+            settle_moved(capture, att, &moved, &own_status, &mut filtered)?;
+        }
+        Ok((filtered, own_status))
+    }
+
+    /// The oscillation rule: a pixel whose new usable set is the one it had before its current
+    /// set goes back and forth between two sets that both pass the test as the surface moves a
+    /// little between iterations (both sets the recursion's own, not the detector's). It keeps
+    /// its current set (and flags) from then on: the recursion settles instead of trading them,
+    /// and the change it reports is the change of the other pixels.
+    fn hold_oscillating(&mut self, iteration: usize, n: usize, new: &mut Decisions) {
+        let np = self.oscillating.len();
+        let (current, consistent) = (&self.light_status, &self.consistent);
+        let (few, highlight) = (&self.few, &self.highlight);
+        new.par_chunks(0..np, 1, n)
+            .zip(self.oscillating.par_iter_mut())
+            .zip(self.earlier_print.par_iter_mut())
             .enumerate()
-            .for_each(|(p, (((((row, cons), fw), hl), stuck), print))| {
-                let current = &light_status[p * n..(p + 1) * n];
-                if !usable_sets_differ(row, current) {
+            .for_each(|(p, ((mut chunk, stuck), print))| {
+                let d = chunk.pixel(0, n);
+                let current = &current[p * n..(p + 1) * n];
+                if !usable_sets_differ(d.status, current) {
                     return;
                 }
-                if *stuck || usable_print(row) == *print {
+                if *stuck || usable_print(d.status) == *print {
                     *stuck = true;
-                    row.copy_from_slice(current);
-                    *cons = consistent[p];
-                    *fw = few[p];
-                    *hl = highlight[p];
+                    d.status.copy_from_slice(current);
+                    *d.consistent = consistent[p];
+                    *d.few = few[p];
+                    *d.highlight = highlight[p];
                 } else if iteration > 1 {
                     // (The detector's initial sets are not the recursion's decisions: a pixel
                     // that returns to one is settling, not oscillating.)
                     *print = usable_print(current);
                 }
             });
-        let changed: Vec<bool> = (0..np)
-            .into_par_iter()
-            .map(|p| usable_differs(&new_status, &light_status, p, n))
-            .collect();
-        let changed_pixels = changed.iter().filter(|&&x| x).count();
-        // 6. Re-estimate. With distant lights a pixel's least-squares result depends only on
-        // its usable lights: only pixels whose set changed are solved again, and those the
-        // neighbour fill below rewrote in the last iteration or rewrites in this one.
+    }
+
+    /// Step 6: the new decisions replace the current ones and every pixel is estimated again
+    /// from its usable lights. With distant lights a pixel's least-squares result depends only
+    /// on its usable lights: only pixels whose set `changed` are solved again, and those the
+    /// neighbour fill rewrote in the last iteration or rewrites in this one.
+    fn re_estimate(
+        &mut self,
+        setting: &Setting,
+        new: Decisions,
+        own_status: Vec<u8>,
+        changed: Vec<bool>,
+    ) -> Result<()> {
+        let capture = setting.capture;
+        let (n, np) = (setting.n_lights(), setting.n_pixels());
         // The last statuses have served: replaced before the re-estimate, not kept beside it.
-        light_status = new_status;
-        raw_status = OwnStatuses::of(&own_status, &light_status, n);
+        self.light_status = new.status;
+        self.own.status = OwnStatuses::of(&own_status, &self.light_status, n);
         drop(own_status);
-        if near_lights {
-            est = crate::solve::tiled::solve_statuses(capture, &light_status)?;
+        if setting.near_lights() {
+            self.est = crate::solve::tiled::solve_statuses(capture, &self.light_status)?;
         } else {
             let ids: Vec<usize> = (0..np)
-                .filter(|&p| changed[p] || few[p] || new_few[p])
+                .filter(|&p| changed[p] || self.few[p] || new.few[p])
                 .collect();
             drop(changed);
-            resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
+            let factors = &setting.detection.noise.light_factor;
+            resolve_at(capture, &self.light_status, &ids, &mut self.est, factors)?;
         }
-        consistent = new_consistent;
-        few = new_few;
-        highlight = new_highlight;
-        if params.fallback == Fallback::Neighbours {
-            solved_two.fill(false);
-            let few_ids: Vec<usize> = (0..np).filter(|&p| few[p]).collect();
-            fill_from_neighbours(
-                capture,
-                &few_ids,
-                &mut est,
-                &light_status,
-                &few,
-                &consistent,
-                &|i: usize| match &near_normals {
-                    Some(map) => map[i],
-                    None => normal_from_depth_at(i, w, h, &depth.values, &capture.mask),
+        self.consistent = new.consistent;
+        self.few = new.few;
+        self.highlight = new.highlight;
+        Ok(())
+    }
+
+    /// The [`Fallback::Neighbours`] completion of the pixels left with fewer than three usable
+    /// lights, with the surface's normals.
+    fn fill_few(&mut self, setting: &Setting, surface: &Surface) -> Result<()> {
+        let capture = setting.capture;
+        self.solved_two.fill(false);
+        let few_ids: Vec<usize> = (0..self.few.len()).filter(|&p| self.few[p]).collect();
+        fill_from_neighbours(
+            capture,
+            &few_ids,
+            &mut self.est,
+            &self.light_status,
+            &self.few,
+            &self.consistent,
+            &|i: usize| surface.normal_at(i, capture),
+            &mut self.solved_two,
+        )
+    }
+
+    /// Step 7 and the result: the final estimate — each pixel's usable lights with the last
+    /// surface as a prior on its normal ([`SurfacePrior`]; distant lights, near lights keep
+    /// their least-squares estimate) — its integration trust, and the diagnostics.
+    fn finish(
+        mut self,
+        setting: &Setting,
+        records: Vec<IterationRecord>,
+        converged: bool,
+        stop_reason: String,
+    ) -> Result<(Estimate, RecursiveDiagnostics)> {
+        let (capture, params) = (setting.capture, setting.params);
+        let noise = &setting.detection.noise;
+        let surface_prior = if params.surface_prior_deg > 0.0
+            && !setting.near_lights()
+            && !self.last_depth.is_empty()
+        {
+            let scatter = usable_scatter(capture, &self.light_status, &self.few, noise)?;
+            let prior = SurfacePrior {
+                sigma_rad: params.surface_prior_deg.to_radians(),
+                noise: NoiseModel {
+                    kappa: scatter,
+                    ..noise.clone()
                 },
-                &mut solved_two,
-            )?;
-        }
-        let shadowed_share =
-            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
-        let record = IterationRecord {
-            iteration,
-            changed_pixels,
-            changed_share: changed_pixels as f64 / np.max(1) as f64,
-            highlight_pixels: highlight.iter().filter(|&&x| x).count(),
-            fewer_than_three: few.iter().filter(|&&x| x).count(),
-            oscillating_pixels: oscillating.iter().filter(|&&x| x).count(),
-            shadowed_share,
-            mean_error_deg: truth_masked.as_ref().map(|t| mean_error(&est.normals, t)),
-            seconds: start.elapsed().as_secs_f64(),
+            };
+            let (status, few, depth) = (&self.light_status, &self.few, &self.last_depth);
+            Some(prior.apply(capture, status, few, depth, &mut self.est)?)
+        } else {
+            None
         };
-        on_iteration(&record);
-        progress.advance(1);
-        let change = record.changed_share;
-        records.push(record);
-        last_maps = Some(maps);
-        last_depth = depth.values;
-        let print = fingerprint(&light_status);
-        if let Some((done, reason)) = stop.after(iteration, change, print) {
-            converged = done;
-            stop_reason = reason;
-            break;
-        }
-    }
-    progress.end();
-    // 7. The final estimate: each pixel's usable lights with the last surface as a prior on its
-    // normal (distant lights; near lights keep their least-squares estimate).
-    let surface_prior = if params.surface_prior_deg > 0.0 && !near_lights && !last_depth.is_empty()
-    {
-        let scatter = usable_scatter(capture, &light_status, &few, &noise)?;
-        let prior = SurfacePrior {
-            sigma_rad: params.surface_prior_deg.to_radians(),
-            noise: NoiseModel {
-                kappa: scatter,
-                ..noise.clone()
-            },
+        let final_trust = self.trust(setting);
+        let diagnostics = RecursiveDiagnostics {
+            trust: capture.scatter(&final_trust, 1, 0.0),
+            shadows: self.last_maps.expect("at least one iteration"),
+            highlight: capture.scatter(&self.highlight, 1, false),
+            fewer_than_three: capture.scatter(&self.few, 1, false),
+            depth: self.last_depth,
+            reliable: capture.scatter(&self.consistent, 1, false),
+            final_change: records.last().map_or(0.0, |r| r.changed_share),
+            iterations: records,
+            fallback: params.fallback,
+            converged,
+            stop_reason,
+            surface_prior,
         };
-        Some(prior.apply(capture, &light_status, &few, &last_depth, &mut est)?)
-    } else {
-        None
-    };
-    let final_trust = pixel_trust(
-        &est,
-        &consistent,
-        &few,
-        &solved_two,
-        integration.unreliable_weight,
-    );
-    let mut final_trust = final_trust;
-    if near_lights {
-        exact_trust(capture, &light_status, &few, &mut final_trust);
+        let mut est = self.est;
+        est.light_status = Some(self.light_status);
+        Ok((est, diagnostics))
     }
-    let diagnostics = RecursiveDiagnostics {
-        trust: capture.scatter(&final_trust, 1, 0.0),
-        shadows: last_maps.expect("at least one iteration"),
-        highlight: capture.scatter(&highlight, 1, false),
-        fewer_than_three: capture.scatter(&few, 1, false),
-        depth: last_depth,
-        reliable: capture.scatter(&consistent, 1, false),
-        final_change: records.last().map_or(0.0, |r| r.changed_share),
-        iterations: records,
-        fallback: params.fallback,
-        converged,
-        stop_reason,
-        surface_prior,
-    };
-    est.light_status = Some(light_status);
-    Ok(RecursiveResult {
-        estimate: est,
-        detection,
-        detect_seconds,
-        diagnostics,
+}
+
+/// The second half of the consensus at the pixels `moved` (those the filter gave another
+/// usable set): the attribution settles the filtered set against the pixel's own readings; a
+/// set that passes the χ² test is taken (the pixel is then consistent), otherwise the pixel's
+/// own decisions stand (the test disposes).
+fn settle_moved(
+    capture: &Capture,
+    att: &Attributor,
+    moved: &[usize],
+    own_status: &[u8],
+    filtered: &mut Decisions,
+) -> Result<()> {
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let mut scratch = att.scratch();
+    let mut grey = vec![0f64; n];
+    capture.for_ids_by_tile(moved, |sub, view| {
+        for &p in sub {
+            channel_mean(view.pixel_samples(p), c, &mut grey);
+            let pix = capture.pixels[p] as usize;
+            let s = &mut filtered.status[p * n..(p + 1) * n];
+            let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
+            if count > 3 && stat <= att.threshold(count) {
+                filtered.consistent[p] = true;
+                filtered.few[p] = false;
+            } else {
+                // The neighbours' set does not fit this pixel's readings: the pixel's own
+                // decisions stand (the test disposes).
+                s.copy_from_slice(&own_status[p * n..(p + 1) * n]);
+            }
+        }
+        Ok(())
     })
 }
 

@@ -143,6 +143,17 @@ pub fn interleave(planes: &[Vec<f32>], n_pixels: usize, channels: usize) -> Vec<
     samples
 }
 
+/// Refuses lights seen through a camera whose principal point lies outside the `width ×
+/// height` images ([`crate::model::lightmodel::Camera::check_frame`]).
+pub fn check_camera_frame(lights: &Lights, width: usize, height: usize) -> Result<()> {
+    match lights.perspective() {
+        Some((camera, _)) => camera
+            .check_frame(width, height)
+            .map_err(|m| Error::parameter("camera", m)),
+        None => Ok(()),
+    }
+}
+
 /// What a loader assembles a [`Capture`] from ([`Capture::from_parts`]); the fields are the
 /// capture's own.
 #[derive(Debug)]
@@ -288,6 +299,7 @@ impl Capture {
         }
         lights.check_rank()?;
         let (w, h, c) = (images[0].width, images[0].height, images[0].channels);
+        check_camera_frame(&lights, w, h)?;
         for (k, img) in images.iter().enumerate() {
             if (img.width, img.height, img.channels) != (w, h, c) {
                 return Err(Error::invalid(format!(
@@ -436,6 +448,7 @@ impl Capture {
             )));
         }
         lights.check_rank()?;
+        check_camera_frame(&lights, w, h)?;
         if let Some(m) = &mask {
             if m.dim() != (h, w) {
                 return Err(Error::invalid(format!(

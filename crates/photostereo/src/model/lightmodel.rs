@@ -49,6 +49,24 @@ impl Camera {
         Ok(Camera { fx, fy, cx, cy })
     }
 
+    /// Checks that the principal point lies in a `width × height` image (pixel centres at whole
+    /// coordinates, so the image spans −0.5 to `width` − 0.5): intrinsics of the full sensor
+    /// given with images that were cropped or binned put it elsewhere, and every ray is then
+    /// wrong. The message says how to correct K.
+    pub fn check_frame(&self, width: usize, height: usize) -> std::result::Result<(), String> {
+        let (w, h) = (width as f64, height as f64);
+        if (-0.5..=w - 0.5).contains(&self.cx) && (-0.5..=h - 0.5).contains(&self.cy) {
+            return Ok(());
+        }
+        Err(format!(
+            "principal point (cx, cy) = ({}, {}): it lies outside the {width}×{height} images, so \
+             K belongs to another image size. For a crop, subtract the crop's offset from \
+             cx and cy; for images binned by b, divide fx, fy, cx + 0.5 and cy + 0.5 by b (then \
+             subtract 0.5)",
+            self.cx, self.cy
+        ))
+    }
+
     /// The ray of pixel (col, row): ((u − cx)/fx, −(v − cy)/fy, −1), camera frame; X = Z · ray.
     #[inline]
     pub fn ray(&self, col: f64, row: f64) -> [f64; 3] {
@@ -200,6 +218,30 @@ impl NearLights {
             }
             None => vec![0.0; n],
         };
+        // Seen from the object's centre the LEDs must spread over more than the model's own
+        // precision: at a distance so large that they all arrive from one direction (1 mrad,
+        // below any rig's calibration error) no normal is determined.
+        let toward = |s: &[f64; 3]| {
+            let d = sub(*s, centre);
+            let l = norm(d);
+            [d[0] / l, d[1] / l, d[2] / l]
+        };
+        let spread = positions
+            .iter()
+            .flat_map(|a| positions.iter().map(move |b| (a, b)))
+            .map(|(a, b)| dot(toward(a), toward(b)).clamp(-1.0, 1.0).acos())
+            .fold(0.0f64, f64::max);
+        if n >= 2 && spread < 1e-3 {
+            return Err(Error::parameter(
+                "distance",
+                format!(
+                    "{mean_distance:e}: at that distance (mm) the {n} LEDs are seen within {:.4}° of one \
+                     another, a single direction that determines no normal; expected the object's \
+                     mean distance in millimetres",
+                    spread.to_degrees()
+                ),
+            ));
+        }
         let mut model = NearLights {
             camera,
             positions,

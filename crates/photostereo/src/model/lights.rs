@@ -1,5 +1,5 @@
-//! Light directions and intensities: parsing the text layouts of CONVENTIONS.md and checking
-//! that a rig can determine a normal at all.
+//! Light directions and intensities, and the check that a rig can determine a normal at all
+//! (the light files themselves are read by [`crate::io::light_files`]).
 //!
 //! Directions are unit vectors in the camera frame (x right, y up, z toward the camera), from the
 //! surface toward the distant light. Intensities are per light and per channel (R, G, B); every
@@ -12,7 +12,9 @@ use serde::Serialize;
 /// estimated with them would amplify the image noise by about that factor.
 pub const MAX_CONDITION_NUMBER: f64 = 1.0e3;
 
-/// A set of distant lights.
+/// The lights of a capture, one per image: their directions and intensities — of distant
+/// lights, or, for near point lights, the distant approximation at the object's centre — with
+/// the near-light model (`near`) and the camera (`camera`) when the rig has them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Lights {
     /// Unit directions toward each light, camera frame.

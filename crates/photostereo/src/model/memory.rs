@@ -124,9 +124,12 @@ pub struct MemoryPlan {
     pub minimum_budget: u64,
 }
 
-/// A size as `--memory-limit` takes it: whole MiB rounded up (`219M`), or GiB with one
-/// decimal from 10 GiB on, rounded up (`13.9G`).
+/// A size as `--memory-limit` takes it: bytes below 1 MiB (`1000`), whole MiB rounded up
+/// (`219M`), or GiB with one decimal from 10 GiB on, rounded up (`13.9G`).
 pub fn size_flag(bytes: u64) -> String {
+    if bytes < 1 << 20 {
+        return bytes.to_string();
+    }
     let mib = bytes.div_ceil(1 << 20);
     if mib >= 10 << 10 {
         format!("{:.1}G", (mib as f64 / 1024.0 * 10.0).ceil() / 10.0)

@@ -182,132 +182,23 @@ impl NearRendered {
     }
 }
 
-/// Renders a near-light scene.
+/// Renders a near-light scene: the object's visible point under every pixel, each LED's
+/// image of it (inverse-square fall-off, cos^μ anisotropy, attached and cast shadows, the
+/// Blinn–Phong lobe, noise and 16-bit quantisation) and the ground truth.
 pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
-    if !(16..=8192).contains(&spec.size) {
-        return Err(Error::invalid(format!(
-            "scene size {}: expected 16..=8192 pixels for a near-light scene",
-            spec.size
-        )));
-    }
-    if !(spec.distance.is_finite() && spec.distance > 0.0) {
-        return Err(Error::parameter(
-            "distance",
-            format!("{}: expected a positive distance in mm", spec.distance),
-        ));
-    }
-    if !matches!(spec.brdf, Brdf::Lambert | Brdf::BlinnPhong) {
-        return Err(Error::invalid(format!(
-            "near-light scenes render lambert or blinn-phong, not {}",
-            spec.brdf.name()
-        )));
-    }
-    if !(spec.noise_sigma.is_finite() && spec.noise_sigma >= 0.0) {
-        return Err(Error::invalid(format!(
-            "noise σ {}: expected a finite value ≥ 0",
-            spec.noise_sigma
-        )));
-    }
+    check_spec(spec)?;
     let (size, d) = (spec.size, spec.distance);
-    let r_obj = d / 6.0;
-    let f = (size as f64 / 2.0) * d / r_obj;
+    let object = NearObject {
+        kind: spec.scene,
+        d,
+        r_obj: d / 6.0,
+        pixel: 2.0 / size as f64, // one pixel in normalised units
+    };
+    let f = (size as f64 / 2.0) * d / object.r_obj;
     let c = (size as f64 - 1.0) / 2.0;
     let camera = Camera::new(f, f, c, c)?;
-    let kind = spec.scene;
-    let pixel = 2.0 / size as f64; // one pixel in normalised units
-    let mask_shape = spec.mask.unwrap_or(kind.default_mask());
-    // Height (mm, z) and gradient of the object at world (x, y).
-    let height = |x: f64, y: f64| {
-        let [g, gu, gv] = kind.surface(x / r_obj, y / r_obj, pixel);
-        (-d + r_obj * g, gu, gv)
-    };
-    // A grid of heights for the shadow march: half a pixel's footprint apart.
-    let step = r_obj * pixel / 2.0;
-    let extent = 1.6 * r_obj;
-    let gn = (2.0 * extent / step).ceil() as usize + 1;
-    let grid: Vec<f64> = (0..gn * gn)
-        .into_par_iter()
-        .map(|i| {
-            height(
-                -extent + (i % gn) as f64 * step,
-                -extent + (i / gn) as f64 * step,
-            )
-            .0
-        })
-        .collect();
-    let top = grid.iter().cloned().fold(f64::MIN, f64::max);
-    let bottom = grid.iter().cloned().fold(f64::MAX, f64::min);
-    let grid_height = |x: f64, y: f64| -> Option<f64> {
-        let gx = (x + extent) / step;
-        let gy = (y + extent) / step;
-        if gx < 0.0 || gy < 0.0 || gx >= (gn - 1) as f64 || gy >= (gn - 1) as f64 {
-            return None;
-        }
-        let (ix, iy) = (gx as usize, gy as usize);
-        let (fx, fy) = (gx - ix as f64, gy - iy as f64);
-        let at = |a: usize, b: usize| grid[b * gn + a];
-        Some(
-            (1.0 - fy) * ((1.0 - fx) * at(ix, iy) + fx * at(ix + 1, iy))
-                + fy * ((1.0 - fx) * at(ix, iy + 1) + fx * at(ix + 1, iy + 1)),
-        )
-    };
-    // The visible point of every pixel: march along the ray from in front of the object's top
-    // to its bottom, bisect the first crossing.
-    struct Hit {
-        x: [f64; 3],
-        n: [f64; 3],
-        inside: bool,
-        albedo: [f64; 3],
-    }
-    let hits: Vec<Option<Hit>> = (0..size * size)
-        .into_par_iter()
-        .map(|i| {
-            let r = camera.ray((i % size) as f64, (i / size) as f64);
-            let phi = |t: f64| {
-                let (x, y) = (t * r[0], t * r[1]);
-                -t - height(x, y).0
-            };
-            let dt = step;
-            let mut t0 = -top - dt;
-            let end = -bottom + dt;
-            let mut t1 = t0;
-            let mut found = false;
-            while t1 < end {
-                t1 = t0 + dt;
-                if phi(t1) <= 0.0 {
-                    found = true;
-                    break;
-                }
-                t0 = t1;
-            }
-            if !found {
-                return None;
-            }
-            for _ in 0..50 {
-                let m = 0.5 * (t0 + t1);
-                // Adjacent floats: every further halving gives t0 or t1 again.
-                if m == t0 || m == t1 {
-                    break;
-                }
-                if phi(m) <= 0.0 {
-                    t1 = m;
-                } else {
-                    t0 = m;
-                }
-            }
-            let t = 0.5 * (t0 + t1);
-            let x = [t * r[0], t * r[1], -t];
-            let (_, gu, gv) = height(x[0], x[1]);
-            let len = (gu * gu + gv * gv + 1.0).sqrt();
-            let (u, v) = (x[0] / r_obj, x[1] / r_obj);
-            Some(Hit {
-                x,
-                n: [-gu / len, -gv / len, 1.0 / len],
-                inside: mask_shape.contains(u, v),
-                albedo: kind.albedo(u, v, spec.textured_albedo),
-            })
-        })
-        .collect();
+    let grid = HeightGrid::new(&object);
+    let hits = visible_points(spec, &camera, &object, &grid);
     let mask: Vec<bool> = hits
         .iter()
         .map(|h| h.as_ref().is_some_and(|h| h.inside))
@@ -350,96 +241,246 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
             [base * 1.02, base, base * 0.97]
         })
         .collect();
-    let threshold = 0.02f64.max(3.0 * spec.noise_sigma);
-    let seed = splitmix64(spec.seed);
+    let render = LedRender {
+        spec,
+        model: &model,
+        hits: &hits,
+        grid: &grid,
+        radiance: &radiance,
+        anisotropy: &anisotropy,
+        positions: &positions,
+        threshold: 0.02f64.max(3.0 * spec.noise_sigma),
+        seed: splitmix64(spec.seed),
+    };
     let per_light: Vec<LightResult> = (0..n_lights)
         .into_par_iter()
-        .map(|k| {
-            let mut rng = Pcg32::new(seed, k as u64 + 1);
-            let s = positions[k];
-            let mut out = LightResult {
-                image: vec![0.0; size * size * 3],
-                shadow: vec![false; size * size],
-                cast: vec![false; size * size],
-                highlight: vec![false; size * size],
-                clipped: 0,
-            };
-            for (i, hit) in hits.iter().enumerate() {
-                let mut value = [0.0f64; 3];
-                if let Some(h) = hit {
-                    let (l, _) = model.light_at_point(k, h.x);
-                    let dist = norm(sub(s, h.x));
-                    let raw = {
-                        let a = model.axes[k];
-                        let cos = (-dot(a, l)).max(0.0);
-                        let mu = anisotropy[k];
-                        (if mu == 0.0 { 1.0 } else { cos.powf(mu) }) / (dist * dist)
-                    };
-                    let ndl = dot(h.n, l);
-                    let attached = ndl <= 0.0;
-                    let cast = !attached && {
-                        let mut blocked = false;
-                        let mut t = 2.0 * step;
-                        while t < dist {
-                            let p = [h.x[0] + t * l[0], h.x[1] + t * l[1], h.x[2] + t * l[2]];
-                            if p[2] > top {
-                                break;
-                            }
-                            match grid_height(p[0], p[1]) {
-                                Some(z) if p[2] < z - 0.05 * step => {
-                                    blocked = true;
-                                    break;
-                                }
-                                Some(_) => {}
-                                None => break,
-                            }
-                            t += step;
-                        }
-                        blocked
-                    };
-                    let mut spec_v = 0.0;
-                    if !attached && !cast {
-                        if spec.brdf == Brdf::BlinnPhong {
-                            let v = {
-                                let len = norm(h.x);
-                                [-h.x[0] / len, -h.x[1] / len, -h.x[2] / len]
-                            };
-                            let hv = [l[0] + v[0], l[1] + v[1], l[2] + v[2]];
-                            let hl = norm(hv);
-                            if hl > 1e-12 && dot(h.n, v) > 0.0 {
-                                let ndh = (dot(h.n, hv) / hl).max(0.0);
-                                spec_v = BLINN_PHONG_KS * ndh.powf(BLINN_PHONG_EXPONENT);
-                            }
-                        }
-                        for (ch, v) in value.iter_mut().enumerate() {
-                            *v = radiance[k][ch] * raw * (h.albedo[ch] * ndl + spec_v);
-                        }
-                    }
-                    if h.inside {
-                        out.shadow[i] = attached || cast;
-                        out.cast[i] = cast;
-                        out.highlight[i] = !(attached || cast)
-                            && radiance[k].iter().sum::<f64>() / 3.0 * raw * spec_v > threshold;
-                    }
-                }
-                let mut clipped = false;
-                for (ch, v) in value.iter().enumerate() {
-                    let noisy = v + spec.noise_sigma * rng.next_normal();
-                    if noisy >= 1.0 {
-                        clipped = true;
-                    }
-                    out.image[i * 3 + ch] =
-                        ((noisy.clamp(0.0, 1.0) * 65535.0).round() / 65535.0) as f32;
-                }
-                if clipped && hit.as_ref().is_some_and(|h| h.inside) {
-                    out.clipped += 1;
-                }
-            }
-            out
-        })
+        .map(|k| render.light(k))
         .collect();
     let mask_pixels = mask.iter().filter(|&&m| m).count() as f64;
-    let mut truth = GroundTruth {
+    let mut truth = ground_truth(&hits, mask, size, n_lights);
+    let (images, stats) = gather_lights(per_light, size, size, mask_pixels, &mut truth);
+    // The capture's lights: the distant approximation at the centre plus the near model; the
+    // images are divided by E_k times the brightness at the centre.
+    let centre = model.centre_brightness().to_vec();
+    let lights = Lights::new(&model.centre_directions())?.with_intensities(
+        radiance
+            .iter()
+            .zip(&centre)
+            .map(|(e, b)| [e[0] * b, e[1] * b, e[2] * b])
+            .collect(),
+    )?;
+    let axes = model.axes.clone();
+    let lights = Lights {
+        near: Some(Arc::new(model)),
+        ..lights
+    };
+    Ok(NearRendered {
+        rendered: Rendered {
+            scene: spec.scene.name().to_string(),
+            rig: spec.rig.name().to_string(),
+            images,
+            lights,
+            truth,
+            stats,
+        },
+        camera,
+        positions,
+        axes,
+        anisotropy,
+        radiance,
+        distance: mean_z,
+    })
+}
+
+/// The domains of a near-light scene's size, distance, reflectance and noise.
+fn check_spec(spec: &NearSpec) -> Result<()> {
+    if !(16..=8192).contains(&spec.size) {
+        return Err(Error::invalid(format!(
+            "scene size {}: expected 16..=8192 pixels for a near-light scene",
+            spec.size
+        )));
+    }
+    if !(spec.distance.is_finite() && spec.distance > 0.0) {
+        return Err(Error::parameter(
+            "distance",
+            format!("{}: expected a positive distance in mm", spec.distance),
+        ));
+    }
+    if !matches!(spec.brdf, Brdf::Lambert | Brdf::BlinnPhong) {
+        return Err(Error::invalid(format!(
+            "near-light scenes render lambert or blinn-phong, not {}",
+            spec.brdf.name()
+        )));
+    }
+    if !(spec.noise_sigma.is_finite() && spec.noise_sigma >= 0.0) {
+        return Err(Error::invalid(format!(
+            "noise σ {}: expected a finite value ≥ 0",
+            spec.noise_sigma
+        )));
+    }
+    Ok(())
+}
+
+/// The object of a near-light scene: the height field z(x, y) = −D + R · g(x/R, y/R) of the
+/// built-in surface g (module documentation).
+struct NearObject {
+    kind: SceneKind,
+    /// D, mm.
+    d: f64,
+    /// R = D/6, the object's half width, mm.
+    r_obj: f64,
+    /// One pixel in normalised units (the surfaces' smoothing scale).
+    pixel: f64,
+}
+
+impl NearObject {
+    /// Height (mm, z) and gradient of the object at world (x, y).
+    fn height(&self, x: f64, y: f64) -> (f64, f64, f64) {
+        let [g, gu, gv] = self
+            .kind
+            .surface(x / self.r_obj, y / self.r_obj, self.pixel);
+        (-self.d + self.r_obj * g, gu, gv)
+    }
+}
+
+/// A grid of the object's heights for the ray and shadow marches: half a pixel's footprint
+/// apart, over 1.6 R on each side of the axis.
+struct HeightGrid {
+    step: f64,
+    extent: f64,
+    /// Nodes per side.
+    gn: usize,
+    values: Vec<f64>,
+    /// The highest and lowest heights.
+    top: f64,
+    bottom: f64,
+}
+
+impl HeightGrid {
+    fn new(object: &NearObject) -> Self {
+        let step = object.r_obj * object.pixel / 2.0;
+        let extent = 1.6 * object.r_obj;
+        let gn = (2.0 * extent / step).ceil() as usize + 1;
+        let values: Vec<f64> = (0..gn * gn)
+            .into_par_iter()
+            .map(|i| {
+                object
+                    .height(
+                        -extent + (i % gn) as f64 * step,
+                        -extent + (i / gn) as f64 * step,
+                    )
+                    .0
+            })
+            .collect();
+        let top = values.iter().cloned().fold(f64::MIN, f64::max);
+        let bottom = values.iter().cloned().fold(f64::MAX, f64::min);
+        HeightGrid {
+            step,
+            extent,
+            gn,
+            values,
+            top,
+            bottom,
+        }
+    }
+
+    /// The height at world (x, y), bilinear between the nodes; `None` off the grid.
+    fn at(&self, x: f64, y: f64) -> Option<f64> {
+        let gn = self.gn;
+        let gx = (x + self.extent) / self.step;
+        let gy = (y + self.extent) / self.step;
+        if gx < 0.0 || gy < 0.0 || gx >= (gn - 1) as f64 || gy >= (gn - 1) as f64 {
+            return None;
+        }
+        let (ix, iy) = (gx as usize, gy as usize);
+        let (fx, fy) = (gx - ix as f64, gy - iy as f64);
+        let at = |a: usize, b: usize| self.values[b * gn + a];
+        Some(
+            (1.0 - fy) * ((1.0 - fx) * at(ix, iy) + fx * at(ix + 1, iy))
+                + fy * ((1.0 - fx) * at(ix, iy + 1) + fx * at(ix + 1, iy + 1)),
+        )
+    }
+}
+
+/// The object's visible point under a pixel: position (mm), unit normal, whether it is inside
+/// the scene's mask shape, and its albedo.
+struct Hit {
+    x: [f64; 3],
+    n: [f64; 3],
+    inside: bool,
+    albedo: [f64; 3],
+}
+
+/// The visible point of every pixel: march along the ray from in front of the object's top to
+/// its bottom, bisect the first crossing.
+fn visible_points(
+    spec: &NearSpec,
+    camera: &Camera,
+    object: &NearObject,
+    grid: &HeightGrid,
+) -> Vec<Option<Hit>> {
+    let size = spec.size;
+    let mask_shape = spec.mask.unwrap_or(spec.scene.default_mask());
+    (0..size * size)
+        .into_par_iter()
+        .map(|i| {
+            let r = camera.ray((i % size) as f64, (i / size) as f64);
+            let phi = |t: f64| {
+                let (x, y) = (t * r[0], t * r[1]);
+                -t - object.height(x, y).0
+            };
+            let dt = grid.step;
+            let mut t0 = -grid.top - dt;
+            let end = -grid.bottom + dt;
+            let mut t1 = t0;
+            let mut found = false;
+            while t1 < end {
+                t1 = t0 + dt;
+                if phi(t1) <= 0.0 {
+                    found = true;
+                    break;
+                }
+                t0 = t1;
+            }
+            if !found {
+                return None;
+            }
+            for _ in 0..50 {
+                let m = 0.5 * (t0 + t1);
+                // Adjacent floats: every further halving gives t0 or t1 again.
+                if m == t0 || m == t1 {
+                    break;
+                }
+                if phi(m) <= 0.0 {
+                    t1 = m;
+                } else {
+                    t0 = m;
+                }
+            }
+            let t = 0.5 * (t0 + t1);
+            let x = [t * r[0], t * r[1], -t];
+            let (_, gu, gv) = object.height(x[0], x[1]);
+            let len = (gu * gu + gv * gv + 1.0).sqrt();
+            let (u, v) = (x[0] / object.r_obj, x[1] / object.r_obj);
+            Some(Hit {
+                x,
+                n: [-gu / len, -gv / len, 1.0 / len],
+                inside: mask_shape.contains(u, v),
+                albedo: spec.scene.albedo(u, v, spec.textured_albedo),
+            })
+        })
+        .collect()
+}
+
+/// The ground truth of the visible points inside `mask`: normals, depth Z (mm) and albedo; the
+/// per-light maps are filled by [`gather_lights`].
+fn ground_truth(
+    hits: &[Option<Hit>],
+    mask: Vec<bool>,
+    size: usize,
+    n_lights: usize,
+) -> GroundTruth {
+    GroundTruth {
         width: size,
         height: size,
         normals: hits
@@ -466,43 +507,132 @@ pub fn synthesize_near(spec: &NearSpec) -> Result<NearRendered> {
                 _ => [0.0; 3],
             })
             .collect(),
-        mask: mask.clone(),
+        mask,
         shadow: Vec::with_capacity(n_lights),
         cast_shadow: Vec::with_capacity(n_lights),
         highlight: Vec::with_capacity(n_lights),
+    }
+}
+
+/// What each LED's image is rendered from.
+struct LedRender<'a> {
+    spec: &'a NearSpec,
+    model: &'a NearLights,
+    hits: &'a [Option<Hit>],
+    grid: &'a HeightGrid,
+    /// Radiance along each LED's axis at 1 mm, RGB.
+    radiance: &'a [[f64; 3]],
+    anisotropy: &'a [f64],
+    positions: &'a [[f64; 3]],
+    /// A lit reading whose lobe exceeds it is a highlight of the ground truth.
+    threshold: f64,
+    seed: u64,
+}
+
+impl LedRender<'_> {
+    /// LED `k`'s image (noise from its own stream, 16-bit quantisation, clipped pixels counted)
+    /// and its ground-truth shadow, cast-shadow and highlight maps.
+    fn light(&self, k: usize) -> LightResult {
+        let size = self.spec.size;
+        let mut rng = Pcg32::new(self.seed, k as u64 + 1);
+        let mut out = LightResult {
+            image: vec![0.0; size * size * 3],
+            shadow: vec![false; size * size],
+            cast: vec![false; size * size],
+            highlight: vec![false; size * size],
+            clipped: 0,
+        };
+        for (i, hit) in self.hits.iter().enumerate() {
+            let mut value = [0.0f64; 3];
+            if let Some(h) = hit {
+                self.shade(k, h, i, &mut value, &mut out);
+            }
+            let mut clipped = false;
+            for (ch, v) in value.iter().enumerate() {
+                let noisy = v + self.spec.noise_sigma * rng.next_normal();
+                if noisy >= 1.0 {
+                    clipped = true;
+                }
+                out.image[i * 3 + ch] =
+                    ((noisy.clamp(0.0, 1.0) * 65535.0).round() / 65535.0) as f32;
+            }
+            if clipped && hit.as_ref().is_some_and(|h| h.inside) {
+                out.clipped += 1;
+            }
+        }
+        out
+    }
+
+    /// The noiseless radiance of LED `k` at the visible point `h` of pixel `i` into `value`,
+    /// and the pixel's ground-truth flags into `out` when it is inside the mask.
+    fn shade(&self, k: usize, h: &Hit, i: usize, value: &mut [f64; 3], out: &mut LightResult) {
+        let radiance = self.radiance;
+        let (l, _) = self.model.light_at_point(k, h.x);
+        let dist = norm(sub(self.positions[k], h.x));
+        let raw = {
+            let a = self.model.axes[k];
+            let cos = (-dot(a, l)).max(0.0);
+            let mu = self.anisotropy[k];
+            (if mu == 0.0 { 1.0 } else { cos.powf(mu) }) / (dist * dist)
+        };
+        let ndl = dot(h.n, l);
+        let attached = ndl <= 0.0;
+        let cast = !attached && self.blocked(h, l, dist);
+        let mut spec_v = 0.0;
+        if !attached && !cast {
+            if self.spec.brdf == Brdf::BlinnPhong {
+                spec_v = blinn_phong_lobe(h, l);
+            }
+            for (ch, v) in value.iter_mut().enumerate() {
+                *v = radiance[k][ch] * raw * (h.albedo[ch] * ndl + spec_v);
+            }
+        }
+        if h.inside {
+            out.shadow[i] = attached || cast;
+            out.cast[i] = cast;
+            out.highlight[i] = !(attached || cast)
+                && radiance[k].iter().sum::<f64>() / 3.0 * raw * spec_v > self.threshold;
+        }
+    }
+
+    /// Whether the object blocks the segment from the point `h` toward the LED in direction
+    /// `l`, `dist` away (a cast shadow): marched in grid steps until it rises above the
+    /// object's top or leaves the grid.
+    fn blocked(&self, h: &Hit, l: [f64; 3], dist: f64) -> bool {
+        let (grid, step) = (self.grid, self.grid.step);
+        let mut t = 2.0 * step;
+        while t < dist {
+            let p = [h.x[0] + t * l[0], h.x[1] + t * l[1], h.x[2] + t * l[2]];
+            if p[2] > grid.top {
+                break;
+            }
+            match grid.at(p[0], p[1]) {
+                Some(z) if p[2] < z - 0.05 * step => return true,
+                Some(_) => {}
+                None => break,
+            }
+            t += step;
+        }
+        false
+    }
+}
+
+/// The Blinn–Phong lobe toward the real viewer −X/‖X‖ at the point `h` lit from direction `l`:
+/// k_s (n · h)^e with the half vector h of `l` and the view direction; 0 where the surface faces
+/// away from the viewer.
+fn blinn_phong_lobe(h: &Hit, l: [f64; 3]) -> f64 {
+    let v = {
+        let len = norm(h.x);
+        [-h.x[0] / len, -h.x[1] / len, -h.x[2] / len]
     };
-    let (images, stats) = gather_lights(per_light, size, size, mask_pixels, &mut truth);
-    // The capture's lights: the distant approximation at the centre plus the near model; the
-    // images are divided by E_k times the brightness at the centre.
-    let centre = model.centre_brightness().to_vec();
-    let lights = Lights::new(&model.centre_directions())?.with_intensities(
-        radiance
-            .iter()
-            .zip(&centre)
-            .map(|(e, b)| [e[0] * b, e[1] * b, e[2] * b])
-            .collect(),
-    )?;
-    let axes = model.axes.clone();
-    let lights = Lights {
-        near: Some(Arc::new(model)),
-        ..lights
-    };
-    Ok(NearRendered {
-        rendered: Rendered {
-            scene: kind.name().to_string(),
-            rig: spec.rig.name().to_string(),
-            images,
-            lights,
-            truth,
-            stats,
-        },
-        camera,
-        positions,
-        axes,
-        anisotropy,
-        radiance,
-        distance: mean_z,
-    })
+    let hv = [l[0] + v[0], l[1] + v[1], l[2] + v[2]];
+    let hl = norm(hv);
+    if hl > 1e-12 && dot(h.n, v) > 0.0 {
+        let ndh = (dot(h.n, hv) / hl).max(0.0);
+        BLINN_PHONG_KS * ndh.powf(BLINN_PHONG_EXPONENT)
+    } else {
+        0.0
+    }
 }
 
 /// The oracle of the acceptance test: least squares on the truly lit lights of every pixel

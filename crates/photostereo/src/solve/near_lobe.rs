@@ -407,11 +407,138 @@ pub fn refine(
         memory.normals = vec![[0.0; 3]; np];
         memory.searched = vec![false; np];
     }
-    let statuses = est.light_status.as_deref();
-    // 1. The capture's lobe sharpness, once: the least total residual over evenly spaced
-    //    pixels whose diffuse fit fails its test. Per pixel the broadest lobe is searched on the
-    //    whole grid and each sharper one from the last one's normal (and the method's).
+    let inputs = LobeInputs {
+        capture,
+        near,
+        depth: &depth,
+        nodes: &nodes,
+        q: &q,
+        noise,
+    };
+    // 1. The capture's lobe sharpness, once.
     if memory.exponent.is_none() {
+        match inputs.lobe_sharpness(est)? {
+            Some(m) => memory.exponent = Some(m),
+            None => {
+                memory.normals.fill([0.0; 3]);
+                return Ok((
+                    LobeSummary {
+                        exponent: None,
+                        refined_pixels: 0,
+                        refined_share: 0.0,
+                        fitted_pixels: 0,
+                        grid_pixels: 0,
+                    },
+                    vec![false; np],
+                ));
+            }
+        }
+    }
+    let m = memory.exponent.expect("chosen above");
+    // 2. Every pixel with that sharpness.
+    let pass = LobePass {
+        inputs,
+        m,
+        fitted: AtomicUsize::new(0),
+        searched_grid: AtomicUsize::new(0),
+    };
+    let mut refined = vec![false; np];
+    let mut new_status = est
+        .light_status
+        .clone()
+        .unwrap_or_else(|| vec![status::USED; np * n]);
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        est.normals[off..off + tn]
+            .par_chunks_mut(CHUNK)
+            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+            .zip(new_status[off * n..(off + tn) * n].par_chunks_mut(CHUNK * n))
+            .zip(refined[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.normals[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(memory.searched[off..off + tn].par_chunks_mut(CHUNK))
+            .map(
+                |(((((normals, albedo), status), refined), fits), searched)| LobeChunk {
+                    normals,
+                    albedo,
+                    status,
+                    refined,
+                    fits,
+                    searched,
+                },
+            )
+            .enumerate()
+            .for_each_init(
+                || (Scratch::new(capture, near), vec![0f64; c]),
+                |(s, num), (chunk, mut pixels)| {
+                    let first = off + chunk * CHUNK;
+                    for dp in 0..pixels.normals.len() {
+                        let samples = tile.pixel_samples(chunk * CHUNK + dp);
+                        pass.refine_pixel(s, num, samples, &mut pixels, first, dp);
+                    }
+                },
+            );
+        Ok(())
+    })?;
+    est.light_status = Some(new_status);
+    let count = refined.iter().filter(|&&r| r).count();
+    Ok((
+        LobeSummary {
+            exponent: Some(m),
+            refined_pixels: count,
+            refined_share: count as f64 / np.max(1) as f64,
+            fitted_pixels: pass.fitted.into_inner(),
+            grid_pixels: pass.searched_grid.into_inner(),
+        },
+        refined,
+    ))
+}
+
+/// What [`refine`] reads.
+struct LobeInputs<'a> {
+    capture: &'a Capture,
+    near: &'a NearLights,
+    /// The light model's current surface, full frame.
+    depth: &'a [f32],
+    /// The grid of trial normals ([`grid`]).
+    nodes: &'a [(f64, f64)],
+    /// The χ² quantiles of [`quantiles`].
+    q: &'a [f64],
+    noise: &'a NoiseModel,
+}
+
+/// The refinement of every pixel with the lobe's sharpness `m` (step 2 of [`refine`]), and its
+/// counts.
+struct LobePass<'a> {
+    inputs: LobeInputs<'a>,
+    m: f64,
+    /// Pixels whose diffuse fit failed its test (fitted with the lobe).
+    fitted: AtomicUsize,
+    /// Pixels searched on the whole grid.
+    searched_grid: AtomicUsize,
+}
+
+/// One chunk of mask pixels in the refinement, as named slices.
+struct LobeChunk<'e> {
+    normals: &'e mut [[f32; 3]],
+    albedo: &'e mut [f32],
+    status: &'e mut [u8],
+    refined: &'e mut [bool],
+    /// Per pixel, the fitted normal: the last round's on entry, this round's after.
+    fits: &'e mut [[f32; 3]],
+    /// Per pixel, whether it was searched on the whole grid.
+    searched: &'e mut [bool],
+}
+
+impl LobeInputs<'_> {
+    /// The capture's lobe sharpness: the least total residual over evenly spaced pixels whose
+    /// diffuse fit fails its test. Per pixel the broadest lobe is searched on the whole grid and
+    /// each sharper one from the last one's normal (and the method's). `None` when no sampled
+    /// pixel fails its diffuse test.
+    fn lobe_sharpness(&self, est: &Estimate) -> crate::base::error::Result<Option<f64>> {
+        let capture = self.capture;
+        let (n, c, np) = (capture.n_lights(), capture.channels, capture.n_pixels());
+        let (q, noise, near) = (self.q, self.noise, self.near);
+        let statuses = est.light_status.as_deref();
         let stride = (np / SAMPLE_PIXELS).max(1);
         let sample: Vec<usize> = (0..np).step_by(stride).collect();
         let view = if capture.is_tiled() {
@@ -430,7 +557,7 @@ pub fn refine(
                         let pixel = capture.pixels[p] as usize;
                         let u = s.load(
                             near,
-                            &depth,
+                            self.depth,
                             capture.width,
                             pixel,
                             view.pixel_samples(p),
@@ -450,7 +577,7 @@ pub fn refine(
                         let own = seed_of(normals[p]);
                         let starts = own.as_slice();
                         let (e, mut prev, _, _) =
-                            fit_pixel(&d, u, starts, LOBE_EXPONENTS[0], &nodes, true);
+                            fit_pixel(&d, u, starts, LOBE_EXPONENTS[0], self.nodes, true);
                         t[0] += e / var;
                         for (j, &m) in LOBE_EXPONENTS.iter().enumerate().skip(1) {
                             let seeds = [prev, own.unwrap_or(prev)];
@@ -467,17 +594,7 @@ pub fn refine(
                 |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect(),
             );
         if totals[LOBE_EXPONENTS.len()] == 0.0 {
-            memory.normals.fill([0.0; 3]);
-            return Ok((
-                LobeSummary {
-                    exponent: None,
-                    refined_pixels: 0,
-                    refined_share: 0.0,
-                    fitted_pixels: 0,
-                    grid_pixels: 0,
-                },
-                vec![false; np],
-            ));
+            return Ok(None);
         }
         let (best_j, _) = totals[..LOBE_EXPONENTS.len()].iter().enumerate().fold(
             (0, f64::INFINITY),
@@ -489,130 +606,118 @@ pub fn refine(
                 }
             },
         );
-        memory.exponent = Some(LOBE_EXPONENTS[best_j]);
+        Ok(Some(LOBE_EXPONENTS[best_j]))
     }
-    let m = memory.exponent.expect("chosen above");
-    // 2. Every pixel with that sharpness.
-    let quantile = q[1];
-    let mut refined = vec![false; np];
-    let mut new_status = est
-        .light_status
-        .clone()
-        .unwrap_or_else(|| vec![status::USED; np * n]);
-    let fitted = AtomicUsize::new(0);
-    let searched_grid = AtomicUsize::new(0);
-    let width = capture.width;
-    capture.for_each_tile(|off, tile| {
-        let tn = tile.n_pixels();
-        est.normals[off..off + tn]
-            .par_chunks_mut(CHUNK)
-            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
-            .zip(new_status[off * n..(off + tn) * n].par_chunks_mut(CHUNK * n))
-            .zip(refined[off..off + tn].par_chunks_mut(CHUNK))
-            .zip(memory.normals[off..off + tn].par_chunks_mut(CHUNK))
-            .zip(memory.searched[off..off + tn].par_chunks_mut(CHUNK))
-            .enumerate()
-            .for_each_init(
-                || (Scratch::new(capture, near), vec![0f64; c]),
-                |(s, num), (chunk, (((((nrm, alb), st), rf), fits), searched))| {
-                    let first = off + chunk * CHUNK;
-                    for dp in 0..nrm.len() {
-                        let lp = chunk * CHUNK + dp;
-                        let p = off + lp;
-                        let pixel = capture.pixels[p] as usize;
-                        let samples = tile.pixel_samples(lp);
-                        let stp = &mut st[dp * n..(dp + 1) * n];
-                        let u = s.load(near, &depth, width, pixel, samples, c, Some(stp));
-                        let used = s.used.iter().filter(|&&x| x).count();
-                        let last = std::mem::replace(&mut fits[dp], [0.0; 3]);
-                        let was_searched = std::mem::replace(&mut searched[dp], false);
-                        if used < MIN_LIGHTS {
-                            continue;
-                        }
-                        let d = s.data();
-                        let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
-                        let var = noise.variance(level);
-                        let diffuse = diffuse_residual(&d);
-                        if diffuse <= q[used - 3] * var {
-                            continue;
-                        }
-                        fitted.fetch_add(1, Ordering::Relaxed);
-                        // Starts at hand: the last round's fit, the left and upper
-                        // neighbours' fits of this round (in this chunk), the method's normal.
-                        let mut seeds = [[0f64; 3]; 4];
-                        let mut count = 0;
-                        let left = (dp > 0 && capture.pixels[p - 1] as usize + 1 == pixel)
-                            .then(|| fits[dp - 1]);
-                        let up = (pixel >= width)
-                            .then(|| {
-                                capture.pixels[first..p]
-                                    .binary_search(&((pixel - width) as u32))
-                                    .ok()
-                                    .map(|i| fits[i])
-                            })
-                            .flatten();
-                        for x in [Some(last), left, up, Some(nrm[dp])].into_iter().flatten() {
-                            if let Some(v) = seed_of(x) {
-                                seeds[count] = v;
-                                count += 1;
-                            }
-                        }
-                        let (e, mut nf) = search_seeds(&d, &seeds[..count], m, u);
-                        if e > q[used - 4] * var && !(was_searched && last != [0.0; 3]) {
-                            searched_grid.fetch_add(1, Ordering::Relaxed);
-                            searched[dp] = true;
-                            let (eg, ng, _, _) = fit_pixel(&d, u, &[], m, &nodes, true);
-                            if eg < e {
-                                nf = ng;
-                            }
-                        }
-                        let (e, rho, spec) = fit_at(&d, nf, m);
-                        fits[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
-                        searched[dp] |= was_searched;
-                        if !(rho > 0.0 && diffuse - e > quantile * var) {
-                            continue;
-                        }
-                        rf[dp] = true;
-                        nrm[dp] = fits[dp];
-                        // Albedo per channel with the normal and the lobe fixed (the lobe is
-                        // the same in every channel of the normalised images).
-                        let sd = 3.0 * var.sqrt();
-                        num.fill(0.0);
-                        let mut den = 0f64;
-                        for k in 0..n {
-                            if !d.used[k] {
-                                continue;
-                            }
-                            let a = dot(d.v[k], nf).max(0.0);
-                            let lobe = spec * d.b[k] * (-m * (1.0 - dot(d.h[k], nf))).exp();
-                            for (ch, x) in num.iter_mut().enumerate() {
-                                *x += a * (samples[k * c + ch] as f64 - lobe);
-                            }
-                            den += a * a;
-                            stp[k] = if lobe > sd {
-                                status::HIGHLIGHT
-                            } else {
-                                status::USED
-                            };
-                        }
-                        albedo_from_sums(num, den, &mut alb[dp * c..(dp + 1) * c]);
-                    }
-                },
-            );
-        Ok(())
-    })?;
-    est.light_status = Some(new_status);
-    let count = refined.iter().filter(|&&r| r).count();
-    Ok((
-        LobeSummary {
-            exponent: Some(m),
-            refined_pixels: count,
-            refined_share: count as f64 / np.max(1) as f64,
-            fitted_pixels: fitted.into_inner(),
-            grid_pixels: searched_grid.into_inner(),
-        },
-        refined,
-    ))
+}
+
+impl LobePass<'_> {
+    /// The lobe fit of the chunk's pixel `dp` (mask pixel `first + dp`, its samples `samples`):
+    /// none where its purely diffuse fit passes the χ² test; else searched from the normals at
+    /// hand (the last round's fit, the left and upper neighbours' fits of this round, the
+    /// method's normal) and on the whole grid when none of those reaches a residual the test
+    /// accepts (once per pixel and reconstruction). Where the lobe lowers the residual beyond the
+    /// test's quantile the pixel takes the fit's normal, the albedo per channel with the normal
+    /// and the lobe fixed (the lobe is the same in every channel of the normalised images), and
+    /// its readings the lobe dominates are labelled highlights.
+    fn refine_pixel(
+        &self,
+        s: &mut Scratch,
+        num: &mut [f64],
+        samples: &[f32],
+        chunk: &mut LobeChunk,
+        first: usize,
+        dp: usize,
+    ) {
+        let (inputs, m) = (&self.inputs, self.m);
+        let (capture, q) = (inputs.capture, inputs.q);
+        let (n, c, width) = (capture.n_lights(), capture.channels, capture.width);
+        let p = first + dp;
+        let pixel = capture.pixels[p] as usize;
+        let stp = &mut chunk.status[dp * n..(dp + 1) * n];
+        let u = s.load(
+            inputs.near,
+            inputs.depth,
+            width,
+            pixel,
+            samples,
+            c,
+            Some(stp),
+        );
+        let used = s.used.iter().filter(|&&x| x).count();
+        let fits = &mut *chunk.fits;
+        let last = std::mem::replace(&mut fits[dp], [0.0; 3]);
+        let was_searched = std::mem::replace(&mut chunk.searched[dp], false);
+        if used < MIN_LIGHTS {
+            return;
+        }
+        let d = s.data();
+        let level = d.g.iter().sum::<f64>() / d.g.len().max(1) as f64;
+        let var = inputs.noise.variance(level);
+        let diffuse = diffuse_residual(&d);
+        if diffuse <= q[used - 3] * var {
+            return;
+        }
+        self.fitted.fetch_add(1, Ordering::Relaxed);
+        // Starts at hand: the last round's fit, the left and upper neighbours' fits of this
+        // round (in this chunk), the method's normal.
+        let mut seeds = [[0f64; 3]; 4];
+        let mut count = 0;
+        let left = (dp > 0 && capture.pixels[p - 1] as usize + 1 == pixel).then(|| fits[dp - 1]);
+        let up = (pixel >= width)
+            .then(|| {
+                capture.pixels[first..p]
+                    .binary_search(&((pixel - width) as u32))
+                    .ok()
+                    .map(|i| fits[i])
+            })
+            .flatten();
+        for x in [Some(last), left, up, Some(chunk.normals[dp])]
+            .into_iter()
+            .flatten()
+        {
+            if let Some(v) = seed_of(x) {
+                seeds[count] = v;
+                count += 1;
+            }
+        }
+        let (e, mut nf) = search_seeds(&d, &seeds[..count], m, u);
+        if e > q[used - 4] * var && !(was_searched && last != [0.0; 3]) {
+            self.searched_grid.fetch_add(1, Ordering::Relaxed);
+            chunk.searched[dp] = true;
+            let (eg, ng, _, _) = fit_pixel(&d, u, &[], m, inputs.nodes, true);
+            if eg < e {
+                nf = ng;
+            }
+        }
+        let (e, rho, spec) = fit_at(&d, nf, m);
+        fits[dp] = [nf[0] as f32, nf[1] as f32, nf[2] as f32];
+        chunk.searched[dp] |= was_searched;
+        if !(rho > 0.0 && diffuse - e > q[1] * var) {
+            return;
+        }
+        chunk.refined[dp] = true;
+        chunk.normals[dp] = fits[dp];
+        let sd = 3.0 * var.sqrt();
+        num.fill(0.0);
+        let mut den = 0f64;
+        for k in 0..n {
+            if !d.used[k] {
+                continue;
+            }
+            let a = dot(d.v[k], nf).max(0.0);
+            let lobe = spec * d.b[k] * (-m * (1.0 - dot(d.h[k], nf))).exp();
+            for (ch, x) in num.iter_mut().enumerate() {
+                *x += a * (samples[k * c + ch] as f64 - lobe);
+            }
+            den += a * a;
+            stp[k] = if lobe > sd {
+                status::HIGHLIGHT
+            } else {
+                status::USED
+            };
+        }
+        albedo_from_sums(num, den, &mut chunk.albedo[dp * c..(dp + 1) * c]);
+    }
 }
 
 /// The capture's highlight lobe, I_k = b_k (ρ n · l_k + s exp(−m (1 − n · h_k))) with one

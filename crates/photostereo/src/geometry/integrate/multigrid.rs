@@ -157,6 +157,102 @@ fn inverse_diagonal(
     }
 }
 
+/// One row of a [`Kind::Problem`] level's mask (`m`, from flat index `lo`) with the rows below
+/// and above it (none beyond the grid).
+struct MaskRows<'a> {
+    lo: usize,
+    m: &'a [bool],
+    below: Option<&'a [bool]>,
+    above: Option<&'a [bool]>,
+}
+
+/// The edge weights being computed for one row: east, south, and south of the row above.
+struct EdgeRows<'s> {
+    e: &'s mut [f32],
+    s: &'s mut [f32],
+    su: &'s mut [f32],
+}
+
+impl MaskRows<'_> {
+    /// Edges without weights: `max(1, min_edge)` between masked 4-neighbours, 0 elsewhere (the
+    /// last east edge is set by the caller).
+    #[inline]
+    fn unit_edges(&self, min_edge: f32, out: &mut EdgeRows) {
+        let (m, w) = (self.m, self.m.len());
+        let one = 1f32.max(min_edge);
+        let on = |a: bool, b: bool| if a & b { one } else { 0.0 };
+        for ((v, &a), &b) in out.e[..w - 1].iter_mut().zip(&m[..w - 1]).zip(&m[1..]) {
+            *v = on(a, b);
+        }
+        match self.below {
+            Some(md) => {
+                for ((v, &a), &b) in out.s.iter_mut().zip(m).zip(md) {
+                    *v = on(a, b);
+                }
+            }
+            None => out.s.fill(0.0),
+        }
+        match self.above {
+            Some(mu) => {
+                for ((v, &a), &b) in out.su.iter_mut().zip(mu).zip(m) {
+                    *v = on(a, b);
+                }
+            }
+            None => out.su.fill(0.0),
+        }
+    }
+
+    /// Edges with the weights `ws` (full frame): `max(min(w_a, w_b), min_edge)` between masked
+    /// 4-neighbours, 0 elsewhere (the last east edge is set by the caller).
+    #[inline]
+    fn weighted_edges(&self, ws: &[f32], min_edge: f32, out: &mut EdgeRows) {
+        let (m, w, lo) = (self.m, self.m.len(), self.lo);
+        let wr = &ws[lo..lo + w];
+        let edge = |a: bool, b: bool, wa: f32, wb: f32| {
+            if a & b {
+                wa.min(wb).max(min_edge)
+            } else {
+                0.0
+            }
+        };
+        for ((v, (&a, &b)), (&wa, &wb)) in out.e[..w - 1]
+            .iter_mut()
+            .zip(m[..w - 1].iter().zip(&m[1..]))
+            .zip(wr[..w - 1].iter().zip(&wr[1..]))
+        {
+            *v = edge(a, b, wa, wb);
+        }
+        match self.below {
+            Some(md) => {
+                let wd = &ws[lo + w..lo + 2 * w];
+                for ((v, (&a, &b)), (&wa, &wb)) in out
+                    .s
+                    .iter_mut()
+                    .zip(m.iter().zip(md))
+                    .zip(wr.iter().zip(wd))
+                {
+                    *v = edge(a, b, wa, wb);
+                }
+            }
+            None => out.s.fill(0.0),
+        }
+        match self.above {
+            Some(mu) => {
+                let wu = &ws[lo - w..lo];
+                for ((v, (&a, &b)), (&wa, &wb)) in out
+                    .su
+                    .iter_mut()
+                    .zip(mu.iter().zip(m))
+                    .zip(wu.iter().zip(wr))
+                {
+                    *v = edge(a, b, wa, wb);
+                }
+            }
+            None => out.su.fill(0.0),
+        }
+    }
+}
+
 impl<'a> Level<'a> {
     /// Builds a stored level from edge weights and the extra diagonal `extra(i)` (active cells:
     /// `active`).
@@ -291,7 +387,7 @@ impl<'a> Level<'a> {
     /// The operator's rows at row `r` (slices of the storage, or computed into `sc`).
     #[inline]
     pub fn rows<'s>(&'s self, r: usize, sc: &'s mut Scratch) -> Rows<'s> {
-        let (w, h) = (self.w, self.h);
+        let w = self.w;
         let lo = r * w;
         if sc.row == r && !matches!(self.kind, Kind::Stored { .. }) {
             return Rows {
@@ -334,146 +430,119 @@ impl<'a> Level<'a> {
                 weights,
                 min_edge,
                 lambda,
-            } => {
-                let m = &mask[lo..lo + w];
-                let (e, s, su, ex, inv) = (
-                    &mut sc.e[..w],
-                    &mut sc.s[..w],
-                    &mut sc.su[..w],
-                    &mut sc.ex[..w],
-                    &mut sc.inv[..w],
-                );
-                let me = *min_edge;
-                // Edges of row r (east), to row r + 1 (south) and from row r − 1 (su), in
-                // vectorisable passes over the row.
-                let below = (r + 1 < h).then(|| &mask[lo + w..lo + 2 * w]);
-                let above = (r > 0).then(|| &mask[lo - w..lo]);
-                match weights {
-                    None => {
-                        let one = 1f32.max(me);
-                        let on = |a: bool, b: bool| if a & b { one } else { 0.0 };
-                        for ((v, &a), &b) in e[..w - 1].iter_mut().zip(&m[..w - 1]).zip(&m[1..]) {
-                            *v = on(a, b);
-                        }
-                        match below {
-                            Some(md) => {
-                                for ((v, &a), &b) in s.iter_mut().zip(m).zip(md) {
-                                    *v = on(a, b);
-                                }
-                            }
-                            None => s.fill(0.0),
-                        }
-                        match above {
-                            Some(mu) => {
-                                for ((v, &a), &b) in su.iter_mut().zip(mu).zip(m) {
-                                    *v = on(a, b);
-                                }
-                            }
-                            None => su.fill(0.0),
-                        }
-                    }
-                    Some(ws) => {
-                        let wr = &ws[lo..lo + w];
-                        let edge = |a: bool, b: bool, wa: f32, wb: f32| {
-                            if a & b {
-                                wa.min(wb).max(me)
-                            } else {
-                                0.0
-                            }
-                        };
-                        for ((v, (&a, &b)), (&wa, &wb)) in e[..w - 1]
-                            .iter_mut()
-                            .zip(m[..w - 1].iter().zip(&m[1..]))
-                            .zip(wr[..w - 1].iter().zip(&wr[1..]))
-                        {
-                            *v = edge(a, b, wa, wb);
-                        }
-                        match below {
-                            Some(md) => {
-                                let wd = &ws[lo + w..lo + 2 * w];
-                                for ((v, (&a, &b)), (&wa, &wb)) in
-                                    s.iter_mut().zip(m.iter().zip(md)).zip(wr.iter().zip(wd))
-                                {
-                                    *v = edge(a, b, wa, wb);
-                                }
-                            }
-                            None => s.fill(0.0),
-                        }
-                        match above {
-                            Some(mu) => {
-                                let wu = &ws[lo - w..lo];
-                                for ((v, (&a, &b)), (&wa, &wb)) in
-                                    su.iter_mut().zip(mu.iter().zip(m)).zip(wu.iter().zip(wr))
-                                {
-                                    *v = edge(a, b, wa, wb);
-                                }
-                            }
-                            None => su.fill(0.0),
-                        }
-                    }
-                }
-                e[w - 1] = 0.0;
-                let lambda = *lambda;
-                for (v, &mv) in ex.iter_mut().zip(m) {
-                    *v = if mv { lambda } else { 0.0 };
-                }
-                inverse_diagonal(e, s, su, ex, m, inv);
-                Rows { e, s, su, ex, inv }
-            }
+            } => self.problem_rows(r, mask, *weights, *min_edge, *lambda, sc),
             Kind::Fill {
                 mask,
                 weights,
                 below,
                 pins,
-            } => {
-                let hole = |i: usize| mask[i] && weights[i] < *below;
-                let reliable = |i: usize| mask[i] && weights[i] >= *below;
-                let (e, s, su, ex, inv) = (
-                    &mut sc.e[..w],
-                    &mut sc.s[..w],
-                    &mut sc.su[..w],
-                    &mut sc.ex[..w],
-                    &mut sc.inv[..w],
-                );
-                let flag = |b: bool| if b { 1f32 } else { 0.0 };
-                for c in 0..w {
-                    let i = lo + c;
-                    if !hole(i) {
-                        e[c] = 0.0;
-                        s[c] = 0.0;
-                        su[c] = 0.0;
-                        ex[c] = 0.0;
-                        continue;
-                    }
-                    e[c] = flag(c + 1 < w && hole(i + 1));
-                    s[c] = flag(r + 1 < h && hole(i + w));
-                    su[c] = flag(r > 0 && hole(i - w));
-                    // Reliable neighbours, counted in the order left, right, up, down.
-                    let mut x = 0f32;
-                    for (ok, j) in [
-                        (c > 0, i.wrapping_sub(1)),
-                        (c + 1 < w, i + 1),
-                        (r > 0, i.wrapping_sub(w)),
-                        (r + 1 < h, i + w),
-                    ] {
-                        if ok && reliable(j) {
-                            x += 1.0;
-                        }
-                    }
-                    ex[c] = x;
-                }
-                let from = pins.partition_point(|&i| i < lo);
-                for &i in pins[from..].iter().take_while(|&&i| i < lo + w) {
-                    ex[i - lo] = 1.0;
-                }
-                let active = &mut sc.active[..w];
-                for (c, a) in active.iter_mut().enumerate() {
-                    *a = hole(lo + c);
-                }
-                inverse_diagonal(e, s, su, ex, active, inv);
-                Rows { e, s, su, ex, inv }
-            }
+            } => self.fill_rows(r, mask, weights, *below, pins, sc),
         }
+    }
+
+    /// The rows of a [`Kind::Problem`] level at row `r`, computed into `sc`: the edges of row
+    /// `r` (east), to row `r + 1` (south) and from row `r − 1` (su), in vectorisable passes
+    /// over the row, the extra diagonal `lambda` on the mask, and `1 / d`.
+    #[inline]
+    fn problem_rows<'s>(
+        &self,
+        r: usize,
+        mask: &[bool],
+        weights: Option<&[f32]>,
+        min_edge: f32,
+        lambda: f32,
+        sc: &'s mut Scratch,
+    ) -> Rows<'s> {
+        let (w, h) = (self.w, self.h);
+        let lo = r * w;
+        let rows = MaskRows {
+            lo,
+            m: &mask[lo..lo + w],
+            below: (r + 1 < h).then(|| &mask[lo + w..lo + 2 * w]),
+            above: (r > 0).then(|| &mask[lo - w..lo]),
+        };
+        let (e, s, su, ex, inv) = (
+            &mut sc.e[..w],
+            &mut sc.s[..w],
+            &mut sc.su[..w],
+            &mut sc.ex[..w],
+            &mut sc.inv[..w],
+        );
+        let mut edges = EdgeRows { e, s, su };
+        match weights {
+            None => rows.unit_edges(min_edge, &mut edges),
+            Some(ws) => rows.weighted_edges(ws, min_edge, &mut edges),
+        }
+        let EdgeRows { e, s, su } = edges;
+        e[w - 1] = 0.0;
+        for (v, &mv) in ex.iter_mut().zip(rows.m) {
+            *v = if mv { lambda } else { 0.0 };
+        }
+        inverse_diagonal(e, s, su, ex, rows.m, inv);
+        Rows { e, s, su, ex, inv }
+    }
+
+    /// The rows of a [`Kind::Fill`] level at row `r`, computed into `sc`: unit edges between
+    /// holes, the extra diagonal of a hole its count of reliable neighbours (plus 1 at the
+    /// `pins`), and `1 / d` on the holes.
+    #[inline]
+    fn fill_rows<'s>(
+        &self,
+        r: usize,
+        mask: &[bool],
+        weights: &[f32],
+        below: f32,
+        pins: &[usize],
+        sc: &'s mut Scratch,
+    ) -> Rows<'s> {
+        let (w, h) = (self.w, self.h);
+        let lo = r * w;
+        let hole = |i: usize| mask[i] && weights[i] < below;
+        let reliable = |i: usize| mask[i] && weights[i] >= below;
+        let (e, s, su, ex, inv) = (
+            &mut sc.e[..w],
+            &mut sc.s[..w],
+            &mut sc.su[..w],
+            &mut sc.ex[..w],
+            &mut sc.inv[..w],
+        );
+        let flag = |b: bool| if b { 1f32 } else { 0.0 };
+        for c in 0..w {
+            let i = lo + c;
+            if !hole(i) {
+                e[c] = 0.0;
+                s[c] = 0.0;
+                su[c] = 0.0;
+                ex[c] = 0.0;
+                continue;
+            }
+            e[c] = flag(c + 1 < w && hole(i + 1));
+            s[c] = flag(r + 1 < h && hole(i + w));
+            su[c] = flag(r > 0 && hole(i - w));
+            // Reliable neighbours, counted in the order left, right, up, down.
+            let mut x = 0f32;
+            for (ok, j) in [
+                (c > 0, i.wrapping_sub(1)),
+                (c + 1 < w, i + 1),
+                (r > 0, i.wrapping_sub(w)),
+                (r + 1 < h, i + w),
+            ] {
+                if ok && reliable(j) {
+                    x += 1.0;
+                }
+            }
+            ex[c] = x;
+        }
+        let from = pins.partition_point(|&i| i < lo);
+        for &i in pins[from..].iter().take_while(|&&i| i < lo + w) {
+            ex[i - lo] = 1.0;
+        }
+        let active = &mut sc.active[..w];
+        for (c, a) in active.iter_mut().enumerate() {
+            *a = hole(lo + c);
+        }
+        inverse_diagonal(e, s, su, ex, active, inv);
+        Rows { e, s, su, ex, inv }
     }
 
     /// Rows `r − 1`, `r + 1` of `x` (zeros beyond the grid).

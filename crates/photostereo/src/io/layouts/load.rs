@@ -31,6 +31,13 @@ impl CaptureFiles {
             .budget
             .unwrap_or_else(crate::model::memory::default_budget);
         let info = crate::io::imageio::probe(&self.images[0])?;
+        if let Some((camera, _)) = self.lights.perspective() {
+            if let Err(m) = camera.check_frame(info.width, info.height) {
+                let folder = self.images[0].parent().unwrap_or(Path::new("."));
+                let k = folder.join("K.txt");
+                return Err(Error::file(if k.exists() { k } else { folder.into() }, m));
+            }
+        }
         let mut size = CaptureSize {
             width: info.width,
             height: info.height,
@@ -234,108 +241,21 @@ impl CaptureFiles {
         let tiling = Tiling::new(&mask, w, h, plan.tile_pixels);
         let mut store =
             SampleStore::new(kind, c, tiling.clone(), decode.clone(), scale, spill_dir)?;
-        let e = kind.bytes();
-        let sb = c * e; // bytes of one light's sample of one pixel
-        let pb = n * sb;
-        let streamed = infos.iter().all(|i| i.streamable);
-        progress.begin("loading", (n * h) as u64);
-        let mut raw: Vec<u8> = Vec::new();
-        // The bytes of light k for the pixels of a tile, from integer or decoded values.
-        let put_u16 = |dec: Decode, u: u16, out: &mut Vec<u8>| match kind {
-            SampleType::U16 => out.extend_from_slice(&u.to_ne_bytes()),
-            SampleType::F32 => {
-                let v = match dec {
-                    Decode::Div(f) => u as f32 / f,
-                    Decode::MulRecip(r) => u as f32 * r,
-                    Decode::Float => u as f32,
-                };
-                out.extend_from_slice(&v.to_ne_bytes())
-            }
+        let fill = TileFill {
+            files: self,
+            kind,
+            decode: &decode,
+            pixels: &pixels,
+            tiling: &tiling,
+            size: (w, h, c),
         };
-        if streamed {
-            let mut readers: Vec<crate::io::imageio::PngRows> = self
-                .images
-                .iter()
-                .map(|p| crate::io::imageio::PngRows::open(p))
-                .collect::<Result<_>>()?;
-            let mut planes: Vec<Vec<u8>> = vec![Vec::new(); n];
-            for t in 0..tiling.len() {
-                crate::base::progress::check_cancelled(progress)?;
-                let (r0, r1) = (tiling.rows[t], tiling.rows[t + 1]);
-                let tile_pixels = &pixels[tiling.pixels(t)];
-                readers
-                    .par_iter_mut()
-                    .zip(planes.par_iter_mut())
-                    .enumerate()
-                    .map(|(k, (reader, plane))| -> Result<()> {
-                        plane.clear();
-                        let mut row = Vec::with_capacity(w * c);
-                        let mut next = 0;
-                        for r in r0..r1 {
-                            reader.next_row(c, &mut row)?;
-                            while next < tile_pixels.len() && tile_pixels[next] as usize / w == r {
-                                let col = tile_pixels[next] as usize % w;
-                                for &u in &row[col * c..(col + 1) * c] {
-                                    put_u16(decode[k], u, plane);
-                                }
-                                next += 1;
-                            }
-                        }
-                        progress.advance((r1 - r0) as u64);
-                        Ok(())
-                    })
-                    .collect::<Result<()>>()?;
-                interleave_bytes(&planes, tile_pixels.len(), sb, &mut raw);
-                store.write_raw(t, &raw)?;
-            }
+        progress.begin("loading", (n * h) as u64);
+        if infos.iter().all(|i| i.streamable) {
+            fill.stream_rows(&mut store, progress)?;
         } else {
-            // Decoded whole, as many at a time as there are threads; each group patched into
-            // every tile.
-            let group = rayon::current_num_threads().max(1);
-            for k0 in (0..n).step_by(group) {
-                crate::base::progress::check_cancelled(progress)?;
-                let ks: Vec<usize> = (k0..(k0 + group).min(n)).collect();
-                let images: Vec<Image> = ks
-                    .par_iter()
-                    .map(|&k| {
-                        let img = read_image(&self.images[k])?;
-                        if let Some(e) =
-                            self.mismatch(k, (w, h, c), (img.width, img.height, img.channels))
-                        {
-                            return Err(e);
-                        }
-                        progress.advance(h as u64);
-                        Ok(img)
-                    })
-                    .collect::<Result<_>>()?;
-                for t in 0..tiling.len() {
-                    let tile_pixels = &pixels[tiling.pixels(t)];
-                    store.read_raw(t, &mut raw)?;
-                    raw.par_chunks_mut(pb)
-                        .zip(tile_pixels.par_iter())
-                        .for_each(|(px, &i)| {
-                            let mut bytes = Vec::with_capacity(sb);
-                            for (&k, img) in ks.iter().zip(&images) {
-                                bytes.clear();
-                                let src = &img.data[i as usize * c..(i as usize + 1) * c];
-                                for &v in src {
-                                    match kind {
-                                        SampleType::U16 => bytes
-                                            .extend_from_slice(&decode[k].to_u16(v).to_ne_bytes()),
-                                        SampleType::F32 => {
-                                            bytes.extend_from_slice(&v.to_ne_bytes())
-                                        }
-                                    }
-                                }
-                                px[k * sb..(k + 1) * sb].copy_from_slice(&bytes);
-                            }
-                        });
-                    store.write_raw(t, &raw)?;
-                }
-            }
+            fill.patch_decoded(&mut store, progress)?;
         }
         progress.end();
-        let _ = pb;
         Ok(Capture::from_parts(CaptureParts {
             width: w,
             height: h,
@@ -481,6 +401,135 @@ pub struct LoadOptions {
     /// Ground-truth normals will be held (per mask pixel) to score the run: the plan counts
     /// them.
     pub ground_truth: bool,
+}
+
+/// Filling the tiles of a sample store from a capture's image files: the store's sample type,
+/// each image's decoder, the mask pixels (ascending) and their tiling, and the images' width,
+/// height and channels.
+struct TileFill<'a> {
+    files: &'a CaptureFiles,
+    kind: SampleType,
+    decode: &'a [Decode],
+    pixels: &'a [u32],
+    tiling: &'a Tiling,
+    size: (usize, usize, usize),
+}
+
+impl TileFill<'_> {
+    /// PNG images, streamed: for each tile, every image's rows of the tile's row band read in
+    /// parallel (one reader per image), its mask pixels' samples taken as they pass, and the
+    /// lights' planes interleaved into the tile.
+    fn stream_rows(&self, store: &mut SampleStore, progress: &dyn Progress) -> Result<()> {
+        let (w, _, c) = self.size;
+        let n = self.files.images.len();
+        let sb = c * self.kind.bytes(); // bytes of one light's sample of one pixel
+        let mut raw: Vec<u8> = Vec::new();
+        let mut readers: Vec<crate::io::imageio::PngRows> = self
+            .files
+            .images
+            .iter()
+            .map(|p| crate::io::imageio::PngRows::open(p))
+            .collect::<Result<_>>()?;
+        let mut planes: Vec<Vec<u8>> = vec![Vec::new(); n];
+        for t in 0..self.tiling.len() {
+            crate::base::progress::check_cancelled(progress)?;
+            let (r0, r1) = (self.tiling.rows[t], self.tiling.rows[t + 1]);
+            let tile_pixels = &self.pixels[self.tiling.pixels(t)];
+            readers
+                .par_iter_mut()
+                .zip(planes.par_iter_mut())
+                .enumerate()
+                .map(|(k, (reader, plane))| -> Result<()> {
+                    plane.clear();
+                    let mut row = Vec::with_capacity(w * c);
+                    let mut next = 0;
+                    for r in r0..r1 {
+                        reader.next_row(c, &mut row)?;
+                        while next < tile_pixels.len() && tile_pixels[next] as usize / w == r {
+                            let col = tile_pixels[next] as usize % w;
+                            for &u in &row[col * c..(col + 1) * c] {
+                                put_u16(self.kind, self.decode[k], u, plane);
+                            }
+                            next += 1;
+                        }
+                    }
+                    progress.advance((r1 - r0) as u64);
+                    Ok(())
+                })
+                .collect::<Result<()>>()?;
+            interleave_bytes(&planes, tile_pixels.len(), sb, &mut raw);
+            store.write_raw(t, &raw)?;
+        }
+        Ok(())
+    }
+
+    /// Other formats, decoded whole, as many at a time as there are threads; each group
+    /// patched into every tile.
+    fn patch_decoded(&self, store: &mut SampleStore, progress: &dyn Progress) -> Result<()> {
+        let (w, h, c) = self.size;
+        let files = self.files;
+        let n = files.images.len();
+        let sb = c * self.kind.bytes(); // bytes of one light's sample of one pixel
+        let pb = n * sb;
+        let mut raw: Vec<u8> = Vec::new();
+        let group = rayon::current_num_threads().max(1);
+        for k0 in (0..n).step_by(group) {
+            crate::base::progress::check_cancelled(progress)?;
+            let ks: Vec<usize> = (k0..(k0 + group).min(n)).collect();
+            let images: Vec<Image> = ks
+                .par_iter()
+                .map(|&k| {
+                    let img = read_image(&files.images[k])?;
+                    if let Some(e) =
+                        files.mismatch(k, (w, h, c), (img.width, img.height, img.channels))
+                    {
+                        return Err(e);
+                    }
+                    progress.advance(h as u64);
+                    Ok(img)
+                })
+                .collect::<Result<_>>()?;
+            for t in 0..self.tiling.len() {
+                let tile_pixels = &self.pixels[self.tiling.pixels(t)];
+                store.read_raw(t, &mut raw)?;
+                raw.par_chunks_mut(pb)
+                    .zip(tile_pixels.par_iter())
+                    .for_each(|(px, &i)| {
+                        let mut bytes = Vec::with_capacity(sb);
+                        for (&k, img) in ks.iter().zip(&images) {
+                            bytes.clear();
+                            let src = &img.data[i as usize * c..(i as usize + 1) * c];
+                            for &v in src {
+                                match self.kind {
+                                    SampleType::U16 => bytes
+                                        .extend_from_slice(&self.decode[k].to_u16(v).to_ne_bytes()),
+                                    SampleType::F32 => bytes.extend_from_slice(&v.to_ne_bytes()),
+                                }
+                            }
+                            px[k * sb..(k + 1) * sb].copy_from_slice(&bytes);
+                        }
+                    });
+                store.write_raw(t, &raw)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The bytes of one integer sample `u` in a store of `kind`: the integer itself, or its value
+/// decoded by `dec`.
+fn put_u16(kind: SampleType, dec: Decode, u: u16, out: &mut Vec<u8>) {
+    match kind {
+        SampleType::U16 => out.extend_from_slice(&u.to_ne_bytes()),
+        SampleType::F32 => {
+            let v = match dec {
+                Decode::Div(f) => u as f32 / f,
+                Decode::MulRecip(r) => u as f32 * r,
+                Decode::Float => u as f32,
+            };
+            out.extend_from_slice(&v.to_ne_bytes())
+        }
+    }
 }
 
 /// Light-major byte planes (`planes[k][p * sb..]`, `sb` bytes per pixel) into the pixel-major

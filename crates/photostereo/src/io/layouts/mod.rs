@@ -69,6 +69,16 @@ impl CaptureFiles {
                 crate::io::layouts::near::near_capture_files(dir, None)?
             }
             [lp] if lp.extension().is_some_and(|e| e.eq_ignore_ascii_case("lp")) => {
+                if let Some(l) = lights {
+                    return Err(Error::file(
+                        l,
+                        format!(
+                            "{} carries its own light directions, so --lights does not apply \
+                             (give one or the other)",
+                            lp.display()
+                        ),
+                    ));
+                }
                 let f = crate::io::layouts::near::lp_capture_files(lp)?;
                 match intensities {
                     Some(p) => f.with_intensities_file(p)?,
@@ -76,7 +86,15 @@ impl CaptureFiles {
                 }
             }
             [dir] if dir.is_dir() => {
-                let f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                let mut f = CaptureFiles::diligent_with_lights(dir, lights)?;
+                if intensities.is_none() && !dir.join("light_intensities.txt").exists() {
+                    f.notes.push(format!(
+                        "no light_intensities.txt in {}: every light is taken as equally bright; \
+                         if the lights' brightness differs, the normals are biased (give the \
+                         intensities in that file or with --intensities)",
+                        dir.display()
+                    ));
+                }
                 let f = crate::io::layouts::near::attach_camera(f, dir, None)?;
                 match intensities {
                     Some(p) => f.with_intensities_file(p)?,

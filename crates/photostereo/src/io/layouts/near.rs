@@ -243,7 +243,11 @@ impl NearLayout {
             self.anisotropy.clone(),
             self.distance,
         )
-        .map_err(|e| Error::file(positions, e.to_string()))?;
+        .map_err(|e| match e {
+            // A parameter at fault (the distance) is named as the front end spells it.
+            Error::Parameter { .. } => e,
+            other => Error::file(positions, other.to_string()),
+        })?;
         let centre = model.centre_brightness().to_vec();
         let lights = Lights::new(&model.centre_directions())?.with_intensities(
             self.intensities
@@ -385,22 +389,26 @@ fn read_near_layout_with_camera(
     dir: &Path,
     distance: Option<f64>,
     camera: Camera,
+    images: Option<usize>,
 ) -> Result<NearLayout> {
-    let mut layout = read_near_layout_files(dir, distance, Some("1 0 0\n0 1 0\n0 0 1\n"))?;
+    let mut layout = read_near_layout_files(dir, distance, Some("1 0 0\n0 1 0\n0 0 1\n"), images)?;
     layout.camera = camera;
     Ok(layout)
 }
 
 /// Reads the near-light files of `dir` ([`parse_near_layout`]).
 pub fn read_near_layout(dir: &Path, distance: Option<f64>) -> Result<NearLayout> {
-    read_near_layout_files(dir, distance, None)
+    read_near_layout_files(dir, distance, None, None)
 }
 
-/// [`read_near_layout`]; `camera_text` replaces the content of `K.txt` when given.
+/// [`read_near_layout`]; `camera_text` replaces the content of `K.txt` when given. With the
+/// capture's image count `images`, a `light_positions.txt` of another length is refused first,
+/// so that the file at fault is named rather than the per-light files that agree with it.
 fn read_near_layout_files(
     dir: &Path,
     distance: Option<f64>,
     camera_text: Option<&str>,
+    images: Option<usize>,
 ) -> Result<NearLayout> {
     let names = [
         dir.join("K.txt"),
@@ -419,6 +427,15 @@ fn read_near_layout_files(
     };
     let positions = read(&names[1])?
         .ok_or_else(|| Error::file(&names[1], "missing: expected N rows x y z in mm"))?;
+    if let Some(n) = images {
+        let rows = parse_rows(&positions, &names[1], &[3], None)?.len();
+        if rows != n {
+            return Err(Error::file(
+                &names[1],
+                format!("{rows} light position(s) for {n} image(s): expected one light per image"),
+            ));
+        }
+    }
     let k_text = match camera_text {
         Some(t) => Some(t.to_string()),
         None => read(&names[0])?,
@@ -486,13 +503,13 @@ pub fn near_capture_files_with(
     distance: Option<f64>,
     camera: Option<Camera>,
 ) -> Result<CaptureFiles> {
+    let images = crate::io::layouts::folder_images(dir)?;
     let layout = match camera {
-        None => read_near_layout(dir, distance)?,
-        Some(camera) => read_near_layout_with_camera(dir, distance, camera)?,
+        None => read_near_layout_files(dir, distance, None, Some(images.len()))?,
+        Some(camera) => read_near_layout_with_camera(dir, distance, camera, Some(images.len()))?,
     };
     let positions = dir.join("light_positions.txt");
     let lights = layout.lights(&positions)?;
-    let images = crate::io::layouts::folder_images(dir)?;
     if images.len() != lights.len() {
         return Err(Error::file(
             &positions,

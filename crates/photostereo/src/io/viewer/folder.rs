@@ -68,93 +68,157 @@ fn read_bool_png(path: &Path, w: usize, h: usize, notes: &mut Vec<String>) -> Op
     }
 }
 
+/// `normals.npy` (H, W, 3): the width, height and unit normals ((0, 0, 0) where a normal is not
+/// finite or has no length). The folder is not a run's without it.
+fn read_normals(dir: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
+    let np = dir.join("normals.npy");
+    if !np.is_file() {
+        return Err(Error::file(
+            dir,
+            "not an output folder of `photostereo run`: normals.npy is missing",
+        ));
+    }
+    let arr: ndarray::Array3<f32> = ndarray_npy::read_npy(&np).map_err(|e| npy_err(&np, e))?;
+    let (height, width, c) = arr.dim();
+    if c != 3 || width == 0 || height == 0 {
+        return Err(Error::file(
+            &np,
+            format!("shape ({height}, {width}, {c}): expected (H, W, 3)"),
+        ));
+    }
+    let normals: Vec<[f32; 3]> = arr
+        .as_standard_layout()
+        .as_slice()
+        .expect("standard layout")
+        .chunks_exact(3)
+        .map(|v| {
+            let n = [v[0], v[1], v[2]];
+            let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+            if n.iter().all(|x| x.is_finite()) && len > 1e-6 {
+                n.map(|x| x / len)
+            } else {
+                [0.0; 3]
+            }
+        })
+        .collect();
+    Ok((width, height, normals))
+}
+
+/// `albedo.npy` (H, W, 1 or 3): the values, channels and whether the folder has it (all ones,
+/// with a note, when it does not).
+fn read_albedo(
+    dir: &Path,
+    width: usize,
+    height: usize,
+    notes: &mut Vec<String>,
+) -> Result<(Vec<f32>, usize, bool)> {
+    let ap = dir.join("albedo.npy");
+    if !ap.is_file() {
+        notes.push("no albedo.npy: relighting with a uniform albedo".into());
+        return Ok((vec![1.0; width * height], 1, false));
+    }
+    let a: ndarray::Array3<f32> = ndarray_npy::read_npy(&ap).map_err(|e| npy_err(&ap, e))?;
+    let (h, w, ch) = a.dim();
+    if (h, w) != (height, width) || !(ch == 1 || ch == 3) {
+        return Err(Error::file(
+            &ap,
+            format!("shape ({h}, {w}, {ch}): expected ({height}, {width}, 1 or 3)"),
+        ));
+    }
+    Ok((a.into_raw_vec_and_offset().0, ch, true))
+}
+
+/// The (H, W) map `name` of the folder, `None` when it has none.
+fn read_map(dir: &Path, name: &str, width: usize, height: usize) -> Result<Option<Vec<f32>>> {
+    let p = dir.join(name);
+    if !p.is_file() {
+        return Ok(None);
+    }
+    let a: ndarray::Array2<f32> = ndarray_npy::read_npy(&p).map_err(|e| npy_err(&p, e))?;
+    if a.dim() != (height, width) {
+        return Err(Error::file(
+            &p,
+            format!("shape {:?}: expected ({height}, {width})", a.dim()),
+        ));
+    }
+    Ok(Some(a.as_standard_layout().iter().copied().collect()))
+}
+
+/// `light_status.npy` (N, H, W): the light count and the statuses, `None` when absent.
+fn read_status(dir: &Path, width: usize, height: usize) -> Result<Option<(usize, Vec<u8>)>> {
+    let sp = dir.join("light_status.npy");
+    if !sp.is_file() {
+        return Ok(None);
+    }
+    let a: ndarray::Array3<u8> = ndarray_npy::read_npy(&sp).map_err(|e| npy_err(&sp, e))?;
+    let (n, h, w) = a.dim();
+    if (h, w) != (height, width) {
+        return Err(Error::file(
+            &sp,
+            format!("shape ({n}, {h}, {w}): expected (N, {height}, {width})"),
+        ));
+    }
+    Ok(Some((n, a.as_standard_layout().iter().copied().collect())))
+}
+
+/// The ground truth `p` named in a run's report: as written, then (when relative) relative to
+/// `dir` and to its parent; a note when none of these is a file.
+fn find_ground_truth(dir: &Path, p: PathBuf, notes: &mut Vec<String>) -> Option<PathBuf> {
+    let mut tries = vec![p.clone()];
+    if p.is_relative() {
+        tries.push(dir.join(&p));
+        if let Some(parent) = dir.parent() {
+            tries.push(parent.join(&p));
+        }
+    }
+    let found = tries.into_iter().find(|t| t.is_file());
+    if found.is_none() {
+        notes.push(format!(
+            "the ground truth named in report.json ({}) was not found; \
+             no error layer (give the ground truth, `gt`)",
+            p.display()
+        ));
+    }
+    found
+}
+
+/// The angular error of `normals` against the ground truth in file `p`, degrees (NaN where
+/// either has no normal); an error when the ground truth's size differs.
+fn error_map(normals: &[[f32; 3]], p: &Path, width: usize, height: usize) -> Result<Vec<f32>> {
+    let gt = read_normal_map(p)?;
+    if (gt.width, gt.height) != (width, height) {
+        return Err(Error::file(
+            p,
+            format!(
+                "ground truth is {}×{}: expected {width}×{height}",
+                gt.width, gt.height
+            ),
+        ));
+    }
+    Ok(normals
+        .iter()
+        .zip(&gt.normals)
+        .map(|(n, g)| {
+            if *n == [0.0; 3] || *g == [0.0; 3] {
+                f32::NAN
+            } else {
+                angular_error_deg(*n, *g) as f32
+            }
+        })
+        .collect())
+}
+
 impl RunFolder {
     /// Reads `dir`. `ground_truth` overrides the ground-truth file named in `report.json`
     /// (which is tried as written, then relative to `dir` and to its parent).
     pub fn read(dir: &Path, ground_truth: Option<&Path>) -> Result<RunFolder> {
-        let np = dir.join("normals.npy");
-        if !np.is_file() {
-            return Err(Error::file(
-                dir,
-                "not an output folder of `photostereo run`: normals.npy is missing",
-            ));
-        }
-        let arr: ndarray::Array3<f32> = ndarray_npy::read_npy(&np).map_err(|e| npy_err(&np, e))?;
-        let (height, width, c) = arr.dim();
-        if c != 3 || width == 0 || height == 0 {
-            return Err(Error::file(
-                &np,
-                format!("shape ({height}, {width}, {c}): expected (H, W, 3)"),
-            ));
-        }
-        let normals: Vec<[f32; 3]> = arr
-            .as_standard_layout()
-            .as_slice()
-            .expect("standard layout")
-            .chunks_exact(3)
-            .map(|v| {
-                let n = [v[0], v[1], v[2]];
-                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                if n.iter().all(|x| x.is_finite()) && len > 1e-6 {
-                    n.map(|x| x / len)
-                } else {
-                    [0.0; 3]
-                }
-            })
-            .collect();
-        drop(arr);
+        let (width, height, normals) = read_normals(dir)?;
         let mask: Vec<bool> = normals.iter().map(|n| *n != [0.0; 3]).collect();
-        let n_pix = width * height;
         let mut notes = Vec::new();
-
-        let ap = dir.join("albedo.npy");
-        let (albedo, albedo_channels, has_albedo) = if ap.is_file() {
-            let a: ndarray::Array3<f32> =
-                ndarray_npy::read_npy(&ap).map_err(|e| npy_err(&ap, e))?;
-            let (h, w, ch) = a.dim();
-            if (h, w) != (height, width) || !(ch == 1 || ch == 3) {
-                return Err(Error::file(
-                    &ap,
-                    format!("shape ({h}, {w}, {ch}): expected ({height}, {width}, 1 or 3)"),
-                ));
-            }
-            (a.into_raw_vec_and_offset().0, ch, true)
-        } else {
-            notes.push("no albedo.npy: relighting with a uniform albedo".into());
-            (vec![1.0; n_pix], 1, false)
-        };
-
-        let read_2d = |name: &str| -> Result<Option<Vec<f32>>> {
-            let p = dir.join(name);
-            if !p.is_file() {
-                return Ok(None);
-            }
-            let a: ndarray::Array2<f32> = ndarray_npy::read_npy(&p).map_err(|e| npy_err(&p, e))?;
-            if a.dim() != (height, width) {
-                return Err(Error::file(
-                    &p,
-                    format!("shape {:?}: expected ({height}, {width})", a.dim()),
-                ));
-            }
-            Ok(Some(a.as_standard_layout().iter().copied().collect()))
-        };
-        let depth = read_2d("depth.npy")?;
-        let residual = read_2d("residual.npy")?;
-
-        let sp = dir.join("light_status.npy");
-        let status = if sp.is_file() {
-            let a: ndarray::Array3<u8> = ndarray_npy::read_npy(&sp).map_err(|e| npy_err(&sp, e))?;
-            let (n, h, w) = a.dim();
-            if (h, w) != (height, width) {
-                return Err(Error::file(
-                    &sp,
-                    format!("shape ({n}, {h}, {w}): expected (N, {height}, {width})"),
-                ));
-            }
-            Some((n, a.as_standard_layout().iter().copied().collect()))
-        } else {
-            None
-        };
+        let (albedo, albedo_channels, has_albedo) = read_albedo(dir, width, height, &mut notes)?;
+        let depth = read_map(dir, "depth.npy", width, height)?;
+        let residual = read_map(dir, "residual.npy", width, height)?;
+        let status = read_status(dir, width, height)?;
         let unreliable = read_bool_png(&dir.join("unreliable_mask.png"), width, height, &mut notes);
         let highlight = read_bool_png(&dir.join("highlight.png"), width, height, &mut notes);
         let fewer_than_three =
@@ -171,51 +235,12 @@ impl RunFolder {
                 .as_ref()
                 .and_then(|r| r["parameters"]["ground_truth"].as_str())
                 .map(PathBuf::from)
-                .and_then(|p| {
-                    let mut tries = vec![p.clone()];
-                    if p.is_relative() {
-                        tries.push(dir.join(&p));
-                        if let Some(parent) = dir.parent() {
-                            tries.push(parent.join(&p));
-                        }
-                    }
-                    let found = tries.into_iter().find(|t| t.is_file());
-                    if found.is_none() {
-                        notes.push(format!(
-                            "the ground truth named in report.json ({}) was not found; \
-                             no error layer (give the ground truth, `gt`)",
-                            p.display()
-                        ));
-                    }
-                    found
-                }),
+                .and_then(|p| find_ground_truth(dir, p, &mut notes)),
         };
         let mut error_deg = None;
         let mut ground_truth_used = None;
         if let Some(p) = gt_path {
-            let gt = read_normal_map(&p)?;
-            if (gt.width, gt.height) != (width, height) {
-                return Err(Error::file(
-                    &p,
-                    format!(
-                        "ground truth is {}×{}: expected {width}×{height}",
-                        gt.width, gt.height
-                    ),
-                ));
-            }
-            error_deg = Some(
-                normals
-                    .iter()
-                    .zip(&gt.normals)
-                    .map(|(n, g)| {
-                        if *n == [0.0; 3] || *g == [0.0; 3] {
-                            f32::NAN
-                        } else {
-                            angular_error_deg(*n, *g) as f32
-                        }
-                    })
-                    .collect(),
-            );
+            error_deg = Some(error_map(&normals, &p, width, height)?);
             ground_truth_used = Some(p);
         }
         Ok(RunFolder {

@@ -120,7 +120,8 @@ pub fn write_view(dir: &Path, options: &ViewOptions) -> Result<ViewSummary> {
     write_view_of(&f, options, start)
 }
 
-/// [`write_view`] for an output folder already read.
+/// [`write_view`] for an output folder already read: the maps' scales, the tiled pyramid and
+/// the mesh staged beside the view, the manifest and page, then the swap into place.
 pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Result<ViewSummary> {
     let dir = &f.dir;
     let mut notes = f.notes.clone();
@@ -135,22 +136,7 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
         (Some(l), _) => Some(l.clone()),
         _ => None,
     };
-    let white = albedo_white(&f.albedo, f.albedo_channels, &f.mask);
-    let albedo_max = finite_max(
-        f.albedo
-            .chunks_exact(f.albedo_channels)
-            .zip(&f.mask)
-            .filter(|(_, &m)| m)
-            .flat_map(|(a, _)| a.iter().copied()),
-    )
-    .filter(|&m| m > 0.0)
-    .unwrap_or(1.0);
-    let depth_range = f.depth.as_deref().and_then(tiles::depth_range);
-    let residual_max = f
-        .residual
-        .as_ref()
-        .and_then(|r| finite_max(r.iter().zip(&f.mask).filter(|(_, &m)| m).map(|(v, _)| *v)));
-
+    let scales = MapScales::of(f);
     // Stage everything in view.tmp-PID, then swap it in.
     let staging = dir.join(format!(".view.tmp-{}", std::process::id()));
     if staging.exists() {
@@ -158,90 +144,165 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
     }
     let tiles_dir = staging.join("tiles");
     std::fs::create_dir_all(&tiles_dir).map_err(|e| Error::io(&tiles_dir, e))?;
-    let result = (|| -> Result<Written> {
-        let mut level = tiles::Level::base(f, depth_range);
-        let mut groups = vec!['n', 'a', 'q'];
-        if level.depth_rgb.is_some() {
-            groups.push('d');
-        }
-        if level.r.is_some() {
-            groups.push('r');
-        }
-        if level.status.is_some() {
-            groups.push('s');
-        }
-        let (mut files, mut bytes) = (0usize, 0u64);
-        let mut levels = Vec::new();
-        for l in 0.. {
-            let (nf, nb) = tiles::write_level(&tiles_dir, l, &level, &groups, albedo_max)?;
-            files += nf;
-            bytes += nb;
-            levels.push(json!({
-                "width": level.width, "height": level.height,
-                "cols": level.cols(), "rows": level.rows(),
-            }));
-            if level.width <= tiles::TILE && level.height <= tiles::TILE {
-                break;
-            }
-            level = level.reduce();
-        }
-        let mesh = match mesh::write_mesh(&staging.join("mesh.js"), f, white)? {
-            Some((info, size)) => {
-                files += 1;
-                bytes += size;
-                Some(info)
-            }
-            None => None,
-        };
-        Ok(Written {
-            levels,
-            groups,
-            mesh,
-            files,
-            bytes,
-        })
-    })();
-    let Written {
-        levels,
-        groups,
-        mesh,
-        files,
-        bytes,
-    } = match result {
+    let written = match write_staged(f, &staging, &scales) {
         Ok(v) => v,
         Err(e) => {
             let _ = std::fs::remove_dir_all(&staging);
             return Err(e);
         }
     };
-    let layers = layers_of(f, mesh.is_some());
+    let layers = layers_of(f, written.mesh.is_some());
+    let manifest = manifest(
+        f,
+        options,
+        &scales,
+        &written,
+        &layers,
+        lights.as_deref(),
+        &notes,
+    );
+    let html = page::render(&manifest)?;
+    let index = swap_in(dir, &staging, &html)?;
+    if lights.is_none() && n_lights.is_some() {
+        notes.push(
+            "light directions unknown (give the light directions, `lights`): the probe lists lights by number only"
+                .into(),
+        );
+    }
+    Ok(ViewSummary {
+        index,
+        width: f.width,
+        height: f.height,
+        levels: written.levels.len(),
+        files: written.files + 1,
+        bytes: written.bytes + html.len() as u64,
+        layers: layers.iter().map(|s| s.to_string()).collect(),
+        seconds: start.elapsed().as_secs_f64(),
+        notes,
+    })
+}
+
+/// The scales of the maps the page shows: the albedo's white and largest value (mask pixels),
+/// the depth range, the largest residual.
+struct MapScales {
+    white: f32,
+    albedo_max: f32,
+    depth_range: Option<(f32, f32)>,
+    residual_max: Option<f32>,
+}
+
+impl MapScales {
+    fn of(f: &RunFolder) -> Self {
+        let white = albedo_white(&f.albedo, f.albedo_channels, &f.mask);
+        let albedo_max = finite_max(
+            f.albedo
+                .chunks_exact(f.albedo_channels)
+                .zip(&f.mask)
+                .filter(|(_, &m)| m)
+                .flat_map(|(a, _)| a.iter().copied()),
+        )
+        .filter(|&m| m > 0.0)
+        .unwrap_or(1.0);
+        let depth_range = f.depth.as_deref().and_then(tiles::depth_range);
+        let residual_max = f
+            .residual
+            .as_ref()
+            .and_then(|r| finite_max(r.iter().zip(&f.mask).filter(|(_, &m)| m).map(|(v, _)| *v)));
+        MapScales {
+            white,
+            albedo_max,
+            depth_range,
+            residual_max,
+        }
+    }
+}
+
+/// Writes the view's files into `staging` (whose `tiles` folder exists): the tiled pyramid of
+/// every map group, level by level down to a single tile, and the mesh.
+fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Written> {
+    let tiles_dir = staging.join("tiles");
+    let mut level = tiles::Level::base(f, scales.depth_range);
+    let mut groups = vec!['n', 'a', 'q'];
+    if level.depth_rgb.is_some() {
+        groups.push('d');
+    }
+    if level.r.is_some() {
+        groups.push('r');
+    }
+    if level.status.is_some() {
+        groups.push('s');
+    }
+    let (mut files, mut bytes) = (0usize, 0u64);
+    let mut levels = Vec::new();
+    for l in 0.. {
+        let (nf, nb) = tiles::write_level(&tiles_dir, l, &level, &groups, scales.albedo_max)?;
+        files += nf;
+        bytes += nb;
+        levels.push(json!({
+            "width": level.width, "height": level.height,
+            "cols": level.cols(), "rows": level.rows(),
+        }));
+        if level.width <= tiles::TILE && level.height <= tiles::TILE {
+            break;
+        }
+        level = level.reduce();
+    }
+    let mesh = match mesh::write_mesh(&staging.join("mesh.js"), f, scales.white)? {
+        Some((info, size)) => {
+            files += 1;
+            bytes += size;
+            Some(info)
+        }
+        None => None,
+    };
+    Ok(Written {
+        levels,
+        groups,
+        mesh,
+        files,
+        bytes,
+    })
+}
+
+/// The page's manifest: size, pyramid, layers, the maps' scales, lights, error, mesh, the
+/// run's report summary, the relighting defaults and the notes.
+fn manifest(
+    f: &RunFolder,
+    options: &ViewOptions,
+    scales: &MapScales,
+    written: &Written,
+    layers: &[&str],
+    lights: Option<&[[f64; 3]]>,
+    notes: &[String],
+) -> Value {
+    let n_lights = f.status.as_ref().map(|(n, _)| *n);
     let title = options.title.clone().unwrap_or_else(|| {
-        std::fs::canonicalize(dir)
+        std::fs::canonicalize(&f.dir)
             .ok()
             .and_then(|p| p.file_name().map(|n| n.to_string_lossy().to_string()))
             .unwrap_or_else(|| "photostereo".into())
     });
     let report = f.report.clone().unwrap_or(Value::Null);
-    let manifest = json!({
+    json!({
         "format": "photostereo-view 1",
         "title": title,
         "width": f.width,
         "height": f.height,
         "tile": tiles::TILE,
-        "levels": levels,
-        "groups": groups.iter().map(|g| g.to_string()).collect::<Vec<_>>(),
+        "levels": written.levels,
+        "groups": written.groups.iter().map(|g| g.to_string()).collect::<Vec<_>>(),
         "layers": layers,
         "albedo": {
             "present": f.has_albedo,
             "channels": f.albedo_channels,
-            "max": albedo_max,
-            "white": white,
+            "max": scales.albedo_max,
+            "white": scales.white,
         },
-        "depth": depth_range.map(|(lo, hi)| json!({
+        "depth": scales.depth_range.map(|(lo, hi)| json!({
             "min": lo, "max": hi,
             "unit": if report["parameters"]["perspective"].as_bool() == Some(true) { "mm" } else { "px" },
         })),
-        "residual": residual_max.map(|m| json!({ "max": m })),
+        "residual": scales.residual_max.map(|m| json!({ "max": m })),
         "lights": n_lights.map(|n| json!({
             "count": n,
             "planes": n.div_ceil(4),
@@ -252,7 +313,7 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
             "ground_truth": f.ground_truth.as_ref().map(|p| p.display().to_string()),
             "stats": report.get("error").cloned().unwrap_or(Value::Null),
         })),
-        "mesh": mesh.map(|m| json!({
+        "mesh": written.mesh.as_ref().map(|m| json!({
             "vertices": m.vertices, "triangles": m.triangles, "stride": m.stride,
         })),
         "report": {
@@ -265,36 +326,22 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
             "shininess": RelightParams::default().shininess,
         },
         "notes": notes,
-    });
-    let html = page::render(&manifest)?;
+    })
+}
 
-    // Swap in: the old view folder goes, the new one takes its place, then index.html.
+/// Swaps the staged view in: the old view folder goes, the new one takes its place, then
+/// index.html (written beside and renamed). Returns the index's path.
+fn swap_in(dir: &Path, staging: &Path, html: &str) -> Result<PathBuf> {
     let target = dir.join("view");
     if target.exists() {
         let old = dir.join(format!(".view.old-{}", std::process::id()));
         std::fs::rename(&target, &old).map_err(|e| Error::io(&target, e))?;
         let _ = std::fs::remove_dir_all(&old);
     }
-    std::fs::rename(&staging, &target).map_err(|e| Error::io(&target, e))?;
+    std::fs::rename(staging, &target).map_err(|e| Error::io(&target, e))?;
     let index = dir.join("index.html");
     let tmp = dir.join(format!(".index.html.tmp-{}", std::process::id()));
-    std::fs::write(&tmp, &html).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::write(&tmp, html).map_err(|e| Error::io(&tmp, e))?;
     std::fs::rename(&tmp, &index).map_err(|e| Error::io(&index, e))?;
-    if lights.is_none() && n_lights.is_some() {
-        notes.push(
-            "light directions unknown (give the light directions, `lights`): the probe lists lights by number only"
-                .into(),
-        );
-    }
-    Ok(ViewSummary {
-        index,
-        width: f.width,
-        height: f.height,
-        levels: levels.len(),
-        files: files + 1,
-        bytes: bytes + html.len() as u64,
-        layers: layers.iter().map(|s| s.to_string()).collect(),
-        seconds: start.elapsed().as_secs_f64(),
-        notes,
-    })
+    Ok(index)
 }

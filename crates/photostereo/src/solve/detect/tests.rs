@@ -1,3 +1,6 @@
+use super::chi2::least_squares_rss;
+use super::kappa::measure_kappa;
+use super::noise::{measure_dark_floor, measure_image_noise};
 use super::*;
 use crate::base::progress::Silent;
 use crate::fixtures::{lambert_sphere, ring};
@@ -34,8 +37,8 @@ fn residual_norm_equals_least_squares_rss() {
     let r = a.transpose() * nalgebra::DVector::from_vec(intens.clone());
     let (_, rss, count) = {
         let cap = lambert_sphere(16, 6.0, &dirs).0;
-        let test = Test::new(&cap, &DetectionParams::default()).unwrap();
-        fit(&test, &intens, &[true; 9], &test.gram_inv)
+        let test = ChiSquareTest::new(&cap, &DetectionParams::default()).unwrap();
+        least_squares_rss(&test, &intens, &[true; 9], &test.gram_inv)
     };
     assert_eq!(count, 9);
     assert!(
