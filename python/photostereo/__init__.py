@@ -102,6 +102,11 @@ def _real(values: Any, name: str, dtype: Any) -> np.ndarray:
             return a.astype(dtype, copy=False)
     except (TypeError, ValueError) as e:
         raise PhotostereoError(f"{name}: expected an array of real numbers ({e})") from None
+    except MemoryError:
+        shape = getattr(values, "shape", "?")
+        raise PhotostereoError(
+            f"{name}: an array of shape {shape} does not fit in memory as {np.dtype(dtype).name}"
+        ) from None
 
 
 def _floats(values: Any, name: str) -> Optional[np.ndarray]:

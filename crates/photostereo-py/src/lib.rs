@@ -361,7 +361,7 @@ fn run_detached<T: Send + 'static>(
         }
         if let Err(e) = py.check_signals() {
             shared.cancel.store(true, Ordering::Relaxed);
-            return Err(e);
+            return Err(wind_down(py, &rx, e));
         }
         if let Some(cb) = &progress {
             let stage = shared.stage.lock().map(|s| s.clone()).unwrap_or_default();
@@ -373,10 +373,34 @@ fn run_detached<T: Send + 'static>(
             if now != last && !now.0.is_empty() {
                 if let Err(e) = cb.call1(py, (now.0.as_str(), now.1, now.2)) {
                     shared.cancel.store(true, Ordering::Relaxed);
-                    return Err(e);
+                    return Err(wind_down(py, &rx, e));
                 }
                 last = now;
             }
+        }
+    }
+}
+
+/// After a cancel: waits for the worker to stop at its next stage boundary, so that what it
+/// was writing (the staging folder of `run`'s output) is removed before `error` reaches the
+/// caller. A second Ctrl-C while waiting raises at once; the folder is then removed when the
+/// interpreter exits ([`abandon_pending_outputs`]).
+fn wind_down<T: Send>(
+    py: Python<'_>,
+    rx: &Mutex<mpsc::Receiver<photostereo::Result<T>>>,
+    error: PyErr,
+) -> PyErr {
+    loop {
+        let received = py.detach(|| match rx.lock() {
+            Ok(r) => r.recv_timeout(Duration::from_millis(50)),
+            Err(_) => Err(mpsc::RecvTimeoutError::Disconnected),
+        });
+        match received {
+            Ok(_) | Err(mpsc::RecvTimeoutError::Disconnected) => return error,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        if let Err(again) = py.check_signals() {
+            return again;
         }
     }
 }
@@ -990,12 +1014,37 @@ fn normals_of<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<(usize, usiz
             shape_text(&s)
         )));
     }
-    let normals = v
-        .lanes(Axis(2))
-        .into_iter()
-        .map(|l| [l[0], l[1], l[2]])
-        .collect();
+    check_map_size(name, s[0], s[1])?;
+    let mut normals = reserved(name, s[0] * s[1])?;
+    normals.extend(v.lanes(Axis(2)).into_iter().map(|l| [l[0], l[1], l[2]]));
     Ok((s[0], s[1], normals))
+}
+
+/// An (H, W) map held to the image readers' limits ([`MAX_IMAGE_SIDE`] a side,
+/// [`MAX_IMAGE_PIXELS`] in all) before it is copied, so that a huge or zero-strided view is
+/// refused instead of exhausting memory.
+fn check_map_size(name: &str, h: usize, w: usize) -> PyResult<()> {
+    use photostereo::model::image::{MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
+    let limit = if h as u64 > MAX_IMAGE_SIDE || w as u64 > MAX_IMAGE_SIDE {
+        format!("a side exceeds the limit of {MAX_IMAGE_SIDE} pixels")
+    } else if (h as u64) * (w as u64) > MAX_IMAGE_PIXELS {
+        format!("more than the limit of {MAX_IMAGE_PIXELS} pixels")
+    } else {
+        return Ok(());
+    };
+    Err(bad(format!("{name}: {h}×{w} (rows×columns): {limit}")))
+}
+
+/// An empty vector with room for `len` items, or an error naming `name` when the memory is
+/// not there (instead of the allocator's abort).
+fn reserved<T>(name: &str, len: usize) -> PyResult<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).map_err(|_| {
+        bad(format!(
+            "{name}: {len} pixels do not fit in the memory available"
+        ))
+    })?;
+    Ok(v)
 }
 
 /// An (H, W) map of `T` matching the normals' (H, W).
@@ -1015,7 +1064,9 @@ fn map_of<'py, T: numpy::Element + Copy>(
                 shape_text(v.shape())
             )));
         }
-        Ok(v.iter().copied().collect())
+        let mut out = reserved(name, h * w)?;
+        out.extend(v.iter().copied());
+        Ok(out)
     })
 }
 
@@ -1033,6 +1084,7 @@ fn integrate<'py>(
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
     let (h, w, normals) = normals_of(normals, "normals")?;
     let mask = map_of::<bool>(mask, "mask", (h, w))?;
+    let has_mask = mask.is_some();
     let weights = map_of::<f32>(weights, "weights", (h, w))?;
     let kind: photostereo::geometry::integrate::IntegratorKind = method.parse().map_err(py_err)?;
     let mut p = Params::default();
@@ -1054,6 +1106,16 @@ fn integrate<'py>(
             p,
         )
     })?;
+    if !depth.depth.values.iter().any(|z| z.is_finite()) {
+        // As the command line's `integrate` refuses a map without a usable normal.
+        return Err(bad(format!(
+            "normals: no pixel with a valid normal to integrate ({} invalid — zero, NaN or \
+             infinite — and {} facing away from the camera{})",
+            depth.rejected_invalid,
+            depth.rejected_backfacing,
+            if has_mask { ", inside the mask" } else { "" }
+        )));
+    }
     Ok(Array2::from_shape_vec((h, w), depth.depth.values)
         .map_err(|e| bad(e.to_string()))?
         .into_pyarray(py))
