@@ -169,16 +169,15 @@ def test_huge_normal_maps_are_refused_not_copied():
 def test_a_near_capture_has_the_same_recursive_error_after_pickling(tmp_path):
     folder = ps.synth("bumps", tmp_path / "near", rig="near-ring", size=64)
     cap = ps.load_capture(folder)
-    truth = ps.read_normals(folder / "gt" / "normals.npy")
+    truth = ps.read_normals(folder / "gt" / "normal.npy")
     again = pickle.loads(pickle.dumps(cap))
+    assert again.near is not None and again.camera is not None and again.distance == cap.distance
     before = ps.angular_error(ps.reconstruct(cap, method="recursive").normals, truth)
     after = ps.angular_error(ps.reconstruct(again, method="recursive").normals, truth)
-    assert before.mean_deg == after.mean_deg and before.pixels == after.pixels > 0
-    # Solved as near lights: treating the LEDs as distant lights at the centre's directions
-    # is clearly worse on this rig.
-    distant = ps.Capture.from_arrays(again.images, again.lights, again.intensities, again.mask)
-    flat = ps.angular_error(ps.reconstruct(distant, method="recursive").normals, truth)
-    assert after.mean_deg < flat.mean_deg, (after.mean_deg, flat.mean_deg)
+    print("recursive mean error before/after pickling:", before.mean_deg, after.mean_deg)
+    assert before.pixels == after.pixels > 1000
+    assert before.mean_deg == after.mean_deg and before.median_deg == after.median_deg
+    assert after.mean_deg < 5.0, after.mean_deg
 
 
 def test_every_kind_of_capture_pickles(tmp_path):

@@ -310,14 +310,26 @@ impl Progress for SharedProgress {
     }
 }
 
+/// What a Ctrl-C (or an exception from the progress callback) does besides asking the library
+/// to stop at its next stage boundary.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum OnCancel {
+    /// Raise at once; the worker winds down on its own (nothing of its work outlives it).
+    Raise,
+    /// Raise once the worker has stopped, so that the output it was writing (a staging folder)
+    /// is gone when the caller sees the exception; a second Ctrl-C raises at once.
+    CleanUpFirst,
+}
+
 /// Runs `work` on a worker thread (in a rayon pool of `num_threads` when given) with the GIL
 /// released. The calling thread wakes every 50 ms: it checks for signals (Ctrl-C raises
-/// KeyboardInterrupt at once and asks the library to stop at its next stage boundary) and
-/// calls `progress(stage, done, total)` when the figures changed.
+/// KeyboardInterrupt, as `on_cancel` says, and asks the library to stop at its next stage
+/// boundary) and calls `progress(stage, done, total)` when the figures changed.
 fn run_detached<T: Send + 'static>(
     py: Python<'_>,
     num_threads: Option<usize>,
     progress: Option<Py<PyAny>>,
+    on_cancel: OnCancel,
     work: impl FnOnce(&dyn Progress) -> photostereo::Result<T> + Send + 'static,
 ) -> PyResult<T> {
     let pool = match num_threads {
@@ -361,7 +373,7 @@ fn run_detached<T: Send + 'static>(
         }
         if let Err(e) = py.check_signals() {
             shared.cancel.store(true, Ordering::Relaxed);
-            return Err(wind_down(py, &rx, e));
+            return Err(wind_down(py, &rx, on_cancel, e));
         }
         if let Some(cb) = &progress {
             let stage = shared.stage.lock().map(|s| s.clone()).unwrap_or_default();
@@ -373,7 +385,7 @@ fn run_detached<T: Send + 'static>(
             if now != last && !now.0.is_empty() {
                 if let Err(e) = cb.call1(py, (now.0.as_str(), now.1, now.2)) {
                     shared.cancel.store(true, Ordering::Relaxed);
-                    return Err(wind_down(py, &rx, e));
+                    return Err(wind_down(py, &rx, on_cancel, e));
                 }
                 last = now;
             }
@@ -381,15 +393,19 @@ fn run_detached<T: Send + 'static>(
     }
 }
 
-/// After a cancel: waits for the worker to stop at its next stage boundary, so that what it
-/// was writing (the staging folder of `run`'s output) is removed before `error` reaches the
-/// caller. A second Ctrl-C while waiting raises at once; the folder is then removed when the
-/// interpreter exits ([`abandon_pending_outputs`]).
+/// After a cancel, with [`OnCancel::CleanUpFirst`]: waits for the worker to stop at its next
+/// stage boundary, so that what it was writing (the staging folder of `run`'s output) is
+/// removed before `error` reaches the caller. A second Ctrl-C while waiting raises at once; the
+/// folder is then removed when the interpreter exits ([`abandon_pending_outputs`]).
 fn wind_down<T: Send>(
     py: Python<'_>,
     rx: &Mutex<mpsc::Receiver<photostereo::Result<T>>>,
+    on_cancel: OnCancel,
     error: PyErr,
 ) -> PyErr {
+    if on_cancel == OnCancel::Raise {
+        return error;
+    }
     loop {
         let received = py.detach(|| match rx.lock() {
             Ok(r) => r.recv_timeout(Duration::from_millis(50)),
@@ -759,7 +775,7 @@ fn load_capture(
     let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
     let budget = memory_limit_of(memory_limit)?;
-    let capture = run_detached(py, num_threads, None, move |progress| {
+    let capture = run_detached(py, num_threads, None, OnCancel::Raise, move |progress| {
         let files = CaptureFiles::from_inputs_with(
             &inputs,
             lights.as_deref(),
@@ -928,7 +944,7 @@ fn reconstruct<'py>(
     let params = params_from(params)?;
     let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
     let capture = Arc::clone(&capture.inner);
-    let rec = run_detached(py, num_threads, progress, move |p| {
+    let rec = run_detached(py, num_threads, progress, OnCancel::Raise, move |p| {
         if params.refine_lights {
             // The Capture object stays as built: the refined lights (and rescaled samples)
             // belong to a copy made for this call.
@@ -984,7 +1000,7 @@ fn run<'py>(
         // The interpreter's allocator settings stay its own.
         return_freed_memory_when_tiled: false,
     };
-    let rec = run_detached(py, num_threads, progress, move |p| {
+    let rec = run_detached(py, num_threads, progress, OnCancel::CleanUpFirst, move |p| {
         let files = CaptureFiles::from_inputs_with(
             &inputs,
             lights.as_deref(),
@@ -1094,7 +1110,7 @@ fn integrate<'py>(
     }
     let max_slope = p.integration.max_slope;
     let num_threads = threads(num_threads)?;
-    let depth = run_detached(py, num_threads, None, move |p| {
+    let depth = run_detached(py, num_threads, None, OnCancel::Raise, move |p| {
         photostereo::geometry::integrate::surface_from_normals(
             w,
             h,
