@@ -73,9 +73,10 @@ impl CaptureFiles {
                     return Err(Error::file(
                         l,
                         format!(
-                            "{} carries its own light directions, so --lights does not apply \
+                            "{} carries its own light directions, so {} does not apply \
                              (give one or the other)",
-                            lp.display()
+                            lp.display(),
+                            param("lights")
                         ),
                     ));
                 }
@@ -91,7 +92,7 @@ impl CaptureFiles {
                     f.notes.push(format!(
                         "no light_intensities.txt in {}: every light is taken as equally bright; \
                          if the lights' brightness differs, the normals are biased (give the \
-                         intensities in that file or with --intensities)",
+                         intensities in that file, or a file of them as `intensities`)",
                         dir.display()
                     ));
                 }
