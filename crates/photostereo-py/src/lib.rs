@@ -1000,17 +1000,23 @@ fn run<'py>(
         // The interpreter's allocator settings stay its own.
         return_freed_memory_when_tiled: false,
     };
-    let rec = run_detached(py, num_threads, progress, OnCancel::CleanUpFirst, move |p| {
-        let files = CaptureFiles::from_inputs_with(
-            &inputs,
-            lights.as_deref(),
-            intensities.as_deref(),
-            mask.as_deref(),
-            distance,
-            camera,
-        )?;
-        photostereo::app::pipeline::run(&files, &options, &output, force, p)
-    })?;
+    let rec = run_detached(
+        py,
+        num_threads,
+        progress,
+        OnCancel::CleanUpFirst,
+        move |p| {
+            let files = CaptureFiles::from_inputs_with(
+                &inputs,
+                lights.as_deref(),
+                intensities.as_deref(),
+                mask.as_deref(),
+                distance,
+                camera,
+            )?;
+            photostereo::app::pipeline::run(&files, &options, &output, force, p)
+        },
+    )?;
     py_serde(py, &rec.report)
 }
 
