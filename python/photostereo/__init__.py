@@ -82,8 +82,9 @@ PathLike = Union[str, "os.PathLike[str]"]
 #: ``progress(stage, done, total)``: called from the calling thread while the library works.
 ProgressCallback = Callable[[str, int, int], Any]
 
-# A run interrupted by Ctrl-C stops at its worker's next stage boundary, which may come after
-# the script has ended: the output folders still being written are removed when it exits.
+# A run interrupted by Ctrl-C raises once its worker has stopped and removed the output folder
+# it was writing; after a second Ctrl-C it raises at once, and the output folders still being
+# written are removed when the interpreter exits.
 atexit.register(_native.abandon_pending_outputs)
 
 
@@ -482,6 +483,14 @@ def run(
     -------
     dict
         The content of report.json.
+
+    Raises
+    ------
+    PhotostereoError
+        A bad value, file or output folder, naming the keyword, file or line at fault.
+    KeyboardInterrupt
+        On Ctrl-C, once the library has stopped at its next stage boundary and removed the
+        output folder it was writing (a second Ctrl-C raises at once).
     """
     values = _build_params(params, overrides, "run")
     return _native.run(
