@@ -193,3 +193,13 @@ def test_params_nests_by_stage_checks_values_and_pickles():
         cls = ps.Params if q["stage"] == "run" else getattr(ps, q["stage"].capitalize() + "Params")
         assert f"{q['name']} : " in cls.__doc__, q["name"]
     assert "Attributes\n----------" in ps.Params.__doc__
+
+
+def test_other_functions_default_to_the_table():
+    """Keywords outside ``reconstruct``/``run`` that are table parameters take the table's
+    default (``integrate``'s ``max_slope``), and the stub declares the native classes."""
+    import inspect
+
+    assert inspect.signature(ps.integrate).parameters["max_slope"].default == ps.defaults()["max_slope"]
+    stub = (ROOT / "python" / "photostereo" / "_native.pyi").read_text()
+    assert "def reconstruct(" in stub and "class NativeCapture" in stub
