@@ -78,6 +78,20 @@ def test_the_budget_holds_an_array_in_tiles_with_the_same_normals():
     b = ps.reconstruct(u8, lights, method="l2", integrate=False, memory_limit=f"{smallest + 1}M")
     assert b.report["memory"]["sample_type"] == "u16"
     assert np.array_equal(a.normals, b.normals)
+    # Non-finite readings follow the same rule in tiles as whole: read as 0, with one note.
+    holes = images.copy()
+    holes[2, 10:20, 10:20] = np.nan
+    a = ps.reconstruct(holes, lights, method="l2", integrate=False)
+    b = ps.reconstruct(holes, lights, method="l2", integrate=False,
+                       memory_limit=f"{smallest + 1}M")
+    assert b.report["memory"]["tiles"] > 1
+    assert np.array_equal(a.normals, b.normals)
+    notes = [[n for n in r.report["notes"] if "non-finite" in n] for r in (a, b)]
+    assert len(notes[0]) == 1 and "image 3 of the stack (300 of" in notes[0][0], notes[0]
+    assert notes[0] == notes[1]
+    holes[3] = np.inf
+    with pytest.raises(ps.PhotostereoError, match="image 4 of the stack: no reading"):
+        ps.reconstruct(holes, lights, method="l2", memory_limit=f"{smallest + 1}M")
     # A tiled capture pickles whole.
     cap = ps.Capture.from_arrays(images, lights, memory_limit=f"{smallest + 1}M")
     again = pickle.loads(pickle.dumps(cap))

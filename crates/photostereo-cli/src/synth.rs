@@ -185,7 +185,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
     Ok(())
 }
 
-/// A near-light scene (issue 13) in the near-light layout.
+/// A near-light scene in the near-light layout.
 fn near(
     a: &SynthArgs,
     scene: SceneKind,

@@ -217,6 +217,56 @@ fn recovers_known_lights_within_a_third_of_a_degree() {
 }
 
 #[test]
+fn a_mask_shifted_off_the_sphere_is_warned_of() {
+    let c = sphere();
+    let lights = rig();
+    let images = render_rig(&c, &lights, Render::default());
+    let shifted = Circle {
+        cx: c.cx - 25.0,
+        ..c
+    };
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&shifted)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    let (mean, _) = mean_error(&cal.to_lights().unwrap().directions, &lights);
+    println!("mask 25 px off: mean {mean:.2}°; {:?}", cal.warnings);
+    assert!(
+        mean > 5.0,
+        "the shifted mask should bias every light: {mean:.2}°"
+    );
+    let off: Vec<_> = cal
+        .warnings
+        .iter()
+        .filter(|w| w.kind == WarningKind::MaskOffSphere)
+        .collect();
+    assert_eq!(off.len(), 1, "{:?}", cal.warnings);
+    assert!(off[0].message.contains("25.0 px"), "{}", off[0].message);
+    // A mask 1 px off (within the detection's precision and 2% of the radius) is not.
+    let near = Circle {
+        cx: c.cx - 1.0,
+        ..c
+    };
+    let cal = calibrate(
+        &images,
+        Some(&disc_mask(&near)),
+        None,
+        &CalibrationOptions::default(),
+    )
+    .unwrap();
+    assert!(
+        cal.warnings
+            .iter()
+            .all(|w| w.kind != WarningKind::MaskOffSphere),
+        "{:?}",
+        cal.warnings
+    );
+}
+
+#[test]
 fn detects_the_sphere_without_a_mask() {
     let c = sphere();
     let lights = rig();

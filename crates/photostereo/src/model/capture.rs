@@ -106,6 +106,94 @@ impl Clone for Statistics {
     }
 }
 
+/// Readings that are not finite (NaN, ±∞) in one image's samples at the mask pixels: set to
+/// 0 and counted. A 0 reads as a shadow, which the robust methods (recursive, the χ² test of
+/// the others) leave out of the pixel's fit, so the pixel keeps its normal from its other
+/// lights instead of being dropped whole; see [`MissingReadings`] for what is refused and
+/// what is said.
+pub fn zero_non_finite(values: &mut [f32]) -> usize {
+    let mut count = 0;
+    for v in values.iter_mut().filter(|v| !v.is_finite()) {
+        *v = 0.0;
+        count += 1;
+    }
+    count
+}
+
+/// The count of non-finite readings per image of a capture, and the rule applied to them: an
+/// image with no finite reading inside the mask is refused (it holds no measurement at all);
+/// an image with some is kept, its non-finite readings read as 0 ([`zero_non_finite`]), and a
+/// note names it.
+#[derive(Clone, Debug)]
+pub struct MissingReadings {
+    /// Non-finite readings of each image (light), over its mask pixels and channels.
+    pub per_image: Vec<usize>,
+    /// Readings of one image: mask pixels × channels.
+    pub readings_per_image: usize,
+}
+
+impl MissingReadings {
+    /// No missing reading yet, for `images` images of `readings_per_image` readings each.
+    pub fn new(images: usize, readings_per_image: usize) -> Self {
+        MissingReadings {
+            per_image: vec![0; images],
+            readings_per_image,
+        }
+    }
+
+    /// Counts the non-finite readings of pixel-major `samples` (`pixels × images × channels`)
+    /// per image, setting them to 0.
+    pub fn zero_in_samples(&mut self, samples: &mut [f32], channels: usize) {
+        let n = self.per_image.len();
+        if samples.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        for (j, v) in samples.iter_mut().enumerate() {
+            if !v.is_finite() {
+                *v = 0.0;
+                self.per_image[(j / channels) % n] += 1;
+            }
+        }
+    }
+
+    /// The rule: `Err` naming the first image without a finite reading; else the note naming
+    /// the images with some, or `None`. `sources` are the images' files (empty for an array,
+    /// whose images are then named by their 1-based index).
+    pub fn verdict(&self, sources: &[PathBuf]) -> Result<Option<String>> {
+        let total = self.readings_per_image;
+        let name = |k: usize| match sources.get(k) {
+            Some(path) => path.display().to_string(),
+            None => format!("image {} of the stack", k + 1),
+        };
+        if let Some(k) = self.per_image.iter().position(|&m| total > 0 && m == total) {
+            let message =
+                "no reading inside the mask is finite (all NaN or infinite): expected intensities";
+            return Err(match sources.get(k) {
+                Some(path) => Error::file(path, message),
+                None => Error::invalid(format!("{}: {message}", name(k))),
+            });
+        }
+        let bad: Vec<String> = (0..self.per_image.len())
+            .filter(|&k| self.per_image[k] > 0)
+            .map(|k| {
+                format!(
+                    "{} ({} of {total} readings, {:.2}%)",
+                    name(k),
+                    self.per_image[k],
+                    100.0 * self.per_image[k] as f64 / total as f64
+                )
+            })
+            .collect();
+        Ok((!bad.is_empty()).then(|| {
+            format!(
+                "non-finite readings (NaN or infinite) read as 0, a shadow, which the robust \
+                 methods leave out and l2 fits as a reading: {}",
+                bad.join(", ")
+            )
+        }))
+    }
+}
+
 /// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities): what
 /// a sample is multiplied by to divide it by its light's intensity.
 pub fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {
@@ -339,15 +427,20 @@ impl Capture {
                 out
             })
             .collect();
-        let samples = interleave(&planes, pixels.len(), c);
-        Ok(Capture::in_memory(
+        let mut samples = interleave(&planes, pixels.len(), c);
+        let mut missing = MissingReadings::new(images.len(), pixels.len() * c);
+        missing.zero_in_samples(&mut samples, c);
+        let note = missing.verdict(&[])?;
+        let mut capture = Capture::in_memory(
             (w, h, c),
             images[0].bit_depth,
             lights,
             mask,
             pixels,
             samples,
-        ))
+        );
+        capture.notes.extend(note);
+        Ok(capture)
     }
 
     /// A capture assembled by a loader from its parts (statistics not yet measured, lights not
@@ -421,8 +514,9 @@ impl Capture {
     /// anything is allocated: the stack is read once, straight into the pixel-major sample
     /// store, whole as `f32` when that fits the budget, else in tiles at the stack's precision
     /// (in memory or in a spill file; the plan is then the capture's `memory`). Errors name
-    /// what is wrong (sizes, shapes, counts, non-finite samples, an empty mask, lights that do
-    /// not determine a normal, a budget too small).
+    /// what is wrong (sizes, shapes, counts, an image without a finite sample, an empty mask,
+    /// lights that do not determine a normal, a budget too small); non-finite samples of an
+    /// image that has finite ones follow [`MissingReadings`], held whole or in tiles.
     pub fn from_stack_with(
         stack: Stack<'_>,
         lights: Lights,
@@ -508,7 +602,16 @@ impl Capture {
         if layout != Layout::InMemory {
             let spill = (layout == Layout::Spill)
                 .then(|| options.spill_dir.clone().unwrap_or_else(std::env::temp_dir));
-            let store = tiled_store(&stack, &mask, &pixels, &scales, &plan, spill.as_deref())?;
+            let mut missing = MissingReadings::new(n, pixels.len() * c);
+            let store = tiled_store(
+                &stack,
+                (&mask, &pixels),
+                &scales,
+                &plan,
+                spill.as_deref(),
+                &mut missing,
+            )?;
+            let note = missing.verdict(&[])?;
             let mut capture = Capture::from_parts(CaptureParts {
                 width: w,
                 height: h,
@@ -520,7 +623,7 @@ impl Capture {
                 samples: Vec::new(),
                 store: Some(Arc::new(store)),
                 sources: Vec::new(),
-                notes: Vec::new(),
+                notes: note.into_iter().collect(),
             });
             capture.memory = Some(plan);
             return Ok(capture);
@@ -531,19 +634,20 @@ impl Capture {
             Stack::F32(v) => gather_stack(&v, &pixels, &scales, |x| x),
             Stack::F64(v) => gather_stack(&v, &pixels, &scales, |x| x as f32),
         };
-        if let Some(bad) = samples.iter().position(|v| !v.is_finite()) {
-            let p = bad / (n * c);
-            let k = (bad / c) % n;
-            return Err(non_finite(k, pixels[p] as usize, w));
-        }
-        Ok(Capture::in_memory(
+        let mut samples = samples;
+        let mut missing = MissingReadings::new(n, pixels.len() * c);
+        missing.zero_in_samples(&mut samples, c);
+        let note = missing.verdict(&[])?;
+        let mut capture = Capture::in_memory(
             (w, h, c),
             stack.bit_depth(),
             lights,
             mask,
             pixels,
             samples,
-        ))
+        );
+        capture.notes.extend(note);
+        Ok(capture)
     }
 
     /// The samples of every mask pixel, `[pixel][light][channel]`, intensity-normalised: the
@@ -965,24 +1069,17 @@ fn check_frame(w: usize, h: usize) -> Result<()> {
     Ok(())
 }
 
-fn non_finite(k: usize, i: usize, w: usize) -> Error {
-    Error::invalid(format!(
-        "image {} has a non-finite sample at row {}, column {}: expected finite intensities",
-        k + 1,
-        i / w,
-        i % w
-    ))
-}
-
 /// The samples of a stack in a tiled store at its precision (`u16` for integer stacks, `f32`
-/// for floats), under `plan`; the same `f32` values as [`gather_stack`] when read back.
+/// for floats), under `plan`, for the frame's `mask` and its mask `pixels`; the same `f32`
+/// values as [`gather_stack`] when read back, non-finite ones stored as 0 and counted in
+/// `missing` (the rule of [`MissingReadings`]).
 fn tiled_store(
     stack: &Stack<'_>,
-    mask: &[bool],
-    pixels: &[u32],
+    (mask, pixels): (&[bool], &[u32]),
     scales: &[[f32; 3]],
     plan: &MemoryPlan,
     spill_dir: Option<&std::path::Path>,
+    missing: &mut MissingReadings,
 ) -> Result<SampleStore> {
     let (n, h, w, c) = stack.dim();
     let (kind, decode) = match stack {
@@ -1005,10 +1102,8 @@ fn tiled_store(
         match stack {
             Stack::U8(v) => stored_bytes(v, tile, &mut raw, |x| (x as u16).to_ne_bytes()),
             Stack::U16(v) => stored_bytes(v, tile, &mut raw, |x: u16| x.to_ne_bytes()),
-            Stack::F32(v) => finite_bytes(v, tile, scales, &mut raw, |x| x)
-                .map_err(|(p, k)| non_finite(k, p, w))?,
-            Stack::F64(v) => finite_bytes(v, tile, scales, &mut raw, |x| x as f32)
-                .map_err(|(p, k)| non_finite(k, p, w))?,
+            Stack::F32(v) => float_bytes(v, tile, scales, &mut raw, missing, |x| x),
+            Stack::F64(v) => float_bytes(v, tile, scales, &mut raw, missing, |x| x as f32),
         }
         store.write_raw(t, &raw)?;
     }
@@ -1040,27 +1135,28 @@ fn stored_bytes<T: Copy + Sync, const B: usize>(
         });
 }
 
-/// The stored `f32` bytes of the pixels `tile` of a float stack, or the first (frame pixel,
-/// light) whose intensity-normalised sample is not finite.
-fn finite_bytes<T: Copy + Sync>(
+/// The stored `f32` bytes of the pixels `tile` of a float stack; a sample whose
+/// intensity-normalised value is not finite is stored as 0 and counted in `missing`.
+fn float_bytes<T: Copy + Sync>(
     view: &ArrayView4<'_, T>,
     tile: &[u32],
     scales: &[[f32; 3]],
     raw: &mut Vec<u8>,
+    missing: &mut MissingReadings,
     to_f32: impl Fn(T) -> f32 + Sync,
-) -> std::result::Result<(), (usize, usize)> {
+) {
     stored_bytes(view, tile, raw, |x| to_f32(x).to_ne_bytes());
     let (n, _, _, c) = view.dim();
-    for (p, px) in raw.chunks_exact(n * c * 4).enumerate() {
-        for (j, v) in px.chunks_exact(4).enumerate() {
+    for px in raw.chunks_exact_mut(n * c * 4) {
+        for (j, v) in px.chunks_exact_mut(4).enumerate() {
             let (k, ch) = (j / c, j % c);
-            let v = f32::from_ne_bytes([v[0], v[1], v[2], v[3]]);
-            if !(v * scales[k][ch]).is_finite() {
-                return Err((tile[p] as usize, k));
+            let x = f32::from_ne_bytes([v[0], v[1], v[2], v[3]]);
+            if !(x * scales[k][ch]).is_finite() {
+                v.copy_from_slice(&0f32.to_ne_bytes());
+                missing.per_image[k] += 1;
             }
         }
     }
-    Ok(())
 }
 
 /// The pixel-major sample store (`[pixel][light][channel]`) of the mask pixels `pixels`, read

@@ -5,12 +5,11 @@
 //! small JavaScript files, so that an 8000 × 6000 result opens at its reduced level first and
 //! loads only the tiles on screen.
 //!
-//! - [`relight`]: the relighting model, the same expression the page's shader evaluates.
+//! - [`relight`](mod@relight): the relighting model, the same expression the page's shader evaluates.
 //! - [`folder`]: reading an output folder.
 //! - [`tiles`], [`mesh`]: the files the page loads.
 //! - [`page`]: the page itself (HTML, JavaScript and GLSL from `assets/`).
 //! - [`openlime`]: what OpenLIME's BRDF layer reads.
-//! - [`serve`]: a minimal HTTP server on 127.0.0.1 for browsers or tools that want one.
 //!
 //! The page's state lives in its URL fragment (`#layer=relight&light=x,y,z&probe=row,col…`), so
 //! a view can be shared, and in the `<pre id="ps-state">` element as JSON, which tests read.
