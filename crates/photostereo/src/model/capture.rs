@@ -638,14 +638,8 @@ impl Capture {
         let mut missing = MissingReadings::new(n, pixels.len() * c);
         missing.zero_in_samples(&mut samples, c);
         let note = missing.verdict(&[])?;
-        let mut capture = Capture::in_memory(
-            (w, h, c),
-            stack.bit_depth(),
-            lights,
-            mask,
-            pixels,
-            samples,
-        );
+        let mut capture =
+            Capture::in_memory((w, h, c), stack.bit_depth(), lights, mask, pixels, samples);
         capture.notes.extend(note);
         Ok(capture)
     }
