@@ -4,38 +4,66 @@ Per pixel a surface normal and an albedo from images taken from one viewpoint un
 lights, with shadows and highlights found and left out (Argyriou & Petrou's recursive method and
 its baselines), then a depth map by integrating the normals. The engine is the Rust library
 behind the ``photostereo`` command line; this package is a thin layer over it: the GIL is
-released while it works, Ctrl-C raises KeyboardInterrupt, bad input raises PhotostereoError.
+released while it works, Ctrl-C raises KeyboardInterrupt, bad input raises PhotostereoError
+naming the keyword at fault.
 
 Conventions (the project's CONVENTIONS.md): camera frame x right, y up, z toward the camera;
 arrays are row-major with row 0 at the top; normals are unit vectors with n_z > 0; light
 directions point from the surface toward the light; integer images are scaled to [0, 1] by
-their bit depth; depth is in pixel units toward the camera.
+their bit depth; depth is in pixel units toward the camera (in mm with a camera).
 
-Example::
-
-    import numpy as np, photostereo
-    cap = photostereo.load_capture("catPNG")
-    rec = photostereo.reconstruct(cap)
-    print(rec.report["method"], rec.normals.shape)
-    np.save("normals.npy", rec.normals)
+Examples
+--------
+>>> import photostereo as ps
+>>> cap = ps.load_capture("catPNG")                                  # doctest: +SKIP
+>>> rec = ps.reconstruct(cap, method="recursive", confidence=0.99)   # doctest: +SKIP
+>>> rec.normals.shape                                                # doctest: +SKIP
+(512, 612, 3)
+>>> p = ps.Params(method="l2")
+>>> p.detection.confidence
+0.95
 """
 
 from __future__ import annotations
 
-import json
+import atexit
 import os
-from dataclasses import dataclass
-from typing import Any, Callable, Dict, Optional, Sequence, Tuple, Union
+import pathlib
+from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Sequence, Union
 
 import numpy as np
 
 from . import _native
 from ._native import PhotostereoError, __version__
+from ._params import DetectionParams, IntegrationParams, Params, RecursiveParams
+from ._params import build as _build_params
+from ._results import (
+    AngularError,
+    Calibration,
+    NearRig,
+    Reconstruction,
+    Scene,
+    SceneTruth,
+)
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+    from ._native import ParamValues
 
 __all__ = [
+    "AngularError",
+    "Calibration",
     "Capture",
+    "DetectionParams",
+    "IntegrationParams",
+    "NearRig",
+    "Params",
     "PhotostereoError",
     "Reconstruction",
+    "RecursiveParams",
+    "Scene",
+    "SceneTruth",
     "angular_error",
     "calibrate",
     "defaults",
@@ -54,18 +82,78 @@ PathLike = Union[str, "os.PathLike[str]"]
 #: ``progress(stage, done, total)``: called from the calling thread while the library works.
 ProgressCallback = Callable[[str, int, int], Any]
 
+# A run interrupted by Ctrl-C raises once its worker has stopped and removed the output folder
+# it was writing; after a second Ctrl-C it raises at once, and the output folders still being
+# written are removed when the interpreter exits.
+atexit.register(_native.abandon_pending_outputs)
+
 
 def defaults() -> Dict[str, Any]:
-    """The library's default for every reconstruction keyword (the one source of defaults)."""
+    """The library's default of every parameter, by name (``Params().to_dict()``)."""
     return dict(_native.defaults())
+
+
+def _real(values: Any, name: str, dtype: Any) -> np.ndarray:
+    """``values`` as an array of ``dtype``; shapes are checked by the library, naming ``name``."""
+    try:
+        a = np.asarray(values)
+        if np.iscomplexobj(a):
+            raise TypeError(f"got {a.dtype}")
+        with np.errstate(over="ignore", invalid="ignore"):
+            return a.astype(dtype, copy=False)
+    except (TypeError, ValueError) as e:
+        raise PhotostereoError(f"{name}: expected an array of real numbers ({e})") from None
+    except MemoryError:
+        shape = getattr(values, "shape", "?")
+        raise PhotostereoError(
+            f"{name}: an array of shape {shape} does not fit in memory as {np.dtype(dtype).name}"
+        ) from None
+
+
+def _floats(values: Any, name: str) -> Optional[np.ndarray]:
+    return None if values is None else _real(values, name, np.float64)
+
+
+def _booleans(values: Any, name: str) -> Optional[np.ndarray]:
+    """``values`` as a bool array, non-zero meaning True."""
+    if values is None:
+        return None
+    try:
+        a = np.asarray(values)
+        return a if a.dtype == np.bool_ else a != 0
+    except (TypeError, ValueError) as e:
+        raise PhotostereoError(f"{name}: expected an array ({e})") from None
+
+
+def _normals(values: Any, name: str) -> np.ndarray:
+    return _real(values, name, np.float32)
+
+
+def _camera(camera: Any) -> Any:
+    """``camera=`` as the native module takes it: a path, or K as a float64 array."""
+    if camera is None or isinstance(camera, (str, os.PathLike)):
+        return None if camera is None else os.fspath(camera)
+    return _floats(camera, "camera")
+
+
+def _paths(path: Union[PathLike, Sequence[PathLike]]) -> list:
+    if isinstance(path, (str, os.PathLike)):
+        return [os.fspath(path)]
+    return [os.fspath(p) for p in path]
+
+
+def _path(p: Optional[PathLike]) -> Optional[str]:
+    return None if p is None else os.fspath(p)
 
 
 class Capture:
     """Images, lights and mask of one capture, held by the library.
 
     Only the pixels inside the mask are stored, divided by their light's intensity (the
-    library's sample store); ``reconstruct`` uses that store without copying it. Build one with
-    :func:`load_capture` (files) or :func:`Capture.from_arrays` (numpy).
+    library's sample store, whole or in tiles within the memory budget); :func:`reconstruct`
+    uses that store without copying it. Build one with :func:`load_capture` (files) or
+    :meth:`Capture.from_arrays` (numpy). A capture pickles whole, near lights and camera
+    included, so it can be shipped to Dask or Ray workers.
     """
 
     __slots__ = ("_native",)
@@ -76,7 +164,7 @@ class Capture:
     @classmethod
     def from_arrays(
         cls,
-        images: np.ndarray,
+        images: Any,
         lights: Any = None,
         intensities: Any = None,
         mask: Any = None,
@@ -86,64 +174,77 @@ class Capture:
         distance: Optional[float] = None,
         light_axes: Any = None,
         light_anisotropy: Any = None,
+        memory_limit: Union[int, str, None] = None,
     ) -> "Capture":
-        """A capture from an (N, H, W) or (N, H, W, C) array of uint8, uint16, float32 or
-        float64 (any strides), (N, 3) light directions, optional (N,) or (N, C) intensities and
-        an (H, W) mask (non-zero = object). The array is read once into the library's store.
+        """A capture from arrays.
 
-        Near lights (LEDs a few hundred mm away; CONVENTIONS.md): instead of ``lights``, give
-        ``light_positions`` (N, 3) in mm in the camera frame (camera centre at the origin, x
-        right, y up, z toward the camera: the object has z < 0), ``camera`` (the 3x3
-        intrinsics K in pixels, or the path of a K.txt) and ``distance`` (the object's mean
-        distance along the optical axis, mm); optional ``light_axes`` (N, 3) (default: each
-        LED aims at (0, 0, -distance)), ``light_anisotropy`` (N,) (mu: radiance ~ cos^mu off
-        the axis; default 0) and ``intensities`` (each LED's radiance along its axis at 1 mm;
-        default 1). Every method then uses per-pixel light vectors and the depth is Z in mm.
-        Distant ``lights`` with ``camera`` and ``distance`` keep the distant model but
-        integrate through the camera (depth in mm)."""
-        stack = _as_stack(images)
-        lights_arr = None if lights is None else _float_array(lights, "lights")
-        intens = None
-        if intensities is not None:
-            intens = _float_array(intensities, "intensities")
-            if intens.ndim == 1:
-                intens = intens[:, None]
-        mask_arr = None if mask is None else _mask_array(mask)
-        positions = None
-        if light_positions is not None:
-            positions = _float_array(light_positions, "light_positions")
-        axes = None if light_axes is None else _float_array(light_axes, "light_axes")
-        mu = None
-        if light_anisotropy is not None:
-            mu = [float(v) for v in _float_array(light_anisotropy, "light_anisotropy").ravel()]
+        Parameters
+        ----------
+        images : array of uint8, uint16, float32 or float64, shape (N, H, W) or (N, H, W, C)
+            Any strides (a transposed or sliced view is read without a copy); integers are
+            scaled to [0, 1] by 255 or 65535; C is 1 or 3.
+        lights : array_like, shape (N, 3)
+            Unit directions toward the distant lights, camera frame.
+        intensities : array_like, shape (N,) or (N, C), optional
+            Each light's intensity (near lights: each LED's radiance along its axis at 1 mm).
+        mask : array_like, shape (H, W) or (H, W, 1|3|4), optional
+            Non-zero inside the object (default: the whole frame).
+        light_positions : array_like, shape (N, 3), optional
+            Near lights instead of ``lights``: LED positions in mm, camera frame, camera
+            centre at the origin (the object at z < 0). Needs ``camera`` and ``distance``.
+        camera : array_like, shape (3, 3), or path, optional
+            The intrinsics K in pixels, or the path of a K.txt. With distant ``lights`` and
+            ``distance``, the depth is integrated through the camera (mm).
+        distance : float, optional
+            The object's mean distance along the optical axis, mm.
+        light_axes : array_like, shape (N, 3), optional
+            The direction each LED points (default: toward (0, 0, -distance)).
+        light_anisotropy : array_like, shape (N,), optional
+            mu per LED: radiance falls as cos^mu off the axis (default 0).
+        memory_limit : int or str, optional
+            The memory budget (bytes, or ``"4G"``; default half of the memory available), as
+            for files: samples that do not fit as float32 are held in tiles at the array's
+            precision, and a budget too small for the capture is refused.
+
+        Raises
+        ------
+        PhotostereoError
+            Shapes, counts, sizes beyond the image limits or the budget, non-finite samples,
+            an empty mask, lights that do not determine a normal.
+        """
         return cls(
             _native.capture_from_stack(
-                stack,
-                lights_arr,
-                intens,
-                mask_arr,
-                positions,
-                _camera_arg(camera),
-                None if distance is None else float(distance),
-                axes,
-                mu,
+                np.asarray(images),
+                _floats(lights, "lights"),
+                _floats(intensities, "intensities"),
+                _booleans(mask, "mask"),
+                _floats(light_positions, "light_positions"),
+                _camera(camera),
+                distance,
+                _floats(light_axes, "light_axes"),
+                _floats(light_anisotropy, "light_anisotropy"),
+                memory_limit,
             )
         )
 
     @property
     def width(self) -> int:
+        """Columns W."""
         return self._native.width
 
     @property
     def height(self) -> int:
+        """Rows H."""
         return self._native.height
 
     @property
     def channels(self) -> int:
+        """Channels C per image (1 or 3)."""
         return self._native.channels
 
     @property
     def n_lights(self) -> int:
+        """Lights N (= images)."""
         return self._native.n_lights
 
     @property
@@ -158,7 +259,8 @@ class Capture:
 
     @property
     def lights(self) -> np.ndarray:
-        """(N, 3) float64 unit directions toward the lights, camera frame."""
+        """(N, 3) float64 unit directions toward the lights, camera frame (near lights: toward
+        each LED from the object's centre)."""
         return self._native.lights()
 
     @property
@@ -172,133 +274,36 @@ class Capture:
         return self._native.mask()
 
     @property
+    def camera(self) -> Optional[np.ndarray]:
+        """(3, 3) float64 intrinsics K of the capture's camera, or None (orthographic)."""
+        return self._native.camera()
+
+    @property
+    def distance(self) -> Optional[float]:
+        """The object's mean distance in mm, with a camera; else None."""
+        return self._native.distance
+
+    @property
+    def near(self) -> Optional[Dict[str, np.ndarray]]:
+        """The near-light rig (``light_positions`` (N, 3) mm, ``light_axes`` (N, 3),
+        ``light_anisotropy`` (N,)), or None for distant lights."""
+        near = self._native.near()
+        return None if near is None else dict(near)
+
+    @property
     def notes(self) -> list:
         """Remarks made while loading (normalised lights, resolved paths...)."""
         return list(self._native.notes)
 
     def __reduce__(self):
-        return (
-            _capture_from_state,
-            (self.images, self.lights, self.intensities, self.mask, self.bit_depth),
-        )
+        return (Capture, (self._native,))
 
     def __repr__(self) -> str:
+        kind = ", near lights" if self._native.near() is not None else ""
         return (
             f"Capture({self.n_lights} lights, {self.width}x{self.height}, "
-            f"{self.channels} channel(s), {self.bit_depth}-bit)"
+            f"{self.channels} channel(s), {self.bit_depth}-bit{kind})"
         )
-
-
-def _capture_from_state(images, lights, intensities, mask, bit_depth):
-    # The stored images are already multiplied back by the intensities: rebuild with them.
-    return Capture.from_arrays(images, lights, intensities, mask)
-
-
-@dataclass
-class Reconstruction:
-    """The result of :func:`reconstruct`; every map is full frame (H rows, W columns).
-
-    normals:          (H, W, 3) float32 unit normals, camera frame; 0 outside the mask.
-    albedo:           (H, W, C) float32 per channel, in units of the intensity-normalised
-                      images; 0 outside the mask.
-    depth:            (H, W) float32, pixel units toward the camera, NaN outside the mask;
-                      None with ``integrate=False``.
-    light_status:     (N, H, W) uint8: 0 used, 1 shadow, 2 highlight, 3 rejected, 255 outside.
-    residual:         (H, W) float32, the chi-square statistic ||r|| / sigma with all lights;
-                      None when the test did not run (fewer than four lights, detect=False).
-    unreliable:       (H, W) bool, the test failed; None when it did not run.
-    curl:             (H, W) float32 integrability residual (eq. 10); None without depth.
-    trust:            (H, W) float32 integration weight of each pixel (1, unreliable_weight, 0).
-    mask:             (H, W) bool.
-    highlight:        (H, W) bool, the recursive method's highlight map; None for others.
-    fewer_than_three: (H, W) bool, pixels left with fewer than three usable lights (recursive).
-    report:           dict, the content of report.json.
-    """
-
-    normals: np.ndarray
-    albedo: np.ndarray
-    depth: Optional[np.ndarray]
-    light_status: np.ndarray
-    residual: Optional[np.ndarray]
-    unreliable: Optional[np.ndarray]
-    curl: Optional[np.ndarray]
-    trust: np.ndarray
-    mask: np.ndarray
-    highlight: Optional[np.ndarray]
-    fewer_than_three: Optional[np.ndarray]
-    report: Dict[str, Any]
-
-
-def _as_stack(images: Any) -> np.ndarray:
-    """An (N, H, W, C) view of ``images`` without copying when the dtype is accepted."""
-    if isinstance(images, Capture):
-        raise PhotostereoError("images: a Capture needs no lights or intensities")
-    arr = np.asarray(images)
-    if arr.dtype not in (np.uint8, np.uint16, np.float32, np.float64):
-        raise PhotostereoError(
-            f"images: expected uint8, uint16, float32 or float64 samples, got {arr.dtype}"
-        )
-    if arr.ndim == 3:
-        arr = arr[..., None]
-    if arr.ndim != 4:
-        raise PhotostereoError(
-            f"images: expected an (N, H, W) or (N, H, W, C) array, got shape {arr.shape}"
-        )
-    return arr
-
-
-def _float_array(values: Any, name: str) -> np.ndarray:
-    try:
-        arr = np.asarray(values, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise PhotostereoError(f"{name}: expected an array of numbers ({e})") from None
-    if name == "lights" and (arr.ndim != 2 or arr.shape[1] != 3):
-        raise PhotostereoError(f"lights: expected an (N, 3) array, got shape {arr.shape}")
-    if name in ("light_positions", "light_axes") and (arr.ndim != 2 or arr.shape[1] != 3):
-        raise PhotostereoError(f"{name}: expected an (N, 3) array in mm, got shape {arr.shape}")
-    if name == "intensities" and arr.ndim not in (1, 2):
-        raise PhotostereoError(
-            f"intensities: expected an (N,) or (N, C) array, got shape {arr.shape}"
-        )
-    return arr
-
-
-def _mask_array(mask: Any) -> np.ndarray:
-    arr = np.asarray(mask)
-    if arr.ndim == 3 and arr.shape[2] in (1, 3, 4):
-        arr = arr.any(axis=2)
-    if arr.ndim != 2:
-        raise PhotostereoError(f"mask: expected an (H, W) array, got shape {arr.shape}")
-    return arr.astype(bool, copy=False)
-
-
-def _camera_arg(camera: Any) -> Any:
-    """``camera=`` as the native module takes it: a path string or a (3, 3) float64 array."""
-    if camera is None:
-        return None
-    if isinstance(camera, (str, os.PathLike)):
-        return os.fspath(camera)
-    try:
-        k = np.asarray(camera, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise PhotostereoError(
-            f"camera: expected a 3x3 array K or the path of a K.txt ({e})"
-        ) from None
-    if k.shape != (3, 3):
-        raise PhotostereoError(
-            f"camera: expected a 3x3 array K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]], got shape {k.shape}"
-        )
-    return np.ascontiguousarray(k)
-
-
-def _paths(path: Union[PathLike, Sequence[PathLike]]) -> list:
-    if isinstance(path, (str, os.PathLike)):
-        return [os.fspath(path)]
-    return [os.fspath(p) for p in path]
-
-
-def _opt_path(p: Optional[PathLike]) -> Optional[str]:
-    return None if p is None else os.fspath(p)
 
 
 def load_capture(
@@ -309,160 +314,137 @@ def load_capture(
     *,
     distance: Optional[float] = None,
     camera: Any = None,
+    memory_limit: Union[int, str, None] = None,
     num_threads: Optional[int] = None,
 ) -> Capture:
-    """Reads a capture from files, in every layout the command line reads: a DiLiGenT-layout
-    folder (``lights`` replaces its directions), a near-light folder (``light_positions.txt``,
-    ``K.txt``...), a list file (with ``lights``), or a list of image files (with ``lights``).
-    ``intensities`` and ``mask`` replace the layout's own. For one folder, ``distance`` (mm)
-    replaces ``mean_distance.txt`` (as ``--distance``) and ``camera`` (a 3x3 K in pixels or a
-    K.txt path) replaces ``K.txt``; on a folder of distant lights they add a camera (depth in
-    mm). Images are decoded in parallel (``num_threads`` caps the threads)."""
-    native = _native.load_capture(
-        _paths(path),
-        _opt_path(lights),
-        _opt_path(intensities),
-        _opt_path(mask),
-        num_threads,
-        None if distance is None else float(distance),
-        _camera_arg(camera),
+    """Reads a capture from files, in every layout the command line reads.
+
+    Parameters
+    ----------
+    path : path or sequence of paths
+        A DiLiGenT-layout folder, a near-light folder (``light_positions.txt``, ``K.txt``...),
+        an ``.lp`` file, a list file (with ``lights``), or image files (with ``lights``).
+    lights, intensities, mask : path, optional
+        Replace the layout's own light directions, intensities and mask.
+    distance : float, optional
+        For one folder: the object's mean distance in mm (replaces ``mean_distance.txt``).
+    camera : array_like, shape (3, 3), or path, optional
+        For one folder: K in pixels, or a K.txt (replaces ``K.txt``); on a folder of distant
+        lights, with ``distance``, the depth is then integrated in mm.
+    memory_limit : int or str, optional
+        The memory budget (bytes, or ``"4G"``; default half of the memory available).
+    num_threads : int, optional
+        Cap on the decoding threads (None: all cores).
+
+    Returns
+    -------
+    Capture
+    """
+    return Capture(
+        _native.load_capture(
+            _paths(path),
+            _path(lights),
+            _path(intensities),
+            _path(mask),
+            num_threads,
+            distance,
+            _camera(camera),
+            memory_limit,
+        )
     )
-    return Capture(native)
 
 
 def reconstruct(
     images: Union[Capture, np.ndarray],
     lights: Any = None,
-    *,
     mask: Any = None,
+    *,
+    params: Optional[Params] = None,
     intensities: Any = None,
     light_positions: Any = None,
     camera: Any = None,
     distance: Optional[float] = None,
     light_axes: Any = None,
     light_anisotropy: Any = None,
-    method: str = "recursive",
-    sigma: Optional[float] = None,
-    relative_noise: Optional[float] = None,
-    confidence: float = 0.95,
-    min_kept_share: float = 0.25,
-    batch_alpha: float = 0.05,
-    shadow_sigmas: float = 3.0,
-    shadow_ratio: float = 0.1,
-    noise_estimate: str = "images",
-    noise_refinements: int = 1,
-    max_iterations: int = 10,
-    change_tolerance: float = 0.002,
-    surface_prior: float = 1.0,
-    refine_lights: bool = False,
-    fallback: str = "neighbours",
-    integrator: str = "poisson",
-    max_slope: float = 20.0,
-    unreliable_weight: float = 0.1,
-    detect: bool = True,
-    integrate: bool = True,
-    memory_limit: Union[int, str, None] = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    **overrides: "Unpack[ParamValues]",
 ) -> Reconstruction:
-    """Normals, albedo, statuses, maps and depth of a capture.
+    """Normals, albedo, light statuses, the detector's maps and depth of a capture.
 
-    images: a :class:`Capture`, or an (N, H, W) / (N, H, W, C) array of uint8, uint16,
-        float32 or float64 (any strides; integers scaled by 255 or 65535), with ``lights``
-        (N, 3) unit directions toward the lights and optional ``intensities`` (N,) or (N, C)
-        and ``mask`` (H, W).
-    light_positions, camera, distance, light_axes, light_anisotropy: near lights instead of
-        ``lights`` (LED positions (N, 3) in mm, camera frame; ``camera`` the 3x3 intrinsics K in
-        pixels or a K.txt path; ``distance`` the object's mean distance in mm; optional axes
-        and anisotropy; ``intensities`` then the LEDs' radiances at 1 mm), or ``camera`` and
-        ``distance`` with distant ``lights``: see :meth:`Capture.from_arrays`. Then ``depth`` is
-        Z in mm along the optical axis and ``report["near"]`` gives the rounds of the
-        alternation.
-    method: ``l2``, ``coleman-jain``, ``barsky-petrou`` or ``recursive``.
-    sigma: image noise per channel, full scale 1 (None: estimated from the images).
-    relative_noise: model error as a share of a pixel's mean intensity (kappa), e.g. 0.01;
-        None (default): measured from the capture, the light-to-light part of its misfit
-        (reported as ``detection.kappa_measured``; 0.01 with fewer than five lights or with
-        near lights).
-    confidence: confidence of the chi-square test of non-Lambertian pixels.
-    min_kept_share: the attribution keeps at least this share of the lights (and three).
-    batch_alpha: family-wise error rate for removing several dark readings in one step.
-    shadow_sigmas, shadow_ratio: a too-dark reading is a shadow below
-        shadow_sigmas * sigma_p + shadow_ratio * (the pixel's mean intensity).
-    noise_estimate: ``images`` (sensor noise from the images) or ``residuals``.
-    noise_refinements: rounds of noise re-estimation (``residuals`` only).
-    max_iterations: the recursive method's iteration limit.
-    change_tolerance: stop when the usable-light sets change at fewer than this share of pixels.
-    surface_prior: the recursive method's final estimate takes the integrated surface's normal
-        as a prior with this angular standard deviation in degrees (0: least squares alone).
-    refine_lights: refine the lights from the readings first (distant lights, six or more;
-        ``report["input"]["light_refinement"]`` says how far each moved); the Capture object
-        keeps its lights (a copy of its samples is refined for the call).
-    fallback: completion of pixels with fewer than three lights: ``neighbours`` or ``brightest``.
-    integrator: ``poisson`` (any mask), ``dct``, ``fft`` or ``paths``.
-    max_slope: cap on |dz/dx|, |dz/dy| in pixel units per pixel.
-    unreliable_weight: integration weight of unreliable pixels (reliable ones weigh 1).
-    detect: run the chi-square test for its maps with methods that do not need it.
-    integrate: integrate the normals into depth and curl.
-    memory_limit: the memory budget (bytes, or a size such as ``"4G"``; None: half of the memory
-        available), as for :func:`run`; an array given here is already held whole in memory.
-    num_threads: cap on worker threads (None: all cores); several workers can share a node.
-    progress: ``progress(stage, done, total)``, called from this thread while the work runs.
+    Parameters
+    ----------
+    images : Capture or array, shape (N, H, W) or (N, H, W, C)
+        A :class:`Capture`, or an array of uint8, uint16, float32 or float64 (any strides)
+        with ``lights`` (and the other capture keywords of :meth:`Capture.from_arrays`).
+    lights : array_like, shape (N, 3), optional
+        Unit directions toward the lights.
+    mask : array_like, shape (H, W), optional
+        Non-zero inside the object.
+    params : Params, optional
+        The parameters (default: the library's); ``overrides`` apply on top.
+    intensities, light_positions, camera, distance, light_axes, light_anisotropy : optional
+        As for :meth:`Capture.from_arrays` (near lights, a camera).
+    num_threads : int, optional
+        Cap on the worker threads (None: all cores); several workers can share a node.
+    progress : callable, optional
+        ``progress(stage, done, total)``, called from this thread while the work runs.
+    **overrides
+        Any parameter of :class:`Params` by name (``method="l2"``, ``confidence=0.99``,
+        ``memory_limit="4G"``...); ``photostereo.defaults()`` lists them with their defaults.
+
+    Returns
+    -------
+    Reconstruction
+
+    Raises
+    ------
+    PhotostereoError
+        A bad value, shape or size, naming the keyword; a budget too small.
+    TypeError
+        A keyword that names no parameter.
     """
-    params = dict(
-        method=method,
-        sigma=sigma,
-        relative_noise=relative_noise,
-        confidence=confidence,
-        min_kept_share=min_kept_share,
-        batch_alpha=batch_alpha,
-        shadow_sigmas=shadow_sigmas,
-        shadow_ratio=shadow_ratio,
-        noise_estimate=noise_estimate,
-        noise_refinements=noise_refinements,
-        max_iterations=max_iterations,
-        change_tolerance=change_tolerance,
-        surface_prior=surface_prior,
-        refine_lights=refine_lights,
-        fallback=fallback,
-        integrator=integrator,
-        max_slope=max_slope,
-        unreliable_weight=unreliable_weight,
-        detect=detect,
-        integrate=integrate,
-        memory_limit=memory_limit,
-    )
-    near = dict(
-        light_positions=light_positions,
-        camera=camera,
-        distance=distance,
-        light_axes=light_axes,
-        light_anisotropy=light_anisotropy,
-    )
+    values = _build_params(params, overrides, "reconstruct")
     if isinstance(images, Capture):
-        given = [k for k, v in near.items() if v is not None]
-        if lights is not None or intensities is not None or mask is not None or given:
+        extra = dict(
+            lights=lights,
+            mask=mask,
+            intensities=intensities,
+            light_positions=light_positions,
+            camera=camera,
+            distance=distance,
+            light_axes=light_axes,
+            light_anisotropy=light_anisotropy,
+        )
+        given = [k for k, v in extra.items() if v is not None]
+        if given:
             raise PhotostereoError(
-                "images is a Capture: it carries its own lights, intensities, mask, camera "
-                "and distance"
+                f"{', '.join(given)}: images is a Capture, which carries its own lights, "
+                "intensities, mask, camera and distance"
             )
         capture = images
     else:
-        if lights is None and light_positions is None:
-            raise PhotostereoError(
-                "lights: an image array needs (N, 3) light directions, or light_positions "
-                "(N, 3) in mm with camera and distance for near lights"
-            )
-        capture = Capture.from_arrays(images, lights, intensities, mask, **near)
-    out = _native.reconstruct(capture._native, params, num_threads, progress)
-    report = json.loads(out.pop("report_json"))
-    return Reconstruction(report=report, **out)
+        capture = Capture.from_arrays(
+            images,
+            lights,
+            intensities,
+            mask,
+            light_positions=light_positions,
+            camera=camera,
+            distance=distance,
+            light_axes=light_axes,
+            light_anisotropy=light_anisotropy,
+            memory_limit=values["memory_limit"],
+        )
+    out = _native.reconstruct(capture._native, values, num_threads, progress)
+    return Reconstruction(**out)
 
 
 def run(
     path: Union[PathLike, Sequence[PathLike]],
     output: PathLike,
     *,
+    params: Optional[Params] = None,
     lights: Optional[PathLike] = None,
     intensities: Optional[PathLike] = None,
     mask: Optional[PathLike] = None,
@@ -474,106 +456,145 @@ def run(
     camera: Any = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
-    **params: Any,
+    **overrides: "Unpack[ParamValues]",
 ) -> Dict[str, Any]:
     """The command line's ``run``: reads the capture at ``path`` (any layout, as
     :func:`load_capture`), reconstructs it, scores it against ``gt`` when given, and writes the
     output folder ``output`` atomically (normals, albedo, maps, depth, meshes, report.json).
-    ``params`` are :func:`reconstruct`'s keywords (``method=``, ``confidence=``...) and
-    ``memory_limit=`` (bytes, or a size such as ``"4G"`` or ``"500M"``; default: half of the
-    memory available): a capture whose samples do not fit as float32 is held in tiles at the
-    images' precision, in memory or in a spill file, with the same results (``report["memory"]``
-    gives the plan and the peak). Returns the report. ``force`` replaces an existing output
-    folder. ``distance`` (mm) and ``camera`` (a 3x3 K in pixels or a K.txt path) act as in
-    :func:`load_capture`: on a near-light folder the depth is Z in mm and ``report["near"]``
-    gives the rounds."""
-    full = defaults()
-    unknown = sorted(set(params) - set(full))
-    if unknown:
-        raise TypeError(f"run() got unexpected keyword argument(s): {', '.join(unknown)}")
-    full.update(params)
-    report = _native.run(
+
+    Parameters
+    ----------
+    path, lights, intensities, mask, distance, camera
+        As for :func:`load_capture`.
+    output : path
+        The output folder; an existing one is refused unless ``force`` (and only a folder
+        photostereo's ``run`` wrote, or an empty one, is replaced).
+    params, **overrides
+        As for :func:`reconstruct`; ``memory_limit`` also sets where the samples live
+        (``report["memory"]`` gives the plan and the peak).
+    gt : path, optional
+        Ground-truth normals (.npy, DiLiGenT .mat, 16-bit PNG): adds ``report["error"]``.
+    error_map : bool
+        Also write error_map.png (needs ``gt``).
+    light_subset : str, optional
+        ``"square"``, ``"square:SLANT"`` or 1-based indices such as ``"1,5,9,13"``.
+
+    Returns
+    -------
+    dict
+        The content of report.json.
+
+    Raises
+    ------
+    PhotostereoError
+        A bad value, file or output folder, naming the keyword, file or line at fault.
+    KeyboardInterrupt
+        On Ctrl-C, once the library has stopped at its next stage boundary and removed the
+        output folder it was writing (a second Ctrl-C raises at once).
+    """
+    values = _build_params(params, overrides, "run")
+    return _native.run(
         _paths(path),
         os.fspath(output),
-        full,
-        _opt_path(lights),
-        _opt_path(intensities),
-        _opt_path(mask),
-        _opt_path(gt),
+        values,
+        _path(lights),
+        _path(intensities),
+        _path(mask),
+        _path(gt),
         error_map,
         light_subset,
         force,
         num_threads,
         progress,
-        None if distance is None else float(distance),
-        _camera_arg(camera),
+        distance,
+        _camera(camera),
     )
-    return json.loads(report)
 
 
 def integrate(
-    normals: np.ndarray,
+    normals: Any,
     mask: Any = None,
     method: str = "poisson",
-    weights: Optional[np.ndarray] = None,
+    weights: Any = None,
     *,
-    max_slope: float = 20.0,
+    max_slope: float = _native.defaults()["max_slope"],
     num_threads: Optional[int] = None,
 ) -> np.ndarray:
-    """Integrates an (H, W, 3) normal map into (H, W) float32 depth (pixel units toward the
-    camera, NaN outside the mask). ``mask`` (H, W) defaults to the non-zero normals;
-    ``weights`` (H, W) in 0..1 lower the say of unreliable pixels (``poisson`` honours any mask
-    and weights; ``dct`` and ``fft`` work on the full rectangle)."""
-    n = np.asarray(normals, dtype=np.float32)
-    if n.ndim != 3:
-        raise PhotostereoError(f"normals: expected an (H, W, 3) array, got shape {n.shape}")
-    m = None if mask is None else _mask_array(mask)
-    w = None if weights is None else np.asarray(weights, dtype=np.float32)
-    return _native.integrate(n, m, method, w, max_slope, num_threads)
+    """Integrates a normal map into depth.
+
+    Parameters
+    ----------
+    normals : array_like, shape (H, W, 3)
+        Normals in the camera frame.
+    mask : array_like, shape (H, W), optional
+        Pixels to integrate (default: the non-zero normals).
+    method : {"poisson", "dct", "fft", "paths"}
+        ``poisson`` honours any mask and weights; ``dct`` and ``fft`` work on the full
+        rectangle.
+    weights : array_like, shape (H, W), optional
+        Weights in 0..1 that lower the say of unreliable pixels.
+    max_slope : float
+        Cap on |dz/dx| and |dz/dy| in pixel units per pixel.
+    num_threads : int, optional
+        Cap on the worker threads.
+
+    Returns
+    -------
+    ndarray of float32, shape (H, W)
+        Height toward the camera in pixel units; NaN outside the mask.
+    """
+    return _native.integrate(
+        _normals(normals, "normals"),
+        _booleans(mask, "mask"),
+        method,
+        None if weights is None else _normals(weights, "weights"),
+        max_slope,
+        num_threads,
+    )
 
 
-def angular_error(
-    normals: np.ndarray, truth: np.ndarray, mask: Any = None
-) -> Dict[str, Any]:
-    """Angular error in degrees between (H, W, 3) normals and ground truth, over the mask where
-    the truth is non-zero: ``mean_deg``, ``median_deg``, ``under_5deg``/``10``/``20`` (shares),
-    ``pixels``, ``missing`` (zero predictions, counted as 90 degrees), and ``map`` (H, W)
-    float32 (NaN where not evaluated)."""
-    n = np.asarray(normals, dtype=np.float32)
-    t = np.asarray(truth, dtype=np.float32)
-    if n.ndim != 3 or t.ndim != 3:
-        raise PhotostereoError(
-            f"normals {n.shape} and truth {t.shape}: expected (H, W, 3) arrays"
-        )
-    m = None if mask is None else _mask_array(mask)
-    stats, error_map = _native.angular_error(n, t, m)
-    out = json.loads(stats)
-    out["map"] = error_map
-    return out
+def angular_error(normals: Any, truth: Any, mask: Any = None) -> AngularError:
+    """The angular error of normals against ground truth (CONVENTIONS.md, "Error metric").
+
+    Parameters
+    ----------
+    normals, truth : array_like, shape (H, W, 3)
+        The normals and the ground truth (zero where unknown).
+    mask : array_like, shape (H, W), optional
+        Pixels to evaluate (default: every pixel with non-zero truth).
+
+    Returns
+    -------
+    AngularError
+        Mean, median, shares under 5/10/20 degrees and the (H, W) error map.
+    """
+    stats, error_map = _native.angular_error(
+        _normals(normals, "normals"), _normals(truth, "truth"), _booleans(mask, "mask")
+    )
+    return AngularError(map=error_map, **stats)
 
 
-def calibrate(images: np.ndarray, mask: Any = None) -> Dict[str, Any]:
-    """Light directions from images of a mirror sphere: (N, H, W) or (N, H, W, C) images
-    (integers scaled by their full scale) and an optional (H, W) mask of the sphere. Returns
-    ``lights`` (N, 3) (NaN where no highlight was found), ``confidence`` (N,) in 0..1, and the
-    full calibration (``sphere``, ``per_light`` highlights, ``warnings``). Raises
-    PhotostereoError when no light's highlight is confident (a matte sphere, noise)."""
-    stack = _as_stack(images)
-    if stack.dtype == np.uint8:
-        stack = stack.astype(np.float32) / 255.0
-    elif stack.dtype == np.uint16:
-        stack = stack.astype(np.float32) / 65535.0
-    stack = np.asarray(stack, dtype=np.float32)
-    m = None if mask is None else _mask_array(mask)
-    cal = json.loads(_native.calibrate(stack, m))
-    per_light = cal.pop("lights")
-    cal["per_light"] = per_light
-    cal["lights"] = np.array(
-        [p["direction"] if p["direction"] is not None else [np.nan] * 3 for p in per_light],
-        dtype=np.float64,
-    ).reshape(-1, 3)
-    cal["confidence"] = np.array([p["confidence"] for p in per_light], dtype=np.float64)
-    return cal
+def calibrate(images: Any, mask: Any = None) -> Calibration:
+    """Light directions from images of a mirror sphere.
+
+    Parameters
+    ----------
+    images : array, shape (N, H, W) or (N, H, W, C)
+        uint8, uint16, float32 or float64 images (integers scaled by their full scale).
+    mask : array_like, shape (H, W), optional
+        The sphere (default: detected from the images).
+
+    Returns
+    -------
+    Calibration
+
+    Raises
+    ------
+    PhotostereoError
+        When no light's highlight is confident (a matte sphere, noise).
+    """
+    out = _native.calibrate(np.asarray(images), _booleans(mask, "mask"))
+    return Calibration(**out)
 
 
 def render_scene(
@@ -584,27 +605,36 @@ def render_scene(
     brdf: str = "blinn-phong",
     noise: float = 0.005,
     seed: int = 1,
-) -> Tuple[np.ndarray, np.ndarray, np.ndarray, Dict[str, np.ndarray]]:
-    """Renders a built-in scene (``sphere``, ``cavities``, ``blocks``, ``terrain``, ``bumps``,
-    ``face``) under a rig (``square4``, ``ring8``, ``dome-N``...) at size x size pixels with
-    16-bit quantisation and Gaussian noise ``noise`` (full scale 1). Returns ``(images (N, S,
-    S, 3) float32, lights (N, 3), mask (S, S), truth)`` with ``truth`` a dict of ``normals``
-    (S, S, 3), ``depth`` (S, S) and per-light ``shadows`` (N, S, S).
+) -> Scene:
+    """Renders a built-in scene with its ground truth.
 
-    The near-light rigs ``near-ring`` (12 LEDs around the lens), ``near-square`` and
-    ``near-dome`` place the object about 300 mm in front of a pinhole camera (``brdf``
-    ``lambert`` or ``blinn-phong``, textured albedo): ``lights`` is then the distant
-    approximation (directions at the object's centre), ``truth["depth"]`` is Z in mm, and
-    ``truth["near"]`` holds the rig as :func:`reconstruct` takes it: ``light_positions``
-    (N, 3) mm, ``light_axes``, ``light_anisotropy``, ``intensities`` (radiance at 1 mm),
-    ``camera`` (3x3 K) and ``distance`` (mm)."""
+    Parameters
+    ----------
+    name : str
+        ``sphere``, ``cavities``, ``blocks``, ``terrain``, ``bumps`` or ``face``.
+    rig : str
+        ``square4``, ``ring8``, ``dome-N``...; the near-light rigs ``near-ring`` (12 LEDs
+        around the lens), ``near-square`` and ``near-dome`` place the object about 300 mm in
+        front of a pinhole camera (``truth.near`` holds the rig, ``truth.depth`` is Z in mm).
+    size : int
+        Pixels per side, 8 to 8192.
+    brdf : str
+        ``lambert`` or ``blinn-phong``.
+    noise : float
+        Gaussian noise, full scale 1 (16-bit quantisation on top).
+    seed : int
+        The noise's seed.
+
+    Returns
+    -------
+    Scene
+        ``images, lights, mask, truth``.
+    """
     images, lights, mask, normals, depth, shadows, near = _native.render_scene(
         name, rig, size, brdf, noise, seed
     )
-    truth = {"normals": normals, "depth": depth, "shadows": shadows}
-    if near is not None:
-        truth["near"] = dict(near)
-    return images, lights, mask, truth
+    rig_ = None if near is None else NearRig(**near)
+    return Scene(images, lights, mask, SceneTruth(normals, depth, shadows, rig_))
 
 
 def synth(
@@ -617,15 +647,18 @@ def synth(
     noise: float = 0.005,
     seed: int = 1,
     force: bool = False,
-) -> str:
-    """Renders a built-in scene into a DiLiGenT-layout folder with ground truth (``gt/``), as
-    ``photostereo synth`` does (a near rig writes the near-light layout: ``K.txt``,
-    ``light_positions.txt``, ``mean_distance.txt``...). Returns the folder."""
-    return _native.synth(name, os.fspath(output), rig, size, brdf, noise, seed, force)
+) -> pathlib.Path:
+    """Renders a built-in scene (as :func:`render_scene`) into a capture folder with ground
+    truth (``gt/``), as ``photostereo synth`` does; a near rig writes the near-light layout
+    (``K.txt``, ``light_positions.txt``, ``mean_distance.txt``...). Returns the folder."""
+    return pathlib.Path(
+        _native.synth(name, os.fspath(output), rig, size, brdf, noise, seed, force)
+    )
 
 
 def read_image(path: PathLike) -> np.ndarray:
-    """An image file (PNG 8/16-bit, TIFF, EXR) as (H, W, C) float32, integers scaled to [0, 1]."""
+    """An image file (PNG 8/16-bit, TIFF, EXR, JPEG) as (H, W, C) float32, integers scaled to
+    [0, 1]."""
     return _native.read_image(os.fspath(path))
 
 

@@ -82,17 +82,6 @@ pub fn print_json(value: &serde_json::Value) {
     );
 }
 
-/// The library's error with parameters spelt as this program's flags: `relative_noise -0.5:
-/// expected…` becomes `--relative-noise -0.5: expected…`.
-pub fn flag_error(e: photostereo::Error) -> anyhow::Error {
-    match e {
-        photostereo::Error::Parameter { name, message } => {
-            anyhow::anyhow!("--{} {message}", name.replace('_', "-"))
-        }
-        other => other.into(),
-    }
-}
-
 /// Checks that the capture arguments name existing files before anything is read, naming the
 /// flag that gave each path.
 pub fn check_input_paths(

@@ -3,20 +3,14 @@
 //! `compare.json` and one figure in the manner of its Figs. 7–12.
 
 use crate::common::{print_json, OutputOpts};
+use crate::params::ParamArgs;
 use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::app::compare::{compare, CompareOptions, FIGURE};
 use photostereo::app::pipeline::LightSubset;
-use photostereo::geometry::integrate::{IntegrationParams, IntegratorKind};
 use photostereo::io::layouts::CaptureFiles;
-use photostereo::method::engine::{Method, Params};
-use photostereo::method::recursive::{Fallback, RecursiveParams};
-use photostereo::solve::detect::DetectionParams;
+use photostereo::method::engine::Method;
 use std::path::{Path, PathBuf};
-
-fn defaults() -> Params {
-    Params::default()
-}
 
 #[derive(Args, Debug)]
 pub struct CompareArgs {
@@ -52,48 +46,9 @@ pub struct CompareArgs {
     /// Longest side of a panel of the figure, pixels (32 to 2048).
     #[arg(long, default_value_t = 360)]
     pub panel_size: usize,
-    /// Image noise σ per channel (full scale = 1) for the non-Lambertian test; estimated when absent.
-    #[arg(long)]
-    pub sigma: Option<f64>,
-    /// Relative model error κ: the noise at a pixel is √(σ² + (κ · its mean intensity)²); a
-    /// share such as 0.01, or `measured` (as `run`).
-    #[arg(long, default_value = "measured", value_parser = crate::run::parse_relative_noise)]
-    pub relative_noise: crate::run::RelativeNoise,
-    /// Confidence of the χ² test for non-Lambertian pixels.
-    #[arg(long, default_value_t = defaults().detection.confidence)]
-    pub confidence: f64,
-    /// Recursive method: iteration limit.
-    #[arg(long, default_value_t = defaults().recursive.max_iterations)]
-    pub max_iterations: usize,
-    /// Recursive method: stop when the usable-light sets change at fewer than this share of pixels.
-    #[arg(long, default_value_t = defaults().recursive.change_tolerance)]
-    pub change_tolerance: f64,
-    /// Recursive method: angular standard deviation (degrees) of the integrated surface's
-    /// normal as a prior on each pixel's normal in the final estimate (it steadies pixels
-    /// with few usable lights and is released where the readings disagree with it); 0 = the
-    /// usable lights' least squares alone.
-    #[arg(long, default_value_t = defaults().recursive.surface_prior_deg, allow_negative_numbers = true)]
-    pub surface_prior: f64,
-    /// Refine the light directions and intensities from the readings before estimating (six
-    /// or more distant lights): each light's vector by least squares over the pixels' fits,
-    /// with the readings the detector keeps, its frame kept on the given lights; every method
-    /// then uses the refined lights, and report.json's input.light_refinement says how far
-    /// each moved.
-    #[arg(long)]
-    pub refine_lights: bool,
-    /// Integration weight of unreliable pixels relative to reliable ones.
-    #[arg(long, default_value_t = defaults().integration.unreliable_weight)]
-    pub unreliable_weight: f32,
-    /// Recursive method: completion of pixels with fewer than three usable lights
-    /// (`neighbours` or `brightest`).
-    #[arg(long, default_value = defaults().recursive.fallback.name(), value_parser = parse_fallback)]
-    pub fallback: Fallback,
-    /// Integration method for depth: poisson, dct, fft, paths.
-    #[arg(long, default_value = defaults().integration.method.name(), value_parser = parse_integrator)]
-    pub integrator: IntegratorKind,
-    /// Cap on the depth gradient (pixel units per pixel) when integrating.
-    #[arg(long, default_value_t = defaults().integration.max_slope)]
-    pub max_slope: f32,
+    /// The algorithm's parameters, one flag each (docs/parameters.md).
+    #[command(flatten)]
+    pub params: ParamArgs<crate::params::Compare>,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-compare")]
     pub output: PathBuf,
@@ -107,43 +62,6 @@ fn parse_method(s: &str) -> Result<Method, String> {
 fn parse_subset(s: &str) -> Result<LightSubset, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
-fn parse_integrator(s: &str) -> Result<IntegratorKind, String> {
-    s.parse().map_err(|e: photostereo::Error| e.to_string())
-}
-fn parse_fallback(s: &str) -> Result<Fallback, String> {
-    s.parse().map_err(|e: photostereo::Error| e.to_string())
-}
-
-/// The engine's parameters from the flags, as `run` builds them.
-fn params(a: &CompareArgs) -> Params {
-    let d = defaults();
-    Params {
-        method: d.method,
-        detection: DetectionParams {
-            sigma: a.sigma,
-            relative_noise: a.relative_noise.0,
-            confidence: a.confidence,
-            ..d.detection
-        },
-        recursive: RecursiveParams {
-            max_iterations: a.max_iterations,
-            change_tolerance: a.change_tolerance,
-            surface_prior_deg: a.surface_prior,
-            fallback: a.fallback,
-            ..d.recursive
-        },
-        integration: IntegrationParams {
-            method: a.integrator,
-            max_slope: a.max_slope,
-            unreliable_weight: a.unreliable_weight,
-        },
-        detect: true,
-        integrate: true,
-        memory_limit: None,
-        refine_lights: a.refine_lights,
-    }
-}
-
 /// A short name for titles: the folder or list file's stem, else the first image's folder.
 fn capture_name(input: &[PathBuf]) -> String {
     let p: &Path = if input.len() == 1 {
@@ -158,6 +76,7 @@ fn capture_name(input: &[PathBuf]) -> String {
 }
 
 pub fn main(a: CompareArgs) -> Result<()> {
+    let params = a.params.params()?;
     if a.light == Some(0) {
         bail!("--light 0: lights are numbered from 1");
     }
@@ -183,7 +102,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
         a.mask.as_deref(),
     )?;
     let options = CompareOptions {
-        params: params(&a),
+        params,
         methods,
         ground_truth: a.gt.clone(),
         light_subset: a.light_subset.clone(),
@@ -193,8 +112,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
     };
     let name = capture_name(&a.input);
     let progress = a.out.progress();
-    let c = compare(&files, &options, &a.output, a.out.force, &name, &progress)
-        .map_err(crate::common::flag_error)?;
+    let c = compare(&files, &options, &a.output, a.out.force, &name, &progress)?;
     if a.out.json {
         let mut v = c.json.clone();
         v["output"] = serde_json::Value::from(a.output.display().to_string());

@@ -11,6 +11,7 @@ mod compare;
 mod demo;
 mod eval;
 mod integrate;
+mod params;
 mod run;
 mod serve;
 mod synth;
@@ -72,16 +73,14 @@ fn remove_output_on_signals() {
 fn remove_output_on_signals() {}
 
 /// The error and its causes, each cause once: a cause already part of the message before it
-/// (the library's I/O errors print their OS error themselves) is not repeated.
+/// (the library's I/O errors print their OS error themselves) is not repeated. The library's
+/// errors name parameters as this program's flags ([`params::spell`]).
 fn message(e: &anyhow::Error) -> String {
     let mut out = String::new();
     for cause in e.chain() {
         let text = match cause.downcast_ref::<photostereo::Error>() {
-            // The library names its parameters; the command line spells them as flags.
-            Some(photostereo::Error::Parameter { name, message }) => {
-                format!("--{} {message}", name.replace('_', "-"))
-            }
-            _ => cause.to_string(),
+            Some(e) => e.spelled(&params::spell),
+            None => cause.to_string(),
         };
         if out.contains(&text) {
             continue;

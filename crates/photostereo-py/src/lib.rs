@@ -1,31 +1,30 @@
 //! `photostereo._native`: the Python package's native module, a thin layer over the photostereo
 //! library like the command line. It converts numpy arrays and Python values to the library's
-//! types and back, releases the GIL while the library works, polls for Ctrl-C, and turns every
-//! library error into `PhotostereoError` with the library's message. No numerics live here.
+//! types and back (arrays and dicts, never JSON text), releases the GIL while the library works,
+//! polls for Ctrl-C, and turns every library error into `PhotostereoError` with the library's
+//! message, parameters spelt as Python keywords ([`spell`]). No numerics live here, and no
+//! parameter list: the parameters come from the library's table
+//! (`photostereo::method::params`).
 //!
-//! The public, documented API is the pure-Python package `photostereo` (python/photostereo),
-//! which wraps these functions into typed signatures with the library's defaults.
+//! The public, documented API is the pure-Python package `photostereo` (python/photostereo).
 
-use ndarray::{Array2, Array3, Array4, ArrayView2, ArrayView3, Axis};
-use numpy::{IntoPyArray, PyReadonlyArray2, PyReadonlyArray3, PyReadonlyArray4};
+use ndarray::{Array1, Array2, Array3, Array4, ArrayViewD, Axis, Ix4};
+use numpy::{IntoPyArray, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use photostereo::app::pipeline::{LightSubset, RunOptions};
+use photostereo::base::error::ParamRef;
 use photostereo::base::progress::Progress;
-use photostereo::io::layouts::CaptureFiles;
-use photostereo::io::synth::near_synth_to_folder;
-use photostereo::io::synth::synth_to_folder;
+use photostereo::io::layouts::{CaptureFiles, LoadOptions};
 use photostereo::method::engine::{Method, Params, Reconstruction};
-use photostereo::method::recursive::Fallback;
-use photostereo::model::capture::{Capture, Stack};
-use photostereo::model::image::Image;
+use photostereo::method::params::{parameter, Value, PARAMETERS};
+use photostereo::model::capture::{Capture, Stack, StackOptions};
 use photostereo::model::lightmodel::Camera;
 use photostereo::model::lights::Lights;
 use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
 use photostereo::scene::{Brdf, SceneKind, SynthSpec};
-use photostereo::solve::detect::NoiseEstimate;
 use pyo3::create_exception;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyTuple};
+use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
@@ -35,42 +34,251 @@ create_exception!(
     _native,
     PhotostereoError,
     PyValueError,
-    "Bad input to photostereo: the message names the file, line or parameter at fault and what was expected."
+    "Bad input to photostereo: the message names the file, line or keyword at fault and what was expected."
 );
 
-/// The library's error as `PhotostereoError`, parameters spelt as Python keywords.
-fn py_err(e: photostereo::Error) -> PyErr {
-    match e {
-        photostereo::Error::Cancelled => PyKeyboardInterrupt::new_err("cancelled"),
-        other => PhotostereoError::new_err(python_spelling(&other.to_string())),
+/// A parameter reference of a library message as Python spells it: the keyword itself, or
+/// `keyword=` where a value is asked for (`force=True` for a switch).
+fn spell(r: ParamRef<'_>) -> String {
+    match r.value {
+        None => r.name.to_string(),
+        Some("true") => format!("{}=True", r.name),
+        Some("false") => format!("{}=False", r.name),
+        Some(v) => format!("{}={v}", r.name),
     }
 }
 
-/// The command line's flags that the library's messages name, as the Python keywords that
-/// replace them.
-const PYTHON_KEYWORDS: &[(&str, &str)] = &[
-    ("--distance", "distance="),
-    (
-        "pass --force to replace it",
-        "pass force=True to replace it",
-    ),
-    ("--lights FILE", "lights="),
-    ("pass --lights", "pass lights="),
-];
-
-/// `message` with each command-line flag of [`PYTHON_KEYWORDS`] spelt as its Python keyword
-/// (the library's file errors say what a command-line user passes: a missing
-/// `mean_distance.txt` asks for `--distance`, which in Python is `distance=`).
-fn python_spelling(message: &str) -> String {
-    PYTHON_KEYWORDS
-        .iter()
-        .fold(message.to_string(), |m, (flag, keyword)| {
-            m.replace(flag, keyword)
-        })
+/// The library's error as `PhotostereoError` (Ctrl-C's cancellation as `KeyboardInterrupt`).
+fn py_err(e: photostereo::Error) -> PyErr {
+    match e {
+        photostereo::Error::Cancelled => PyKeyboardInterrupt::new_err("cancelled"),
+        other => PhotostereoError::new_err(other.spelled(&spell)),
+    }
 }
 
 fn bad(message: impl Into<String>) -> PyErr {
     PhotostereoError::new_err(message.into())
+}
+
+/// A shape as Python writes it: `(2, 3)`, `(4,)`.
+fn shape_text(s: &[usize]) -> String {
+    match s {
+        [one] => format!("({one},)"),
+        _ => format!(
+            "({})",
+            s.iter()
+                .map(|d| d.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+fn repr(v: &Bound<'_, PyAny>) -> String {
+    v.repr()
+        .map(|r| r.to_string())
+        .unwrap_or_else(|_| "?".into())
+}
+
+// ---------------------------------------------------------------------------------------------
+// Keyword values: every value a keyword takes is checked here once, naming the keyword.
+
+/// A whole number in `lo..=hi` (a bool is not one).
+fn whole(v: &Bound<'_, PyAny>, name: &str, lo: i64, hi: i64, what: &str) -> PyResult<i64> {
+    let n = if v.is_instance_of::<PyBool>() {
+        None
+    } else {
+        v.extract::<i64>().ok()
+    };
+    match n {
+        Some(n) if (lo..=hi).contains(&n) => Ok(n),
+        _ => Err(bad(format!(
+            "{name} {}: expected an integer in [{lo}, {hi}]{what}",
+            repr(v)
+        ))),
+    }
+}
+
+/// A finite number accepted by `ok`.
+fn real(v: &Bound<'_, PyAny>, name: &str, ok: impl Fn(f64) -> bool, what: &str) -> PyResult<f64> {
+    match v.extract::<f64>() {
+        Ok(x) if !v.is_instance_of::<PyBool>() && x.is_finite() && ok(x) => Ok(x),
+        _ => Err(bad(format!("{name} {}: expected {what}", repr(v)))),
+    }
+}
+
+/// `None` or a value read by `f`.
+fn optional<T>(
+    v: Option<&Bound<'_, PyAny>>,
+    f: impl FnOnce(&Bound<'_, PyAny>) -> PyResult<T>,
+) -> PyResult<Option<T>> {
+    match v {
+        Some(v) if !v.is_none() => f(v).map(Some),
+        _ => Ok(None),
+    }
+}
+
+/// The most worker threads a call may ask for: a few per core, and never thousands.
+fn max_threads() -> i64 {
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    (4 * cores).max(64) as i64
+}
+
+/// `num_threads`: `None` (all cores) or 1 to [`max_threads`].
+fn threads(v: Option<&Bound<'_, PyAny>>) -> PyResult<Option<usize>> {
+    optional(v, |v| {
+        whole(v, "num_threads", 1, max_threads(), " (None: all cores)").map(|n| n as usize)
+    })
+}
+
+/// `progress`: `None` or a callable `progress(stage, done, total)`.
+fn callback(v: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Py<PyAny>>> {
+    optional(v, |v| {
+        if v.is_callable() {
+            Ok(v.clone().unbind())
+        } else {
+            Err(bad(format!(
+                "progress {}: expected a callable progress(stage, done, total), or None",
+                repr(v)
+            )))
+        }
+    })
+}
+
+/// A parameter's value from Python: None, bool, int, float or str (numpy scalars included).
+fn value_of(name: &str, v: &Bound<'_, PyAny>) -> PyResult<Value> {
+    if v.is_none() {
+        return Ok(Value::None);
+    }
+    if let Ok(b) = v.extract::<bool>() {
+        return Ok(Value::Bool(b));
+    }
+    if let Ok(s) = v.cast::<PyString>() {
+        return Ok(Value::Text(s.to_string()));
+    }
+    if let Ok(i) = v.extract::<i64>() {
+        return Ok(Value::Int(i));
+    }
+    if !v.is_instance_of::<PyInt>() {
+        if let Ok(f) = v.extract::<f64>() {
+            return Ok(Value::Float(f));
+        }
+    }
+    let expected = parameter(name).map_or("a value".into(), |p| p.expected());
+    Err(bad(format!("{name} {}: expected {expected}", repr(v))))
+}
+
+/// A parameter's value as Python holds it.
+fn py_of(py: Python<'_>, v: &Value) -> PyResult<Py<PyAny>> {
+    Ok(match v {
+        Value::None => py.None(),
+        Value::Bool(b) => PyBool::new(py, *b).to_owned().into_any().unbind(),
+        Value::Int(i) => i.into_pyobject(py)?.into_any().unbind(),
+        Value::Float(f) => PyFloat::new(py, *f).into_any().unbind(),
+        Value::Text(t) => PyString::new(py, t).into_any().unbind(),
+    })
+}
+
+/// A JSON value (a report, a calibration, error figures) as Python dicts, lists and numbers.
+fn py_json(py: Python<'_>, v: &serde_json::Value) -> PyResult<Py<PyAny>> {
+    use serde_json::Value as J;
+    Ok(match v {
+        J::Null => py.None(),
+        J::Bool(b) => PyBool::new(py, *b).to_owned().into_any().unbind(),
+        J::Number(n) => match (n.as_i64(), n.as_u64()) {
+            (Some(i), _) => i.into_pyobject(py)?.into_any().unbind(),
+            (None, Some(u)) => u.into_pyobject(py)?.into_any().unbind(),
+            _ => PyFloat::new(py, n.as_f64().unwrap_or(f64::NAN))
+                .into_any()
+                .unbind(),
+        },
+        J::String(s) => PyString::new(py, s).into_any().unbind(),
+        J::Array(a) => {
+            let items = a
+                .iter()
+                .map(|x| py_json(py, x))
+                .collect::<PyResult<Vec<_>>>()?;
+            PyList::new(py, items)?.into_any().unbind()
+        }
+        J::Object(o) => {
+            let d = PyDict::new(py);
+            for (k, x) in o {
+                d.set_item(k, py_json(py, x)?)?;
+            }
+            d.into_any().unbind()
+        }
+    })
+}
+
+/// A serializable library value as Python objects.
+fn py_serde(py: Python<'_>, v: &impl serde::Serialize) -> PyResult<Py<PyAny>> {
+    py_json(
+        py,
+        &serde_json::to_value(v).map_err(|e| bad(e.to_string()))?,
+    )
+}
+
+// ---------------------------------------------------------------------------------------------
+// Parameters: the library's table.
+
+/// `Params` from a dict of parameter names and values, each checked by the table.
+fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
+    let mut p = Params::default();
+    for (key, value) in dict.iter() {
+        let name: String = key.extract()?;
+        let v = value_of(&name, &value)?;
+        p.set(&name, v).map_err(py_err)?;
+    }
+    p.validate().map_err(py_err)?;
+    Ok(p)
+}
+
+/// Every parameter of the library's table: name, stage, type, default, choices, the word for
+/// none, domain, unit, doc, methods and the key `report.json` records it under.
+#[pyfunction]
+fn parameters(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
+    PARAMETERS
+        .iter()
+        .map(|p| {
+            let d = PyDict::new(py);
+            d.set_item("name", p.name)?;
+            d.set_item("stage", p.stage.name())?;
+            d.set_item("stage_doc", p.stage.doc())?;
+            d.set_item("type", p.kind.type_name())?;
+            d.set_item("default", py_of(py, &p.default())?)?;
+            d.set_item("choices", p.kind.choices())?;
+            d.set_item("none", p.kind.none_word())?;
+            d.set_item("domain", p.expected())?;
+            d.set_item("unit", p.unit)?;
+            d.set_item("doc", p.doc)?;
+            d.set_item(
+                "methods",
+                p.methods.iter().map(|m| m.name()).collect::<Vec<_>>(),
+            )?;
+            d.set_item("report_key", p.report_key)?;
+            Ok(d)
+        })
+        .collect()
+}
+
+/// The library's default of every parameter, keyed by name.
+#[pyfunction]
+fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
+    let d = PyDict::new(py);
+    for p in PARAMETERS {
+        d.set_item(p.name, py_of(py, &p.default())?)?;
+    }
+    Ok(d)
+}
+
+/// Checks one parameter's value against the table; raises `PhotostereoError` naming it.
+#[pyfunction]
+fn check_parameter(name: &str, value: &Bound<'_, PyAny>) -> PyResult<()> {
+    let p = parameter(name).ok_or_else(|| bad(format!("unknown parameter '{name}'")))?;
+    let v = value_of(name, value)?;
+    let mut params = Params::default();
+    p.set(&mut params, v).map_err(py_err)?;
+    params.validate().map_err(py_err)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -102,21 +310,28 @@ impl Progress for SharedProgress {
     }
 }
 
+/// What a Ctrl-C (or an exception from the progress callback) does besides asking the library
+/// to stop at its next stage boundary.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum OnCancel {
+    /// Raise at once; the worker winds down on its own (nothing of its work outlives it).
+    Raise,
+    /// Raise once the worker has stopped, so that the output it was writing (a staging folder)
+    /// is gone when the caller sees the exception; a second Ctrl-C raises at once.
+    CleanUpFirst,
+}
+
 /// Runs `work` on a worker thread (in a rayon pool of `num_threads` when given) with the GIL
 /// released. The calling thread wakes every 50 ms: it checks for signals (Ctrl-C raises
-/// KeyboardInterrupt at once and asks the library to stop at its next stage boundary) and
-/// calls `progress(stage, done, total)` when the figures changed.
+/// KeyboardInterrupt, as `on_cancel` says, and asks the library to stop at its next stage
+/// boundary) and calls `progress(stage, done, total)` when the figures changed.
 fn run_detached<T: Send + 'static>(
     py: Python<'_>,
     num_threads: Option<usize>,
     progress: Option<Py<PyAny>>,
+    on_cancel: OnCancel,
     work: impl FnOnce(&dyn Progress) -> photostereo::Result<T> + Send + 'static,
 ) -> PyResult<T> {
-    if num_threads == Some(0) {
-        return Err(bad(
-            "num_threads 0: expected at least one thread (or None for all cores)",
-        ));
-    }
     let pool = match num_threads {
         Some(n) => Some(
             rayon::ThreadPoolBuilder::new()
@@ -158,7 +373,7 @@ fn run_detached<T: Send + 'static>(
         }
         if let Err(e) = py.check_signals() {
             shared.cancel.store(true, Ordering::Relaxed);
-            return Err(e);
+            return Err(wind_down(py, &rx, on_cancel, e));
         }
         if let Some(cb) = &progress {
             let stage = shared.stage.lock().map(|s| s.clone()).unwrap_or_default();
@@ -170,7 +385,7 @@ fn run_detached<T: Send + 'static>(
             if now != last && !now.0.is_empty() {
                 if let Err(e) = cb.call1(py, (now.0.as_str(), now.1, now.2)) {
                     shared.cancel.store(true, Ordering::Relaxed);
-                    return Err(e);
+                    return Err(wind_down(py, &rx, on_cancel, e));
                 }
                 last = now;
             }
@@ -178,10 +393,37 @@ fn run_detached<T: Send + 'static>(
     }
 }
 
+/// After a cancel, with [`OnCancel::CleanUpFirst`]: waits for the worker to stop at its next
+/// stage boundary, so that what it was writing (the staging folder of `run`'s output) is
+/// removed before `error` reaches the caller. A second Ctrl-C while waiting raises at once; the
+/// folder is then removed when the interpreter exits ([`abandon_pending_outputs`]).
+fn wind_down<T: Send>(
+    py: Python<'_>,
+    rx: &Mutex<mpsc::Receiver<photostereo::Result<T>>>,
+    on_cancel: OnCancel,
+    error: PyErr,
+) -> PyErr {
+    if on_cancel == OnCancel::Raise {
+        return error;
+    }
+    loop {
+        let received = py.detach(|| match rx.lock() {
+            Ok(r) => r.recv_timeout(Duration::from_millis(50)),
+            Err(_) => Err(mpsc::RecvTimeoutError::Disconnected),
+        });
+        match received {
+            Ok(_) | Err(mpsc::RecvTimeoutError::Disconnected) => return error,
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
+        }
+        if let Err(again) = py.check_signals() {
+            return again;
+        }
+    }
+}
+
 /// Hands the allocator's free memory back to the system after a job. With glibc, memory freed
 /// on a pool thread stays in that thread's arena, where the next call (often on another pool
-/// thread) cannot reuse it: a reconstruction after a `load_capture` then peaked about 60 MB
-/// higher on DiLiGenT cat than the same work in the command line.
+/// thread) cannot reuse it.
 fn release_free_memory() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]
     // SAFETY: malloc_trim only returns free pages of the allocator's arenas to the system.
@@ -190,161 +432,209 @@ fn release_free_memory() {
     }
 }
 
-// ---------------------------------------------------------------------------------------------
-// Parameters.
-
-/// `Params` from a dict of keyword arguments (every key the Python signature has).
-fn params_from(dict: &Bound<'_, PyDict>) -> PyResult<Params> {
-    let mut p = Params::default();
-    for (key, value) in dict.iter() {
-        let key: String = key.extract()?;
-        let name = key.as_str();
-        let f64_of = |v: &Bound<'_, PyAny>| -> PyResult<f64> {
-            v.extract::<f64>()
-                .map_err(|_| bad(format!("{name}: expected a number, got {}", type_name(v))))
-        };
-        let usize_of = |v: &Bound<'_, PyAny>| -> PyResult<usize> {
-            v.extract::<usize>().map_err(|_| {
-                bad(format!(
-                    "{name}: expected a non-negative integer, got {}",
-                    repr(v)
-                ))
-            })
-        };
-        let bool_of = |v: &Bound<'_, PyAny>| -> PyResult<bool> {
-            v.extract::<bool>()
-                .map_err(|_| bad(format!("{name}: expected True or False, got {}", repr(v))))
-        };
-        let str_of = |v: &Bound<'_, PyAny>| -> PyResult<String> {
-            v.extract::<String>()
-                .map_err(|_| bad(format!("{name}: expected a string, got {}", type_name(v))))
-        };
-        let v = &value;
-        match name {
-            "method" => p.method = str_of(v)?.parse().map_err(py_err)?,
-            "sigma" => p.detection.sigma = optional(v, f64_of)?,
-            "relative_noise" => p.detection.relative_noise = optional(v, f64_of)?,
-            "confidence" => p.detection.confidence = f64_of(v)?,
-            "min_kept_share" => p.detection.min_kept_share = f64_of(v)?,
-            "batch_alpha" => p.detection.batch_alpha = f64_of(v)?,
-            "shadow_sigmas" => p.detection.shadow_sigmas = f64_of(v)?,
-            "shadow_ratio" => p.detection.shadow_ratio = f64_of(v)?,
-            "noise_estimate" => {
-                p.detection.noise_estimate = match str_of(v)?.as_str() {
-                    "images" => NoiseEstimate::Images,
-                    "residuals" => NoiseEstimate::Residuals,
-                    other => {
-                        return Err(bad(format!(
-                            "noise_estimate '{other}': expected 'images' or 'residuals'"
-                        )))
-                    }
-                }
-            }
-            "noise_refinements" => p.detection.noise_refinements = usize_of(v)?,
-            "max_iterations" => p.recursive.max_iterations = usize_of(v)?,
-            "change_tolerance" => p.recursive.change_tolerance = f64_of(v)?,
-            "surface_prior" => p.recursive.surface_prior_deg = f64_of(v)?,
-            "refine_lights" => p.refine_lights = bool_of(v)?,
-            "fallback" => p.recursive.fallback = str_of(v)?.parse::<Fallback>().map_err(py_err)?,
-            "integrator" => p.integration.method = str_of(v)?.parse().map_err(py_err)?,
-            "max_slope" => p.integration.max_slope = f64_of(v)? as f32,
-            "unreliable_weight" => p.integration.unreliable_weight = f64_of(v)? as f32,
-            "detect" => p.detect = bool_of(v)?,
-            "integrate" => p.integrate = bool_of(v)?,
-            "memory_limit" => {
-                p.memory_limit = optional(v, |x| {
-                    if let Ok(b) = x.extract::<u64>() {
-                        return Ok(b);
-                    }
-                    let s = str_of(x)?;
-                    photostereo::base::machine::parse_bytes(&s).ok_or_else(|| {
-                        bad(format!(
-                            "memory_limit '{s}': expected bytes or a size such as '4G' or '500M'"
-                        ))
-                    })
-                })?
-            }
-            other => return Err(bad(format!("unknown parameter '{other}'"))),
-        }
-    }
-    p.validate().map_err(py_err)?;
-    Ok(p)
-}
-
-fn optional<T>(
-    v: &Bound<'_, PyAny>,
-    f: impl Fn(&Bound<'_, PyAny>) -> PyResult<T>,
-) -> PyResult<Option<T>> {
-    if v.is_none() {
-        Ok(None)
-    } else {
-        f(v).map(Some)
-    }
-}
-
-fn type_name(v: &Bound<'_, PyAny>) -> String {
-    v.get_type()
-        .name()
-        .map(|n| n.to_string())
-        .unwrap_or_else(|_| "?".into())
-}
-
-fn repr(v: &Bound<'_, PyAny>) -> String {
-    v.repr()
-        .map(|r| r.to_string())
-        .unwrap_or_else(|_| "?".into())
-}
-
-/// The library's defaults, keyed as the Python keywords.
+/// Removes the output folders still being written (their `.NAME.tmp-PID` staging folders):
+/// the package calls it when the interpreter exits, so that a run interrupted by Ctrl-C
+/// leaves nothing behind even when its worker has not reached its next stage boundary.
 #[pyfunction]
-fn defaults(py: Python<'_>) -> PyResult<Bound<'_, PyDict>> {
-    let p = Params::default();
-    let d = PyDict::new(py);
-    d.set_item("method", p.method.name())?;
-    d.set_item("sigma", p.detection.sigma)?;
-    // None: measured on the capture (the default).
-    d.set_item("relative_noise", p.detection.relative_noise)?;
-    d.set_item("confidence", p.detection.confidence)?;
-    d.set_item("min_kept_share", p.detection.min_kept_share)?;
-    d.set_item("batch_alpha", p.detection.batch_alpha)?;
-    d.set_item("shadow_sigmas", p.detection.shadow_sigmas)?;
-    d.set_item("shadow_ratio", p.detection.shadow_ratio)?;
-    d.set_item(
-        "noise_estimate",
-        match p.detection.noise_estimate {
-            NoiseEstimate::Images => "images",
-            NoiseEstimate::Residuals => "residuals",
-        },
+fn abandon_pending_outputs() -> usize {
+    photostereo::io::export::abandon_pending()
+}
+
+// ---------------------------------------------------------------------------------------------
+// Arrays in.
+
+/// An (N, H, W) or (N, H, W, C) image stack of one of the accepted sample types.
+enum StackArray<'py> {
+    U8(PyReadonlyArrayDyn<'py, u8>),
+    U16(PyReadonlyArrayDyn<'py, u16>),
+    F32(PyReadonlyArrayDyn<'py, f32>),
+    F64(PyReadonlyArrayDyn<'py, f64>),
+}
+
+fn four_d<'a, T>(v: ArrayViewD<'a, T>, name: &str) -> PyResult<ndarray::ArrayView4<'a, T>> {
+    let shape = v.shape().to_vec();
+    let v = match v.ndim() {
+        3 => v.insert_axis(Axis(3)),
+        4 => v,
+        _ => {
+            return Err(bad(format!(
+                "{name}: expected an (N, H, W) or (N, H, W, C) array, got shape {}",
+                shape_text(&shape)
+            )))
+        }
+    };
+    v.into_dimensionality::<Ix4>()
+        .map_err(|e| bad(format!("{name}: {e}")))
+}
+
+impl<'py> StackArray<'py> {
+    fn extract(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<Self> {
+        if let Ok(a) = obj.extract() {
+            return Ok(StackArray::U8(a));
+        }
+        if let Ok(a) = obj.extract() {
+            return Ok(StackArray::U16(a));
+        }
+        if let Ok(a) = obj.extract() {
+            return Ok(StackArray::F32(a));
+        }
+        if let Ok(a) = obj.extract() {
+            return Ok(StackArray::F64(a));
+        }
+        let dtype = obj
+            .getattr("dtype")
+            .map(|d| d.to_string())
+            .unwrap_or_else(|_| repr(obj));
+        Err(bad(format!(
+            "{name}: expected an array of uint8, uint16, float32 or float64 samples, got {dtype}"
+        )))
+    }
+
+    fn stack(&self, name: &str) -> PyResult<Stack<'_>> {
+        Ok(match self {
+            StackArray::U8(a) => Stack::U8(four_d(a.as_array(), name)?),
+            StackArray::U16(a) => Stack::U16(four_d(a.as_array(), name)?),
+            StackArray::F32(a) => Stack::F32(four_d(a.as_array(), name)?),
+            StackArray::F64(a) => Stack::F64(four_d(a.as_array(), name)?),
+        })
+    }
+}
+
+/// A float64 array with `ndim` dimensions (and `cols` columns when given).
+fn floats<'py>(
+    obj: &Bound<'py, PyAny>,
+    name: &str,
+    shapes: &str,
+    ok: impl Fn(&[usize]) -> bool,
+) -> PyResult<PyReadonlyArrayDyn<'py, f64>> {
+    let a: PyReadonlyArrayDyn<'py, f64> = obj
+        .extract()
+        .map_err(|_| bad(format!("{name}: expected an array of numbers")))?;
+    if !ok(a.shape()) {
+        return Err(bad(format!(
+            "{name}: expected {shapes}, got shape {}",
+            shape_text(a.shape())
+        )));
+    }
+    Ok(a)
+}
+
+/// Rows of three numbers from an (N, 3) array.
+fn rows3(obj: &Bound<'_, PyAny>, name: &str) -> PyResult<Vec<[f64; 3]>> {
+    let a = floats(obj, name, "an (N, 3) array", |s| s.len() == 2 && s[1] == 3)?;
+    Ok(a.as_array()
+        .rows()
+        .into_iter()
+        .map(|r| [r[0], r[1], r[2]])
+        .collect())
+}
+
+/// Intensities from an (N,) or (N, C) array, as RGB triples (one value: grey light).
+fn intensity_rows(obj: &Bound<'_, PyAny>, channels: usize) -> PyResult<Vec<[f64; 3]>> {
+    let a = floats(
+        obj,
+        "intensities",
+        &format!("an (N,) or (N, C) array with C = 1 or {channels}"),
+        |s| s.len() == 1 || (s.len() == 2 && (s[1] == 1 || s[1] == channels || s[1] == 3)),
     )?;
-    d.set_item("noise_refinements", p.detection.noise_refinements)?;
-    d.set_item("max_iterations", p.recursive.max_iterations)?;
-    d.set_item("change_tolerance", p.recursive.change_tolerance)?;
-    d.set_item("surface_prior", p.recursive.surface_prior_deg)?;
-    d.set_item("refine_lights", p.refine_lights)?;
-    d.set_item("fallback", p.recursive.fallback.name())?;
-    d.set_item("integrator", p.integration.method.name())?;
-    d.set_item(
-        "max_slope",
-        photostereo::base::number::f32_as_given(p.integration.max_slope),
-    )?;
-    d.set_item(
-        "unreliable_weight",
-        photostereo::base::number::f32_as_given(p.integration.unreliable_weight),
-    )?;
-    d.set_item("detect", p.detect)?;
-    d.set_item("integrate", p.integrate)?;
-    d.set_item("memory_limit", p.memory_limit)?;
-    Ok(d)
+    let a = a.as_array();
+    Ok(if a.ndim() == 1 {
+        a.iter().map(|&v| [v; 3]).collect()
+    } else {
+        a.outer_iter()
+            .map(|r| {
+                if r.len() == 1 {
+                    [r[0]; 3]
+                } else {
+                    [r[0], r[1], r[2]]
+                }
+            })
+            .collect()
+    })
+}
+
+/// A mask of `h` × `w`: an (H, W) array, or (H, W, 1|3|4) whose non-zero channels mark the
+/// object. Returned as given when 2-d (the library checks its shape).
+fn mask_of(obj: &Bound<'_, PyAny>, h: usize, w: usize) -> PyResult<ndarray::Array2<bool>> {
+    let m: PyReadonlyArrayDyn<'_, bool> = obj
+        .extract()
+        .map_err(|_| bad("mask: expected an array of booleans"))?;
+    let v = m.as_array();
+    let s = v.shape().to_vec();
+    match s.len() {
+        2 => Ok(v
+            .into_dimensionality()
+            .map_err(|e| bad(e.to_string()))?
+            .to_owned()),
+        3 if s[0] == h && s[1] == w && matches!(s[2], 1 | 3 | 4) => Ok(v
+            .map_axis(Axis(2), |px| px.iter().any(|&b| b))
+            .into_dimensionality()
+            .map_err(|e| bad(e.to_string()))?),
+        _ => Err(bad(format!(
+            "mask: expected an ({h}, {w}) array like the images, got shape {}",
+            shape_text(&s)
+        ))),
+    }
+}
+
+/// A camera from a K.txt path or a 3x3 array of intrinsics (pixels).
+fn camera_from(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Camera>> {
+    optional(obj, |obj| {
+        if let Ok(path) = obj.extract::<PathBuf>() {
+            return photostereo::io::layouts::near::read_camera(&path).map_err(py_err);
+        }
+        let k = floats(
+            obj,
+            "camera",
+            "a 3x3 array K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (pixels) or the path of a K.txt",
+            |s| s == [3, 3],
+        )?;
+        let k = k.as_array();
+        let rows = [0, 1, 2].map(|r| [k[[r, 0]], k[[r, 1]], k[[r, 2]]]);
+        photostereo::io::layouts::near::camera_from_matrix(rows).map_err(py_err)
+    })
+}
+
+fn distance_of(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<f64>> {
+    optional(obj, |v| {
+        real(
+            v,
+            "distance",
+            |d| d > 0.0,
+            "the object's mean distance in mm, finite and positive",
+        )
+    })
+}
+
+fn memory_limit_of(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<u64>> {
+    let mut p = Params::default();
+    if let Some(v) = obj {
+        p.set("memory_limit", value_of("memory_limit", v)?)
+            .map_err(py_err)?;
+    }
+    Ok(p.memory_limit)
 }
 
 // ---------------------------------------------------------------------------------------------
 // Captures.
 
 /// A capture held by the library: the mask pixels' intensity-normalised samples, the lights
-/// and the mask. Shared, never copied, by `reconstruct`.
+/// (distant or near) and the mask. Shared, never copied, by `reconstruct`; pickled whole.
 #[pyclass(frozen, module = "photostereo._native")]
 struct NativeCapture {
     inner: Arc<Capture>,
+}
+
+fn k_matrix(c: &Camera) -> Array2<f64> {
+    Array2::from_shape_vec(
+        (3, 3),
+        vec![c.fx, 0.0, c.cx, 0.0, c.fy, c.cy, 0.0, 0.0, 1.0],
+    )
+    .expect("3x3")
+}
+
+fn rows_array(v: &[[f64; 3]]) -> Array2<f64> {
+    Array2::from_shape_fn((v.len(), 3), |(k, j)| v[k][j])
 }
 
 #[pymethods]
@@ -381,23 +671,23 @@ impl NativeCapture {
             .map(|p| p.display().to_string())
             .collect()
     }
-    /// (N, 3) unit light directions, float64.
-    fn lights<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
-        let d = &self.inner.lights.directions;
-        Array2::from_shape_fn((d.len(), 3), |(k, j)| d[k][j]).into_pyarray(py)
+    /// The object's mean distance in mm, with a camera.
+    #[getter]
+    fn distance(&self) -> Option<f64> {
+        self.inner.lights.perspective().map(|(_, d)| d)
     }
-    /// (N, C) light intensities, float64.
-    fn intensities<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
-        let c = self.inner.channels;
-        let e = &self.inner.lights.intensities;
-        Array2::from_shape_fn((e.len(), c), |(k, j)| {
-            if c == 1 {
-                (e[k][0] + e[k][1] + e[k][2]) / 3.0
-            } else {
-                e[k][j]
-            }
-        })
-        .into_pyarray(py)
+    /// (N, 3) unit light directions (near lights: toward each LED from the object's centre).
+    fn lights<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray2<f64>> {
+        rows_array(&self.inner.lights.directions).into_pyarray(py)
+    }
+    /// (N, C) light intensities.
+    fn intensities<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, numpy::PyArray2<f64>>> {
+        let c = &self.inner;
+        Ok(
+            Array2::from_shape_vec((c.n_lights(), c.channels), c.channel_intensities())
+                .map_err(|e| bad(e.to_string()))?
+                .into_pyarray(py),
+        )
     }
     /// (H, W) bool.
     fn mask<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, numpy::PyArray2<bool>>> {
@@ -406,116 +696,69 @@ impl NativeCapture {
             .map_err(|e| bad(e.to_string()))?
             .into_pyarray(py))
     }
-    /// (N, H, W, C) float32: the images as read (full scale 1), zero outside the mask.
-    fn images<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray4<f32>> {
+    /// (N, H, W, C) float32: the images as given (full scale 1), zero outside the mask.
+    fn images<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, numpy::PyArray4<f32>>> {
+        let c = Arc::clone(&self.inner);
+        let data = py.detach(|| c.images()).map_err(py_err)?;
         let c = &self.inner;
-        let (n, ch, w) = (c.n_lights(), c.channels, c.width);
-        let mut out = Array4::<f32>::zeros((n, c.height, w, ch));
-        // Tile by tile when the capture was loaded in tiles (one tile otherwise).
-        let _ = c.for_each_tile(|_, tile| {
-            for (p, &i) in tile.pixels.iter().enumerate() {
-                let (row, col) = (i as usize / w, i as usize % w);
-                let s = tile.pixel_samples(p);
-                for k in 0..n {
-                    let e = c.lights.intensities[k];
-                    let mean = ((e[0] + e[1] + e[2]) / 3.0) as f32;
-                    for j in 0..ch {
-                        let scale = if ch == 1 { mean } else { e[j] as f32 };
-                        out[[k, row, col, j]] = s[k * ch + j] * scale;
-                    }
-                }
-            }
-            Ok(())
-        });
-        out.into_pyarray(py)
+        Ok(
+            Array4::from_shape_vec((c.n_lights(), c.height, c.width, c.channels), data)
+                .map_err(|e| bad(e.to_string()))?
+                .into_pyarray(py),
+        )
     }
-}
-
-/// The input arguments of `load_capture` and `run`, as the command line takes them, with the
-/// near-light keywords `distance` (replaces `mean_distance.txt`, as `--distance`) and `camera`
-/// (replaces `K.txt`, or gives distant lights a camera).
-struct InputFiles {
-    inputs: Vec<PathBuf>,
-    lights: Option<PathBuf>,
-    intensities: Option<PathBuf>,
-    mask: Option<PathBuf>,
-    distance: Option<f64>,
-    camera: Option<Camera>,
-}
-
-impl InputFiles {
-    fn resolve(&self) -> photostereo::Result<CaptureFiles> {
-        use photostereo::io::layouts::near::is_near_layout;
-        use photostereo::io::layouts::near::{attach_camera_with, near_capture_files_with};
-        if self.distance.is_none() && self.camera.is_none() {
-            return CaptureFiles::from_inputs(
-                &self.inputs,
-                self.lights.as_deref(),
-                self.intensities.as_deref(),
-                self.mask.as_deref(),
-            );
-        }
-        let dir = match self.inputs.as_slice() {
-            [dir] if dir.is_dir() => dir,
-            _ => {
-                return Err(photostereo::Error::parameter(
-                    "distance",
-                    "distance= and camera= apply to one capture folder (near lights: light_positions.txt; distant lights: light_directions.txt)",
-                ))
-            }
+    /// The 3x3 intrinsics K of the capture's camera (near lights, or distant lights seen
+    /// through a camera), or None.
+    fn camera<'py>(&self, py: Python<'py>) -> Option<Bound<'py, numpy::PyArray2<f64>>> {
+        self.inner
+            .lights
+            .perspective()
+            .map(|(c, _)| k_matrix(&c).into_pyarray(py))
+    }
+    /// The near-light rig (`light_positions`, `light_axes`, `light_anisotropy`), or None.
+    fn near<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(n) = self.inner.lights.near.as_deref() else {
+            return Ok(None);
         };
-        let mut files = if is_near_layout(dir) {
-            near_capture_files_with(dir, self.distance, self.camera)?
-        } else {
-            let mut f = CaptureFiles::diligent_with_lights(dir, self.lights.as_deref())?;
-            if let Some(p) = &self.intensities {
-                f = f.with_intensities_file(p)?;
-            }
-            attach_camera_with(f, dir, self.distance, self.camera)?
-        };
-        if let Some(m) = &self.mask {
-            files.mask = Some(m.clone());
-        }
-        Ok(files)
+        let d = PyDict::new(py);
+        d.set_item("light_positions", rows_array(&n.positions).into_pyarray(py))?;
+        d.set_item("light_axes", rows_array(&n.axes).into_pyarray(py))?;
+        d.set_item(
+            "light_anisotropy",
+            Array1::from_vec(n.anisotropy.clone()).into_pyarray(py),
+        )?;
+        Ok(Some(d))
+    }
+    /// Pickles the whole capture: samples, mask, lights with their near model, camera
+    /// (`photostereo::io::capture_state`).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let rebuild = py
+            .import("photostereo._native")?
+            .getattr("_capture_from_state")?;
+        let c = Arc::clone(&self.inner);
+        let state = py
+            .detach(|| photostereo::io::capture_state::to_bytes(&c))
+            .map_err(py_err)?;
+        let args = PyTuple::new(py, [PyBytes::new(py, &state)])?;
+        PyTuple::new(py, [rebuild, args.into_any()])
     }
 }
 
-/// A camera from a K.txt path or a 3×3 array of intrinsics (pixels).
-fn camera_from(obj: Option<&Bound<'_, PyAny>>) -> PyResult<Option<Camera>> {
-    let Some(obj) = obj else { return Ok(None) };
-    if obj.is_none() {
-        return Ok(None);
-    }
-    if let Ok(path) = obj.extract::<PathBuf>() {
-        return photostereo::io::layouts::near::read_camera(&path)
-            .map(Some)
-            .map_err(py_err);
-    }
-    let k = obj
-        .extract::<PyReadonlyArray2<'_, f64>>()
-        .ok()
-        .filter(|a| a.as_array().dim() == (3, 3))
-        .ok_or_else(|| {
-            bad(format!(
-                "camera: expected a 3×3 array K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (pixels) or the path of a K.txt, got {}",
-                repr(obj)
-            ))
-        })?;
-    let k = k.as_array();
-    let rows = [
-        [k[[0, 0]], k[[0, 1]], k[[0, 2]]],
-        [k[[1, 0]], k[[1, 1]], k[[1, 2]]],
-        [k[[2, 0]], k[[2, 1]], k[[2, 2]]],
-    ];
-    photostereo::io::layouts::near::camera_from_matrix(rows)
-        .map(Some)
-        .map_err(py_err)
-}
-
-/// Reads a capture from files: a DiLiGenT-layout folder, a list file with `lights`, or image
-/// files with `lights`.
+/// The capture a pickled state describes.
 #[pyfunction]
-#[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None, distance=None, camera=None))]
+fn _capture_from_state(py: Python<'_>, state: &[u8]) -> PyResult<NativeCapture> {
+    let capture = py
+        .detach(|| photostereo::io::capture_state::from_bytes(state))
+        .map_err(py_err)?;
+    Ok(NativeCapture {
+        inner: Arc::new(capture),
+    })
+}
+
+/// Reads a capture from files, in every layout `run` reads (see the package's `load_capture`).
+#[pyfunction]
+#[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None,
+    distance=None, camera=None, memory_limit=None))]
 #[allow(clippy::too_many_arguments)]
 fn load_capture(
     py: Python<'_>,
@@ -523,261 +766,109 @@ fn load_capture(
     lights: Option<PathBuf>,
     intensities: Option<PathBuf>,
     mask: Option<PathBuf>,
-    num_threads: Option<usize>,
-    distance: Option<f64>,
+    num_threads: Option<&Bound<'_, PyAny>>,
+    distance: Option<&Bound<'_, PyAny>>,
     camera: Option<&Bound<'_, PyAny>>,
+    memory_limit: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<NativeCapture> {
-    let files = InputFiles {
-        inputs,
-        lights,
-        intensities,
-        mask,
-        distance,
-        camera: camera_from(camera)?,
-    };
-    let capture = run_detached(py, num_threads, None, move |progress| {
-        files.resolve()?.load(progress)
+    let num_threads = threads(num_threads)?;
+    let distance = distance_of(distance)?;
+    let camera = camera_from(camera)?;
+    let budget = memory_limit_of(memory_limit)?;
+    let capture = run_detached(py, num_threads, None, OnCancel::Raise, move |progress| {
+        let files = CaptureFiles::from_inputs_with(
+            &inputs,
+            lights.as_deref(),
+            intensities.as_deref(),
+            mask.as_deref(),
+            distance,
+            camera,
+        )?;
+        let options = LoadOptions {
+            budget,
+            ..LoadOptions::default()
+        };
+        files.load_with(progress, &options)
     })?;
     Ok(NativeCapture {
         inner: Arc::new(capture),
     })
 }
 
-/// The rows of an (N, 1|3) intensity array as RGB triples (one value: grey light).
-fn rgb_rows(e: &ArrayView2<'_, f64>) -> Vec<[f64; 3]> {
-    e.rows()
-        .into_iter()
-        .map(|r| {
-            if r.len() == 1 {
-                [r[0]; 3]
-            } else {
-                [r[0], r[1], r[2]]
-            }
-        })
-        .collect()
-}
-
-/// Lights from (N, 3) directions and optional (N, C) intensities.
-fn lights_from(
-    directions: ArrayView2<'_, f64>,
-    intensities: Option<ArrayView2<'_, f64>>,
-    channels: usize,
-) -> PyResult<Lights> {
-    if directions.ncols() != 3 {
-        return Err(bad(format!(
-            "lights: expected an (N, 3) array of directions, got shape {:?}",
-            directions.shape()
-        )));
-    }
-    let dirs: Vec<[f64; 3]> = directions
-        .rows()
-        .into_iter()
-        .map(|r| [r[0], r[1], r[2]])
-        .collect();
-    if let Some(k) = dirs.iter().position(|d| d.iter().any(|v| !v.is_finite())) {
-        return Err(bad(format!(
-            "lights: light {} has a non-finite direction {:?}",
-            k + 1,
-            dirs[k]
-        )));
-    }
-    let mut lights = Lights::new(&dirs).map_err(py_err)?;
-    if let Some(e) = intensities {
-        if e.nrows() != dirs.len() || (e.ncols() != 1 && e.ncols() != channels && e.ncols() != 3) {
-            return Err(bad(format!(
-                "intensities: expected an (N, C) array with N = {} lights and C = 1 or {channels}, got shape {:?}",
-                dirs.len(),
-                e.shape()
-            )));
-        }
-        let rows = rgb_rows(&e);
-        lights = lights.with_intensities(rows).map_err(py_err)?;
-    }
-    Ok(lights)
-}
-
-/// Near lights from LED positions (N, 3) mm, a camera, the mean distance, optional axes (N, 3),
-/// anisotropy (N,) and radiances (N, C) (1 when absent).
+/// The lights of an array capture, from the keywords (see `LightArrays`).
 #[allow(clippy::too_many_arguments)]
-fn near_lights_from(
-    positions: ArrayView2<'_, f64>,
-    camera: Option<Camera>,
-    distance: Option<f64>,
-    axes: Option<ArrayView2<'_, f64>>,
-    anisotropy: Option<Vec<f64>>,
-    intensities: Option<ArrayView2<'_, f64>>,
+fn lights_of(
+    lights: Option<&Bound<'_, PyAny>>,
+    intensities: Option<&Bound<'_, PyAny>>,
+    light_positions: Option<&Bound<'_, PyAny>>,
+    camera: Option<&Bound<'_, PyAny>>,
+    distance: Option<&Bound<'_, PyAny>>,
+    light_axes: Option<&Bound<'_, PyAny>>,
+    light_anisotropy: Option<&Bound<'_, PyAny>>,
     channels: usize,
 ) -> PyResult<Lights> {
-    let rows3 = |a: ArrayView2<'_, f64>, what: &str| -> PyResult<Vec<[f64; 3]>> {
-        if a.ncols() != 3 {
-            return Err(bad(format!(
-                "{what}: expected an (N, 3) array, got shape {:?}",
-                a.shape()
-            )));
-        }
-        Ok(a.rows().into_iter().map(|r| [r[0], r[1], r[2]]).collect())
-    };
-    let positions = rows3(positions, "light_positions")?;
-    let n = positions.len();
-    if n < 3 {
-        return Err(bad(format!(
-            "light_positions: {n} light(s): expected at least three rows x y z in mm"
-        )));
-    }
-    let camera = camera.ok_or_else(|| {
-        bad("camera: near lights need the camera intrinsics (a 3×3 K or a K.txt path)")
+    let anisotropy = optional(light_anisotropy, |a| {
+        let a = floats(a, "light_anisotropy", "an (N,) array", |s| s.len() == 1)?;
+        Ok(a.as_array().iter().copied().collect())
     })?;
-    let distance = distance.ok_or_else(|| {
-        bad("distance: near lights need the object's mean distance in mm; without it the lights cannot be placed")
-    })?;
-    let axes = axes.map(|a| rows3(a, "light_axes")).transpose()?;
-    if let Some(a) = &axes {
-        if a.len() != n {
-            return Err(bad(format!(
-                "light_axes: {} axes for {n} light positions: expected one per light",
-                a.len()
-            )));
-        }
-    }
-    if let Some(m) = &anisotropy {
-        if m.len() != n {
-            return Err(bad(format!(
-                "light_anisotropy: {} values for {n} light positions: expected one per light",
-                m.len()
-            )));
-        }
-    }
-    let intensities = match intensities {
-        None => vec![[1.0; 3]; n],
-        Some(e) => {
-            if e.nrows() != n || (e.ncols() != 1 && e.ncols() != channels && e.ncols() != 3) {
-                return Err(bad(format!(
-                    "intensities: expected an (N, C) array of radiances with N = {n} lights and C = 1 or {channels}, got shape {:?}",
-                    e.shape()
-                )));
-            }
-            rgb_rows(&e)
-        }
-    };
-    let layout = photostereo::io::layouts::near::NearLayout {
-        camera,
-        positions,
-        axes,
+    photostereo::io::layouts::near::LightArrays {
+        directions: optional(lights, |v| rows3(v, "lights"))?,
+        intensities: optional(intensities, |v| intensity_rows(v, channels))?,
+        positions: optional(light_positions, |v| rows3(v, "light_positions"))?,
+        camera: camera_from(camera)?,
+        distance: distance_of(distance)?,
+        axes: optional(light_axes, |v| rows3(v, "light_axes"))?,
         anisotropy,
-        intensities,
-        distance,
-    };
-    layout
-        .lights(std::path::Path::new("light_positions"))
-        .map_err(py_err)
+    }
+    .lights()
+    .map_err(py_err)
 }
 
-/// A capture from an (N, H, W, C) array of uint8, uint16, float32 or float64, (N, 3) lights,
-/// optional (N, C) intensities and (H, W) mask. The array is read once into the library's
-/// store, with the GIL released.
+/// A capture from an image array (see the package's `Capture.from_arrays`): read once into
+/// the library's store, within `memory_limit`, with the GIL released.
 #[pyfunction]
-#[pyo3(signature = (images, lights, intensities=None, mask=None, light_positions=None,
-    camera=None, distance=None, light_axes=None, light_anisotropy=None))]
+#[pyo3(signature = (images, lights=None, intensities=None, mask=None, light_positions=None,
+    camera=None, distance=None, light_axes=None, light_anisotropy=None, memory_limit=None))]
 #[allow(clippy::too_many_arguments)]
 fn capture_from_stack(
     py: Python<'_>,
     images: &Bound<'_, PyAny>,
-    lights: Option<PyReadonlyArray2<'_, f64>>,
-    intensities: Option<PyReadonlyArray2<'_, f64>>,
-    mask: Option<PyReadonlyArray2<'_, bool>>,
-    light_positions: Option<PyReadonlyArray2<'_, f64>>,
+    lights: Option<&Bound<'_, PyAny>>,
+    intensities: Option<&Bound<'_, PyAny>>,
+    mask: Option<&Bound<'_, PyAny>>,
+    light_positions: Option<&Bound<'_, PyAny>>,
     camera: Option<&Bound<'_, PyAny>>,
-    distance: Option<f64>,
-    light_axes: Option<PyReadonlyArray2<'_, f64>>,
-    light_anisotropy: Option<Vec<f64>>,
+    distance: Option<&Bound<'_, PyAny>>,
+    light_axes: Option<&Bound<'_, PyAny>>,
+    light_anisotropy: Option<&Bound<'_, PyAny>>,
+    memory_limit: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<NativeCapture> {
-    let channels = images
-        .getattr("shape")
-        .ok()
-        .and_then(|s| s.extract::<Vec<usize>>().ok())
-        .and_then(|s| s.get(3).copied())
-        .unwrap_or(1);
-    let camera = camera_from(camera)?;
-    let lights = match (light_positions, lights) {
-        (Some(positions), None) => near_lights_from(
-            positions.as_array(),
-            camera,
-            distance,
-            light_axes.as_ref().map(|a| a.as_array()),
-            light_anisotropy,
-            intensities.as_ref().map(|i| i.as_array()),
-            channels,
-        )?,
-        (Some(_), Some(_)) => {
-            return Err(bad(
-                "lights and light_positions: give directions (distant lights) or LED positions (near lights), not both",
-            ))
-        }
-        (None, Some(lights)) => {
-            if light_axes.is_some() || light_anisotropy.is_some() {
-                return Err(bad(
-                    "light_axes and light_anisotropy describe near lights: they need light_positions",
-                ));
-            }
-            let mut l = lights_from(
-                lights.as_array(),
-                intensities.as_ref().map(|i| i.as_array()),
-                channels,
-            )?;
-            match (camera, distance) {
-                (Some(c), Some(d)) => {
-                    if !(d.is_finite() && d > 0.0) {
-                        return Err(bad(format!(
-                            "distance {d}: expected the object's mean distance in mm, finite and positive"
-                        )));
-                    }
-                    l.camera = Some((c, d));
-                }
-                (None, None) => {}
-                (Some(_), None) => {
-                    return Err(bad(
-                        "camera: distant lights seen through a camera need distance= (the object's mean distance in mm) too",
-                    ))
-                }
-                (None, Some(_)) => {
-                    return Err(bad(
-                        "distance: needs camera= (a 3×3 K or a K.txt path), or light_positions= for near lights",
-                    ))
-                }
-            }
-            l
-        }
-        (None, None) => {
-            return Err(bad(
-                "lights: an image array needs (N, 3) light directions, or light_positions (N, 3) in mm with camera and distance for near lights",
-            ))
-        }
+    let array = StackArray::extract(images, "images")?;
+    let stack = array.stack("images")?;
+    let (_, h, w, channels) = stack.dim();
+    let lights = lights_of(
+        lights,
+        intensities,
+        light_positions,
+        camera,
+        distance,
+        light_axes,
+        light_anisotropy,
+        channels,
+    )?;
+    let mask = optional(mask, |m| mask_of(m, h, w))?;
+    let options = StackOptions {
+        budget: memory_limit_of(memory_limit)?,
+        spill_dir: None,
     };
-    let mask_view = mask.as_ref().map(|m| m.as_array());
-    macro_rules! build {
-        ($t:ty, $variant:ident) => {
-            if let Ok(a) = images.extract::<PyReadonlyArray4<'_, $t>>() {
-                let view = a.as_array();
-                let capture = py
-                    .detach(|| Capture::from_stack(Stack::$variant(view), lights, mask_view))
-                    .map_err(py_err)?;
-                return Ok(NativeCapture {
-                    inner: Arc::new(capture),
-                });
-            }
-        };
-    }
-    build!(u8, U8);
-    build!(u16, U16);
-    build!(f32, F32);
-    build!(f64, F64);
-    let dtype = images
-        .getattr("dtype")
-        .map(|d| d.to_string())
-        .unwrap_or_else(|_| type_name(images));
-    Err(bad(format!(
-        "images: expected a 4-d array (N, H, W, C) of uint8, uint16, float32 or float64, got {dtype}"
-    )))
+    let capture = py
+        .detach(|| {
+            Capture::from_stack_with(stack, lights, mask.as_ref().map(|m| m.view()), &options)
+        })
+        .map_err(py_err)?;
+    Ok(NativeCapture {
+        inner: Arc::new(capture),
+    })
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -795,8 +886,7 @@ fn reconstruction_dict<'py>(
     let (h, w, c, n) = (rec.height, rec.width, rec.channels, rec.n_lights);
     let shape_err = |e: ndarray::ShapeError| bad(e.to_string());
     let d = PyDict::new(py);
-    let report = serde_json::to_string(&rec.report).map_err(|e| bad(e.to_string()))?;
-    d.set_item("report_json", report)?;
+    d.set_item("report", py_serde(py, &rec.report)?)?;
     let normals = Array3::from_shape_vec((h, w, 3), flat3(&rec.normals)).map_err(shape_err)?;
     d.set_item("normals", normals.into_pyarray(py))?;
     let albedo =
@@ -805,10 +895,9 @@ fn reconstruction_dict<'py>(
     let status =
         Array3::from_shape_vec((n, h, w), rec.light_status.to_full()).map_err(shape_err)?;
     d.set_item("light_status", status.into_pyarray(py))?;
-    let hw = |v| Array2::from_shape_vec((h, w), v).map_err(shape_err);
-    d.set_item("mask", hw(std::mem::take(&mut rec.mask))?.into_pyarray(py))?;
     let hw32 = |v| Array2::<f32>::from_shape_vec((h, w), v).map_err(shape_err);
     let hwb = |v| Array2::<bool>::from_shape_vec((h, w), v).map_err(shape_err);
+    d.set_item("mask", hwb(std::mem::take(&mut rec.mask))?.into_pyarray(py))?;
     d.set_item(
         "trust",
         hw32(std::mem::take(&mut rec.trust))?.into_pyarray(py),
@@ -842,19 +931,20 @@ fn reconstruction_dict<'py>(
     Ok(d)
 }
 
-/// Reconstructs a capture; `params` holds every keyword (see `defaults()`).
+/// Reconstructs a capture with the parameters of `params` (names of the library's table).
 #[pyfunction]
 #[pyo3(signature = (capture, params, num_threads=None, progress=None))]
 fn reconstruct<'py>(
     py: Python<'py>,
     capture: &NativeCapture,
     params: &Bound<'py, PyDict>,
-    num_threads: Option<usize>,
-    progress: Option<Py<PyAny>>,
+    num_threads: Option<&Bound<'py, PyAny>>,
+    progress: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyDict>> {
     let params = params_from(params)?;
+    let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
     let capture = Arc::clone(&capture.inner);
-    let rec = run_detached(py, num_threads, progress, move |p| {
+    let rec = run_detached(py, num_threads, progress, OnCancel::Raise, move |p| {
         if params.refine_lights {
             // The Capture object stays as built: the refined lights (and rescaled samples)
             // belong to a copy made for this call.
@@ -869,17 +959,17 @@ fn reconstruct<'py>(
 }
 
 /// The command line's `run`: reads the capture, reconstructs, writes the output folder
-/// atomically; returns report.json's content as a string.
+/// atomically; returns report.json's content.
 #[pyfunction]
 #[pyo3(signature = (inputs, output, params, lights=None, intensities=None, mask=None, gt=None,
     error_map=false, light_subset=None, force=false, num_threads=None, progress=None,
     distance=None, camera=None))]
 #[allow(clippy::too_many_arguments)]
-fn run(
-    py: Python<'_>,
+fn run<'py>(
+    py: Python<'py>,
     inputs: Vec<PathBuf>,
     output: PathBuf,
-    params: &Bound<'_, PyDict>,
+    params: &Bound<'py, PyDict>,
     lights: Option<PathBuf>,
     intensities: Option<PathBuf>,
     mask: Option<PathBuf>,
@@ -887,12 +977,14 @@ fn run(
     error_map: bool,
     light_subset: Option<String>,
     force: bool,
-    num_threads: Option<usize>,
-    progress: Option<Py<PyAny>>,
-    distance: Option<f64>,
-    camera: Option<&Bound<'_, PyAny>>,
-) -> PyResult<String> {
+    num_threads: Option<&Bound<'py, PyAny>>,
+    progress: Option<&Bound<'py, PyAny>>,
+    distance: Option<&Bound<'py, PyAny>>,
+    camera: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Py<PyAny>> {
     let params = params_from(params)?;
+    let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
+    let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
     let light_subset = light_subset
         .map(|s| s.parse::<LightSubset>())
@@ -908,50 +1000,96 @@ fn run(
         // The interpreter's allocator settings stay its own.
         return_freed_memory_when_tiled: false,
     };
-    let files = InputFiles {
-        inputs,
-        lights,
-        intensities,
-        mask,
-        distance,
-        camera,
-    };
-    let rec = run_detached(py, num_threads, progress, move |p| {
-        photostereo::app::pipeline::run(&files.resolve()?, &options, &output, force, p)
-    })?;
-    serde_json::to_string(&rec.report).map_err(|e| bad(e.to_string()))
+    let rec = run_detached(
+        py,
+        num_threads,
+        progress,
+        OnCancel::CleanUpFirst,
+        move |p| {
+            let files = CaptureFiles::from_inputs_with(
+                &inputs,
+                lights.as_deref(),
+                intensities.as_deref(),
+                mask.as_deref(),
+                distance,
+                camera,
+            )?;
+            photostereo::app::pipeline::run(&files, &options, &output, force, p)
+        },
+    )?;
+    py_serde(py, &rec.report)
 }
 
 // ---------------------------------------------------------------------------------------------
 // Integration, metrics, calibration, scenes.
 
-fn normals_from(view: ArrayView3<'_, f32>, what: &str) -> PyResult<Vec<[f32; 3]>> {
-    if view.shape()[2] != 3 {
+/// (H, W, 3) normals from a float32 array.
+fn normals_of<'py>(obj: &Bound<'py, PyAny>, name: &str) -> PyResult<(usize, usize, Vec<[f32; 3]>)> {
+    let a: PyReadonlyArrayDyn<'py, f32> = obj
+        .extract()
+        .map_err(|_| bad(format!("{name}: expected an array of numbers")))?;
+    let v = a.as_array();
+    let s = v.shape().to_vec();
+    if s.len() != 3 || s[2] != 3 {
         return Err(bad(format!(
-            "{what}: expected an (H, W, 3) array, got shape {:?}",
-            view.shape()
+            "{name}: expected an (H, W, 3) array, got shape {}",
+            shape_text(&s)
         )));
     }
-    Ok(view
-        .lanes(Axis(2))
-        .into_iter()
-        .map(|l| [l[0], l[1], l[2]])
-        .collect())
+    check_map_size(name, s[0], s[1])?;
+    let mut normals = reserved(name, s[0] * s[1])?;
+    normals.extend(v.lanes(Axis(2)).into_iter().map(|l| [l[0], l[1], l[2]]));
+    Ok((s[0], s[1], normals))
 }
 
-fn mask_from(
-    mask: Option<ArrayView2<'_, bool>>,
-    h: usize,
-    w: usize,
-) -> PyResult<Option<Vec<bool>>> {
-    match mask {
-        Some(m) if m.dim() != (h, w) => Err(bad(format!(
-            "mask: expected shape ({h}, {w}) like the normals, got {:?}",
-            m.shape()
-        ))),
-        Some(m) => Ok(Some(m.iter().copied().collect())),
-        None => Ok(None),
-    }
+/// An (H, W) map held to the image readers' limits ([`MAX_IMAGE_SIDE`] a side,
+/// [`MAX_IMAGE_PIXELS`] in all) before it is copied, so that a huge or zero-strided view is
+/// refused instead of exhausting memory.
+fn check_map_size(name: &str, h: usize, w: usize) -> PyResult<()> {
+    use photostereo::model::image::{MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
+    let limit = if h as u64 > MAX_IMAGE_SIDE || w as u64 > MAX_IMAGE_SIDE {
+        format!("a side exceeds the limit of {MAX_IMAGE_SIDE} pixels")
+    } else if (h as u64) * (w as u64) > MAX_IMAGE_PIXELS {
+        format!("more than the limit of {MAX_IMAGE_PIXELS} pixels")
+    } else {
+        return Ok(());
+    };
+    Err(bad(format!("{name}: {h}×{w} (rows×columns): {limit}")))
+}
+
+/// An empty vector with room for `len` items, or an error naming `name` when the memory is
+/// not there (instead of the allocator's abort).
+fn reserved<T>(name: &str, len: usize) -> PyResult<Vec<T>> {
+    let mut v = Vec::new();
+    v.try_reserve_exact(len).map_err(|_| {
+        bad(format!(
+            "{name}: {len} pixels do not fit in the memory available"
+        ))
+    })?;
+    Ok(v)
+}
+
+/// An (H, W) map of `T` matching the normals' (H, W).
+fn map_of<'py, T: numpy::Element + Copy>(
+    obj: Option<&Bound<'py, PyAny>>,
+    name: &str,
+    (h, w): (usize, usize),
+) -> PyResult<Option<Vec<T>>> {
+    optional(obj, |o| {
+        let a: PyReadonlyArrayDyn<'_, T> = o
+            .extract()
+            .map_err(|_| bad(format!("{name}: expected an array")))?;
+        let v = a.as_array();
+        if v.shape() != [h, w] {
+            return Err(bad(format!(
+                "{name}: expected shape ({h}, {w}) like the normals, got {}",
+                shape_text(v.shape())
+            )));
+        }
+        let mut out = reserved(name, h * w)?;
+        out.extend(v.iter().copied());
+        Ok(out)
+    })
 }
 
 /// Integrates (H, W, 3) normals into (H, W) depth (pixel units, NaN outside the mask).
@@ -959,30 +1097,26 @@ fn mask_from(
 #[pyo3(signature = (normals, mask=None, method="poisson", weights=None, max_slope=None, num_threads=None))]
 fn integrate<'py>(
     py: Python<'py>,
-    normals: PyReadonlyArray3<'py, f32>,
-    mask: Option<PyReadonlyArray2<'py, bool>>,
+    normals: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
     method: &str,
-    weights: Option<PyReadonlyArray2<'py, f32>>,
-    max_slope: Option<f32>,
-    num_threads: Option<usize>,
+    weights: Option<&Bound<'py, PyAny>>,
+    max_slope: Option<&Bound<'py, PyAny>>,
+    num_threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
-    let view = normals.as_array();
-    let (h, w) = (view.shape()[0], view.shape()[1]);
-    let normals = normals_from(view, "normals")?;
-    let mask = mask_from(mask.as_ref().map(|m| m.as_array()), h, w)?;
-    let weights: Option<Vec<f32>> = match &weights {
-        Some(wt) if wt.as_array().dim() != (h, w) => {
-            return Err(bad(format!(
-                "weights: expected shape ({h}, {w}) like the normals, got {:?}",
-                wt.as_array().shape()
-            )))
-        }
-        Some(wt) => Some(wt.as_array().iter().copied().collect()),
-        None => None,
-    };
+    let (h, w, normals) = normals_of(normals, "normals")?;
+    let mask = map_of::<bool>(mask, "mask", (h, w))?;
+    let has_mask = mask.is_some();
+    let weights = map_of::<f32>(weights, "weights", (h, w))?;
     let kind: photostereo::geometry::integrate::IntegratorKind = method.parse().map_err(py_err)?;
-    let max_slope = max_slope.unwrap_or(photostereo::geometry::integrate::DEFAULT_MAX_SLOPE);
-    let depth = run_detached(py, num_threads, None, move |p| {
+    let mut p = Params::default();
+    if let Some(v) = max_slope {
+        p.set("max_slope", value_of("max_slope", v)?)
+            .map_err(py_err)?;
+    }
+    let max_slope = p.integration.max_slope;
+    let num_threads = threads(num_threads)?;
+    let depth = run_detached(py, num_threads, None, OnCancel::Raise, move |p| {
         photostereo::geometry::integrate::surface_from_normals(
             w,
             h,
@@ -994,67 +1128,68 @@ fn integrate<'py>(
             p,
         )
     })?;
+    if !depth.depth.values.iter().any(|z| z.is_finite()) {
+        // As the command line's `integrate` refuses a map without a usable normal.
+        return Err(bad(format!(
+            "normals: no pixel with a valid normal to integrate ({} invalid — zero, NaN or \
+             infinite — and {} facing away from the camera{})",
+            depth.rejected_invalid,
+            depth.rejected_backfacing,
+            if has_mask { ", inside the mask" } else { "" }
+        )));
+    }
     Ok(Array2::from_shape_vec((h, w), depth.depth.values)
         .map_err(|e| bad(e.to_string()))?
         .into_pyarray(py))
 }
 
-/// Angular error figures of (H, W, 3) normals against ground truth: (stats as JSON, error map).
+/// Angular error figures of (H, W, 3) normals against ground truth: (figures, error map).
 #[pyfunction]
 #[pyo3(signature = (normals, truth, mask=None))]
 fn angular_error<'py>(
     py: Python<'py>,
-    normals: PyReadonlyArray3<'py, f32>,
-    truth: PyReadonlyArray3<'py, f32>,
-    mask: Option<PyReadonlyArray2<'py, bool>>,
-) -> PyResult<(String, Bound<'py, numpy::PyArray2<f32>>)> {
-    let (pv, tv) = (normals.as_array(), truth.as_array());
-    if pv.shape() != tv.shape() {
+    normals: &Bound<'py, PyAny>,
+    truth: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<(Py<PyAny>, Bound<'py, numpy::PyArray2<f32>>)> {
+    let (h, w, pred) = normals_of(normals, "normals")?;
+    let (th, tw, gt) = normals_of(truth, "truth")?;
+    if (th, tw) != (h, w) {
         return Err(bad(format!(
-            "normals {:?} and truth {:?}: expected the same (H, W, 3) shape",
-            pv.shape(),
-            tv.shape()
+            "normals ({h}, {w}, 3) and truth ({th}, {tw}, 3): expected the same shape"
         )));
     }
-    let (h, w) = (pv.shape()[0], pv.shape()[1]);
-    let pred = normals_from(pv, "normals")?;
-    let gt = normals_from(tv, "truth")?;
-    let mask = mask_from(mask.as_ref().map(|m| m.as_array()), h, w)?;
+    let mask = map_of::<bool>(mask, "mask", (h, w))?;
     let (map, stats) = py
         .detach(|| photostereo::solve::metrics::evaluate(&pred, &gt, mask.as_deref()))
         .map_err(py_err)?;
-    let json = serde_json::to_string(&stats).map_err(|e| bad(e.to_string()))?;
     let map = Array2::from_shape_vec((h, w), map).map_err(|e| bad(e.to_string()))?;
-    Ok((json, map.into_pyarray(py)))
+    Ok((py_serde(py, &stats)?, map.into_pyarray(py)))
 }
 
-/// Images from an (N, H, W, C) float32 array.
-fn images_from(view: ndarray::ArrayView4<'_, f32>) -> Vec<Image> {
-    let (_, h, w, c) = view.dim();
-    view.outer_iter()
-        .map(|img| Image {
-            width: w,
-            height: h,
-            channels: c,
-            bit_depth: 32,
-            data: img.iter().copied().collect(),
-        })
-        .collect()
-}
-
-/// Light directions from images of a mirror sphere ((N, H, W, C) float32, full scale 1):
-/// the calibration as JSON.
+/// Light directions from images of a mirror sphere: the calibration as a dict, with
+/// `lights` (N, 3) (NaN where no highlight was found) and `confidence` (N,) arrays.
 #[pyfunction]
 #[pyo3(signature = (images, mask=None))]
-fn calibrate(
-    py: Python<'_>,
-    images: PyReadonlyArray4<'_, f32>,
-    mask: Option<PyReadonlyArray2<'_, bool>>,
-) -> PyResult<String> {
-    let view = images.as_array();
-    let (_, h, w, _) = view.dim();
-    let imgs = images_from(view);
-    let mask = mask_from(mask.as_ref().map(|m| m.as_array()), h, w)?;
+fn calibrate<'py>(
+    py: Python<'py>,
+    images: &Bound<'py, PyAny>,
+    mask: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Py<PyAny>> {
+    let array = StackArray::extract(images, "images")?;
+    let stack = array.stack("images")?;
+    let (_, h, w, _) = stack.dim();
+    let imgs = stack.images().map_err(py_err)?;
+    let mask = optional(mask, |m| mask_of(m, h, w))?;
+    if let Some(m) = &mask {
+        if m.dim() != (h, w) {
+            return Err(bad(format!(
+                "mask: expected an ({h}, {w}) array like the images, got shape {}",
+                shape_text(m.shape())
+            )));
+        }
+    }
+    let mask: Option<Vec<bool>> = mask.map(|m| m.iter().copied().collect());
     let cal = py
         .detach(|| {
             photostereo::calibrate::calibrate(
@@ -1065,110 +1200,109 @@ fn calibrate(
             )
         })
         .map_err(py_err)?;
-    serde_json::to_string(&cal).map_err(|e| bad(e.to_string()))
+    let out = py_serde(py, &cal)?;
+    let d = out.bind(py).cast::<PyDict>()?;
+    let n = cal.lights.len();
+    let lights = Array2::from_shape_fn((n, 3), |(k, j)| {
+        cal.lights[k].direction.map_or(f64::NAN, |d| d[j])
+    });
+    let confidence = Array1::from_iter(cal.lights.iter().map(|l| l.confidence));
+    d.set_item("per_light", d.get_item("lights")?)?;
+    d.set_item("lights", lights.into_pyarray(py))?;
+    d.set_item("confidence", confidence.into_pyarray(py))?;
+    Ok(out)
 }
 
-fn spec_from(
-    name: &str,
-    rig: &str,
+/// The scene arguments shared by `render_scene` and `synth`, checked.
+struct SceneArgs {
     size: usize,
-    brdf: &str,
     noise: f64,
     seed: u64,
-) -> PyResult<SynthSpec> {
-    if !(8..=8192).contains(&size) {
-        return Err(bad(format!("size {size}: expected 8..=8192 pixels")));
-    }
-    if !(noise.is_finite() && noise >= 0.0) {
-        return Err(bad(format!("noise {noise}: expected a finite value ≥ 0")));
-    }
+}
+
+fn scene_args(
+    size: &Bound<'_, PyAny>,
+    noise: &Bound<'_, PyAny>,
+    seed: &Bound<'_, PyAny>,
+) -> PyResult<SceneArgs> {
+    Ok(SceneArgs {
+        size: whole(size, "size", 8, 8192, " pixels")? as usize,
+        noise: real(noise, "noise", |v| v >= 0.0, "a finite value ≥ 0")?,
+        seed: whole(seed, "seed", 0, i64::MAX, "")? as u64,
+    })
+}
+
+fn spec_from(name: &str, rig: &str, brdf: &str, a: &SceneArgs) -> PyResult<SynthSpec> {
     let scene: SceneKind = name.parse().map_err(py_err)?;
     let mut spec = SynthSpec::new(
         scene,
         photostereo::io::light_files::parse_rig(rig).map_err(py_err)?,
     );
-    spec.size = size;
+    spec.size = a.size;
     spec.render.brdf = brdf.parse::<Brdf>().map_err(py_err)?;
-    spec.render.noise_sigma = noise;
-    spec.render.seed = seed;
+    spec.render.noise_sigma = a.noise;
+    spec.render.seed = a.seed;
     Ok(spec)
 }
 
-/// The spec of a near-light scene (`rig` near-ring, near-square or near-dome).
-fn near_spec_from(
-    name: &str,
-    rig: NearRig,
-    size: usize,
-    brdf: &str,
-    noise: f64,
-    seed: u64,
-) -> PyResult<NearSpec> {
+fn near_spec_from(name: &str, rig: NearRig, brdf: &str, a: &SceneArgs) -> PyResult<NearSpec> {
     let scene: SceneKind = name.parse().map_err(py_err)?;
     Ok(NearSpec {
-        size,
+        size: a.size,
         brdf: brdf.parse::<Brdf>().map_err(py_err)?,
-        noise_sigma: noise,
-        seed,
+        noise_sigma: a.noise,
+        seed: a.seed,
         ..NearSpec::new(scene, rig)
     })
 }
 
 /// Renders a built-in scene: (images (N, S, S, 3) float32, lights (N, 3), mask (S, S),
 /// truth normals (S, S, 3), truth depth (S, S), shadows (N, S, S) bool, near) with `near`
-/// None for distant rigs and, for the near rigs, a dict of the rig (`light_positions` (N, 3)
-/// mm, `light_axes` (N, 3), `light_anisotropy` (N,), `intensities` (N, 3) radiance at 1 mm,
-/// `camera` (3, 3) K in pixels, `distance` mm); the depth is then Z in mm.
+/// None for distant rigs and, for the near rigs, a dict of the rig as `reconstruct` takes it.
 #[pyfunction]
-#[pyo3(signature = (name, rig="square4", size=128, brdf="blinn-phong", noise=0.005, seed=1))]
+#[pyo3(signature = (name, rig, size, brdf, noise, seed))]
 fn render_scene<'py>(
     py: Python<'py>,
     name: &str,
     rig: &str,
-    size: usize,
+    size: &Bound<'py, PyAny>,
     brdf: &str,
-    noise: f64,
-    seed: u64,
+    noise: &Bound<'py, PyAny>,
+    seed: &Bound<'py, PyAny>,
 ) -> PyResult<Bound<'py, PyTuple>> {
+    let a = scene_args(size, noise, seed)?;
     let (r, near) = match NearRig::parse(rig) {
         Some(near_rig) => {
-            let spec = near_spec_from(name, near_rig, size, brdf, noise, seed)?;
+            let spec = near_spec_from(name, near_rig, brdf, &a)?;
             let r = py.detach(|| synthesize_near(&spec)).map_err(py_err)?;
             let d = PyDict::new(py);
-            let rows = |v: &[[f64; 3]]| Array2::from_shape_fn((v.len(), 3), |(k, j)| v[k][j]);
-            d.set_item("light_positions", rows(&r.positions).into_pyarray(py))?;
-            d.set_item("light_axes", rows(&r.axes).into_pyarray(py))?;
+            d.set_item("light_positions", rows_array(&r.positions).into_pyarray(py))?;
+            d.set_item("light_axes", rows_array(&r.axes).into_pyarray(py))?;
             d.set_item(
                 "light_anisotropy",
-                ndarray::Array1::from_vec(r.anisotropy.clone()).into_pyarray(py),
+                Array1::from_vec(r.anisotropy.clone()).into_pyarray(py),
             )?;
-            d.set_item("intensities", rows(&r.radiance).into_pyarray(py))?;
-            let k = &r.camera;
-            let kk = Array2::from_shape_vec(
-                (3, 3),
-                vec![k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0],
-            )
-            .map_err(|e| bad(e.to_string()))?;
-            d.set_item("camera", kk.into_pyarray(py))?;
+            d.set_item("intensities", rows_array(&r.radiance).into_pyarray(py))?;
+            d.set_item("camera", k_matrix(&r.camera).into_pyarray(py))?;
             d.set_item("distance", r.distance)?;
             (r.rendered, d.into_any().unbind())
         }
         None => {
-            let spec = spec_from(name, rig, size, brdf, noise, seed)?;
+            let spec = spec_from(name, rig, brdf, &a)?;
             let r = py
                 .detach(|| photostereo::scene::synthesize(&spec))
                 .map_err(py_err)?;
             (r, py.None())
         }
     };
-    let (n, s) = (r.images.len(), size);
-    let mut images = Array4::<f32>::zeros((n, s, s, 3));
-    for (k, img) in r.images.iter().enumerate() {
-        let dst = images.index_axis_mut(Axis(0), k);
-        for (d, v) in dst.into_iter().zip(&img.data) {
-            *d = *v;
-        }
-    }
-    let lights = Array2::from_shape_fn((n, 3), |(k, j)| r.lights.directions[k][j]);
+    let (n, s) = (r.images.len(), a.size);
+    let data: Vec<f32> = r
+        .images
+        .iter()
+        .flat_map(|i| i.data.iter().copied())
+        .collect();
+    let images = Array4::from_shape_vec((n, s, s, 3), data).map_err(|e| bad(e.to_string()))?;
+    let lights = rows_array(&r.lights.directions);
     let t = &r.truth;
     let mask = Array2::from_shape_vec((s, s), t.mask.clone()).map_err(|e| bad(e.to_string()))?;
     let normals =
@@ -1189,33 +1323,37 @@ fn render_scene<'py>(
     )
 }
 
-/// Renders a built-in scene into a DiLiGenT-layout folder with ground truth (`gt/`), as
-/// `photostereo synth` does; returns the folder.
+/// Renders a built-in scene into a capture folder with ground truth (`gt/`), as `photostereo
+/// synth` does; returns the folder.
 #[pyfunction]
-#[pyo3(signature = (name, output, rig="square4", size=128, brdf="blinn-phong", noise=0.005, seed=1, force=false))]
+#[pyo3(signature = (name, output, rig, size, brdf, noise, seed, force))]
 #[allow(clippy::too_many_arguments)]
-fn synth(
-    py: Python<'_>,
+fn synth<'py>(
+    py: Python<'py>,
     name: &str,
     output: PathBuf,
     rig: &str,
-    size: usize,
+    size: &Bound<'py, PyAny>,
     brdf: &str,
-    noise: f64,
-    seed: u64,
+    noise: &Bound<'py, PyAny>,
+    seed: &Bound<'py, PyAny>,
     force: bool,
 ) -> PyResult<String> {
-    if let Some(near_rig) = NearRig::parse(rig) {
-        let spec = near_spec_from(name, near_rig, size, brdf, noise, seed)?;
-        let (_, target) = py
-            .detach(|| near_synth_to_folder(&spec, &output, force))
-            .map_err(py_err)?;
-        return Ok(target.display().to_string());
-    }
-    let spec = spec_from(name, rig, size, brdf, noise, seed)?;
-    let (_, target) = py
-        .detach(|| synth_to_folder(&spec, &output, force))
-        .map_err(py_err)?;
+    let a = scene_args(size, noise, seed)?;
+    let target = match NearRig::parse(rig) {
+        Some(near_rig) => {
+            let spec = near_spec_from(name, near_rig, brdf, &a)?;
+            py.detach(|| photostereo::io::synth::near_synth_to_folder(&spec, &output, force))
+                .map_err(py_err)?
+                .1
+        }
+        None => {
+            let spec = spec_from(name, rig, brdf, &a)?;
+            py.detach(|| photostereo::io::synth::synth_to_folder(&spec, &output, force))
+                .map_err(py_err)?
+                .1
+        }
+    };
     Ok(target.display().to_string())
 }
 
@@ -1256,10 +1394,13 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("PhotostereoError", m.py().get_type::<PhotostereoError>())?;
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_class::<NativeCapture>()?;
+    m.add_function(wrap_pyfunction!(parameters, m)?)?;
     m.add_function(wrap_pyfunction!(defaults, m)?)?;
+    m.add_function(wrap_pyfunction!(check_parameter, m)?)?;
     m.add_function(wrap_pyfunction!(methods, m)?)?;
     m.add_function(wrap_pyfunction!(load_capture, m)?)?;
     m.add_function(wrap_pyfunction!(capture_from_stack, m)?)?;
+    m.add_function(wrap_pyfunction!(_capture_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
     m.add_function(wrap_pyfunction!(integrate, m)?)?;
@@ -1269,5 +1410,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(synth, m)?)?;
     m.add_function(wrap_pyfunction!(read_image, m)?)?;
     m.add_function(wrap_pyfunction!(read_normals, m)?)?;
+    m.add_function(wrap_pyfunction!(abandon_pending_outputs, m)?)?;
     Ok(())
 }

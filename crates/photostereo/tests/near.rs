@@ -190,7 +190,7 @@ fn the_near_layout_reads_back_from_disk_with_depth_in_mm() {
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("mean_distance.txt") && e.contains("--distance"),
+        e.contains("mean_distance.txt") && e.contains("distance="),
         "{e}"
     );
 }

@@ -334,7 +334,7 @@ fn comparison_json(
         "table1_mean_angular_error_deg": table1,
         "table2_mean_highlight_intensity_255": table2,
         "definitions": {
-            "table1": "mean angular error (degrees) of the normals over the mask pixels with non-zero ground truth; null without --gt",
+            "table1": "mean angular error (degrees) of the normals over the mask pixels with non-zero ground truth; null without ground truth",
             "table2": "mean raw image intensity (sample × light intensity, grey = mean of the channels) over the pixel–light pairs the method classified as highlights, × 255; null where it classified none",
         },
         "figure": FIGURE,

@@ -2,7 +2,7 @@
 //! here (and in the io modules it calls); the algorithms are the engine's
 //! ([`crate::method::engine::reconstruct`]), which holds no path and prints nothing.
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param, param_set, Error, Result};
 use crate::base::progress::Progress;
 use crate::io::export::{
     write_albedo, write_json, write_normals, write_npy_f32, OutputFolder, OutputKind,
@@ -202,7 +202,11 @@ pub fn run(
     progress: &dyn Progress,
 ) -> Result<Reconstruction> {
     if options.error_map && options.ground_truth.is_none() {
-        return Err(Error::invalid("--error-map needs ground truth (--gt FILE)"));
+        return Err(Error::invalid(format!(
+            "{} needs ground truth ({})",
+            param("error_map"),
+            param_set("gt", "")
+        )));
     }
     options.params.validate()?;
     // Refuse an existing output before any work.
@@ -283,7 +287,7 @@ pub fn run(
         let vertices = s.depth.values.iter().filter(|v| v.is_finite()).count();
         if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
             rec.report.notes.push(format!(
-                "mesh.obj skipped: {vertices} vertices, more than {OBJ_MAX_VERTICES} (mesh.ply holds the mesh; --obj writes mesh.obj too)"
+                "mesh.obj skipped: {vertices} vertices, more than {OBJ_MAX_VERTICES} (mesh.ply holds the mesh)"
             ));
         }
     }

@@ -5,7 +5,7 @@
 //! Image coordinates: `x` = column, `y` = row (row 0 at the top), in pixels, with the centre of
 //! pixel (col, row) at (col, row).
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param_set, Error, Result};
 use crate::model::image::Image;
 use nalgebra::{Matrix3, Vector3};
 
@@ -364,7 +364,8 @@ pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
     let (region, _) = largest_region(&mask, w, h);
     let fail = |m: String| {
         Error::invalid(format!(
-            "could not detect the sphere automatically ({m}); pass --mask with the sphere's mask"
+            "could not detect the sphere automatically ({m}); pass {} with the sphere's mask",
+            param_set("mask", "")
         ))
     };
     let (points, touches) = region_outline(&region, w, h);

@@ -3,7 +3,7 @@
 //! [`OutputFolder::commit`]; dropping an uncommitted folder removes the staging folder, so an
 //! interrupted or failed run never leaves half-written output behind.
 //!
-//! Safety of `--force`: an existing target is replaced only when the same kind of command wrote
+//! Safety of `force`: an existing target is replaced only when the same kind of command wrote
 //! it there ([`OutputKind`]: a run folder by a run, an error map by an error map; the kind is
 //! recorded in the [`MARKER`] file every output folder gets, and in a `tEXt` chunk of an output
 //! PNG) or when it is an empty folder, and never when it is, or holds, one of the command's
@@ -15,12 +15,12 @@
 //! output created in the same parent folder removes such leftovers of processes that no longer
 //! run ([`remove_stale`]).
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param, Error, Result};
 use crate::io::imageio::{write_exr_rgb, write_png16_rows};
 use std::path::{Path, PathBuf};
 use std::sync::{Mutex, MutexGuard};
 
-/// The marker file in every folder photostereo writes: `--force` replaces only such folders
+/// The marker file in every folder photostereo writes: `force` replaces only such folders
 /// (or empty ones).
 pub const MARKER: &str = ".photostereo";
 /// Markers of earlier versions (`demo` wrote its own).
@@ -200,48 +200,61 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
             path: target.to_path_buf(),
         });
     }
-    let why = |m: String| Err(Error::file(target, format!("--force refused: {m}")));
+    let why = |m: String| {
+        Err(Error::file(
+            target,
+            format!("{} refused: {m}", param("force")),
+        ))
+    };
     let t = resolved(target);
     for input in inputs {
         let i = resolved(input);
         if i == t {
-            return why("it is an input of this command; choose another output (-o)".into());
+            return why(format!(
+                "it is an input of this command; choose another output ({})",
+                param("output")
+            ));
         }
         if i.starts_with(&t) {
             return why(format!(
-                "it holds an input of this command ({}); choose another output (-o)",
-                input.display()
+                "it holds an input of this command ({}); choose another output ({})",
+                input.display(),
+                param("output")
             ));
         }
     }
     if meta.file_type().is_symlink() {
-        return why(
-            "it is a symbolic link; --force replaces only a folder that photostereo wrote or an empty folder"
-                .to_string(),
-        );
+        return why(format!(
+            "it is a symbolic link; {} replaces only a folder that photostereo wrote or an empty folder",
+            param("force")
+        ));
     }
     if !meta.is_dir() {
-        return why(
-            "it is a file, not a folder; --force replaces only a folder that photostereo wrote or an empty folder"
-                .into(),
-        );
+        return why(format!(
+            "it is a file, not a folder; {} replaces only a folder that photostereo wrote or an empty folder",
+            param("force")
+        ));
     }
     if has_marker(target) {
         return match marker_kind(target) {
             Some(k) if k == kind => Ok(()),
             Some(k) => why(format!(
-                "it holds {} {} folder, and --force replaces only {} {} folder; \
-                 choose another output (-o)",
+                "it holds {} {} folder, and {} replaces only {} {} folder; \
+                 choose another output ({})",
                 k.article(),
                 k.name(),
+                param("force"),
                 kind.article(),
-                kind.name()
+                kind.name(),
+                param("output")
             )),
             None => why(format!(
-                "an earlier photostereo wrote it without recording what it holds, and --force \
-                 replaces only {} {} folder; remove it yourself or choose another output (-o)",
+                "an earlier photostereo wrote it without recording what it holds, and {} \
+                 replaces only {} {} folder; remove it yourself or choose another output ({})",
+                param("force"),
                 kind.article(),
-                kind.name()
+                kind.name(),
+                param("output")
             )),
         };
     }
@@ -254,7 +267,8 @@ pub fn check_output(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pat
     }
     why(format!(
         "the folder was not written by photostereo (it has no {MARKER} marker) and is not empty; \
-         remove it yourself or choose another output (-o)"
+         remove it yourself or choose another output ({})",
+        param("output")
     ))
 }
 
@@ -441,7 +455,7 @@ impl OutputFolder {
         std::fs::write(
             folder.file(MARKER),
             format!(
-                "written by photostereo {} on host {} (process {}); `--force` may replace this folder\n\
+                "written by photostereo {} on host {} (process {}); photostereo may replace this folder when forced\n\
                  {MARKER_KIND}{}\n",
                 env!("CARGO_PKG_VERSION"),
                 host_name(),
@@ -514,7 +528,7 @@ impl Drop for OutputFolder {
 
 /// One output PNG written under a temporary name beside it (`.NAME.tmp-PID`) and renamed into
 /// place by [`commit`](OutputFile::commit), which first records its [`OutputKind`] in a `tEXt`
-/// chunk; removed when dropped uncommitted or on a signal. `--force` replaces an existing file
+/// chunk; removed when dropped uncommitted or on a signal. `force` replaces an existing file
 /// only when it is a PNG that the same kind of command wrote (or empty), and never one of the
 /// inputs.
 #[derive(Debug)]
@@ -592,7 +606,12 @@ fn check_output_file(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pa
             path: target.to_path_buf(),
         });
     }
-    let why = |m: &str| Err(Error::file(target, format!("--force refused: {m}")));
+    let why = |m: &str| {
+        Err(Error::file(
+            target,
+            format!("{} refused: {m}", param("force")),
+        ))
+    };
     let t = resolved(target);
     if inputs.iter().any(|i| resolved(i) == t) {
         return why("it is an input of this command; choose another output file");
@@ -604,7 +623,8 @@ fn check_output_file(target: &Path, force: bool, kind: OutputKind, inputs: &[&Pa
         return Ok(());
     }
     let replaces = format!(
-        "--force replaces only a PNG that photostereo wrote as {}",
+        "{} replaces only a PNG that photostereo wrote as {}",
+        param("force"),
         kind.name()
     );
     match png_kind(target) {

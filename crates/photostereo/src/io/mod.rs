@@ -2,6 +2,7 @@
 //! ground truth, output folders, figures and maps, surfaces and meshes, the viewer's page.
 
 pub mod calibration_figure;
+pub mod capture_state;
 pub mod export;
 pub mod figure;
 pub mod groundtruth;

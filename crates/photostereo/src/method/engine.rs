@@ -79,7 +79,8 @@ impl FromStr for Method {
 }
 
 /// Everything that shapes a reconstruction, and nothing else: no paths, no front-end flags.
-/// Each default is defined once, here and in the parameter types it gathers.
+/// Each default is defined once, here and in the parameter types it gathers; the table of
+/// [`crate::method::params`] describes every field and sets and reads them by name.
 #[derive(Clone, Debug)]
 pub struct Params {
     /// The estimation method (default `recursive`).
@@ -97,10 +98,11 @@ pub struct Params {
     pub detect: bool,
     /// Integrate the final normals into depth and curl (default true).
     pub integrate: bool,
-    /// The memory budget of a run from files, bytes (default `None`: half of the memory
-    /// available, see [`crate::model::memory`]). Captures whose samples do not fit as `f32` are held
-    /// in tiles at the input's precision, in memory or in a spill file; the results are the
-    /// same. A capture already in memory ([`Capture::from_stack`]) is used as it is.
+    /// The memory budget, bytes (default `None`: half of the memory available, see
+    /// [`crate::model::memory`]). Captures whose samples do not fit as `f32` are held in tiles
+    /// at the input's precision, in memory or in a spill file; the results are the same. The
+    /// budget applies where a capture is built — from files by the run, from an array by
+    /// [`Capture::from_stack_with`] — and [`reconstruct`] records it.
     pub memory_limit: Option<u64>,
     /// Refine the lights from the readings before estimating ([`prepare`],
     /// [`crate::solve::refine::refine_lights`]; distant lights, six or more). Default false: the

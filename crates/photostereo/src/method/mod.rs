@@ -4,6 +4,7 @@
 
 pub mod engine;
 pub mod indicators;
+pub mod params;
 pub mod recursive;
 pub mod report;
 pub mod statusmap;

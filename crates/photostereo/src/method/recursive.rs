@@ -85,10 +85,12 @@ impl Fallback {
 /// ([`DetectionParams`], [`IntegrationParams`]): one value of each serves every stage.
 #[derive(Clone, Debug, Serialize)]
 pub struct RecursiveParams {
-    /// Attached and cast shadow tolerances.
-    #[serde(skip)]
+    /// Attached and cast shadow tolerances (recorded in `report.json` only when changed).
+    #[serde(flatten, skip_serializing_if = "ShadowParams::is_default")]
     pub shadows: ShadowParams,
-    /// Iteration limit (default 5; the paper gives none).
+    /// Iteration limit (default 10, at most [`MAX_ITERATIONS`]; the paper gives none): the
+    /// usable-light sets settle within a few iterations on every capture measured, and the
+    /// limit bounds the run when they oscillate.
     pub max_iterations: usize,
     /// Stop when the usable-light sets change at fewer than this share of the mask pixels
     /// (default 0.002: the estimate then changes at a handful of pixels per thousand).
@@ -102,7 +104,8 @@ pub struct RecursiveParams {
     /// light's removal at a pixel follows the majority of its (2r + 1)² neighbourhood in the
     /// mask, where the pixel's readings pass the χ² test with that set. Default 2 (5 × 5): a
     /// fault region narrower than three pixels is not told apart from the test's noise-level
-    /// decisions; 0 turns the consensus off (the paper's per-pixel decisions).
+    /// decisions; 0 turns the consensus off (the paper's per-pixel decisions). At most
+    /// [`MAX_CONSENSUS_RADIUS`]: the filter's work grows with the square of the radius.
     pub consensus_radius: usize,
     /// The final re-estimate takes the last integrated surface as a prior on each normal
     /// ([`SurfacePrior`]): its angular standard deviation in degrees (default 1; 0 turns the
@@ -211,17 +214,35 @@ impl Estimator for Recursive {
     }
 }
 
+/// The largest iteration limit accepted.
+pub const MAX_ITERATIONS: usize = 1000;
+/// The largest consensus radius accepted (a 41 × 41 neighbourhood).
+pub const MAX_CONSENSUS_RADIUS: usize = 20;
+
 impl RecursiveParams {
     /// Checks the domains; errors name the parameter.
     pub fn validate(&self) -> Result<()> {
-        if self.max_iterations == 0 {
+        if !(1..=MAX_ITERATIONS).contains(&self.max_iterations) {
             return Err(Error::parameter(
                 "max_iterations",
-                "0: the recursive method needs at least one iteration",
+                format!(
+                    "{}: expected an integer in [1, {MAX_ITERATIONS}] (the recursive method needs at least one iteration)",
+                    self.max_iterations
+                ),
             ));
         }
+        if self.consensus_radius > MAX_CONSENSUS_RADIUS {
+            return Err(Error::parameter(
+                "consensus_radius",
+                format!(
+                    "{}: expected an integer in [0, {MAX_CONSENSUS_RADIUS}]",
+                    self.consensus_radius
+                ),
+            ));
+        }
+        self.shadows.check()?;
         if !(self.surface_prior_deg.is_finite() && (0.0..=90.0).contains(&self.surface_prior_deg)) {
-            // Named as the front ends spell it (`--surface-prior`, `surface_prior=`).
+            // The parameter's name (`surface_prior`), not the field's.
             return Err(Error::parameter(
                 "surface_prior",
                 format!(

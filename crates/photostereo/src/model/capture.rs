@@ -9,9 +9,10 @@
 
 use crate::base::error::{Error, Result};
 use crate::model::image::Image;
+use crate::model::image::{MAX_IMAGE_PIXELS, MAX_IMAGE_SIDE};
 use crate::model::lights::Lights;
-use crate::model::memory::MemoryPlan;
-use crate::model::store::SampleStore;
+use crate::model::memory::{CaptureSize, Force, Layout, MemoryPlan};
+use crate::model::store::{Decode, SampleStore, SampleType, Tiling};
 use ndarray::{ArrayView2, ArrayView4, Axis};
 use rayon::prelude::*;
 use std::path::PathBuf;
@@ -492,22 +493,38 @@ impl Capture {
         }
     }
 
+    /// Builds a capture from one image stack in memory within the default memory budget: see
+    /// [`Capture::from_stack_with`].
+    pub fn from_stack(
+        stack: Stack<'_>,
+        lights: Lights,
+        mask: Option<ArrayView2<'_, bool>>,
+    ) -> Result<Self> {
+        Self::from_stack_with(stack, lights, mask, &StackOptions::default())
+    }
+
     /// Builds a capture from one image stack in memory: `stack` is (N, H, W, C) with C = 1 or
     /// 3, any strides (a transposed or sliced view is fine); integer samples are scaled to
     /// [0, 1] by their type's full scale (255, 65535), float samples taken as they are. Each
     /// sample is divided by its light's intensity. `mask` is (H, W), true inside the object
     /// (default: the whole frame).
     ///
-    /// The stack is read once, straight into the pixel-major sample store: that store is the
-    /// only copy made. Errors name what is wrong (shapes, counts, an image without a finite
-    /// sample, an empty mask, lights that do not determine a normal); non-finite samples of an
-    /// image that has finite ones follow [`MissingReadings`].
-    pub fn from_stack(
+    /// The images are held to the limits and the memory budget of images read from files
+    /// ([`MAX_IMAGE_SIDE`], [`MAX_IMAGE_PIXELS`], [`crate::model::memory::plan`]) before
+    /// anything is allocated: the stack is read once, straight into the pixel-major sample
+    /// store, whole as `f32` when that fits the budget, else in tiles at the stack's precision
+    /// (in memory or in a spill file; the plan is then the capture's `memory`). Errors name
+    /// what is wrong (sizes, shapes, counts, an image without a finite sample, an empty mask,
+    /// lights that do not determine a normal, a budget too small); non-finite samples of an
+    /// image that has finite ones follow [`MissingReadings`], held whole or in tiles.
+    pub fn from_stack_with(
         stack: Stack<'_>,
         lights: Lights,
         mask: Option<ArrayView2<'_, bool>>,
+        options: &StackOptions,
     ) -> Result<Self> {
         let (n, h, w, c) = stack.dim();
+        check_frame(w, h)?;
         if n != lights.len() {
             return Err(Error::invalid(format!(
                 "the image stack holds {n} images but {} lights were given: expected one light per image",
@@ -519,11 +536,6 @@ impl Capture {
                 "{n} image(s): photometric stereo needs at least three"
             )));
         }
-        if h == 0 || w == 0 {
-            return Err(Error::invalid(format!(
-                "the images are {w}×{h} (width×height): expected at least one pixel"
-            )));
-        }
         if c != 1 && c != 3 {
             return Err(Error::invalid(format!(
                 "the images have {c} channels: expected 1 (grey) or 3 (RGB)"
@@ -531,46 +543,169 @@ impl Capture {
         }
         lights.check_rank()?;
         check_camera_frame(&lights, w, h)?;
-        let mask: Vec<bool> = match mask {
-            Some(m) => {
-                if m.dim() != (h, w) {
-                    return Err(Error::invalid(format!(
-                        "the mask is {}×{} (rows×columns) but the images are {h}×{w}",
-                        m.dim().0,
-                        m.dim().1
-                    )));
-                }
-                m.iter().copied().collect()
+        if let Some(m) = &mask {
+            if m.dim() != (h, w) {
+                return Err(Error::invalid(format!(
+                    "the mask is {}×{} (rows×columns) but the images are {h}×{w}",
+                    m.dim().0,
+                    m.dim().1
+                )));
             }
-            None => vec![true; w * h],
+        }
+        let size = CaptureSize {
+            width: w,
+            height: h,
+            pixels: mask
+                .as_ref()
+                .map_or(w * h, |m| m.iter().filter(|&&v| v).count()),
+            lights: n,
+            channels: c,
+            sample_type: match stack {
+                Stack::U8(_) | Stack::U16(_) => SampleType::U16,
+                Stack::F32(_) | Stack::F64(_) => SampleType::F32,
+            },
+            threads: 0,
+            ground_truth: false,
         };
-        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
-        if pixels.is_empty() {
+        if size.pixels == 0 {
             return Err(Error::invalid(
                 "the mask is empty (no pixel inside the object)",
             ));
         }
+        let budget = options
+            .budget
+            .unwrap_or_else(crate::model::memory::default_budget);
+        let (layout, plan) =
+            crate::model::memory::plan(&size, budget, Force::default()).map_err(|e| {
+                match options.budget {
+                    Some(_) => e,
+                    // The machine's budget: say so, and which parameter sets another.
+                    None => Error::invalid(format!(
+                        "an image stack of {n}×{h}×{w}×{c} (images × rows × columns × channels): \
+                         the default memory budget ({}, half of the memory available) is {}; {} sets it",
+                        crate::model::memory::size_flag(budget),
+                        crate::model::memory::too_small(&size),
+                        crate::base::error::param("memory_limit")
+                    )),
+                }
+            })?;
+        let mask: Vec<bool> = match mask {
+            Some(m) => m.iter().copied().collect(),
+            None => vec![true; w * h],
+        };
+        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
         let scales: Vec<[f32; 3]> = lights
             .intensities
             .iter()
             .map(|i| light_scale(i, c))
             .collect();
-        let (samples, bit_depth) = match stack {
-            Stack::U8(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32 / 255.0), 8),
-            Stack::U16(v) => (
-                gather_stack(&v, &pixels, &scales, |x| x as f32 / 65535.0),
-                16,
-            ),
-            Stack::F32(v) => (gather_stack(&v, &pixels, &scales, |x| x), 32),
-            Stack::F64(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32), 32),
+        if layout != Layout::InMemory {
+            let spill = (layout == Layout::Spill)
+                .then(|| options.spill_dir.clone().unwrap_or_else(std::env::temp_dir));
+            let mut missing = MissingReadings::new(n, pixels.len() * c);
+            let store = tiled_store(
+                &stack,
+                (&mask, &pixels),
+                &scales,
+                &plan,
+                spill.as_deref(),
+                &mut missing,
+            )?;
+            let note = missing.verdict(&[])?;
+            let mut capture = Capture::from_parts(CaptureParts {
+                width: w,
+                height: h,
+                channels: c,
+                bit_depth: stack.bit_depth(),
+                lights,
+                mask,
+                pixels,
+                samples: Vec::new(),
+                store: Some(Arc::new(store)),
+                sources: Vec::new(),
+                notes: note.into_iter().collect(),
+            });
+            capture.memory = Some(plan);
+            return Ok(capture);
+        }
+        let samples = match stack {
+            Stack::U8(v) => gather_stack(&v, &pixels, &scales, |x| x as f32 / 255.0),
+            Stack::U16(v) => gather_stack(&v, &pixels, &scales, |x| x as f32 / 65535.0),
+            Stack::F32(v) => gather_stack(&v, &pixels, &scales, |x| x),
+            Stack::F64(v) => gather_stack(&v, &pixels, &scales, |x| x as f32),
         };
         let mut samples = samples;
         let mut missing = MissingReadings::new(n, pixels.len() * c);
         missing.zero_in_samples(&mut samples, c);
         let note = missing.verdict(&[])?;
-        let mut capture = Capture::in_memory((w, h, c), bit_depth, lights, mask, pixels, samples);
+        let mut capture =
+            Capture::in_memory((w, h, c), stack.bit_depth(), lights, mask, pixels, samples);
         capture.notes.extend(note);
         Ok(capture)
+    }
+
+    /// The samples of every mask pixel, `[pixel][light][channel]`, intensity-normalised: the
+    /// store of a capture held whole, or its tiles read in turn.
+    pub fn samples_whole(&self) -> Result<Vec<f32>> {
+        if self.store.is_none() {
+            return Ok(self.samples.clone());
+        }
+        let mut out = Vec::with_capacity(self.n_pixels() * self.n_lights() * self.channels);
+        self.for_each_tile(|_, tile| {
+            out.extend_from_slice(&tile.samples);
+            Ok(())
+        })?;
+        Ok(out)
+    }
+
+    /// The light intensities per image channel, (N, C): each light's RGB intensities, or
+    /// their mean for grey images (what each channel was divided by).
+    pub fn channel_intensities(&self) -> Vec<f64> {
+        let c = self.channels;
+        self.lights
+            .intensities
+            .iter()
+            .flat_map(|e| {
+                if c == 1 {
+                    vec![(e[0] + e[1] + e[2]) / 3.0]
+                } else {
+                    e[..c].to_vec()
+                }
+            })
+            .collect()
+    }
+
+    /// The images as given, (N, H, W, C) row-major `f32` at full scale 1: the samples
+    /// multiplied back by their light's intensity (for grey images the mean of its RGB
+    /// intensities), zero outside the mask.
+    pub fn images(&self) -> Result<Vec<f32>> {
+        let (n, c, w, h) = (self.n_lights(), self.channels, self.width, self.height);
+        let mut out = vec![0f32; n * h * w * c];
+        let scales: Vec<[f32; 3]> = self
+            .lights
+            .intensities
+            .iter()
+            .map(|e| {
+                if c == 1 {
+                    [((e[0] + e[1] + e[2]) / 3.0) as f32; 3]
+                } else {
+                    [e[0] as f32, e[1] as f32, e[2] as f32]
+                }
+            })
+            .collect();
+        self.for_each_tile(|_, tile| {
+            for (p, &i) in tile.pixels.iter().enumerate() {
+                let s = tile.pixel_samples(p);
+                for (k, scale) in scales.iter().enumerate() {
+                    let at = (k * h * w + i as usize) * c;
+                    for j in 0..c {
+                        out[at + j] = s[k * c + j] * scale[j];
+                    }
+                }
+            }
+            Ok(())
+        })?;
+        Ok(out)
     }
 
     /// Number of lights (= images).
@@ -852,6 +987,168 @@ impl Stack<'_> {
             Stack::U16(v) => v.dim(),
             Stack::F32(v) => v.dim(),
             Stack::F64(v) => v.dim(),
+        }
+    }
+}
+
+impl Stack<'_> {
+    /// The stack as images at full scale 1 (integers divided by 255 or 65535, as
+    /// [`Capture::from_stack_with`] reads them), after the frame limits of
+    /// [`Capture::from_stack_with`].
+    pub fn images(&self) -> Result<Vec<Image>> {
+        let (_, h, w, _) = self.dim();
+        check_frame(w, h)?;
+        fn each<T: Copy + Sync>(
+            v: &ArrayView4<'_, T>,
+            bits: u8,
+            f: impl Fn(T) -> f32 + Sync,
+        ) -> Vec<Image> {
+            let (_, h, w, c) = v.dim();
+            v.outer_iter()
+                .into_par_iter()
+                .map(|img| Image {
+                    width: w,
+                    height: h,
+                    channels: c,
+                    bit_depth: bits,
+                    data: img.iter().map(|&x| f(x)).collect(),
+                })
+                .collect()
+        }
+        Ok(match self {
+            Stack::U8(v) => each(v, 8, |x| x as f32 / 255.0),
+            Stack::U16(v) => each(v, 16, |x| x as f32 / 65535.0),
+            Stack::F32(v) => each(v, 32, |x| x),
+            Stack::F64(v) => each(v, 32, |x| x as f32),
+        })
+    }
+
+    /// Bits per sample of the stack's type: 8, 16, or 32 for floats.
+    pub fn bit_depth(&self) -> u8 {
+        match self {
+            Stack::U8(_) => 8,
+            Stack::U16(_) => 16,
+            Stack::F32(_) | Stack::F64(_) => 32,
+        }
+    }
+}
+
+/// Where an image stack from memory is held ([`Capture::from_stack_with`]).
+#[derive(Clone, Debug, Default)]
+pub struct StackOptions {
+    /// The memory budget, bytes (`None`: [`crate::model::memory::default_budget`]).
+    pub budget: Option<u64>,
+    /// The folder of the spill file when the samples go to one (`None`: the system's
+    /// temporary folder).
+    pub spill_dir: Option<PathBuf>,
+}
+
+/// Refuses a frame beyond the limits every image reader applies.
+fn check_frame(w: usize, h: usize) -> Result<()> {
+    if w == 0 || h == 0 {
+        return Err(Error::invalid(format!(
+            "the images are {w}×{h} (width×height): expected at least one pixel"
+        )));
+    }
+    if w as u64 > MAX_IMAGE_SIDE || h as u64 > MAX_IMAGE_SIDE {
+        return Err(Error::invalid(format!(
+            "the images are {w}×{h} (width×height): a side exceeds the limit of {MAX_IMAGE_SIDE} pixels"
+        )));
+    }
+    if (w as u64) * (h as u64) > MAX_IMAGE_PIXELS {
+        return Err(Error::invalid(format!(
+            "the images are {w}×{h} (width×height): more than the limit of {MAX_IMAGE_PIXELS} pixels"
+        )));
+    }
+    Ok(())
+}
+
+/// The samples of a stack in a tiled store at its precision (`u16` for integer stacks, `f32`
+/// for floats), under `plan`, for the frame's `mask` and its mask `pixels`; the same `f32`
+/// values as [`gather_stack`] when read back, non-finite ones stored as 0 and counted in
+/// `missing` (the rule of [`MissingReadings`]).
+fn tiled_store(
+    stack: &Stack<'_>,
+    (mask, pixels): (&[bool], &[u32]),
+    scales: &[[f32; 3]],
+    plan: &MemoryPlan,
+    spill_dir: Option<&std::path::Path>,
+    missing: &mut MissingReadings,
+) -> Result<SampleStore> {
+    let (n, h, w, c) = stack.dim();
+    let (kind, decode) = match stack {
+        Stack::U8(_) => (SampleType::U16, Decode::Div(255.0)),
+        Stack::U16(_) => (SampleType::U16, Decode::Div(65535.0)),
+        Stack::F32(_) | Stack::F64(_) => (SampleType::F32, Decode::Float),
+    };
+    let tiling = Tiling::new(mask, w, h, plan.tile_pixels);
+    let mut store = SampleStore::new(
+        kind,
+        c,
+        tiling.clone(),
+        vec![decode; n],
+        scales.to_vec(),
+        spill_dir,
+    )?;
+    let mut raw = Vec::new();
+    for t in 0..tiling.len() {
+        let tile = &pixels[tiling.pixels(t)];
+        match stack {
+            Stack::U8(v) => stored_bytes(v, tile, &mut raw, |x| (x as u16).to_ne_bytes()),
+            Stack::U16(v) => stored_bytes(v, tile, &mut raw, |x: u16| x.to_ne_bytes()),
+            Stack::F32(v) => float_bytes(v, tile, scales, &mut raw, missing, |x| x),
+            Stack::F64(v) => float_bytes(v, tile, scales, &mut raw, missing, |x| x as f32),
+        }
+        store.write_raw(t, &raw)?;
+    }
+    Ok(store)
+}
+
+/// The stored bytes of the pixels `tile` (pixel-major, then light, then channel) of an
+/// integer stack.
+fn stored_bytes<T: Copy + Sync, const B: usize>(
+    view: &ArrayView4<'_, T>,
+    tile: &[u32],
+    raw: &mut Vec<u8>,
+    bytes: impl Fn(T) -> [u8; B] + Sync,
+) {
+    let (n, _, w, c) = view.dim();
+    let pb = n * c * B;
+    raw.clear();
+    raw.resize(tile.len() * pb, 0);
+    raw.par_chunks_mut(pb)
+        .zip(tile.par_iter())
+        .for_each(|(out, &i)| {
+            let (row, col) = (i as usize / w, i as usize % w);
+            for k in 0..n {
+                for ch in 0..c {
+                    let at = (k * c + ch) * B;
+                    out[at..at + B].copy_from_slice(&bytes(view[[k, row, col, ch]]));
+                }
+            }
+        });
+}
+
+/// The stored `f32` bytes of the pixels `tile` of a float stack; a sample whose
+/// intensity-normalised value is not finite is stored as 0 and counted in `missing`.
+fn float_bytes<T: Copy + Sync>(
+    view: &ArrayView4<'_, T>,
+    tile: &[u32],
+    scales: &[[f32; 3]],
+    raw: &mut Vec<u8>,
+    missing: &mut MissingReadings,
+    to_f32: impl Fn(T) -> f32 + Sync,
+) {
+    stored_bytes(view, tile, raw, |x| to_f32(x).to_ne_bytes());
+    let (n, _, _, c) = view.dim();
+    for px in raw.chunks_exact_mut(n * c * 4) {
+        for (j, v) in px.chunks_exact_mut(4).enumerate() {
+            let (k, ch) = (j / c, j % c);
+            let x = f32::from_ne_bytes([v[0], v[1], v[2], v[3]]);
+            if !(x * scales[k][ch]).is_finite() {
+                v.copy_from_slice(&0f32.to_ne_bytes());
+                missing.per_image[k] += 1;
+            }
         }
     }
 }

@@ -265,6 +265,31 @@ impl NearLights {
         Ok(model)
     }
 
+    /// A near rig restored from the fields of another ([`crate::io::capture_state`]): `axes`
+    /// and `anisotropy` taken as they are, after the checks of [`NearLights::new`] (the axes
+    /// are unit vectors already; normalising them again could change their last bits).
+    pub fn restore(
+        camera: Camera,
+        positions: Vec<[f64; 3]>,
+        axes: Vec<[f64; 3]>,
+        anisotropy: Vec<f64>,
+        mean_distance: f64,
+    ) -> Result<NearLights> {
+        let mut model = NearLights::new(
+            camera,
+            positions,
+            Some(axes.clone()),
+            Some(anisotropy),
+            mean_distance,
+        )?;
+        model.axes = axes;
+        let centre = [0.0, 0.0, -mean_distance];
+        model.centre_brightness = (0..model.len())
+            .map(|k| model.raw_light(k, centre).1)
+            .collect();
+        Ok(model)
+    }
+
     /// Number of lights.
     pub fn len(&self) -> usize {
         self.positions.len()

@@ -179,6 +179,26 @@ pub struct Force {
     pub tile_pixels: Option<usize>,
 }
 
+/// Why a budget below [`minimum_budget`] cannot hold a capture of size `s`, naming the
+/// smallest budget that works.
+pub fn too_small(s: &CaptureSize) -> String {
+    format!(
+        "too small for this capture ({}×{} pixels{}, {} lights × {} channel(s)); \
+         its full-frame stages alone need {}: the smallest budget that works is {}",
+        s.width,
+        s.height,
+        if s.pixels > 0 {
+            format!(", {} mask pixels", s.pixels)
+        } else {
+            String::new()
+        },
+        s.lights,
+        s.channels,
+        human_bytes(full_frame_bytes(s)),
+        size_flag(minimum_budget(s))
+    )
+}
+
 /// Chooses where the samples of a capture of size `s` go under `budget` bytes. Errors when the
 /// budget is below [`minimum_budget`], naming the parameter `memory_limit` and that minimum.
 pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, MemoryPlan)> {
@@ -186,22 +206,7 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
     if budget < minimum {
         return Err(Error::parameter(
             "memory_limit",
-            format!(
-                "{}: too small for this capture ({}×{} pixels{}, {} lights × {} channel(s)); \
-                 its full-frame stages alone need {}: the smallest budget that works is {}",
-                size_flag(budget),
-                s.width,
-                s.height,
-                if s.pixels > 0 {
-                    format!(", {} mask pixels", s.pixels)
-                } else {
-                    String::new()
-                },
-                s.lights,
-                s.channels,
-                human_bytes(full_frame_bytes(s)),
-                size_flag(minimum)
-            ),
+            format!("{}: {}", size_flag(budget), too_small(s)),
         ));
     }
     let full = full_frame_bytes(s);

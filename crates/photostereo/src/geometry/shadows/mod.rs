@@ -23,7 +23,7 @@ use crate::base::error::{Error, Result};
 use rayon::prelude::*;
 
 /// Thresholds of the shadow tests.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct ShadowParams {
     /// A pixel is in attached shadow when n·l ≤ this cosine (dimensionless). Default 0.02,
     /// i.e. the light within about 1.1° of the tangent plane or behind it.
@@ -46,20 +46,30 @@ impl Default for ShadowParams {
 }
 
 impl ShadowParams {
-    fn check(&self) -> Result<()> {
+    /// Checks the domains; errors name the parameter (`attached_tolerance`,
+    /// `cast_tolerance`).
+    pub fn check(&self) -> Result<()> {
         if !self.attached_tolerance.is_finite() || self.attached_tolerance.abs() >= 1.0 {
-            return Err(Error::invalid(format!(
-                "shadow parameter attached_tolerance = {}: expected a cosine in (-1, 1)",
-                self.attached_tolerance
-            )));
+            return Err(Error::parameter(
+                "attached_tolerance",
+                format!("{}: expected a cosine in (-1, 1)", self.attached_tolerance),
+            ));
         }
         if !self.cast_tolerance_px.is_finite() || self.cast_tolerance_px < 0.0 {
-            return Err(Error::invalid(format!(
-                "shadow parameter cast_tolerance_px = {}: expected a finite height >= 0 in pixels",
-                self.cast_tolerance_px
-            )));
+            return Err(Error::parameter(
+                "cast_tolerance",
+                format!(
+                    "{}: expected a finite height ≥ 0 in pixels",
+                    self.cast_tolerance_px
+                ),
+            ));
         }
         Ok(())
+    }
+
+    /// Whether both tolerances are the defaults.
+    pub fn is_default(&self) -> bool {
+        *self == ShadowParams::default()
     }
 }
 

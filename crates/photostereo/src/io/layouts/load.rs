@@ -54,14 +54,14 @@ impl CaptureFiles {
             threads: rayon::current_num_threads(),
             ground_truth: options.ground_truth,
         };
-        // Without --memory-limit the budget is the machine's: a refusal names the images and
+        // Without `memory_limit` the budget is the machine's: a refusal names the images and
         // the memory available, as the readers' own checks do.
         let refusal = |e: Error| match (e, options.budget) {
             (Error::Parameter { message, .. }, None) => Error::file(
                 &self.images[0],
                 format!(
                     "declares {}×{} pixels × {} images: {} (the default budget is half of the \
-                     memory available{}; --memory-limit sets it)",
+                     memory available{}; {} sets it)",
                     info.width,
                     info.height,
                     self.images.len(),
@@ -70,7 +70,8 @@ impl CaptureFiles {
                         format!(", with {} set", crate::base::machine::MEMORY_LIMIT_VAR)
                     } else {
                         String::new()
-                    }
+                    },
+                    crate::base::error::param("memory_limit")
                 ),
             ),
             (e, _) => e,

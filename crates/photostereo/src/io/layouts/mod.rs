@@ -8,7 +8,7 @@ pub use load::LoadOptions;
 pub mod near;
 pub mod sphere;
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param, param_set, Error, Result};
 use crate::model::lights::Lights;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -48,7 +48,7 @@ impl CaptureFiles {
                     "no input: expected a capture folder, a list file or image files",
                 ))
             }
-            // Near lights (CONVENTIONS.md): the folder's own LED positions, unless --lights.
+            // Near lights (CONVENTIONS.md): the folder's own LED positions, unless `lights`.
             [dir]
                 if dir.is_dir()
                     && lights.is_none()
@@ -59,9 +59,10 @@ impl CaptureFiles {
                         p,
                         format!(
                             "{} is a near-light capture: its LEDs' radiance is read from \
-                             light_intensities.txt in that folder, so --intensities does not apply \
+                             light_intensities.txt in that folder, so {} does not apply \
                              (edit that file instead)",
-                            dir.display()
+                            dir.display(),
+                            param("intensities")
                         ),
                     ));
                 }
@@ -72,9 +73,10 @@ impl CaptureFiles {
                     return Err(Error::file(
                         l,
                         format!(
-                            "{} carries its own light directions, so --lights does not apply \
+                            "{} carries its own light directions, so {} does not apply \
                              (give one or the other)",
-                            lp.display()
+                            lp.display(),
+                            param("lights")
                         ),
                     ));
                 }
@@ -90,7 +92,7 @@ impl CaptureFiles {
                     f.notes.push(format!(
                         "no light_intensities.txt in {}: every light is taken as equally bright; \
                          if the lights' brightness differs, the normals are biased (give the \
-                         intensities in that file or with --intensities)",
+                         intensities in that file, or a file of them as `intensities`)",
                         dir.display()
                     ));
                 }
@@ -107,7 +109,10 @@ impl CaptureFiles {
                 let Some(l) = lights else {
                     return Err(Error::file(
                         list,
-                        "a list file needs the light directions (--lights FILE)",
+                        format!(
+                            "a list file needs the light directions ({})",
+                            param_set("lights", "")
+                        ),
                     ));
                 };
                 let f = CaptureFiles::list_file(list, l)?;
@@ -135,12 +140,59 @@ impl CaptureFiles {
                     }
                 }
                 let Some(l) = lights else {
-                    return Err(Error::invalid(
-                        "image files given explicitly need the light directions (--lights FILE, one direction per image)",
-                    ));
+                    return Err(Error::invalid(format!(
+                        "image files given explicitly need the light directions ({}, one direction per image)",
+                        param_set("lights", "")
+                    )));
                 };
                 CaptureFiles::explicit(images.to_vec(), l, intensities, None)?
             }
+        };
+        if let Some(m) = mask {
+            files.mask = Some(m.to_path_buf());
+        }
+        Ok(files)
+    }
+
+    /// [`CaptureFiles::from_inputs`] with the options of one capture folder seen through a
+    /// camera: `distance` (the object's mean distance, mm) replaces its `mean_distance.txt` and
+    /// `camera` its `K.txt`; on a folder of distant lights they add a camera, so that the depth
+    /// is integrated through it in mm.
+    pub fn from_inputs_with(
+        inputs: &[PathBuf],
+        lights: Option<&Path>,
+        intensities: Option<&Path>,
+        mask: Option<&Path>,
+        distance: Option<f64>,
+        camera: Option<crate::model::lightmodel::Camera>,
+    ) -> Result<Self> {
+        use crate::io::layouts::near::{
+            attach_camera_with, is_near_layout, near_capture_files_with,
+        };
+        if distance.is_none() && camera.is_none() {
+            return Self::from_inputs(inputs, lights, intensities, mask);
+        }
+        let dir = match inputs {
+            [dir] if dir.is_dir() => dir,
+            _ => {
+                let given = match (distance, camera) {
+                    (Some(_), None) => param("distance"),
+                    (None, Some(_)) => param("camera"),
+                    _ => format!("{} and {}", param("distance"), param("camera")),
+                };
+                return Err(Error::invalid(format!(
+                    "{given}: apply to one capture folder holding light_positions.txt (near lights) or light_directions.txt (distant lights)"
+                )));
+            }
+        };
+        let mut files = if is_near_layout(dir) {
+            near_capture_files_with(dir, distance, camera)?
+        } else {
+            let mut f = Self::diligent_with_lights(dir, lights)?;
+            if let Some(p) = intensities {
+                f = f.with_intensities_file(p)?;
+            }
+            attach_camera_with(f, dir, distance, camera)?
         };
         if let Some(m) = mask {
             files.mask = Some(m.to_path_buf());
@@ -169,7 +221,10 @@ impl CaptureFiles {
         if !lights_path.exists() {
             return Err(Error::file(
                 &lights_path,
-                "missing: the DiLiGenT layout needs light_directions.txt (or pass --lights)",
+                format!(
+                    "missing: the DiLiGenT layout needs light_directions.txt (or pass {})",
+                    param_set("lights", "")
+                ),
             ));
         }
         let lights = crate::io::light_files::read_directions(&lights_path)?;
@@ -264,7 +319,7 @@ impl CaptureFiles {
         self.mask.is_none().then(|| {
             format!(
                 "no mask: the whole {width}×{height} frame is used as the object \
-                 (no mask.png in the capture folder, no mask line in a list file, no --mask)"
+                 (no mask.png in the capture folder, no mask line in a list file, no mask given)"
             )
         })
     }

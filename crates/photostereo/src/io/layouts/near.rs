@@ -4,7 +4,7 @@
 //! the RTI tools. Every inconsistency is an error naming the file (and line) and what was
 //! expected.
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param, param_set, Error, Result};
 use crate::io::layouts::CaptureFiles;
 use crate::io::light_files::{parse_intensity_rows, parse_rows};
 use crate::model::lightmodel::{Camera, NearLights};
@@ -214,7 +214,10 @@ pub fn parse_near_layout(
         (None, None) => {
             return Err(Error::file(
                 names[5],
-                "missing: near lights need the object's mean distance in mm (this file or --distance); without it the lights cannot be placed",
+                format!(
+                    "missing: near lights need the object's mean distance in mm (this file or {}); without it the lights cannot be placed",
+                    param_set("distance", "")
+                ),
             ))
         }
     };
@@ -257,6 +260,127 @@ impl NearLayout {
             near: Some(Arc::new(model)),
             ..lights
         })
+    }
+}
+
+/// The lights of a capture given as arrays rather than files (the Python package's keywords,
+/// named in errors): distant `directions`, or near `positions` (mm) with `camera` and
+/// `distance`, optional `axes` and `anisotropy`; `intensities` are the lights' (the LEDs'
+/// radiance along their axes at 1 mm). Distant lights with `camera` and `distance` are seen
+/// through that camera (the depth in mm).
+#[derive(Clone, Debug, Default)]
+pub struct LightArrays {
+    pub directions: Option<Vec<[f64; 3]>>,
+    pub intensities: Option<Vec<[f64; 3]>>,
+    pub positions: Option<Vec<[f64; 3]>>,
+    pub camera: Option<Camera>,
+    pub distance: Option<f64>,
+    pub axes: Option<Vec<[f64; 3]>>,
+    pub anisotropy: Option<Vec<f64>>,
+}
+
+impl LightArrays {
+    /// The lights, or an error naming the parameter at fault.
+    pub fn lights(self) -> Result<Lights> {
+        use crate::base::error::{param, param_set};
+        if let Some(d) = self.distance.filter(|d| !(d.is_finite() && *d > 0.0)) {
+            return Err(Error::parameter(
+                "distance",
+                format!("{d}: expected the object's mean distance in mm, finite and positive"),
+            ));
+        }
+        match (self.positions, self.directions) {
+            (Some(_), Some(_)) => Err(Error::invalid(format!(
+                "{} and {}: give directions (distant lights) or LED positions (near lights), not both",
+                param("lights"),
+                param("light_positions")
+            ))),
+            (Some(positions), None) => {
+                let n = positions.len();
+                let camera = self.camera.ok_or_else(|| {
+                    Error::invalid(format!(
+                        "{}: near lights need the camera intrinsics (a 3x3 K or a K.txt path)",
+                        param("camera")
+                    ))
+                })?;
+                let distance = self.distance.ok_or_else(|| {
+                    Error::invalid(format!(
+                        "{}: near lights need the object's mean distance in mm; without it the lights cannot be placed",
+                        param("distance")
+                    ))
+                })?;
+                for (name, len) in [
+                    ("light_axes", self.axes.as_ref().map(Vec::len)),
+                    ("light_anisotropy", self.anisotropy.as_ref().map(Vec::len)),
+                    ("intensities", self.intensities.as_ref().map(Vec::len)),
+                ] {
+                    if let Some(len) = len.filter(|&l| l != n) {
+                        return Err(Error::invalid(format!(
+                            "{}: {len} values for {n} light positions: expected one per light",
+                            param(name)
+                        )));
+                    }
+                }
+                let layout = NearLayout {
+                    camera,
+                    positions,
+                    axes: self.axes,
+                    anisotropy: self.anisotropy,
+                    intensities: self.intensities.unwrap_or_else(|| vec![[1.0; 3]; n]),
+                    distance,
+                };
+                layout.lights(Path::new("light_positions"))
+            }
+            (None, Some(directions)) => {
+                if self.axes.is_some() || self.anisotropy.is_some() {
+                    return Err(Error::invalid(format!(
+                        "{} and {} describe near lights: they need {}",
+                        param("light_axes"),
+                        param("light_anisotropy"),
+                        param("light_positions")
+                    )));
+                }
+                if let Some(k) = directions.iter().position(|d| d.iter().any(|v| !v.is_finite())) {
+                    return Err(Error::invalid(format!(
+                        "{}: light {} has a non-finite direction {:?}",
+                        param("lights"),
+                        k + 1,
+                        directions[k]
+                    )));
+                }
+                let mut lights = Lights::new(&directions)?;
+                if let Some(e) = self.intensities {
+                    lights = lights.with_intensities(e)?;
+                }
+                lights.camera = match (self.camera, self.distance) {
+                    (Some(c), Some(d)) => Some((c, d)),
+                    (None, None) => None,
+                    (Some(_), None) => {
+                        return Err(Error::invalid(format!(
+                            "{}: distant lights seen through a camera need {} (the object's mean distance in mm) too",
+                            param("camera"),
+                            param_set("distance", "")
+                        )))
+                    }
+                    (None, Some(_)) => {
+                        return Err(Error::invalid(format!(
+                            "{}: needs {} (a 3x3 K or a K.txt path), or {} for near lights",
+                            param("distance"),
+                            param_set("camera", ""),
+                            param_set("light_positions", "")
+                        )))
+                    }
+                };
+                Ok(lights)
+            }
+            (None, None) => Err(Error::invalid(format!(
+                "{}: an image array needs (N, 3) light directions, or {} (N, 3) in mm with {} and {} for near lights",
+                param("lights"),
+                param("light_positions"),
+                param("camera"),
+                param("distance")
+            ))),
+        }
     }
 }
 
@@ -438,7 +562,10 @@ pub fn attach_camera_with(
         if distance.is_some() {
             return Err(Error::file(
                 &k,
-                "missing: --distance needs a near-light capture (light_positions.txt) or a camera (K.txt)",
+                format!(
+                    "missing: {} needs a near-light capture (light_positions.txt) or a camera (K.txt)",
+                    param("distance")
+                ),
             ));
         }
         return Ok(files);
@@ -460,7 +587,10 @@ pub fn attach_camera_with(
         None => {
             return Err(Error::file(
                 &path,
-                "missing: a camera (K.txt) needs the object's mean distance in mm (this file or --distance) to give the depth in mm",
+                format!(
+                    "missing: a camera (K.txt) needs the object's mean distance in mm (this file or {}) to give the depth in mm",
+                    param_set("distance", "")
+                ),
             ))
         }
     };
@@ -604,7 +734,7 @@ mod tests {
     fn every_inconsistency_names_its_file_and_line() {
         let e = parse(K, POS, None).unwrap_err().to_string();
         assert!(
-            e.contains("mean_distance.txt") && e.contains("--distance"),
+            e.contains("mean_distance.txt") && e.contains("distance="),
             "{e}"
         );
         let e = parse(K, POS, Some("-3\n")).unwrap_err().to_string();

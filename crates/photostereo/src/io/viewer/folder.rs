@@ -175,7 +175,7 @@ fn find_ground_truth(dir: &Path, p: PathBuf, notes: &mut Vec<String>) -> Option<
     if found.is_none() {
         notes.push(format!(
             "the ground truth named in report.json ({}) was not found; \
-             no error layer (give it with --gt)",
+             no error layer (give the ground truth, `gt`)",
             p.display()
         ));
     }

@@ -164,7 +164,7 @@ pub fn write_view_of(f: &RunFolder, options: &ViewOptions, start: Instant) -> Re
     let index = swap_in(dir, &staging, &html)?;
     if lights.is_none() && n_lights.is_some() {
         notes.push(
-            "light directions unknown (give --lights FILE): the probe lists lights by number only"
+            "light directions unknown (give the light directions, `lights`): the probe lists lights by number only"
                 .into(),
         );
     }

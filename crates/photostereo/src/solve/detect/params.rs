@@ -48,7 +48,7 @@ pub struct DetectionParams {
     /// How σ₀ is estimated when `sigma` is not given (default: from the images).
     pub noise_estimate: NoiseEstimate,
     /// Rounds of noise re-estimation from the pixels' retained lights, for
-    /// [`NoiseEstimate::Residuals`] (default 1).
+    /// [`NoiseEstimate::Residuals`] (default 1, at most [`MAX_NOISE_REFINEMENTS`]).
     pub noise_refinements: usize,
     /// Measure a noise factor per light ([`light_noise_factors`](super::light_noise_factors), distant lights): a light whose
     /// readings disagree with the others' fit more than the typical light's gets its own larger
@@ -90,10 +90,43 @@ pub enum NoiseEstimate {
     Residuals,
 }
 
+/// The most rounds of noise re-estimation: each is a pass over the capture, and the estimate
+/// settles within a few.
+pub const MAX_NOISE_REFINEMENTS: usize = 20;
+
+impl NoiseEstimate {
+    /// Every choice, default first.
+    pub const ALL: &'static [NoiseEstimate] = &[NoiseEstimate::Images, NoiseEstimate::Residuals];
+
+    /// The name the front ends accept (`noise_estimate`).
+    pub fn name(self) -> &'static str {
+        match self {
+            NoiseEstimate::Images => "images",
+            NoiseEstimate::Residuals => "residuals",
+        }
+    }
+}
+
+impl std::str::FromStr for NoiseEstimate {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        crate::base::error::parse_name(s, NoiseEstimate::ALL, NoiseEstimate::name, "noise_estimate")
+    }
+}
+
 impl DetectionParams {
     /// Checks the parameters' domains; errors name the parameter (the library's spelling,
     /// [`Error::Parameter`]).
     pub fn validate(&self) -> Result<()> {
+        if self.noise_refinements > MAX_NOISE_REFINEMENTS {
+            return Err(Error::parameter(
+                "noise_refinements",
+                format!(
+                    "{}: expected an integer in [0, {MAX_NOISE_REFINEMENTS}]",
+                    self.noise_refinements
+                ),
+            ));
+        }
         if let Some(s) = self.sigma {
             if !(s.is_finite() && s > 0.0) {
                 return Err(Error::parameter(
