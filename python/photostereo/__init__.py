@@ -514,10 +514,12 @@ def run(
 def integrate(
     normals: Any,
     mask: Any = None,
-    method: str = "poisson",
+    method: Optional[str] = None,
     weights: Any = None,
     *,
     max_slope: float = _native.defaults()["max_slope"],
+    camera: Any = None,
+    distance: Optional[float] = None,
     num_threads: Optional[int] = None,
 ) -> np.ndarray:
     """Integrates a normal map into depth.
@@ -527,21 +529,29 @@ def integrate(
     normals : array_like, shape (H, W, 3)
         Normals in the camera frame.
     mask : array_like, shape (H, W), optional
-        Pixels to integrate (default: the non-zero normals).
-    method : {"poisson", "dct", "fft", "paths"}
-        ``poisson`` honours any mask and weights; ``dct`` and ``fft`` work on the full
-        rectangle.
+        Pixels to integrate (default: the non-zero normals, less a uniform background that is
+        not of unit length).
+    method : {"bilateral", "poisson", "dct", "fft", "paths"}, optional
+        The integrator (default: the library's, ``bilateral``). ``bilateral`` keeps depth jumps
+        on any mask; ``poisson`` honours any mask and weights; ``dct`` and ``fft`` work on the
+        full rectangle.
     weights : array_like, shape (H, W), optional
         Weights in 0..1 that lower the say of unreliable pixels.
     max_slope : float
         Cap on |dz/dx| and |dz/dy| in pixel units per pixel.
+    camera : array_like, shape (3, 3), or str, optional
+        A pinhole camera K (pixels) or the path of a K.txt: the normals are integrated through
+        it (log-depth) and the result is Z in mm; needs ``distance``.
+    distance : float, optional
+        With ``camera``: the object's mean distance along the optical axis, mm.
     num_threads : int, optional
         Cap on the worker threads.
 
     Returns
     -------
     ndarray of float32, shape (H, W)
-        Height toward the camera in pixel units; NaN outside the mask.
+        Height toward the camera in pixel units (Z in mm with a camera); NaN outside the
+        integrated pixels.
     """
     return _native.integrate(
         _normals(normals, "normals"),
@@ -549,6 +559,8 @@ def integrate(
         method,
         None if weights is None else _normals(weights, "weights"),
         max_slope,
+        camera,
+        distance,
         num_threads,
     )
 

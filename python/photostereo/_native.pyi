@@ -43,7 +43,7 @@ class ParamValues(TypedDict, total=False):
     surface_prior: float  # default 1.0
     attached_tolerance: float  # default 0.02
     cast_tolerance: float  # default 0.05
-    integrator: Literal["poisson", "dct", "fft", "paths"]  # default "poisson"
+    integrator: Literal["bilateral", "poisson", "dct", "fft", "paths"]  # default "bilateral"
     max_slope: float  # default 20.0
     unreliable_weight: float  # default 0.1
 # --- end of the generated parameters ---
@@ -186,12 +186,15 @@ def run(
 def integrate(
     normals: np.ndarray,
     mask: Optional[np.ndarray] = None,
-    method: str = "poisson",
+    method: Optional[str] = None,
     weights: Optional[np.ndarray] = None,
     max_slope: Optional[float] = None,
+    camera: Optional[Any] = None,
+    distance: Optional[float] = None,
     num_threads: Optional[int] = None,
 ) -> np.ndarray:
-    """(H, W, 3) float32 normals to (H, W) float32 depth in pixel units, NaN outside the mask."""
+    """(H, W, 3) float32 normals to (H, W) float32 depth in pixel units (Z in mm through a
+    camera), NaN outside the mask."""
 
 def angular_error(
     normals: np.ndarray, truth: np.ndarray, mask: Optional[np.ndarray] = None

@@ -1092,41 +1092,55 @@ fn map_of<'py, T: numpy::Element + Copy>(
     })
 }
 
-/// Integrates (H, W, 3) normals into (H, W) depth (pixel units, NaN outside the mask).
+/// Integrates (H, W, 3) normals into (H, W) depth (pixel units, NaN outside the mask; Z in mm
+/// through a camera).
 #[pyfunction]
-#[pyo3(signature = (normals, mask=None, method="poisson", weights=None, max_slope=None, num_threads=None))]
+#[pyo3(signature = (normals, mask=None, method=None, weights=None, max_slope=None, camera=None, distance=None, num_threads=None))]
+#[allow(clippy::too_many_arguments)]
 fn integrate<'py>(
     py: Python<'py>,
     normals: &Bound<'py, PyAny>,
     mask: Option<&Bound<'py, PyAny>>,
-    method: &str,
+    method: Option<&str>,
     weights: Option<&Bound<'py, PyAny>>,
     max_slope: Option<&Bound<'py, PyAny>>,
+    camera: Option<&Bound<'py, PyAny>>,
+    distance: Option<&Bound<'py, PyAny>>,
     num_threads: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, numpy::PyArray2<f32>>> {
+    use photostereo::geometry::integrate::{integrate_normal_map, NormalMapIntegration};
     let (h, w, normals) = normals_of(normals, "normals")?;
     let mask = map_of::<bool>(mask, "mask", (h, w))?;
     let has_mask = mask.is_some();
     let weights = map_of::<f32>(weights, "weights", (h, w))?;
-    let kind: photostereo::geometry::integrate::IntegratorKind = method.parse().map_err(py_err)?;
     let mut p = Params::default();
+    if let Some(m) = method {
+        p.set_text("integrator", m)
+            .map_err(|e| bad(format!("method: {e}")))?;
+    }
     if let Some(v) = max_slope {
         p.set("max_slope", value_of("max_slope", v)?)
             .map_err(py_err)?;
     }
-    let max_slope = p.integration.max_slope;
+    let camera = match (camera_from(camera)?, distance_of(distance)?) {
+        (Some(k), Some(d)) => Some((k, d)),
+        (None, None) => None,
+        (Some(_), None) => {
+            return Err(bad(
+                "camera: needs distance (the object's mean distance, mm)",
+            ))
+        }
+        (None, Some(_)) => return Err(bad("distance: applies only with camera")),
+    };
+    let (kind, max_slope) = (p.integration.method, p.integration.max_slope);
     let num_threads = threads(num_threads)?;
     let depth = run_detached(py, num_threads, None, OnCancel::Raise, move |p| {
-        photostereo::geometry::integrate::surface_from_normals(
-            w,
-            h,
-            &normals,
-            mask.as_deref(),
-            weights.as_deref(),
-            kind.integrator().as_ref(),
+        let how = NormalMapIntegration {
+            method: kind,
             max_slope,
-            p,
-        )
+            camera: camera.as_ref().map(|(k, d)| (k, *d)),
+        };
+        integrate_normal_map(w, h, &normals, mask.as_deref(), weights.as_deref(), &how, p)
     })?;
     if !depth.depth.values.iter().any(|z| z.is_finite()) {
         // As the command line's `integrate` refuses a map without a usable normal.
