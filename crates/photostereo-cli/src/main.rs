@@ -11,6 +11,7 @@ mod compare;
 mod demo;
 mod eval;
 mod integrate;
+mod photometry;
 mod run;
 mod serve;
 mod synth;

@@ -35,6 +35,8 @@ pub struct RunArgs {
     /// mean_distance.txt.
     #[arg(long)]
     pub distance: Option<f64>,
+    #[command(flatten)]
+    pub photometry: crate::photometry::PhotometryArgs,
     /// Estimation method: recursive, l2, coleman-jain, barsky-petrou.
     #[arg(long, default_value = defaults().method.name(), value_parser = parse_method)]
     pub method: Method,
@@ -196,7 +198,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.intensities.as_deref(),
         a.mask.as_deref(),
     )?;
-    let files = match (a.distance, a.input.as_slice()) {
+    let mut files = match (a.distance, a.input.as_slice()) {
         (Some(d), [dir]) if dir.is_dir() && photostereo::io::layouts::near::is_near_layout(dir) => {
             let mut f = photostereo::io::layouts::near::near_capture_files(dir, Some(d))?;
             if let Some(m) = &a.mask {
@@ -225,10 +227,12 @@ pub fn main(a: RunArgs) -> Result<()> {
             a.mask.as_deref(),
         )?,
     };
+    a.photometry.apply(&mut files)?;
     // --force never replaces an input or a folder holding one.
     let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
+    inputs.extend(files.photometry.ambient.as_deref());
     inputs.extend(a.lights.as_deref());
     inputs.extend(a.intensities.as_deref());
     inputs.extend(a.gt.as_deref());
@@ -258,7 +262,12 @@ pub fn main(a: RunArgs) -> Result<()> {
         for n in r
             .notes
             .iter()
-            .filter(|n| n.starts_with("recursive: not converged") || n.starts_with("no mask:"))
+            .filter(|n| {
+                n.starts_with("recursive: not converged")
+                    || n.starts_with("no mask:")
+                    || n.starts_with("photometry:")
+                    || n.starts_with("response:")
+            })
         {
             eprintln!("note: {n}");
         }
