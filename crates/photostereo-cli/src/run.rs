@@ -259,16 +259,12 @@ pub fn main(a: RunArgs) -> Result<()> {
     if a.out.json {
         // The JSON on stdout holds every note; a recursion that did not settle and a missing
         // mask are also said on stderr.
-        for n in r
-            .notes
-            .iter()
-            .filter(|n| {
-                n.starts_with("recursive: not converged")
-                    || n.starts_with("no mask:")
-                    || n.starts_with("photometry:")
-                    || n.starts_with("response:")
-            })
-        {
+        for n in r.notes.iter().filter(|n| {
+            n.starts_with("recursive: not converged")
+                || n.starts_with("no mask:")
+                || n.starts_with("photometry:")
+                || n.starts_with("response:")
+        }) {
             eprintln!("note: {n}");
         }
         let mut v = serde_json::to_value(r)?;

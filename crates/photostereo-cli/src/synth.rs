@@ -186,9 +186,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
         bail!("--size {width}: expected 8..=8192 pixels for a square capture rendered whole");
     }
     let (rendered, target) = match &camera {
-        Some(c) => {
-            photostereo::io::synth::synth_camera_to_folder(&spec, c, &output, a.out.force)?
-        }
+        Some(c) => photostereo::io::synth::synth_camera_to_folder(&spec, c, &output, a.out.force)?,
         None => synth_to_folder(&spec, &output, a.out.force)?,
     };
     let s = &rendered.stats;
@@ -250,7 +248,10 @@ fn camera_spec(a: &SynthArgs) -> Result<Option<photostereo::io::camera::CameraSp
         other => bail!("--format {other}: expected png, png8, png16 or jpeg"),
     };
     if a.exposure_jitter != 1.0 && !matches!(format, CameraFormat::Jpeg(_)) {
-        bail!("--exposure-jitter {}: needs --format jpeg (the exposures are recorded in EXIF)", a.exposure_jitter);
+        bail!(
+            "--exposure-jitter {}: needs --format jpeg (the exposures are recorded in EXIF)",
+            a.exposure_jitter
+        );
     }
     if a.response.is_none() && a.ambient == 0.0 && a.exposure_jitter == 1.0 && a.format == "png" {
         return Ok(None);

@@ -262,7 +262,13 @@ pub fn exif_block_oriented(e: &Exposure, orientation: u16) -> Vec<u8> {
     b.extend_from_slice(&4u16.to_le_bytes());
     entry(&mut b, 0x829A, RATIONAL, 1, 92);
     entry(&mut b, 0x829D, RATIONAL, 1, 100);
-    entry(&mut b, 0x8827, SHORT, 1, e.iso.unwrap_or(100.0).round() as u32);
+    entry(
+        &mut b,
+        0x8827,
+        SHORT,
+        1,
+        e.iso.unwrap_or(100.0).round() as u32,
+    );
     entry(&mut b, 0xA001, SHORT, 1, 1);
     b.extend_from_slice(&0u32.to_le_bytes());
     for (num, den) in [t, f] {

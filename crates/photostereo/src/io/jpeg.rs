@@ -63,6 +63,7 @@ pub fn decode_jpeg_stored(bytes: &[u8]) -> Result<(Image, u16), String> {
         MAX_BASELINE_JPEG_RATIO
     };
     declared.check(declared.raw_bytes(), bytes.len() as u64, ratio)?;
+    check_complete(bytes)?;
     let orientation = dec
         .exif()
         .and_then(|raw| exif_orientation(raw))
@@ -88,6 +89,25 @@ pub fn decode_jpeg_stored(bytes: &[u8]) -> Result<(Image, u16), String> {
         },
         orientation,
     ))
+}
+
+/// Refuses a file whose last scan has no end-of-image marker after it: a truncated file (the
+/// decoder would fill the missing blocks with grey). Coded data cannot hold the marker's
+/// bytes (an `FF` there is followed by `00`), so an `FF D9` after the last start-of-scan ends
+/// it; an embedded thumbnail's markers lie before the main image's scans.
+fn check_complete(bytes: &[u8]) -> Result<(), String> {
+    let last_scan = bytes
+        .windows(2)
+        .rposition(|w| w == [0xFF, 0xDA])
+        .ok_or_else(|| "truncated JPEG: no scan".to_string())?;
+    if bytes[last_scan..].windows(2).any(|w| w == [0xFF, 0xD9]) {
+        Ok(())
+    } else {
+        Err(format!(
+            "truncated JPEG: the data ends after {} bytes without an end-of-image marker",
+            bytes.len()
+        ))
+    }
 }
 
 /// The orientation tag (1 to 8) of raw EXIF data (a TIFF structure), if it has a valid one.

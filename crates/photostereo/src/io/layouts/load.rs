@@ -133,7 +133,9 @@ impl CaptureFiles {
         if lin.ambient.is_none() {
             report.offset_check = crate::io::layouts::photometric::offset_of(&capture)?;
             if let Some(c) = report.offset_check.as_ref().filter(|c| c.detected) {
-                capture.notes.push(crate::io::layouts::photometric::offset_note(c));
+                capture
+                    .notes
+                    .push(crate::io::layouts::photometric::offset_note(c));
             }
         }
         Ok((capture, report))

@@ -8,11 +8,11 @@ use crate::io::imageio::decode_image;
 use crate::io::photometry::estimate::{
     estimate_response, offset_check, OffsetCheck, ResponseEstimate, Samples,
 };
-use crate::model::capture::{light_scale, Capture};
 use crate::io::photometry::meta::{read_meta, ImageMeta};
 use crate::io::photometry::{
     ImageRecord, Linearisation, PhotometryReport, Response, ResponseChoice,
 };
+use crate::model::capture::{light_scale, Capture};
 use crate::model::image::Image;
 use rayon::prelude::*;
 use std::path::Path;
@@ -48,11 +48,16 @@ impl CaptureFiles {
     /// response estimate reads; `channels` is the images' channel count.
     pub(crate) fn photometric_plan(&self, mask: &[bool], channels: usize) -> Result<Plan> {
         let p = &self.photometry;
-        let metas: Vec<ImageMeta> = self.images.par_iter().map(|f| meta_of(f)).collect::<Result<_>>()?;
+        let metas: Vec<ImageMeta> = self
+            .images
+            .par_iter()
+            .map(|f| meta_of(f))
+            .collect::<Result<_>>()?;
         let mut notes = Vec::new();
         self.check_orientation(&metas, &mut notes)?;
         let ambient_meta = p.ambient.as_deref().map(meta_of).transpose()?;
-        let (factors, ambient_factor) = self.exposure_factors(&metas, ambient_meta.as_ref(), &mut notes);
+        let (factors, ambient_factor) =
+            self.exposure_factors(&metas, ambient_meta.as_ref(), &mut notes);
         // Each image's response and where it comes from, before any estimate.
         let mut responses: Vec<(Response, String)> = match p.response {
             Some(ResponseChoice::Fixed(r)) => vec![(r, "--response".into()); metas.len()],
@@ -82,7 +87,13 @@ impl CaptureFiles {
             estimate = estimate_response(&samples, &lights, &scale, 1.0 / ambient_factor);
             match (&estimate, p.response) {
                 (Some(e), Some(ResponseChoice::Auto)) => {
-                    responses = vec![(e.response, "estimated from the capture (--response auto)".into()); metas.len()];
+                    responses = vec![
+                        (
+                            e.response,
+                            "estimated from the capture (--response auto)".into()
+                        );
+                        metas.len()
+                    ];
                     notes.push(estimate_note(e, true));
                 }
                 (Some(e), _) => {
@@ -108,7 +119,9 @@ impl CaptureFiles {
             let r = match p.response {
                 Some(ResponseChoice::Fixed(r)) => r,
                 Some(ResponseChoice::Auto) => responses[0].0,
-                None => ambient_meta.as_ref().map_or(responses[0].0, |m| m.default_response().0),
+                None => ambient_meta
+                    .as_ref()
+                    .map_or(responses[0].0, |m| m.default_response().0),
             };
             r.linearise(img);
             let s = (1.0 / ambient_factor) as f32;
@@ -237,7 +250,12 @@ impl CaptureFiles {
         channels: usize,
         ambient: Option<&Image>,
     ) -> Result<Samples> {
-        let ids: Vec<usize> = mask.iter().enumerate().filter(|(_, &m)| m).map(|(i, _)| i).collect();
+        let ids: Vec<usize> = mask
+            .iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i)
+            .collect();
         let step = ids.len().div_ceil(ESTIMATE_PIXELS).max(1);
         let ids: Vec<usize> = ids.into_iter().step_by(step).collect();
         let n = self.images.len();
@@ -328,7 +346,8 @@ fn estimate_note(e: &ResponseEstimate, used: bool) -> String {
 /// The constant-offset check ([`crate::io::photometry::estimate::offset_check`]) on up to
 /// [`ESTIMATE_PIXELS`] mask pixels of a loaded (linear) capture with distant lights: the
 /// pixel-channels whose least-squares normal sees every light at least 5° above its horizon
-/// (attached shadows and the limb are no Lambertian projection).
+/// (attached shadows and the limb are no Lambertian projection) and with no reading below half
+/// its Lambertian prediction (a cast shadow; an offset only raises the dark readings).
 pub(crate) fn offset_of(capture: &Capture) -> Result<Option<OffsetCheck>> {
     if capture.lights.near.is_some() || capture.n_pixels() == 0 {
         return Ok(None);
@@ -353,11 +372,11 @@ pub(crate) fn offset_of(capture: &Capture) -> Result<Option<OffsetCheck>> {
             let x: Vec<f64> = (0..n).map(|k| s[k * c + ch] as f64).collect();
             let b = solve_normal(dirs, &x);
             let norm = (b[0] * b[0] + b[1] * b[1] + b[2] * b[2]).sqrt();
-            if norm > 0.0
-                && dirs
-                    .iter()
-                    .all(|l| l[0] * b[0] + l[1] * b[1] + l[2] * b[2] >= min_cos * norm)
-            {
+            let lit = |(l, v): (&[f64; 3], &f64)| {
+                let p = l[0] * b[0] + l[1] * b[1] + l[2] * b[2];
+                p >= min_cos * norm && *v >= 0.5 * p
+            };
+            if norm > 0.0 && dirs.iter().zip(&x).all(lit) {
                 out.extend_from_slice(&x);
             }
         }
@@ -394,15 +413,11 @@ fn solve_normal(dirs: &[[f64; 3]], x: &[f64]) -> [f64; 3] {
 pub(crate) fn offset_note(c: &OffsetCheck) -> String {
     format!(
         "photometry: the readings share a constant offset across lights of {:+.1}% (± {:.1}%) of \
-         their mean, which the Lambertian model lacks: {} — photograph the scene with every \
-         controlled light off and give it as --ambient FILE (or ambient.png in the capture \
-         folder); if the images are not linear, --response auto",
+         their mean, which the Lambertian model lacks: light left on in the room, or a black \
+         level not subtracted — photograph the scene with every controlled light off and give \
+         it as --ambient FILE (or ambient.png in the capture folder); if the images are not \
+         linear, --response auto",
         100.0 * c.relative_offset,
         100.0 * c.std_error,
-        if c.relative_offset > 0.0 {
-            "light left on in the room, or a black level not subtracted"
-        } else {
-            "a black level subtracted twice, or a response that is not the images'"
-        }
     )
 }

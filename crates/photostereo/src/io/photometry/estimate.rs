@@ -3,17 +3,24 @@
 //! **Response.** A Lambertian surface lit by every light reads `x_k = s_k · ρ n · l_k`: across
 //! the lights, a pixel's linear readings lie in the 3-D subspace the light vectors span. Read
 //! through the wrong response they do not (a power of a sum is no sum of powers). A candidate
-//! response is scored by how well a rank-3 model `x_rk ≈ u_k · b_r` fits the readings it makes
-//! linear: `U` (one 3-vector per light, started at the given lights) and `b` (one per pixel and
-//! channel) are fitted by alternating weighted least squares, each residual weighted by its
-//! noise — the encoded values' quantisation carried through the candidate's slope, plus the
-//! relative model error κ of the detector's noise model — so the candidates' scores are
-//! comparable χ² values. The score is the median over pixels of the reduced χ² (a few
+//! response is scored by how well a rank-3 model `x_rk ≈ g_k l_k · b_r` fits the readings it
+//! makes linear, its subspace the one the given light directions `l_k` span: the gains `g_k`
+//! (each light's brightness as the readings see it) and `b` (one per pixel and channel) are
+//! fitted by alternating weighted least squares, each residual weighted by the
+//! noise of its encoded value (the quantisation step) carried through the candidate's slope:
+//! the residuals are measured where the noise is, in the file's own units, so the candidates'
+//! scores are comparable χ² values. (Measured relative to the linear values instead, a
+//! response that flattens every reading towards one value would fit best.) The subspace is
+//! anchored on the lights rather than fitted freely: with lights around the viewing direction
+//! any smooth function of `n · l` is nearly affine in the light's direction, so a freely fitted
+//! rank-3 model absorbs a compressive response as a constant and cannot tell it from linear. The score is the median over pixels of the reduced χ² (a few
 //! highlights do not move it). Candidates: powers 0.5 to 3 in steps of 0.02 and sRGB. The
-//! estimate's spread is that of the best power over eight disjoint sets of pixels.
+//! estimate's spread is that of the best power over eight disjoint sets of pixels; sRGB is
+//! chosen when it fits better than every power, linear when 1 lies within the 99% interval of
+//! the best power.
 //!
-//! Only pixels lit by every light (every reading at least five quantisation levels above
-//! black, none saturated) enter: a shadowed reading is no projection of the normal.
+//! Only pixels lit by every light ([`lit_rows`]) enter: a shadowed reading is no projection of
+//! the normal.
 //!
 //! **Offset.** Light left on in the room, or a black level not removed, adds to every image
 //! the same amount per pixel: readings `x_k = s_k (ρ n · l_k + a)`, a fourth dimension the
@@ -66,15 +73,21 @@ pub struct ResponseEstimate {
 const KAPPA: f64 = 0.01;
 /// Disjoint pixel sets for the estimates' spread.
 const GROUPS: usize = 8;
+/// Student's t quantile 0.995 with 7 degrees of freedom (the spread of [`GROUPS`] estimates):
+/// the exponent is taken as 1 (linear) when it lies within this many standard errors of it,
+/// a two-sided 99% interval.
+const T7_995: f64 = 3.499;
 
 /// The candidates' exponents: 0.5 to 3 in steps of 0.02.
 fn gamma_grid() -> Vec<f64> {
     (0..=125).map(|i| 0.5 + 0.02 * i as f64).collect()
 }
 
-/// The rows (pixel-channel) lit by every light: every encoded reading at least five
-/// quantisation levels above black (at least 0.5% of full scale for float data) and below
-/// 99% of full scale.
+/// The rows (pixel-channel) lit by every light: every encoded reading at least a quarter of
+/// the row's brightest and five quantisation levels above black (0.5% of full scale for float
+/// data), none above 99% of full scale. Under any response that brightens the dark end no
+/// more than a 2.2 power does, a quarter of the brightest encoded reading is more than 4% of
+/// its light: a shadow, which reads only noise or ambient light, falls below it.
 pub fn lit_rows(s: &Samples) -> Vec<usize> {
     let level: f64 = match s.bit_depth {
         8 => 1.0 / 255.0,
@@ -84,9 +97,9 @@ pub fn lit_rows(s: &Samples) -> Vec<usize> {
     let lo = (5.0 * level).max(0.005) as f32;
     (0..s.rows())
         .filter(|&r| {
-            s.encoded[r * s.images..(r + 1) * s.images]
-                .iter()
-                .all(|&e| e >= lo && e <= 0.99)
+            let row = &s.encoded[r * s.images..(r + 1) * s.images];
+            let max = row.iter().cloned().fold(0.0f32, f32::max);
+            row.iter().all(|&e| e >= lo.max(0.25 * max) && e <= 0.99)
         })
         .collect()
 }
@@ -140,11 +153,14 @@ pub fn estimate_response(
     let gamma = grid[b];
     let score_gamma = score(&chi[b], None);
     let score_srgb = score(&chi[grid.len()], None);
-    let linear = grid.iter().position(|g| (g - 1.0).abs() < 1e-9).unwrap_or(0);
+    let linear = grid
+        .iter()
+        .position(|g| (g - 1.0).abs() < 1e-9)
+        .unwrap_or(0);
     let score_linear = score(&chi[linear], None);
     let response = if score_srgb < score_gamma {
         Response::Srgb
-    } else if (gamma - 1.0).abs() <= 2.0 * gamma_std {
+    } else if (gamma - 1.0).abs() <= T7_995 * gamma_std {
         Response::Linear
     } else {
         Response::Gamma(gamma)
@@ -203,7 +219,7 @@ impl Fit<'_> {
             for k in 0..n {
                 let e = self.s.encoded[row * n + k] as f64;
                 let v = r.linear(e) * self.scale[k] - a;
-                let var = (r.slope(e) * self.scale[k] * q).powi(2) + va + (KAPPA * v).powi(2);
+                let var = (r.slope(e) * self.scale[k] * q).powi(2) + va;
                 x.push(v);
                 w.push(1.0 / var.max(1e-30));
             }
@@ -223,12 +239,17 @@ impl Fit<'_> {
                 let ws = &w[i * n..(i + 1) * n];
                 *bi = solve_weighted(u.iter().zip(xs).zip(ws).map(|((u, x), w)| (*u, *x, *w)));
             }
+            // Each light's gain (its brightness and exposure, as the readings see them); its
+            // direction stays the given one.
             for (k, uk) in u.iter_mut().enumerate() {
-                *uk = solve_weighted(
-                    b.iter()
-                        .enumerate()
-                        .map(|(i, bi)| (*bi, x[i * n + k], w[i * n + k])),
-                );
+                let (mut num, mut den) = (0.0, 0.0);
+                for (i, bi) in b.iter().enumerate() {
+                    let p = dot(self.lights[k], *bi);
+                    num += w[i * n + k] * x[i * n + k] * p;
+                    den += w[i * n + k] * p * p;
+                }
+                let g = if den > 0.0 { num / den } else { 1.0 };
+                *uk = self.lights[k].map(|v| v * g);
             }
         }
         b.iter()
@@ -277,8 +298,9 @@ pub struct OffsetCheck {
     pub std_error: f64,
     /// Pixel-channel rows lit by every light that were used.
     pub rows: usize,
-    /// Whether the offset is both significant (beyond three standard errors) and larger than
-    /// the model's relative error κ.
+    /// Whether the offset is positive (light added: a negative one is what surfaces darker
+    /// than Lambertian at grazing light show, as DiLiGenT's objects do), significant (beyond
+    /// three standard errors) and larger than the model's relative error κ.
     pub detected: bool,
 }
 
@@ -329,7 +351,7 @@ pub fn offset_check(x: &[f64], lights: &[[f64; 3]], c: &[f64]) -> Option<OffsetC
         relative_offset: m,
         std_error: se,
         rows,
-        detected: m.abs() > 3.0 * se && m.abs() > KAPPA,
+        detected: m > 3.0 * se && m > KAPPA,
     })
 }
 

@@ -120,7 +120,11 @@ fn jpeg_meta(bytes: &[u8]) -> Result<ImageMeta, String> {
         bit_depth: 8,
         decoder: format!(
             "jpeg {} 8-bit",
-            if progressive { "progressive" } else { "baseline" }
+            if progressive {
+                "progressive"
+            } else {
+                "baseline"
+            }
         ),
         declared: Some(declared),
         exposure,
