@@ -142,7 +142,11 @@ fn photometry_flags_are_refused_clearly() {
     );
     assert!(!dir.join("r2").exists());
     // An ambient frame of another size names the file.
-    synth(dir, "small", &["--size", "32"]);
+    let o = photostereo(
+        &["synth", "sphere", "--size", "32", "-q", "-o", "small"],
+        dir,
+    );
+    assert!(o.status.success());
     let o = run(dir, "linear", "r3", &["--ambient", "small/001.png"]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("small/001.png"), "{}", stderr(&o));

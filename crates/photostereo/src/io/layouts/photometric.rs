@@ -336,8 +336,9 @@ fn estimate_note(e: &ResponseEstimate, used: bool) -> String {
     } else {
         format!(
             "response: 8-bit images without colour metadata are read as linear, but {what}: \
-             if they were saved by a camera or an editor, rerun with --response {} (or \
-             --response auto)",
+             if a camera or an editor wrote them, give their response (--response srgb for \
+             most; --response {} is the capture's own estimate, which a surface darker than \
+             matte at grazing light lowers)",
             e.chosen
         )
     }
