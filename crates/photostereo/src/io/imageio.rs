@@ -55,7 +55,7 @@ pub fn decode_image(bytes: &[u8]) -> Result<Image, String> {
     match sniff(bytes) {
         Some(Format::Png) => decode_png(bytes),
         Some(Format::Tiff) => decode_tiff(bytes).map(|img| {
-            let o = crate::io::photometry::meta::exif_orientation_of(bytes);
+            let o = crate::io::jpeg::container_orientation(bytes);
             crate::io::jpeg::orient(img, o)
         }),
         Some(Format::Exr) => decode_exr(bytes),

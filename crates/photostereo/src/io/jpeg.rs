@@ -110,6 +110,21 @@ fn check_complete(bytes: &[u8]) -> Result<(), String> {
     }
 }
 
+/// The EXIF orientation (1 to 8; 1 without EXIF) of an image file held in memory (TIFF's own
+/// directories, JPEG's APP1, PNG's eXIf).
+pub fn container_orientation(bytes: &[u8]) -> u16 {
+    exif::Reader::new()
+        .read_from_container(&mut std::io::Cursor::new(bytes))
+        .ok()
+        .and_then(|e| {
+            e.get_field(exif::Tag::Orientation, exif::In::PRIMARY)?
+                .value
+                .get_uint(0)
+        })
+        .filter(|o| (1..=8).contains(o))
+        .map_or(1, |o| o as u16)
+}
+
 /// The orientation tag (1 to 8) of raw EXIF data (a TIFF structure), if it has a valid one.
 pub fn exif_orientation(raw: &[u8]) -> Option<u16> {
     let exif = exif::Reader::new().read_raw(raw.to_vec()).ok()?;

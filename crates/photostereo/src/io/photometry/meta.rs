@@ -206,11 +206,6 @@ fn exif_facts(bytes: &[u8]) -> (Exposure, u16, Option<u32>) {
     (exposure, orientation, colour_space)
 }
 
-/// The EXIF orientation (1 to 8; 1 without EXIF) of a file held in memory.
-pub fn exif_orientation_of(bytes: &[u8]) -> u16 {
-    exif_facts(bytes).1
-}
-
 /// An exponent rounded to 4 decimals (a gAMA chunk's 0.45455 gives 2.2, not 2.199978).
 fn round_exponent(g: f64) -> f64 {
     (g * 1e4).round() / 1e4
