@@ -287,7 +287,7 @@ def test_bad_inputs_raise_photostereo_error():
         (lambda: ps.reconstruct(f32, lights, intensities=np.ones((3, 3))), "intensities"),
         (lambda: ps.reconstruct(f32, lights, num_threads=0), "num_threads"),
         (lambda: ps.reconstruct(np.where(np.isfinite(f32), np.nan, 0).astype(np.float32), lights),
-         "non-finite"),
+         "image 1 of the stack: no reading inside the mask is finite"),
         (lambda: ps.load_capture("/nonexistent/capture"), "/nonexistent/capture"),
         (lambda: ps.integrate(np.zeros((4, 4)), None), "(H, W, 3)"),
         (lambda: ps.angular_error(np.zeros((4, 4, 3)), np.zeros((4, 5, 3))), "same"),

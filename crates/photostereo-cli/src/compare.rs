@@ -46,7 +46,7 @@ pub struct CompareArgs {
     /// Use only some lights: `square`, `square:SLANT`, or 1-based indices such as `1,5,9,13`.
     #[arg(long, value_parser = parse_subset)]
     pub light_subset: Option<LightSubset>,
-    /// Also write each method's output folder, as `run` writes it, into OUTPUT/<method>/.
+    /// Also write each method's output folder, as `run` writes it, into `OUTPUT/<method>/`.
     #[arg(long)]
     pub save_runs: bool,
     /// Longest side of a panel of the figure, pixels (32 to 2048).

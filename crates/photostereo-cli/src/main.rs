@@ -39,7 +39,8 @@ enum Command {
     Compare(compare::CompareArgs),
     /// Calibrate light directions from a mirror sphere (intensities from a matte one).
     Calibrate(calibrate::CalibrateArgs),
-    /// Integrate a normal map into depth (depth.npy/.exr/.png), meshes (mesh.ply/.obj) and curl.npy.
+    /// Integrate a normal map into depth (depth.npy/.exr/.png), meshes (mesh.ply/.obj), curl.npy
+    /// and, from the default bilateral integrator, the discontinuity map (discontinuities.npy/.png).
     Integrate(integrate::IntegrateArgs),
     /// Render built-in scenes, reconstruct them, print the errors, write ./photostereo-demo/.
     Demo(demo::DemoArgs),

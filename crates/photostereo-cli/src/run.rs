@@ -104,7 +104,8 @@ pub struct RunArgs {
     /// Skip integrating the normals (no depth.*, mesh.*, curl.npy).
     #[arg(long)]
     pub no_depth: bool,
-    /// Integration method for depth: poisson (any mask), dct, fft (full rectangle), paths.
+    /// Integration method for depth: bilateral (keeps depth jumps, any mask; writes
+    /// discontinuities.npy/.png), poisson (any mask), dct, fft (full rectangle), paths.
     #[arg(long, default_value = defaults().integration.method.name(), value_parser = parse_integrator)]
     pub integrator: IntegratorKind,
     /// Cap on the depth gradient |∂z/∂x|, |∂z/∂y| (pixel units per pixel) when integrating.

@@ -265,7 +265,7 @@ fn camera_spec(a: &SynthArgs) -> Result<Option<photostereo::io::camera::CameraSp
     }))
 }
 
-/// A near-light scene (issue 13) in the near-light layout.
+/// A near-light scene in the near-light layout.
 fn near(
     a: &SynthArgs,
     scene: SceneKind,

@@ -61,7 +61,7 @@ fn integrate_writes_depth_meshes_and_curl_for_every_method() {
     let tmp = tempfile::tempdir().unwrap();
     let normals = write_normals(tmp.path());
     let (_, truth) = sphere();
-    for method in ["poisson", "dct", "fft", "paths"] {
+    for method in ["bilateral", "poisson", "dct", "fft", "paths"] {
         let out = tmp.path().join(format!("out-{method}"));
         let st = bin()
             .args([
@@ -92,7 +92,12 @@ fn integrate_writes_depth_meshes_and_curl_for_every_method() {
             (0..W * H).all(|i| d[i].is_finite() == truth[i].is_finite()),
             "{method}: NaN pattern"
         );
-        if method == "poisson" || method == "paths" {
+        assert_eq!(
+            out.join("discontinuities.npy").is_file(),
+            method == "bilateral",
+            "{method}: discontinuities.npy"
+        );
+        if method == "poisson" || method == "paths" || method == "bilateral" {
             let off: f64 =
                 inside.iter().map(|&i| d[i] as f64 - truth[i]).sum::<f64>() / inside.len() as f64;
             let max = inside
@@ -312,13 +317,15 @@ fn run_integrates_by_default_and_no_depth_skips_it() {
         "mesh.ply",
         "mesh.obj",
         "curl.npy",
+        "discontinuities.npy",
+        "discontinuities.png",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");
     }
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert!(v["timings_s"]["integrate"].as_f64().is_some());
-    assert_eq!(v["integration"]["method"], "poisson");
-    assert_eq!(v["parameters"]["integration"]["method"], "poisson");
+    assert_eq!(v["integration"]["method"], "bilateral");
+    assert_eq!(v["parameters"]["integration"]["method"], "bilateral");
     // Parameters as given, not as their f32 storage prints in f64.
     assert_eq!(v["parameters"]["integration"]["unreliable_weight"], 0.1);
     let out2 = tmp.path().join("ball2");
@@ -347,4 +354,48 @@ fn run_integrates_by_default_and_no_depth_skips_it() {
     assert!(o.status.success());
     let v: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
     assert_eq!(v["integration"]["method"], "paths");
+}
+
+#[test]
+fn a_white_background_without_mask_is_left_out_with_a_note() {
+    // A flat rectangle of unit normals on a white background decoded as (1, 1, 1) (most of the
+    // map), given without a mask.
+    let tmp = tempfile::tempdir().unwrap();
+    let mut n = vec![1f32; W * H * 3];
+    let inside = |r: usize, c: usize| (5..25).contains(&r) && (5..35).contains(&c);
+    for r in 0..H {
+        for c in 0..W {
+            if inside(r, c) {
+                let i = r * W + c;
+                n[3 * i..3 * i + 3].copy_from_slice(&[0.0, 0.0, 1.0]);
+            }
+        }
+    }
+    let path = tmp.path().join("white.npy");
+    let arr = ndarray::Array3::from_shape_vec((H, W, 3), n).unwrap();
+    ndarray_npy::write_npy(&path, &arr).unwrap();
+    let out = tmp.path().join("out");
+    let o = bin()
+        .args([path.to_str().unwrap(), "-o", out.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let err = String::from_utf8_lossy(&o.stderr);
+    let background = W * H - 20 * 30;
+    assert!(
+        err.contains(&format!(
+            "{background} pixel(s) whose vector is not of unit length"
+        )),
+        "{err}"
+    );
+    let d = read_depth(&out);
+    for r in 0..H {
+        for c in 0..W {
+            assert_eq!(d[r * W + c].is_finite(), inside(r, c), "({r}, {c})");
+        }
+    }
+    let jumps: ndarray::Array2<f32> =
+        ndarray_npy::read_npy(out.join("discontinuities.npy")).unwrap();
+    assert!(jumps.iter().all(|v| v.is_nan() || (0.0..=1.0).contains(v)));
+    assert!(out.join("discontinuities.png").is_file());
 }

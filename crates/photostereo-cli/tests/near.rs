@@ -1,4 +1,4 @@
-//! Near point lights end to end (issue 13): `synth --rig near-*` writes the near-light layout,
+//! Near point lights end to end: `synth --rig near-*` writes the near-light layout,
 //! `run` reads it (with `--distance` or `mean_distance.txt`), and `integrate --camera
 //! --distance` integrates any normal map through a camera.
 

@@ -105,10 +105,10 @@ fn diligent_recursive_beats_the_bounds() {
         assert_eq!(v["method"], "recursive");
         let mean = v["error"]["mean_deg"].as_f64().unwrap();
         assert!(mean <= bound, "{object}: {mean} > {bound}");
-        // Shadow labels mean shadow (issue 19): few of them read lit.
+        // Shadow labels mean shadow: few of them read lit.
         let lit = v["detection"]["shadow_labels"]["lit"].as_f64().unwrap();
         assert!(lit < 0.2, "{object}: {lit} of the shadow pairs read lit");
-        // Per-light model error (issue 19): κ_k for every light, never below the capture's κ.
+        // Per-light model error: κ_k for every light, never below the capture's κ.
         // Bear's first 20 images are the ones the benchmark's users drop (they disagree with
         // the rest): the lights singled out there, and at most a few beyond them.
         let kappa = v["detection"]["noise"]["kappa"].as_f64().unwrap();
@@ -127,7 +127,7 @@ fn diligent_recursive_beats_the_bounds() {
             assert!(raised(0..20) >= 10, "bear: {light_kappa:?}");
             assert!(raised(20..96) <= 3, "bear: {light_kappa:?}");
         }
-        // The recursion settles within its default limit (issue 19) and says so (issue 17).
+        // The recursion settles within its default limit and says so.
         assert_eq!(
             v["recursive"]["converged"], true,
             "{object}: {}",

@@ -1,5 +1,6 @@
 //! Prints `poisson`'s CG iteration counts (to 1e-6 relative residual) and wall times on full
-//! grids and on an irregular mask, from 256² to 4096². For peak memory run one size under
+//! grids and on an irregular mask, from 256² to 4096² (`--method bilateral` for that
+//! integrator: its CG iterations over all reweightings). For peak memory run one size under
 //! `/usr/bin/time -v`:
 //!
 //! ```text
@@ -8,7 +9,7 @@
 //! ```
 
 use photostereo::base::progress::Silent;
-use photostereo::geometry::integrate::{IntegrationProblem, Integrator, Poisson};
+use photostereo::geometry::integrate::{IntegrationProblem, IntegratorKind, Poisson};
 use std::time::Instant;
 
 #[path = "../benches/support/grids.rs"]
@@ -65,16 +66,23 @@ fn cpu_seconds() -> f64 {
 }
 
 fn main() {
-    let sizes: Vec<usize> = std::env::args()
-        .skip(1)
-        .filter_map(|a| a.parse().ok())
-        .collect();
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let method = args
+        .iter()
+        .position(|a| a == "--method")
+        .map(|k| args[k + 1].parse::<IntegratorKind>().expect("a method"))
+        .unwrap_or(IntegratorKind::Poisson);
+    let sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
     let sizes = if sizes.is_empty() {
         vec![256, 512, 1024, 2048, 4096]
     } else {
         sizes
     };
-    println!("threads: {}", rayon::current_num_threads());
+    println!(
+        "{}, threads: {}",
+        method.name(),
+        rayon::current_num_threads()
+    );
     for &n in &sizes {
         let (p, q) = peaks_gradients(n);
         for (label, mask) in [
@@ -87,12 +95,17 @@ fn main() {
             let problem = IntegrationProblem::new(n, n, &p, &q, &mask);
             let t = Instant::now();
             let cpu = cpu_seconds();
-            let d = Poisson::default()
+            let integrator = match method {
+                IntegratorKind::Poisson => Box::new(Poisson::default()),
+                other => other.integrator(),
+            };
+            let d = integrator
                 .integrate(&problem, &Silent)
                 .expect("integration");
             println!(
-                "{n:>5}² {label:<9}: {:>2} iterations, relative residual {:.2e}, {} levels, {} components, {:.3} s wall, {:.2} s CPU",
+                "{n:>5}² {label:<9}: {:>2} iterations ({} reweightings), relative residual {:.2e}, {} levels, {} components, {:.3} s wall, {:.2} s CPU",
                 d.stats.iterations,
+                d.stats.reweightings,
                 d.stats.relative_residual,
                 d.stats.levels,
                 d.stats.components,

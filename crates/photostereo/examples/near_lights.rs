@@ -1,4 +1,4 @@
-//! Near-light figures (issue 13): on near-light scenes rendered by `synth`, the mean angular
+//! Near-light figures: on near-light scenes rendered by `synth`, the mean angular
 //! error of `l2` under the distant approximation, of every method in the near model, and of
 //! the oracle (least squares on the truly lit lights with the true per-pixel light vectors).
 //!

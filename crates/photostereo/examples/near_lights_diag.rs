@@ -1,4 +1,4 @@
-//! Where the near model's error lies (issue 13): the recursive method in the near model on one
+//! Where the near model's error lies: the recursive method in the near model on one
 //! `synth` near scene, its mean angular error split by what the ground truth says of each pixel
 //! (how many lights are truly lit, whether one is highlighted) and by whether the method's
 //! usable lights are the truly lit, unhighlighted ones.
@@ -6,8 +6,9 @@
 //! `cargo run --release -p photostereo --example near_lights_diag [SIZE] [SCENE] [RIG]`
 
 use photostereo::base::progress::Silent;
-use photostereo::method::engine::{reconstruct_with_truth, Method, Params};
+use photostereo::method::engine::{reconstruct_with_truth, Method, Params, Reconstruction};
 use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
+use photostereo::scene::render::GroundTruth;
 use photostereo::scene::SceneKind;
 use photostereo::solve::lambert::status;
 use photostereo::solve::metrics::angular_error_deg;
@@ -16,8 +17,145 @@ use std::collections::BTreeMap;
 /// (lit lights, highlighted, usable lights, usable in true shadow, highlighted usable).
 type DetailKey = (usize, bool, usize, usize, usize);
 
-// One full-frame index serves the truth's and the reconstruction's maps alike.
-#[allow(clippy::needless_range_loop)]
+/// The error split by the truth's classes of each mask pixel.
+#[derive(Default)]
+struct Tally {
+    /// (lit lights, highlighted) -> (pixels, error sum, pixels with the right set, their error
+    /// sum).
+    table: BTreeMap<(usize, bool), (usize, f64, usize, f64)>,
+    /// Per class: the integrated surface's own normals' error sum and pixels.
+    surface: BTreeMap<(usize, bool), (f64, usize)>,
+    /// Per class: the integration trust's sum and the pixels per count of usable lights.
+    trust: BTreeMap<(usize, bool), (f64, [usize; 5])>,
+    /// Per detailed class: pixels, error sum, surface error sum, trust sum.
+    detail: BTreeMap<DetailKey, (usize, f64, f64, f64)>,
+    total: f64,
+    count: usize,
+}
+
+impl Tally {
+    /// Every mask pixel of the truth, classed and counted.
+    fn collect(truth: &GroundTruth, rec: &Reconstruction, surface_normals: &[[f32; 3]]) -> Self {
+        let mut t = Tally::default();
+        let n = rec.n_lights;
+        for i in (0..rec.width * rec.height).filter(|&i| truth.mask[i]) {
+            let used_where = |f: &dyn Fn(usize) -> bool| {
+                (0..n)
+                    .filter(|&k| rec.light_status.get(k, i) == status::USED && f(k))
+                    .count()
+            };
+            let e = angular_error_deg(rec.normals[i], truth.normals[i]);
+            let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
+            let hl = (0..n).any(|k| truth.highlight[k][i]);
+            let right = (0..n).all(|k| {
+                let good = !truth.shadow[k][i] && !truth.highlight[k][i];
+                (rec.light_status.get(k, i) == status::USED) == good
+            });
+            // The surface's normal where it has one (not at its NaN pixels).
+            let se = angular_error_deg(surface_normals[i], truth.normals[i]);
+            let sf = t.surface.entry((lit, hl)).or_default();
+            if se.is_finite() {
+                sf.0 += se;
+                sf.1 += 1;
+            }
+            let used = used_where(&|_| true);
+            let in_shadow = used_where(&|k| truth.shadow[k][i]);
+            let hl_used = used_where(&|k| truth.highlight[k][i]);
+            let d = t
+                .detail
+                .entry((lit, hl, used, in_shadow, hl_used))
+                .or_default();
+            d.0 += 1;
+            d.1 += e;
+            d.2 += if se.is_finite() { se } else { 0.0 };
+            d.3 += rec.trust[i] as f64;
+            let tr = t.trust.entry((lit, hl)).or_default();
+            tr.0 += rec.trust[i] as f64;
+            tr.1[used.min(4)] += 1;
+            let row = t.table.entry((lit, hl)).or_default();
+            row.0 += 1;
+            row.1 += e;
+            if right {
+                row.2 += 1;
+                row.3 += e;
+            }
+            t.total += e;
+            t.count += 1;
+        }
+        t
+    }
+
+    /// The two tables: by class, and by detailed class (classes of 50 pixels or more).
+    fn print(&self, title: &str) {
+        let total = self.total;
+        println!(
+            "{title}: mean {:.3} deg over {} pixels",
+            total / self.count as f64,
+            self.count
+        );
+        println!("lit highlighted | pixels | share of error sum | mean | right set | mean (right) | mean (wrong) | surface mean | mean trust | pixels by usable lights 0..4+");
+        for ((lit, hl), (p, s, rp, rs)) in &self.table {
+            let surface = self.surface[&(*lit, *hl)];
+            let trust = self.trust[&(*lit, *hl)];
+            println!(
+                "{lit} {hl} | {p} | {:.1}% | {:.2} | {rp} | {:.2} | {:.2} | {:.2} | {:.2} | {:?}",
+                100.0 * s / total,
+                s / *p as f64,
+                rs / (*rp).max(1) as f64,
+                (s - rs) / (p - rp).max(1) as f64,
+                surface.0 / surface.1.max(1) as f64,
+                trust.0 / *p as f64,
+                trust.1
+            );
+        }
+        println!("lit highlighted usable shadowed-usable highlighted-usable | pixels | mean | surface mean | mean trust");
+        for ((lit, hl, u, su, hu), (p, e, se, t)) in &self.detail {
+            if *p >= 50 {
+                let p = *p as f64;
+                println!(
+                    "{lit} {hl} {u} {su} {hu} | {p} | {:.2} | {:.2} | {:.2}",
+                    e / p,
+                    se / p,
+                    t / p
+                );
+            }
+        }
+    }
+}
+
+/// The picture of `DIAG_PNG`: the error (white = 30° or more) beside the truth's classes (red:
+/// highlighted lights, green: lit lights, blue: the method's usable lights), three times
+/// larger.
+fn write_picture(path: &str, truth: &GroundTruth, rec: &Reconstruction) -> photostereo::Result<()> {
+    let (w, n) = (rec.width, rec.n_lights);
+    let hw = w * rec.height;
+    let mut img = vec![0u8; 2 * hw * 3];
+    for i in (0..hw).filter(|&i| truth.mask[i]) {
+        let (row, col) = (i / w, i % w);
+        let a = (row * 2 * w + col) * 3;
+        let b = a + w * 3;
+        let e = (angular_error_deg(rec.normals[i], truth.normals[i]) / 30.0).min(1.0);
+        img[a..a + 3].fill((255.0 * e) as u8);
+        let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
+        let hl = (0..n).filter(|&k| truth.highlight[k][i]).count();
+        let used = (0..n)
+            .filter(|&k| rec.light_status.get(k, i) == status::USED)
+            .count();
+        img[b] = (hl * 120).min(255) as u8;
+        img[b + 1] = (lit * 60).min(255) as u8;
+        img[b + 2] = (used * 60).min(255) as u8;
+    }
+    let (sw, sh) = (6 * w, 3 * rec.height);
+    let big: Vec<u8> = (0..sw * sh * 3)
+        .map(|j| {
+            let (px, ch) = (j / 3, j % 3);
+            let (r, c) = (px / sw / 3, px % sw / 3);
+            img[(r * 2 * w + c) * 3 + ch]
+        })
+        .collect();
+    photostereo::io::imageio::write_png8(std::path::Path::new(path), sw, sh, 3, &big)
+}
+
 fn main() -> photostereo::Result<()> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let size: usize = args.first().and_then(|s| s.parse().ok()).unwrap_or(128);
@@ -47,11 +185,6 @@ fn main() -> photostereo::Result<()> {
             println!("round {r}");
         }
     }
-    let n = rec.n_lights;
-    let hw = rec.width * rec.height;
-    // (lit lights, highlighted) -> (pixels, error sum, pixels with the right set, their error sum)
-    let mut table: BTreeMap<(usize, bool), (usize, f64, usize, f64)> = BTreeMap::new();
-    // The integrated surface's own normals, per class.
     let surface_normals = photostereo::geometry::integrate::perspective::normals_from_z(
         rec.width,
         rec.height,
@@ -59,124 +192,10 @@ fn main() -> photostereo::Result<()> {
         &rec.mask,
         &rec.camera.unwrap(),
     );
-    let mut surf: BTreeMap<(usize, bool), (f64, usize)> = BTreeMap::new();
-    // Per class: the integration trust's sum and the pixels per count of usable lights.
-    let mut trust: BTreeMap<(usize, bool), (f64, [usize; 5])> = BTreeMap::new();
-    let (mut total, mut count) = (0f64, 0usize);
-    // (lit, highlighted, usable, usable in true shadow, highlighted usable) -> (pixels, error
-    // sum, surface error sum, trust sum)
-    let mut detail: BTreeMap<DetailKey, (usize, f64, f64, f64)> = BTreeMap::new();
-    for i in 0..hw {
-        if !truth.mask[i] {
-            continue;
-        }
-        let e = angular_error_deg(rec.normals[i], truth.normals[i]);
-        let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
-        let hl = (0..n).any(|k| truth.highlight[k][i]);
-        let right = (0..n).all(|k| {
-            let good = !truth.shadow[k][i] && !truth.highlight[k][i];
-            (rec.light_status.get(k, i) == status::USED) == good
-        });
-        // The surface's normal where it has one (not at its NaN pixels).
-        let se = angular_error_deg(surface_normals[i], truth.normals[i]);
-        let sf = surf.entry((lit, hl)).or_default();
-        if se.is_finite() {
-            sf.0 += se;
-            sf.1 += 1;
-        }
-        let used = (0..n)
-            .filter(|&k| rec.light_status.get(k, i) == status::USED)
-            .count();
-        let in_shadow = (0..n)
-            .filter(|&k| rec.light_status.get(k, i) == status::USED && truth.shadow[k][i])
-            .count();
-        let hl_used = (0..n)
-            .filter(|&k| rec.light_status.get(k, i) == status::USED && truth.highlight[k][i])
-            .count();
-        let d = detail
-            .entry((lit, hl, used, in_shadow, hl_used))
-            .or_default();
-        d.0 += 1;
-        d.1 += e;
-        d.2 += if se.is_finite() { se } else { 0.0 };
-        d.3 += rec.trust[i] as f64;
-        let tr = trust.entry((lit, hl)).or_default();
-        tr.0 += rec.trust[i] as f64;
-        tr.1[used.min(4)] += 1;
-        let row = table.entry((lit, hl)).or_default();
-        row.0 += 1;
-        row.1 += e;
-        if right {
-            row.2 += 1;
-            row.3 += e;
-        }
-        total += e;
-        count += 1;
-    }
-    // A picture when asked (`DIAG_PNG=path`): the error (white = 30° or more) beside the truth's
-    // classes (red: highlighted lights, green: lit lights, blue: the method's usable lights).
+    let tally = Tally::collect(truth, &rec, &surface_normals);
     if let Ok(path) = std::env::var("DIAG_PNG") {
-        let w = rec.width;
-        let mut img = vec![0u8; 2 * hw * 3];
-        for i in 0..hw {
-            let (row, col) = (i / w, i % w);
-            let a = (row * 2 * w + col) * 3;
-            let b = a + w * 3;
-            if !truth.mask[i] {
-                continue;
-            }
-            let e = (angular_error_deg(rec.normals[i], truth.normals[i]) / 30.0).min(1.0);
-            img[a..a + 3].fill((255.0 * e) as u8);
-            let lit = (0..n).filter(|&k| !truth.shadow[k][i]).count();
-            let hl = (0..n).filter(|&k| truth.highlight[k][i]).count();
-            let used = (0..n)
-                .filter(|&k| rec.light_status.get(k, i) == status::USED)
-                .count();
-            img[b] = (hl * 120).min(255) as u8;
-            img[b + 1] = (lit * 60).min(255) as u8;
-            img[b + 2] = (used * 60).min(255) as u8;
-        }
-        // Three times larger, to be seen.
-        let (sw, sh) = (6 * w, 3 * rec.height);
-        let big: Vec<u8> = (0..sw * sh * 3)
-            .map(|j| {
-                let (px, ch) = (j / 3, j % 3);
-                let (r, c) = (px / sw / 3, px % sw / 3);
-                img[(r * 2 * w + c) * 3 + ch]
-            })
-            .collect();
-        photostereo::io::imageio::write_png8(std::path::Path::new(&path), sw, sh, 3, &big)?;
+        write_picture(&path, truth, &rec)?;
     }
-    println!(
-        "{} {}: mean {:.3} deg over {count} pixels",
-        scene.name(),
-        rig.name(),
-        total / count as f64
-    );
-    println!("lit highlighted | pixels | share of error sum | mean | right set | mean (right) | mean (wrong) | surface mean | mean trust | pixels by usable lights 0..4+");
-    for ((lit, hl), (p, s, rp, rs)) in &table {
-        println!(
-            "{lit} {hl} | {p} | {:.1}% | {:.2} | {rp} | {:.2} | {:.2} | {:.2} | {:.2} | {:?}",
-            100.0 * s / total,
-            s / *p as f64,
-            rs / (*rp).max(1) as f64,
-            (s - rs) / (p - rp).max(1) as f64,
-            surf[&(*lit, *hl)].0 / surf[&(*lit, *hl)].1.max(1) as f64,
-            trust[&(*lit, *hl)].0 / *p as f64,
-            trust[&(*lit, *hl)].1
-        );
-    }
-    println!("lit highlighted usable shadowed-usable highlighted-usable | pixels | mean | surface mean | mean trust");
-    for ((lit, hl, u, su, hu), (p, e, se, t)) in &detail {
-        if *p >= 50 {
-            let p = *p as f64;
-            println!(
-                "{lit} {hl} {u} {su} {hu} | {p} | {:.2} | {:.2} | {:.2}",
-                e / p,
-                se / p,
-                t / p
-            );
-        }
-    }
+    tally.print(&format!("{} {}", scene.name(), rig.name()));
     Ok(())
 }

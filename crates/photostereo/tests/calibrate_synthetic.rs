@@ -216,6 +216,73 @@ fn recovers_known_lights_within_a_third_of_a_degree() {
     }
 }
 
+/// The calibration of `images` with the disc of `mask_circle` as the mask.
+fn with_mask(images: &[Image], mask_circle: &Circle) -> photostereo::calibrate::Calibration {
+    let mask = disc_mask(mask_circle);
+    calibrate(images, Some(&mask), None, &CalibrationOptions::default()).unwrap()
+}
+
+#[test]
+fn a_mask_shifted_off_the_sphere_is_warned_of() {
+    let c = sphere();
+    let lights = rig();
+    let images = render_rig(&c, &lights, Render::default());
+    let cal = with_mask(
+        &images,
+        &Circle {
+            cx: c.cx - 25.0,
+            ..c
+        },
+    );
+    let (mean, _) = mean_error(&cal.to_lights().unwrap().directions, &lights);
+    println!("mask 25 px off: mean {mean:.2}°; {:?}", cal.warnings);
+    assert!(
+        mean > 5.0,
+        "the shifted mask should bias every light: {mean:.2}°"
+    );
+    let off: Vec<_> = cal
+        .warnings
+        .iter()
+        .filter(|w| w.kind == WarningKind::MaskOffSphere)
+        .collect();
+    assert_eq!(off.len(), 1, "{:?}", cal.warnings);
+    assert!(off[0].message.contains("25.0 px"), "{}", off[0].message);
+    // A mask 1 px off (within the detection's precision and 2% of the radius) is not.
+    let cal = with_mask(
+        &images,
+        &Circle {
+            cx: c.cx - 1.0,
+            ..c
+        },
+    );
+    let kinds: Vec<_> = cal.warnings.iter().map(|w| w.kind).collect();
+    assert!(!kinds.contains(&WarningKind::MaskOffSphere), "{kinds:?}");
+}
+
+#[test]
+fn a_lit_background_is_not_taken_for_a_cut_sphere() {
+    // A dark sphere wholly inside a brighter frame: the brightest region is the background.
+    let c = sphere();
+    let mut images = render_rig(&c, &rig(), Render::default());
+    for img in &mut images {
+        for (i, v) in img.data.iter_mut().enumerate() {
+            let (r, col) = ((i / W) as f64, (i % W) as f64);
+            if (col - c.cx).powi(2) + (r - c.cy).powi(2) > c.r * c.r {
+                *v = 0.6;
+            }
+        }
+    }
+    let e = calibrate(&images, None, None, &CalibrationOptions::default())
+        .unwrap_err()
+        .to_string();
+    println!("{e}");
+    assert!(e.contains("pass --mask"), "{e}");
+    assert!(
+        e.contains("not the sphere") && !e.contains("of the sphere's outline"),
+        "{e}"
+    );
+}
+
 #[test]
 fn detects_the_sphere_without_a_mask() {
     let c = sphere();

@@ -4,8 +4,9 @@
 
 use photostereo::base::progress::Silent;
 use photostereo::geometry::integrate::{
-    curl_map, gradients_from_normals, integrate_normals, normals_from_depth, Dct, Fft,
-    InitialGuess, IntegrationProblem, Integrator, IntegratorKind, Paths, Poisson, Prior,
+    bilateral_reference, curl_map, gradients_from_normals, integrate_normals, normals_from_depth,
+    Bilateral, Dct, Fft, InitialGuess, IntegrationProblem, Integrator, IntegratorKind, Paths,
+    Poisson, Prior,
 };
 
 const W: usize = 128;
@@ -176,7 +177,7 @@ fn every_method_recovers_analytic_surfaces_on_the_full_rectangle() {
 }
 
 #[test]
-fn poisson_and_paths_recover_analytic_surfaces_on_masks() {
+fn poisson_paths_and_bilateral_recover_analytic_surfaces_on_masks() {
     for (mname, mask) in [("circle", circle_mask()), ("irregular", irregular_mask())] {
         for (name, f) in [
             ("sphere", sphere_cap as Surface),
@@ -184,7 +185,11 @@ fn poisson_and_paths_recover_analytic_surfaces_on_masks() {
             ("plane", plane),
         ] {
             let (p, q, z) = gradients(f);
-            for m in [&Poisson::default() as &dyn Integrator, &Paths::default()] {
+            for m in [
+                &Poisson::default() as &dyn Integrator,
+                &Paths::default(),
+                &Bilateral::default(),
+            ] {
                 let d = solve(m, &p, &q, &mask);
                 let (rmse, range) = rmse_and_range(&d, &z, &mask);
                 println!(
@@ -772,4 +777,371 @@ fn weighted_normals_from_mask_pixels_equal_the_full_frame_rule() {
     // Usable pixels keep their normal and trust; the others get the placeholder and 0.
     let usable = got.1.iter().filter(|&&w| w > 0.0).count();
     assert!(usable > pixels.len() / 2 && usable < pixels.len());
+}
+
+// ---------------------------------------------------------------------------------------------
+// Surfaces with jumps, as occlusions make them: a half cylinder rising out of a surface, its axis
+// climbing along the rows. On the first rows it is sunk into the surface (they meet in a
+// crease); from row 16 on its sides stand above the surface, by 0 there and by 20 pixels on the
+// last row. The normals are exact on each piece; near the cylinder's sides they turn grazing, as
+// at any occluding contour. The jump's growth from 0 along the sides is what a discontinuity-
+// preserving integrator recovers, and what least squares spreads over the surface.
+
+/// Half-cylinder radius (pixels; a non-integer, so that no pixel centre sits on the side).
+const RADIUS: f64 = 20.5;
+
+/// A base surface with a half cylinder along column 64 rising by `rise` per row, its outermost
+/// pixels level with the surface on row 16.
+fn with_cylinder(base: Surface, rise: f64) -> impl Fn(f64, f64) -> f64 {
+    let edge = (RADIUS * RADIUS - RADIUS.floor().powi(2)).sqrt();
+    move |c, r| {
+        let d = c - 64.0;
+        let above = rise * (r - 16.0) - edge + (RADIUS * RADIUS - d * d).max(0.0).sqrt();
+        base(c, r)
+            + if d.abs() < RADIUS {
+                above.max(0.0)
+            } else {
+                0.0
+            }
+    }
+}
+
+/// The truth and its exact gradients of a piecewise-smooth `f` (central differences with a
+/// step that never crosses the cylinder's side).
+fn piecewise(f: impl Fn(f64, f64) -> f64) -> (Vec<f32>, Vec<f32>, Vec<f64>) {
+    let e = 1e-5;
+    let mut p = vec![0f32; W * H];
+    let mut q = vec![0f32; W * H];
+    let mut z = vec![0f64; W * H];
+    for r in 0..H {
+        for c in 0..W {
+            let (cf, rf) = (c as f64, r as f64);
+            p[r * W + c] = ((f(cf + e, rf) - f(cf - e, rf)) / (2.0 * e)) as f32;
+            q[r * W + c] = ((f(cf, rf + e) - f(cf, rf - e)) / (2.0 * e)) as f32;
+            z[r * W + c] = f(cf, rf);
+        }
+    }
+    (p, q, z)
+}
+
+fn flat(_: f64, _: f64) -> f64 {
+    0.0
+}
+
+/// The depth and mask without the two columns that straddle each side of the cylinder: a pixel
+/// on an occluding contour may be claimed by either side (its own normal is grazing, so its
+/// equations weigh little against the flat neighbour's), and is judged apart.
+fn off_the_sides(depth: &[f32], mask: &[bool]) -> (Vec<f32>, Vec<bool>) {
+    let (mut d, mut m) = (depth.to_vec(), mask.to_vec());
+    let side = RADIUS as usize;
+    for r in 0..H {
+        for c in [64 - side - 1, 64 - side, 64 + side, 64 + side + 1] {
+            d[r * W + c] = f32::NAN;
+            m[r * W + c] = false;
+        }
+    }
+    (d, m)
+}
+
+#[test]
+fn bilateral_keeps_jumps_that_poisson_spreads() {
+    for (name, base, mname, mask) in [
+        (
+            "cylinder out of a plane",
+            flat as Surface,
+            "full",
+            full_mask(),
+        ),
+        (
+            "cylinder out of a plane",
+            flat as Surface,
+            "circle",
+            circle_mask(),
+        ),
+        (
+            "cylinder out of a sphere",
+            sphere_cap as Surface,
+            "full",
+            full_mask(),
+        ),
+        (
+            "cylinder out of peaks",
+            peaks as Surface,
+            "irregular",
+            irregular_mask(),
+        ),
+    ] {
+        let (p, q, z) = piecewise(with_cylinder(base, 0.5));
+        let mut errors = Vec::new();
+        for m in [
+            &Poisson::default() as &dyn Integrator,
+            &Bilateral::default(),
+        ] {
+            let problem = IntegrationProblem::new(W, H, &p, &q, &mask);
+            let d = m.integrate(&problem, &Silent).unwrap();
+            assert!((0..W * H).all(|i| d.values[i].is_finite() == mask[i]));
+            let (values, inside) = off_the_sides(&d.values, &mask);
+            let (rmse, range) = rmse_and_range(&values, &z, &inside);
+            println!(
+                "{name} ({mname}), {}: rmse {:.3}% of the range {range:.1}",
+                m.name(),
+                100.0 * rmse / range
+            );
+            errors.push(rmse / range);
+            if let Some(disc) = &d.discontinuities {
+                // Where the jump exceeds 8 pixels, one of the two columns at each side is cut.
+                let side = RADIUS as usize;
+                let rows: Vec<usize> = (32..H).filter(|&r| mask[r * W + 64 - side]).collect();
+                let found = rows
+                    .iter()
+                    .filter(|&&r| {
+                        let i = r * W + 64 - side;
+                        let j = r * W + 64 + side;
+                        disc[i].max(disc[i - 1]) > 0.5 && disc[j].max(disc[j + 1]) > 0.5
+                    })
+                    .count();
+                assert!(
+                    found as f64 >= 0.9 * rows.len() as f64,
+                    "{name} ({mname}): the jump found on {found} of {} rows",
+                    rows.len()
+                );
+                for (i, v) in disc.iter().enumerate() {
+                    assert_eq!(v.is_nan(), !mask[i], "discontinuity map outside the mask");
+                }
+            }
+        }
+        assert!(
+            errors[1] <= 0.005,
+            "{name} ({mname}): bilateral rmse {:.3}% of the range",
+            100.0 * errors[1]
+        );
+        assert!(
+            errors[0] >= 10.0 * errors[1],
+            "{name} ({mname}): poisson {:.3}% should be far worse",
+            100.0 * errors[0]
+        );
+    }
+}
+
+#[test]
+fn bilateral_equals_its_reference_version() {
+    // A small grid (the reference is O(n^1.5)): a bump and a cylinder rising out of it (see
+    // `with_cylinder`), on an irregular mask, with weights and a zero-weight pixel.
+    let (w, h) = (40, 30);
+    let radius = 8.5;
+    let edge = (radius * radius - 64.0f64).sqrt();
+    let f = |c: f64, r: f64| {
+        let bump = 3.0 * (-((c - 14.0).powi(2) + (r - 12.0).powi(2)) / 40.0).exp();
+        let d = c - 20.0;
+        let above = 0.8 * (r - 5.0) - edge + (radius * radius - d * d).max(0.0).sqrt();
+        bump + 0.1 * c
+            + if d.abs() < radius {
+                above.max(0.0)
+            } else {
+                0.0
+            }
+    };
+    let e = 1e-5;
+    let mut p = vec![0f32; w * h];
+    let mut q = vec![0f32; w * h];
+    let mut truth = vec![0f64; w * h];
+    for i in 0..w * h {
+        let (r, c) = ((i / w) as f64, (i % w) as f64);
+        p[i] = ((f(c + e, r) - f(c - e, r)) / (2.0 * e)) as f32;
+        q[i] = ((f(c, r + e) - f(c, r - e)) / (2.0 * e)) as f32;
+        truth[i] = f(c, r);
+    }
+    let mask: Vec<bool> = (0..w * h)
+        .map(|i| {
+            let (r, c) = ((i / w) as f64, (i % w) as f64);
+            (c - 20.0).hypot(r - 15.0) < 16.0 || (r < 4.0 && c > 30.0)
+        })
+        .collect();
+    let mut weights = vec![1f32; w * h];
+    weights[15 * w + 10] = 0.0;
+    weights[16 * w + 10] = 0.3;
+    let problem = IntegrationProblem {
+        weights: Some(&weights),
+        ..IntegrationProblem::new(w, h, &p, &q, &mask)
+    };
+    let params = Bilateral {
+        tolerance: 1e-6,
+        ..Bilateral::default()
+    };
+    let fast = params.integrate(&problem, &Silent).unwrap();
+    let reference = bilateral_reference(&params, &problem).unwrap();
+    let (rmse, range) = rmse_and_range_on(w, h, &fast.values, &truth, &mask);
+    let reference64: Vec<f64> = reference.values.iter().map(|&v| v as f64).collect();
+    let (diff, _) = rmse_and_range_on(w, h, &fast.values, &reference64, &mask);
+    println!(
+        "bilateral vs truth {:.4}%, vs reference {:.2e} of the range",
+        100.0 * rmse / range,
+        diff / range
+    );
+    assert!(diff <= 1e-3 * range, "fast and reference differ by {diff}");
+    let (a, b) = (
+        fast.discontinuities.unwrap(),
+        reference.discontinuities.unwrap(),
+    );
+    let differ = (0..w * h)
+        .filter(|&i| mask[i] && (a[i] > 0.5) != (b[i] > 0.5))
+        .count();
+    assert!(differ <= 2, "{differ} pixels classified differently");
+}
+
+#[test]
+fn bilateral_fills_a_zero_weight_hole_and_follows_a_prior() {
+    let (p, q, z) = piecewise(with_cylinder(sphere_cap, 0.5));
+    let mask = full_mask();
+    // Garbage gradients with zero weight in a hole left of the jump.
+    let (mut p2, mut q2) = (p.clone(), q.clone());
+    let mut weights = vec![1f32; W * H];
+    for r in 40..56 {
+        for c in 30..46 {
+            let i = r * W + c;
+            weights[i] = 0.0;
+            p2[i] = if (r + c) % 2 == 0 { 5.0 } else { -5.0 };
+            q2[i] = -p2[i];
+        }
+    }
+    let problem = IntegrationProblem {
+        weights: Some(&weights),
+        ..IntegrationProblem::new(W, H, &p2, &q2, &mask)
+    };
+    let d = Bilateral::default().integrate(&problem, &Silent).unwrap();
+    let (values, inside) = off_the_sides(&d.values, &mask);
+    let (rmse, range) = rmse_and_range(&values, &z, &inside);
+    assert!(rmse <= 0.005 * range, "with a hole: rmse {rmse} of {range}");
+    // A prior 10 above the truth fixes the level (no mean removal).
+    let prior: Vec<f32> = z.iter().map(|&v| (v + 10.0) as f32).collect();
+    let problem = IntegrationProblem {
+        prior: Some(Prior {
+            depth: &prior,
+            lambda: 1e-3,
+        }),
+        ..IntegrationProblem::new(W, H, &p, &q, &mask)
+    };
+    let d = Bilateral::default().integrate(&problem, &Silent).unwrap();
+    let (values, inside) = off_the_sides(&d.values, &mask);
+    let n = inside.iter().filter(|&&m| m).count();
+    let mean_offset = (0..W * H)
+        .filter(|&i| inside[i])
+        .map(|i| values[i] as f64 - z[i])
+        .sum::<f64>()
+        / n as f64;
+    assert!((mean_offset - 10.0).abs() < 0.5, "offset {mean_offset}");
+}
+
+/// DiLiGenT's true depth (`../shared/data/diligent-depth`): depth from the true normals through
+/// the camera, against the literature's measure — s = median(Z_gt / Z) over the object, then
+/// mean |s·Z − Z_gt| in mm — and no NaN inside the mask. Returns `(error, NaN count)`.
+fn true_depth_error(object: &str, integrator: &dyn Integrator) -> (f64, usize) {
+    use photostereo::geometry::integrate::perspective::perspective_surface;
+    let dir = std::path::PathBuf::from(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../../shared/data/diligent-depth"
+    ))
+    .join(object);
+    let map = photostereo::io::groundtruth::read_normal_map(&dir.join("normal_map.png")).unwrap();
+    let (h, w, mask) = photostereo::io::imageio::read_mask(&dir.join("mask.png")).unwrap();
+    let truth = photostereo::io::groundtruth::read_depth_map(&dir.join("depth_gt.npz")).unwrap();
+    assert_eq!((truth.width, truth.height), (w, h));
+    let camera = photostereo::io::layouts::near::read_camera(&dir.join("K.txt")).unwrap();
+    let s = perspective_surface(
+        w,
+        h,
+        &map.normals,
+        Some(&mask),
+        None,
+        &camera,
+        1500.0,
+        integrator,
+        photostereo::geometry::integrate::IntegrationParams::default().max_slope,
+        &Silent,
+    )
+    .unwrap();
+    let z = &s.depth.values;
+    let inside: Vec<usize> = (0..w * h)
+        .filter(|&i| mask[i] && truth.values[i].is_finite())
+        .collect();
+    let nan = inside.iter().filter(|&&i| !z[i].is_finite()).count();
+    let mut ratios: Vec<f64> = inside
+        .iter()
+        .filter(|&&i| z[i].is_finite())
+        .map(|&i| truth.values[i] as f64 / z[i] as f64)
+        .collect();
+    ratios.sort_by(f64::total_cmp);
+    let scale = ratios[ratios.len() / 2];
+    let error = inside
+        .iter()
+        .filter(|&&i| z[i].is_finite())
+        .map(|&i| (scale * z[i] as f64 - truth.values[i] as f64).abs())
+        .sum::<f64>()
+        / ratios.len() as f64;
+    (error, nan)
+}
+
+#[test]
+fn diligent_true_normals_give_depth_without_holes_and_closer_than_poisson() {
+    // Over bear and cat together (the objects with published true depth here), the bilateral
+    // surface from the true normals is at least twice as close to the true depth as poisson's
+    // (whose error is dominated by the smeared jumps), with no NaN inside the mask.
+    let (mut bilateral, mut poisson) = (0.0, 0.0);
+    for object in ["bear", "cat"] {
+        let (p, _) = true_depth_error(object, &Poisson::default());
+        let (b, nan) = true_depth_error(object, &Bilateral::default());
+        println!("{object}: bilateral {b:.4} mm, poisson {p:.4} mm, {nan} NaN");
+        assert_eq!(nan, 0, "{object}: NaN inside the mask");
+        bilateral += b / 2.0;
+        poisson += p / 2.0;
+    }
+    assert!(
+        2.0 * bilateral <= poisson,
+        "mean {bilateral:.4} mm against poisson's {poisson:.4} mm"
+    );
+}
+
+#[test]
+#[ignore = "not met: with k = 2 this gives 0.47 mm on bear and 0.099 mm on cat"]
+fn diligent_true_normals_give_depth_within_the_published_bilateral_figures() {
+    // Bilateral normal integration (Cao et al. 2022, k = 2, perspective) reaches 0.334 mm on
+    // bear and 0.074 mm on cat with this measure.
+    for (object, published) in [("bear", 0.334), ("cat", 0.074)] {
+        let (error, _) = true_depth_error(object, &Bilateral::default());
+        println!("{object}: bilateral {error:.4} mm (published {published} mm)");
+        assert!(
+            error <= published,
+            "{object}: {error:.4} mm, above the published {published} mm"
+        );
+    }
+}
+
+#[test]
+fn a_white_background_is_left_out_of_the_default_mask_however_large() {
+    // A 20×20 disc of unit normals on a white background decoded as (1, 1, 1): the background
+    // is most of the map, but it is one vector, not of unit length.
+    let (w, h) = (64, 48);
+    let mut normals = vec![[1f32, 1.0, 1.0]; w * h];
+    let mut disc = 0;
+    for r in 0..h {
+        for c in 0..w {
+            let (x, y) = (c as f32 - 30.0, r as f32 - 20.0);
+            if x * x + y * y < 100.0 {
+                let n = (1.0 + 0.01 * (x * x + y * y)).sqrt();
+                normals[r * w + c] = [0.1 * x / n, -0.1 * y / n, 1.0 / n];
+                disc += 1;
+            }
+        }
+    }
+    let g = gradients_from_normals(w, h, &normals, None, 20.0).unwrap();
+    assert_eq!(g.mask.iter().filter(|&&m| m).count(), disc);
+    assert_eq!(g.not_unit, w * h - disc);
+    // Scaled normals (lengths that vary) keep every non-zero vector.
+    let scaled: Vec<[f32; 3]> = normals
+        .iter()
+        .enumerate()
+        .map(|(i, v)| v.map(|x| x * (0.2 + (i % 7) as f32 * 0.1)))
+        .collect();
+    let g = gradients_from_normals(w, h, &scaled, None, 20.0).unwrap();
+    assert_eq!(g.not_unit, 0);
 }

@@ -1,6 +1,6 @@
 //! The paper's synthetic evaluation on the built-in scenes with exact ground truth: detection
 //! precision and recall, the baselines' ordering, and the recursive method's advantage
-//! (issues 4 and 6). Every figure is measured against the renderer's ground truth.
+//!. Every figure is measured against the renderer's ground truth.
 
 use photostereo::base::progress::Silent;
 use photostereo::method::engine::{reconstruct, reconstruct_with_truth, Method, Params};

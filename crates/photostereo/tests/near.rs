@@ -1,4 +1,4 @@
-//! Near point lights and a perspective camera (issue 13): the near model against the distant
+//! Near point lights and a perspective camera: the near model against the distant
 //! approximation and against the oracle, on small near-light scenes; the near-light layout
 //! read back from disk.
 

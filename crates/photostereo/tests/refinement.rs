@@ -328,7 +328,7 @@ fn recursive_error_with_kappa(
     recursive_run(r, capture, |p| p.detection.relative_noise = kappa)
 }
 
-/// κ measured as the light-to-light misfit (issue 19) follows a rig's calibration error: with
+/// κ measured as the light-to-light misfit follows a rig's calibration error: with
 /// every light direction given 1.5° off (twenty lights, Lambertian and glossy scenes, 0.5%
 /// noise) it measures 1–5% (a 1.5° error changes a reading by up to 2.6% of its level), and
 /// the test that accepts that much misfit keeps the lights a fixed 1% would drop: the

@@ -368,6 +368,13 @@ pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
         ))
     };
     let (points, touches) = region_outline(&region, w, h);
+    if points.len() < 3 {
+        return Err(fail(
+            "the brightest region has no outline inside the image: it is the background, not \
+             the sphere"
+                .into(),
+        ));
+    }
     // Robust fit: the bright region may include a stand or clutter touching the sphere.
     let (mut fit, inliers) = fit_circle_trimmed(&points).map_err(|e| fail(e.to_string()))?;
     fit.touches_frame = touches;
@@ -386,7 +393,12 @@ pub fn detect_sphere(images: &[Image]) -> Result<(Vec<bool>, CircleFit)> {
     }
     if fit.coverage < 0.5 {
         return Err(fail(format!(
-            "only {:.0}% of the sphere's outline is inside the image",
+            "the brightest region fits a circle (centre ({:.0}, {:.0}), radius {:.0} px) only {:.0}% \
+             of whose outline is inside the image: either the sphere is cut by the frame, or the \
+             brightest region is not the sphere (a lit background)",
+            c.cx,
+            c.cy,
+            c.r,
             100.0 * fit.coverage
         )));
     }

@@ -60,6 +60,9 @@ pub enum WarningKind {
     SphereCut,
     /// The automatically detected outline is irregular (a side never lit, clutter).
     RoughOutline,
+    /// The mask's circle is not where the images show the sphere (a mask of another capture,
+    /// or shifted): every light's direction is then off.
+    MaskOffSphere,
     /// The brightest blob covers more of the sphere than a mirror's highlight can
     /// ([`HighlightOptions::max_disc_share`]): a matte sphere's shading, or a grossly
     /// overexposed highlight. Its confidence is 0.
@@ -199,6 +202,9 @@ pub fn calibrate(
         None => (detect_sphere(images)?.1, SphereSource::Detected),
     };
     let mut warnings = sphere_warnings(&sphere, source);
+    if source == SphereSource::Mask {
+        warnings.extend(mask_off_sphere(images, &sphere));
+    }
     let circle = sphere.circle;
     let searches: Vec<HighlightSearch> = images
         .par_iter()
@@ -297,6 +303,46 @@ fn sphere_warnings(sphere: &CircleFit, source: SphereSource) -> Vec<CalibrationW
     }
     warnings
 }
+
+/// The warning when a given mask's circle is not the sphere the images show: the sphere is
+/// detected in the images as without a mask ([`detect_sphere`]); when that succeeds with a
+/// clean outline and its circle is displaced from the mask's by more than
+/// [`MASK_DISPLACEMENT_SHARE`] of the radius (at least 2 px: the detection's own precision on
+/// 8-bit images is a fraction of that), the mask is said to be off. A detection that fails
+/// or is rough says nothing (a dark room around a mirror sphere gives no outline).
+fn mask_off_sphere(images: &[Image], mask_fit: &CircleFit) -> Option<CalibrationWarning> {
+    let (_, seen) = detect_sphere(images).ok()?;
+    let (m, d) = (mask_fit.circle, seen.circle);
+    if seen.rms_residual_px > (0.01 * d.r).max(1.0) {
+        return None;
+    }
+    let displacement = (m.cx - d.cx).hypot(m.cy - d.cy) + (m.r - d.r).abs();
+    if displacement <= (MASK_DISPLACEMENT_SHARE * d.r).max(2.0) {
+        return None;
+    }
+    Some(CalibrationWarning {
+        image: None,
+        kind: WarningKind::MaskOffSphere,
+        message: format!(
+            "the mask's circle (centre ({:.1}, {:.1}), radius {:.1} px) is {displacement:.1} px \
+             from the sphere seen in the images (centre ({:.1}, {:.1}), radius {:.1} px): every \
+             light may be off by up to {:.0}°; check that the mask belongs to these images, or \
+             leave it out to use the detected sphere",
+            m.cx,
+            m.cy,
+            m.r,
+            d.cx,
+            d.cy,
+            d.r,
+            (2.0 * displacement / d.r).to_degrees()
+        ),
+    })
+}
+
+/// The share of the sphere's radius by which a mask's circle may differ from the sphere the
+/// images show before [`WarningKind::MaskOffSphere`] is warned of: a centre δ off turns a
+/// normal by up to δ / r and its mirror direction by twice that, so 2% is about 2.3° at most.
+pub const MASK_DISPLACEMENT_SHARE: f64 = 0.02;
 
 /// Image `k`'s light from its highlight `hl` on the sphere `circle`: the sphere's normal there
 /// (a centroid just outside the disc, a rim highlight, is pulled onto the rim), the mirror

@@ -91,6 +91,7 @@ pub fn calibration_figure(images: &[Image], cal: &Calibration) -> Canvas {
                 WarningKind::NearRim => "RIM",
                 WarningKind::SphereCut => "CUT",
                 WarningKind::RoughOutline => "ROUGH",
+                WarningKind::MaskOffSphere => "MASK OFF",
                 WarningKind::NotMirror => "BROAD",
                 WarningKind::Faint => "FAINT",
                 WarningKind::LowConfidence => "LOW",

@@ -30,6 +30,99 @@ pub fn read_normal_map(path: &Path) -> Result<NormalMap> {
     }
 }
 
+/// A depth map: `height * width` values, row-major; NaN where there is none.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DepthMap {
+    pub width: usize,
+    pub height: usize,
+    pub values: Vec<f32>,
+}
+
+/// Reads a depth map (ground truth or a prior): `.npy` of shape (H, W), float32 or float64, in C
+/// or Fortran order; `.npz` (its first array, stored or deflated, as numpy's `savez` writes
+/// it); or a one-channel float EXR/TIFF. Values are taken as they are (units are the caller's).
+pub fn read_depth_map(path: &Path) -> Result<DepthMap> {
+    let ext = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    match ext.as_str() {
+        "npy" => {
+            let bytes = crate::io::limits::read_file(path)?;
+            decode_depth_npy(&bytes).map_err(|m| Error::file(path, m))
+        }
+        "npz" => {
+            let bytes = crate::io::limits::read_file(path)?;
+            let npy = first_zip_member(&bytes).map_err(|m| Error::file(path, m))?;
+            decode_depth_npy(&npy).map_err(|m| Error::file(path, m))
+        }
+        _ => {
+            let img = read_image(path)?;
+            if img.channels != 1 || img.bit_depth != 32 {
+                return Err(Error::file(
+                    path,
+                    "a depth image must be one-channel float (EXR or 32-bit TIFF); or use .npy",
+                ));
+            }
+            Ok(DepthMap {
+                width: img.width,
+                height: img.height,
+                values: img.data,
+            })
+        }
+    }
+}
+
+/// The bytes of a zip archive's first member (stored or deflated), size-checked.
+fn first_zip_member(bytes: &[u8]) -> Result<Vec<u8>, String> {
+    use std::io::Read;
+    if !bytes.starts_with(b"PK\x03\x04") || bytes.len() < 30 {
+        return Err("not a .npz (zip) file".into());
+    }
+    let le16 = |o: usize| u16::from_le_bytes([bytes[o], bytes[o + 1]]) as usize;
+    let start = 30 + le16(26) + le16(28);
+    let data = bytes.get(start..).ok_or("truncated .npz")?;
+    let limit = (bytes.len() as u64).saturating_mul(crate::io::limits::MAX_DEFLATE_RATIO);
+    match le16(8) {
+        0 => Ok(data.to_vec()),
+        8 => {
+            let mut out = Vec::new();
+            flate2::read::DeflateDecoder::new(data)
+                .take(limit)
+                .read_to_end(&mut out)
+                .map_err(|e| format!("corrupt .npz member: {e}"))?;
+            Ok(out)
+        }
+        m => Err(format!(".npz compression method {m} is not supported")),
+    }
+}
+
+/// Decodes a depth map from the bytes of a `.npy` file: float32 or float64, shape (H, W).
+fn decode_depth_npy(bytes: &[u8]) -> Result<DepthMap, String> {
+    use ndarray_npy::ReadNpyExt;
+    let header = parse_npy_header(bytes)?;
+    if header.shape.len() != 2 {
+        return Err(format!(
+            "shape {}: expected a depth map (H, W)",
+            shape_text(&header.shape)
+        ));
+    }
+    let arr: ndarray::Array2<f32> = match ndarray::Array2::<f32>::read_npy(bytes) {
+        Ok(a) => a,
+        Err(_) => ndarray::Array2::<f64>::read_npy(bytes)
+            .map_err(|e| format!("expected a float32 or float64 array of shape (H, W): {e}"))?
+            .mapv(|v| v as f32),
+    };
+    let (height, width) = arr.dim();
+    let values = arr.as_standard_layout().iter().copied().collect();
+    Ok(DepthMap {
+        width,
+        height,
+        values,
+    })
+}
+
 fn read_npy(path: &Path) -> Result<NormalMap> {
     let bytes = crate::io::limits::read_file(path)?;
     decode_npy(&bytes).map_err(|m| Error::file(path, m))

@@ -92,11 +92,14 @@ pub fn parse_intensity_rows(
         } else {
             [row[0], row[1], row[2]]
         };
-        if v.iter().any(|x| *x <= 0.0) {
+        if v.iter()
+            .any(|x| !crate::model::lights::intensity_in_range(*x))
+        {
+            let [lo, hi] = crate::model::lights::INTENSITY_RANGE;
             return Err(Error::parse(
                 path,
                 *line,
-                format!("intensity {:?}: expected positive values", row),
+                format!("intensity {row:?}: expected positive values in [{lo:e}, {hi:e}]"),
             ));
         }
         values.push(v);

@@ -5,7 +5,7 @@
 //!
 //! The memory available is read from `/proc/meminfo` (`MemAvailable`) and, inside a container,
 //! from the cgroup's `memory.max` − `memory.current`; where neither can be read only the fixed
-//! limits apply. The environment variable [`MEMORY_LIMIT_VAR`] lowers the budget further
+//! limits apply. The environment variable [`MEMORY_LIMIT_VAR`](crate::base::machine::MEMORY_LIMIT_VAR) lowers the budget further
 //! (bytes, or with a `K`, `M`, `G` or `T` suffix, powers of 1024), e.g. on a shared machine.
 
 use crate::base::machine::available_memory;
@@ -146,7 +146,7 @@ pub(crate) fn read_text(path: &std::path::Path) -> crate::Result<String> {
     text_from_bytes(&bytes).map_err(|m| Error::file(path, m))
 }
 
-/// UTF-8 text with a leading byte-order mark removed (what [`read_text`] does after reading).
+/// UTF-8 text with a leading byte-order mark removed (what reading a text file does after reading its bytes).
 pub fn text_from_bytes(bytes: &[u8]) -> Result<String, String> {
     let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     if bytes.starts_with(b"\xFF\xFE") || bytes.starts_with(b"\xFE\xFF") {

@@ -1,5 +1,6 @@
 //! Writing integrated surfaces (CONVENTIONS.md, "The output folder of a run"): `depth.npy`,
-//! `depth.exr`, `depth.png`, `mesh.ply`, `mesh.obj` and the integrability map `curl.npy`.
+//! `depth.exr`, `depth.png`, `mesh.ply`, `mesh.obj`, the integrability map `curl.npy` and, from a
+//! discontinuity-preserving integrator, the discontinuity map `discontinuities.npy`/`.png`.
 //!
 //! Mesh frame: one vertex per pixel with a finite depth, at x = col, y = −row, z = depth (pixel
 //! units; x right, y up, z toward the camera), with the pixel's unit normal. Triangles join
@@ -9,7 +10,7 @@
 use crate::base::error::{Error, Result};
 use crate::geometry::integrate::Surface;
 use crate::io::export::write_npy_f32;
-use crate::io::imageio::{write_exr_grey, write_png16_rows};
+use crate::io::imageio::{write_exr_grey, write_png16_rows, write_png8};
 use crate::model::lightmodel::Camera;
 use std::io::Write;
 use std::path::Path;
@@ -34,6 +35,28 @@ pub fn write_depth(dir: &Path, width: usize, height: usize, depth: &[f32]) -> Re
         },
     );
     npy.and(exr).and(png)
+}
+
+/// Writes the discontinuity map of a discontinuity-preserving integrator:
+/// `discontinuities.npy` (float32 (H, W), 0 continuous … 1 a jump, NaN outside) and
+/// `discontinuities.png` (8-bit grey, 0..1 → 0..255, 0 outside).
+pub fn write_discontinuities(dir: &Path, width: usize, height: usize, jumps: &[f32]) -> Result<()> {
+    use rayon::prelude::*;
+    let grey: Vec<u8> = jumps
+        .par_iter()
+        .map(|&v| {
+            if v.is_finite() {
+                (v.clamp(0.0, 1.0) * 255.0).round() as u8
+            } else {
+                0
+            }
+        })
+        .collect();
+    let (npy, png) = rayon::join(
+        || write_npy_f32(&dir.join("discontinuities.npy"), &[height, width], jumps),
+        || write_png8(&dir.join("discontinuities.png"), width, height, 1, &grey),
+    );
+    npy.and(png)
 }
 
 /// `depth.png`: 16-bit grey, the finite depths' min..max mapped to 0..65535, 0 elsewhere.
@@ -588,7 +611,8 @@ pub fn write_mesh_obj_camera(
 }
 
 /// Writes everything of a [`Surface`] into `dir`: depth files, `mesh.ply`, `mesh.obj` (when
-/// `meshes`) and `curl.npy` (float32 (H, W), NaN where undefined). `normals` are the per-vertex
+/// `meshes`), `curl.npy` (float32 (H, W), NaN where undefined) and the discontinuity map when
+/// the integrator made one ([`write_discontinuities`]). `normals` are the per-vertex
 /// normals (the map that was integrated).
 pub fn write_surface(
     dir: &Path,
@@ -614,6 +638,9 @@ pub fn write_surface_camera(
         || write_npy_f32(&dir.join("curl.npy"), &[d.height, d.width], &surface.curl),
     );
     depth.and(curl)?;
+    if let Some(jumps) = &d.discontinuities {
+        write_discontinuities(dir, d.width, d.height, jumps)?;
+    }
     if meshes {
         let (w, h) = (d.width, d.height);
         // Two files: one's page-cache copies overlap the other's formatting.

@@ -149,7 +149,7 @@ fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::
 /// [`synth_to_folder`] for captures too large to render whole: the scene is built once, each
 /// light is rendered and written at once (its image, and its rows of `gt/shadow.npy` and
 /// `gt/highlight.npy`, which are streamed), so memory holds the scene and one light
-/// ([`streamed_bytes`]) whatever the light count. The files are those of [`synth_to_folder`],
+/// ([`streamed_bytes`](crate::scene::render::streamed_bytes)) whatever the light count. The files are those of [`synth_to_folder`],
 /// pixel for pixel (the same renderer per light). `progress` sees one unit per light.
 pub fn synth_streamed(
     spec: &SynthSpec,

@@ -9,7 +9,7 @@
 //! |---|---|---|
 //! | `normals` | (H, W, 3) unit vectors, camera frame | (0, 0, 0) |
 //! | `albedo` | (H, W, C), units of the intensity-normalised images | 0 |
-//! | `light_status` | (N, H, W), values of [`status`] | 255 |
+//! | `light_status` | (N, H, W), values of [`status`](crate::solve::lambert::status) | 255 |
 //! | `residual` | (H, W), ‖r‖ / σ_p of the χ² test with all lights | 0 |
 //! | `unreliable` | (H, W), the χ² test failed | false |
 //! | `depth` | (H, W), pixel units toward the camera | NaN |
@@ -126,7 +126,7 @@ impl Default for Params {
 }
 
 /// Prepares a capture for [`reconstruct`] with `params`: with `refine_lights`, its lights
-/// refined from its readings ([`Capture::refine_lights`], once per capture; the report's
+/// refined from its readings ([`crate::solve::refine::refine_capture_lights`], once per capture; the report's
 /// `input.light_refinement` records it). Every front end calls it once a capture is loaded;
 /// [`reconstruct`] itself takes the lights as they are. Returns whether the lights changed.
 pub fn prepare(capture: &mut Capture, params: &Params) -> Result<bool> {
@@ -213,8 +213,10 @@ pub struct Reconstruction {
     pub albedo: Vec<f32>,
     /// (H, W): the mask used.
     pub mask: Vec<bool>,
-    /// (N, H, W): which lights each pixel's estimate used ([`status`]); all USED for `l2`.
-    /// Held per mask pixel; [`StatusMap::plane`] and [`StatusMap::to_full`] give the frame.
+    /// (N, H, W): which lights each pixel's estimate used
+    /// ([`status`](crate::solve::lambert::status)); all USED for `l2`. Held per mask pixel;
+    /// [`StatusMap::plane`](crate::method::statusmap::StatusMap::plane) and
+    /// [`StatusMap::to_full`](crate::method::statusmap::StatusMap::to_full) give the frame.
     pub light_status: crate::method::statusmap::StatusMap,
     /// Whether `light_status` holds the method's own decisions (false for `l2`, which uses
     /// every light, and for `coleman-jain` without detection: nothing to write).

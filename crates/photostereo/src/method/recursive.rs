@@ -161,7 +161,7 @@ pub struct RecursiveDiagnostics {
     /// Per-pixel integration trust of the final estimate, full frame, by the rule the
     /// iterations use (1 reliable, `unreliable_weight` unreliable, 0 without a normal; with
     /// near lights, exactly determined pixels by their solve's relative precision); the input
-    /// of [`weighted_normals`] for the exported depth.
+    /// of [`weighted_normals`](crate::geometry::integrate::weighted_normals) for the exported depth.
     pub trust: Vec<f32>,
     pub iterations: Vec<IterationRecord>,
     pub fallback: Fallback,

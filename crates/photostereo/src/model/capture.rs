@@ -105,6 +105,94 @@ impl Clone for Statistics {
     }
 }
 
+/// Readings that are not finite (NaN, ±∞) in one image's samples at the mask pixels: set to
+/// 0 and counted. A 0 reads as a shadow, which the robust methods (recursive, the χ² test of
+/// the others) leave out of the pixel's fit, so the pixel keeps its normal from its other
+/// lights instead of being dropped whole; see [`MissingReadings`] for what is refused and
+/// what is said.
+pub fn zero_non_finite(values: &mut [f32]) -> usize {
+    let mut count = 0;
+    for v in values.iter_mut().filter(|v| !v.is_finite()) {
+        *v = 0.0;
+        count += 1;
+    }
+    count
+}
+
+/// The count of non-finite readings per image of a capture, and the rule applied to them: an
+/// image with no finite reading inside the mask is refused (it holds no measurement at all);
+/// an image with some is kept, its non-finite readings read as 0 ([`zero_non_finite`]), and a
+/// note names it.
+#[derive(Clone, Debug)]
+pub struct MissingReadings {
+    /// Non-finite readings of each image (light), over its mask pixels and channels.
+    pub per_image: Vec<usize>,
+    /// Readings of one image: mask pixels × channels.
+    pub readings_per_image: usize,
+}
+
+impl MissingReadings {
+    /// No missing reading yet, for `images` images of `readings_per_image` readings each.
+    pub fn new(images: usize, readings_per_image: usize) -> Self {
+        MissingReadings {
+            per_image: vec![0; images],
+            readings_per_image,
+        }
+    }
+
+    /// Counts the non-finite readings of pixel-major `samples` (`pixels × images × channels`)
+    /// per image, setting them to 0.
+    pub fn zero_in_samples(&mut self, samples: &mut [f32], channels: usize) {
+        let n = self.per_image.len();
+        if samples.iter().all(|v| v.is_finite()) {
+            return;
+        }
+        for (j, v) in samples.iter_mut().enumerate() {
+            if !v.is_finite() {
+                *v = 0.0;
+                self.per_image[(j / channels) % n] += 1;
+            }
+        }
+    }
+
+    /// The rule: `Err` naming the first image without a finite reading; else the note naming
+    /// the images with some, or `None`. `sources` are the images' files (empty for an array,
+    /// whose images are then named by their 1-based index).
+    pub fn verdict(&self, sources: &[PathBuf]) -> Result<Option<String>> {
+        let total = self.readings_per_image;
+        let name = |k: usize| match sources.get(k) {
+            Some(path) => path.display().to_string(),
+            None => format!("image {} of the stack", k + 1),
+        };
+        if let Some(k) = self.per_image.iter().position(|&m| total > 0 && m == total) {
+            let message =
+                "no reading inside the mask is finite (all NaN or infinite): expected intensities";
+            return Err(match sources.get(k) {
+                Some(path) => Error::file(path, message),
+                None => Error::invalid(format!("{}: {message}", name(k))),
+            });
+        }
+        let bad: Vec<String> = (0..self.per_image.len())
+            .filter(|&k| self.per_image[k] > 0)
+            .map(|k| {
+                format!(
+                    "{} ({} of {total} readings, {:.2}%)",
+                    name(k),
+                    self.per_image[k],
+                    100.0 * self.per_image[k] as f64 / total as f64
+                )
+            })
+            .collect();
+        Ok((!bad.is_empty()).then(|| {
+            format!(
+                "non-finite readings (NaN or infinite) read as 0, a shadow, which the robust \
+                 methods leave out and l2 fits as a reading: {}",
+                bad.join(", ")
+            )
+        }))
+    }
+}
+
 /// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities): what
 /// a sample is multiplied by to divide it by its light's intensity.
 pub fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {
@@ -338,15 +426,20 @@ impl Capture {
                 out
             })
             .collect();
-        let samples = interleave(&planes, pixels.len(), c);
-        Ok(Capture::in_memory(
+        let mut samples = interleave(&planes, pixels.len(), c);
+        let mut missing = MissingReadings::new(images.len(), pixels.len() * c);
+        missing.zero_in_samples(&mut samples, c);
+        let note = missing.verdict(&[])?;
+        let mut capture = Capture::in_memory(
             (w, h, c),
             images[0].bit_depth,
             lights,
             mask,
             pixels,
             samples,
-        ))
+        );
+        capture.notes.extend(note);
+        Ok(capture)
     }
 
     /// A capture assembled by a loader from its parts (statistics not yet measured, lights not
@@ -406,8 +499,9 @@ impl Capture {
     /// (default: the whole frame).
     ///
     /// The stack is read once, straight into the pixel-major sample store: that store is the
-    /// only copy made. Errors name what is wrong (shapes, counts, non-finite samples, an empty
-    /// mask, lights that do not determine a normal).
+    /// only copy made. Errors name what is wrong (shapes, counts, an image without a finite
+    /// sample, an empty mask, lights that do not determine a normal); non-finite samples of an
+    /// image that has finite ones follow [`MissingReadings`].
     pub fn from_stack(
         stack: Stack<'_>,
         lights: Lights,
@@ -470,25 +564,13 @@ impl Capture {
             Stack::F32(v) => (gather_stack(&v, &pixels, &scales, |x| x), 32),
             Stack::F64(v) => (gather_stack(&v, &pixels, &scales, |x| x as f32), 32),
         };
-        if let Some(bad) = samples.iter().position(|v| !v.is_finite()) {
-            let p = bad / (n * c);
-            let k = (bad / c) % n;
-            let i = pixels[p] as usize;
-            return Err(Error::invalid(format!(
-                "image {} has a non-finite sample at row {}, column {}: expected finite intensities",
-                k + 1,
-                i / w,
-                i % w
-            )));
-        }
-        Ok(Capture::in_memory(
-            (w, h, c),
-            bit_depth,
-            lights,
-            mask,
-            pixels,
-            samples,
-        ))
+        let mut samples = samples;
+        let mut missing = MissingReadings::new(n, pixels.len() * c);
+        missing.zero_in_samples(&mut samples, c);
+        let note = missing.verdict(&[])?;
+        let mut capture = Capture::in_memory((w, h, c), bit_depth, lights, mask, pixels, samples);
+        capture.notes.extend(note);
+        Ok(capture)
     }
 
     /// Number of lights (= images).

@@ -12,6 +12,17 @@ use serde::Serialize;
 /// estimated with them would amplify the image noise by about that factor.
 pub const MAX_CONDITION_NUMBER: f64 = 1.0e3;
 
+/// The range of a light's relative intensity. Readings are divided by it in `f32`: within
+/// this range every reading of an 8- or 16-bit image (1/65535 … 1) and of a float image up to
+/// 10⁶ stays a normal `f32` number after the division (f32 spans 1.2·10⁻³⁸ … 3.4·10³⁸), so no
+/// reading turns into 0 or ∞.
+pub const INTENSITY_RANGE: [f64; 2] = [1e-30, 1e30];
+
+/// True when `x` is a light intensity within [`INTENSITY_RANGE`].
+pub fn intensity_in_range(x: f64) -> bool {
+    (INTENSITY_RANGE[0]..=INTENSITY_RANGE[1]).contains(&x)
+}
+
 /// The lights of a capture, one per image: their directions and intensities — of distant
 /// lights, or, for near point lights, the distant approximation at the object's centre — with
 /// the near-light model (`near`) and the camera (`camera`) when the rig has them.
@@ -73,7 +84,8 @@ impl Lights {
         self.directions.is_empty()
     }
 
-    /// Replaces the intensities (one RGB triple per light); each must be finite and positive.
+    /// Replaces the intensities (one RGB triple per light); each must lie in
+    /// [`INTENSITY_RANGE`].
     pub fn with_intensities(mut self, intensities: Vec<[f64; 3]>) -> Result<Self> {
         if intensities.len() != self.len() {
             return Err(Error::invalid(format!(
@@ -83,11 +95,12 @@ impl Lights {
             )));
         }
         for (k, v) in intensities.iter().enumerate() {
-            if v.iter().any(|x| !x.is_finite() || *x <= 0.0) {
+            if let Some(bad) = v.iter().find(|x| !intensity_in_range(**x)) {
                 return Err(Error::invalid(format!(
-                    "light {} intensity {:?}: expected finite positive values",
+                    "light {} intensity {bad}: expected a value in [{:e}, {:e}]",
                     k + 1,
-                    v
+                    INTENSITY_RANGE[0],
+                    INTENSITY_RANGE[1]
                 )));
             }
         }

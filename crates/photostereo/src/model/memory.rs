@@ -10,8 +10,8 @@
 //! 3. **tiles in a spill file** beside the output, read back tile by tile.
 //!
 //! A budget that cannot hold the full-frame stages and one tile is refused with the smallest
-//! budget that works. The per-pixel figures below are those of the README's memory table;
-//! `report.json` `memory` records the plan and the measured peak.
+//! budget that works. The per-pixel figures below are those of the memory table of
+//! `docs/performance.md`; `report.json` `memory` records the plan and the measured peak.
 
 use crate::base::error::{Error, Result};
 use crate::base::machine::human_bytes;
@@ -20,7 +20,7 @@ use crate::model::store::SampleType;
 /// Bytes per frame pixel of the full-frame stages, independent of the light count and of the
 /// mask: at their largest (the final integration, and the recursion's surface) the gradients,
 /// the weights and the integrator's work arrays beside the depth and the mask; at the end the
-/// exported maps. Set on measured peaks with a margin of about 10% (README, Memory): the
+/// exported maps. Set on measured peaks with a margin of about 10% (`docs/performance.md`, Memory): the
 /// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit

@@ -8,7 +8,7 @@
 //! - [`reflectance`]: the reflectance models ([`Brdf`]).
 //! - [`shadows`]: cast shadows by a fine ray march against the height field, independent of any
 //!   horizon sweep an estimator may use, so that errors cannot cancel.
-//! - [`render`]: rendering to images and ground truth in memory ([`synthesize`], [`render`]), or
+//! - [`render`](mod@render): rendering to images and ground truth in memory ([`synthesize`], [`render()`]), or
 //!   one light at a time ([`render::LightByLight`]); [`crate::io::synth`] writes them as folders.
 //!
 //! Frame (CONVENTIONS.md): x right, y up (opposite to the row index), z toward the camera; a
@@ -262,7 +262,7 @@ pub fn sphere_on_plane(size: usize) -> Scene {
 
 /// Noise-free Lambertian images of the scene under `lights` (RGB, float, not clipped), with
 /// attached shadows (n·l ≤ 0) and cast shadows (ray march). Returns the images and the per-light
-/// shadow flags. For the full model (specular lobes, noise, quantisation) use [`render`].
+/// shadow flags. For the full model (specular lobes, noise, quantisation) use [`render()`].
 pub fn render_lambert(scene: &Scene, lights: &Lights) -> (Vec<Image>, Vec<Vec<bool>>) {
     lights
         .directions

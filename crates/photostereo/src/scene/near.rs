@@ -1,4 +1,4 @@
-//! Near-light scenes (issue 13): a built-in surface placed about D = 300 mm in front of a
+//! Near-light scenes: a built-in surface placed about D = 300 mm in front of a
 //! pinhole camera with a ~19° field of view, lit by LEDs a few hundred millimetres away — an
 //! LED ring around the lens, a four-light square at 35° slant, a 24-light dome — rendered with
 //! the near image model of CONVENTIONS.md (inverse-square fall-off, cos^μ anisotropy), a

@@ -1,6 +1,7 @@
 //! Rendering a scene under a rig into 16-bit images with ground truth, in memory
 //! ([`synthesize`], [`render`]) or as a DiLiGenT-layout folder with a `gt/` subfolder
-//! ([`write_capture`], [`synth_to_folder`]).
+//! ([`write_capture`](crate::io::synth::write_capture),
+//! [`synth_to_folder`](crate::io::synth::synth_to_folder)).
 //!
 //! Image model, per light k, pixel p and channel c, in units of full scale:
 //! `I = E_k,c · (ρ_p,c · max(n·l, 0) + specular(n, l))`, zero where the pixel is shadowed
@@ -454,13 +455,13 @@ pub fn to_u16(v: f32) -> u16 {
 }
 
 /// Bytes [`synthesize`] holds for a spec (every image as `f32`, the per-light maps, the scene
-/// and its ground truth), to choose between it and [`synth_streamed`].
+/// and its ground truth), to choose between it and [`synth_streamed`](crate::io::synth::synth_streamed).
 pub fn in_memory_bytes(width: usize, height: usize, lights: usize) -> u64 {
     let px = (width * height) as u64;
     px * (lights as u64 * (12 + 3) + 64)
 }
 
-/// Bytes [`synth_streamed`] holds at most: the scene (29 bytes per pixel), its ground truth
+/// Bytes [`synth_streamed`](crate::io::synth::synth_streamed) holds at most: the scene (29 bytes per pixel), its ground truth
 /// written from it, and one light's image and maps at a time (about 30 bytes per pixel).
 pub fn streamed_bytes(width: usize, height: usize) -> u64 {
     (width * height) as u64 * 64

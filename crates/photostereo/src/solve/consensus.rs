@@ -1,4 +1,4 @@
-//! Spatial consistency of light statuses (issue 19): a light's fault at a pixel — a shadow, a
+//! Spatial consistency of light statuses: a light's fault at a pixel — a shadow, a
 //! highlight, a reading off the model — is a region on the object, not a single pixel. Cast and
 //! attached shadows and highlights have extent; a removal that none of a pixel's neighbours
 //! share is the χ² test's noise-level decision, and so is a kept light that every neighbour

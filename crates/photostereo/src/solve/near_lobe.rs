@@ -1,4 +1,4 @@
-//! Highlights modelled rather than dropped, for near-light captures (issue 13).
+//! Highlights modelled rather than dropped, for near-light captures.
 //!
 //! With LEDs close around the lens (a ring rig) the glossy lobe covers every LED at once on
 //! surfaces that face the camera: no light is free of highlight there, so no choice of lights

@@ -243,7 +243,7 @@ fn check_images(capture: &Capture, notes: &mut Vec<String>) -> Result<()> {
     Ok(())
 }
 
-/// "a, b, c" with at most [`LISTED`] items, then "and K more".
+/// "a, b, c" with at most six items, then "and K more".
 pub fn list<T: std::fmt::Display>(items: impl Iterator<Item = T>) -> String {
     let all: Vec<String> = items.map(|i| i.to_string()).collect();
     if all.len() <= LISTED {

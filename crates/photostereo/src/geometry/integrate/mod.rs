@@ -24,12 +24,17 @@
 //! gradients are replaced by a harmonic interpolation (Laplace's equation) of the reliable
 //! gradients around them before integration (ALGORITHMS.md §4), so garbage there cannot leak.
 
+mod bilateral;
 mod multigrid;
 mod paths;
 pub mod perspective;
 mod poisson;
 mod spectral;
 
+pub use bilateral::{
+    bilateral_reference, Bilateral, DEFAULT_ENERGY_TOLERANCE, DEFAULT_REWEIGHTINGS,
+    DEFAULT_SHARPNESS,
+};
 pub use paths::Paths;
 pub use poisson::{InitialGuess, Poisson};
 pub use spectral::{Dct, Fft};
@@ -61,25 +66,98 @@ pub struct Gradients {
     pub p: Vec<f32>,
     /// `∂f/∂row`, `height * width`, 0 outside the mask.
     pub q: Vec<f32>,
-    /// Pixels with a usable normal (inside the given mask, finite, non-zero, `n_z > 0`).
+    /// Pixels with a usable normal (inside the given mask, finite, non-zero, facing the camera).
     pub mask: Vec<bool>,
     /// Pixels of the given mask dropped for a NaN/infinite or zero normal.
     pub rejected_invalid: usize,
-    /// Pixels of the given mask dropped because `n_z ≤ 0` (facing away from the camera).
+    /// Pixels of the given mask dropped because they face away from the camera (`n_z ≤ 0`
+    /// orthographic, `n · ray ≥ 0` perspective).
     pub rejected_backfacing: usize,
+    /// Without a mask: non-zero vectors left out because they are not of unit length while most
+    /// are (a background colour of a normal-map image, e.g. white decoding to (1, 1, 1)).
+    pub not_unit: usize,
     /// Pixels whose |p| or |q| was clamped to `max_slope`.
     pub capped: usize,
 }
 
-/// Computes `p = −n_x/n_z`, `q = n_y/n_z` (clamped to ±`max_slope`) over `mask` (default: the
-/// pixels with a non-zero normal). Bad normals (NaN, zero, `n_z ≤ 0`) are dropped from the mask
-/// and counted. Errors on wrong lengths or a non-positive `max_slope`.
+/// Length band `|‖n‖ − 1|` within which a vector counts as a unit normal when no mask is given.
+const UNIT_BAND: f64 = 0.1;
+
+/// The default mask of a normal map: the non-zero vectors, less those not of unit length when
+/// the map is one of unit normals (see [`Gradients::not_unit`]). A map is taken for one of unit
+/// normals when most of its non-zero vectors are of unit length, or when some are and all the
+/// others are one and the same vector (a uniform background, e.g. white decoding to (1, 1, 1),
+/// however large); a map of scaled normals (albedo times normal), whose lengths vary, keeps
+/// every non-zero vector. Returns the mask and the count left out for their length.
+pub fn default_mask(normals: &[[f32; 3]]) -> (Vec<bool>, usize) {
+    // A NaN or infinite vector is not judged by its length: it stays in the mask, to be
+    // counted as invalid with the zero-length ones.
+    let length_ok = |v: &[f32; 3]| {
+        let l2 = v.iter().map(|&x| x as f64 * x as f64).sum::<f64>();
+        !l2.is_finite() || (l2.sqrt() - 1.0).abs() <= UNIT_BAND
+    };
+    let off_unit = |v: &[f32; 3]| *v != [0.0; 3] && !length_ok(v);
+    let (nonzero, unit) = normals
+        .par_iter()
+        .fold(
+            || (0usize, 0usize),
+            |(a, b), v| {
+                if *v == [0.0; 3] {
+                    (a, b)
+                } else {
+                    (a + 1, b + usize::from(length_ok(v)))
+                }
+            },
+        )
+        .reduce(|| (0, 0), |x, y| (x.0 + y.0, x.1 + y.1));
+    let uniform_background = unit > 0
+        && normals
+            .par_iter()
+            .find_first(|v| off_unit(v))
+            .is_some_and(|first| {
+                let first = *first;
+                normals.par_iter().all(|v| !off_unit(v) || *v == first)
+            });
+    let by_length = (unit * 2 > nonzero || uniform_background) && unit < nonzero;
+    let mask: Vec<bool> = normals
+        .par_iter()
+        .map(|v| *v != [0.0; 3] && (!by_length || length_ok(v)))
+        .collect();
+    (mask, if by_length { nonzero - unit } else { 0 })
+}
+
+/// Computes `p = −n_x/n_z`, `q = n_y/n_z` (clamped to ±`max_slope`) over `mask` (default:
+/// [`default_mask`]). Bad normals (NaN, zero, `n_z ≤ 0`) are dropped from the mask and
+/// counted. Errors on wrong lengths or a non-positive `max_slope`.
 pub fn gradients_from_normals(
     width: usize,
     height: usize,
     normals: &[[f32; 3]],
     mask: Option<&[bool]>,
     max_slope: f32,
+) -> Result<Gradients> {
+    gradients_with(
+        width,
+        height,
+        normals,
+        mask,
+        max_slope,
+        [1.0; 2],
+        |_, [x, y, z]| (z > 0.0).then(|| (-x / z, y / z)),
+    )
+}
+
+/// [`gradients_from_normals`] with the slopes of pixel `i`'s normal `n` given by `slopes(i, n)`
+/// (`None`: facing away), clamped to ±`max_slope`, then multiplied by `scale` (along the
+/// columns, along the rows).
+pub(crate) fn gradients_with(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    max_slope: f32,
+    scale: [f64; 2],
+    slopes: impl Fn(usize, [f64; 3]) -> Option<(f64, f64)> + Sync,
 ) -> Result<Gradients> {
     let n = width * height;
     if normals.len() != n {
@@ -101,6 +179,11 @@ pub fn gradients_from_normals(
             "max_slope {max_slope}: expected a positive finite number"
         )));
     }
+    let (default, not_unit) = match mask {
+        Some(_) => (Vec::new(), 0),
+        None => default_mask(normals),
+    };
+    let wanted_mask: &[bool] = mask.unwrap_or(&default);
     let mut g = Gradients {
         width,
         height,
@@ -109,6 +192,7 @@ pub fn gradients_from_normals(
         mask: vec![false; n],
         rejected_invalid: 0,
         rejected_backfacing: 0,
+        not_unit,
         capped: 0,
     };
     let cap = max_slope as f64;
@@ -123,35 +207,27 @@ pub fn gradients_from_normals(
                 let mut counts = [0usize; 3];
                 for c in 0..p_row.len() {
                     let i = r * w + c;
-                    let v = normals[i];
-                    let zero = v == [0.0; 3];
-                    let wanted = match mask {
-                        Some(m) => m[i],
-                        None => !zero,
-                    };
-                    if !wanted {
+                    if !wanted_mask[i] {
                         continue;
                     }
+                    let v = normals[i];
                     let finite = v.iter().all(|x| x.is_finite());
                     let (x, y, z) = (v[0] as f64, v[1] as f64, v[2] as f64);
                     // f32 components cannot overflow a sum of squares in f64; |n| < 1e-12.
                     let tiny = x * x + y * y + z * z < 1e-24;
-                    if !finite || zero || tiny {
+                    if !finite || tiny {
                         counts[0] += 1;
                         continue;
                     }
-                    if z <= 0.0 {
+                    let Some((p, q)) = slopes(i, [x, y, z]) else {
                         counts[1] += 1;
                         continue;
-                    }
-                    let inv_z = 1.0 / z;
-                    let p = -x * inv_z;
-                    let q = y * inv_z;
+                    };
                     if p.abs() > cap || q.abs() > cap {
                         counts[2] += 1;
                     }
-                    p_row[c] = p.clamp(-cap, cap) as f32;
-                    q_row[c] = q.clamp(-cap, cap) as f32;
+                    p_row[c] = (p.clamp(-cap, cap) * scale[0]) as f32;
+                    q_row[c] = (q.clamp(-cap, cap) * scale[1]) as f32;
                     m_row[c] = true;
                 }
                 counts
@@ -408,6 +484,8 @@ pub struct IntegrationStats {
     /// — the same as `dct`'s there — were solved exactly by the DCT (0 iterations; the relative
     /// residual is the true one of the solution).
     pub direct: bool,
+    /// `bilateral`: reweighting iterations (solves of the reweighted system before the last).
+    pub reweightings: usize,
     pub notes: Vec<String>,
 }
 
@@ -419,6 +497,9 @@ pub struct Depth {
     /// `height * width`, pixel units toward the camera, NaN outside the mask.
     pub values: Vec<f32>,
     pub stats: IntegrationStats,
+    /// Discontinuity-preserving integrators: per pixel, how sharply the surface breaks at its
+    /// edges (0 continuous … 1 a jump), NaN outside the mask. `None` for the others.
+    pub discontinuities: Option<Vec<f32>>,
 }
 
 /// Something that turns gradients into depth.
@@ -433,7 +514,6 @@ pub trait Integrator: Send + Sync {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum IntegratorKind {
     /// Masked weighted least squares by multigrid-preconditioned CG (any mask).
-    #[default]
     Poisson,
     /// Full-rectangle least squares by DCT (Neumann).
     Dct,
@@ -441,11 +521,17 @@ pub enum IntegratorKind {
     Fft,
     /// Averaged path integration (eqs. 11–12).
     Paths,
+    /// Discontinuity-preserving bilaterally weighted least squares (any mask; the default: on
+    /// real objects with depth jumps it is several times more accurate than `poisson`, and on
+    /// smooth surfaces it finds no jump and gives `poisson`'s surface).
+    #[default]
+    Bilateral,
 }
 
 impl IntegratorKind {
     /// Every method, default first.
     pub const ALL: &'static [IntegratorKind] = &[
+        IntegratorKind::Bilateral,
         IntegratorKind::Poisson,
         IntegratorKind::Dct,
         IntegratorKind::Fft,
@@ -459,6 +545,7 @@ impl IntegratorKind {
             IntegratorKind::Dct => "dct",
             IntegratorKind::Fft => "fft",
             IntegratorKind::Paths => "paths",
+            IntegratorKind::Bilateral => "bilateral",
         }
     }
 
@@ -469,6 +556,7 @@ impl IntegratorKind {
             IntegratorKind::Dct => Box::new(Dct::default()),
             IntegratorKind::Fft => Box::new(Fft::default()),
             IntegratorKind::Paths => Box::new(Paths::default()),
+            IntegratorKind::Bilateral => Box::new(Bilateral::default()),
         }
     }
 }
@@ -508,7 +596,7 @@ pub fn integrate_normals(
 /// method's intermediate surfaces and the exported depth.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct IntegrationParams {
-    /// The integrator (default `poisson`, the only one that honours any mask and weights).
+    /// The integrator (default `bilateral`; it and `poisson` honour any mask and weights).
     #[serde(serialize_with = "serialize_kind")]
     pub method: IntegratorKind,
     /// Cap on |p| and |q| in pixel units per pixel (default [`DEFAULT_MAX_SLOPE`]).
@@ -622,11 +710,22 @@ pub struct Surface {
     pub mean_abs_curl: f64,
     pub rejected_invalid: usize,
     pub rejected_backfacing: usize,
+    /// See [`Gradients::not_unit`].
+    pub not_unit: usize,
     pub capped: usize,
     pub max_slope: f32,
 }
 
 impl Surface {
+    /// Pixels the integrator found on a jump (discontinuity above ½; 0 for integrators that do
+    /// not look for jumps).
+    pub fn discontinuity_pixels(&self) -> usize {
+        self.depth
+            .discontinuities
+            .as_ref()
+            .map_or(0, |d| d.par_iter().filter(|&&v| v > 0.5).count())
+    }
+
     /// The figures for `report.json`.
     pub fn summary(&self) -> serde_json::Value {
         serde_json::json!({
@@ -642,6 +741,9 @@ impl Surface {
             "capped_pixels": self.capped,
             "rejected_invalid_normals": self.rejected_invalid,
             "rejected_backfacing_normals": self.rejected_backfacing,
+            "not_unit_normals": self.not_unit,
+            "reweightings": self.depth.stats.reweightings,
+            "discontinuity_pixels": self.discontinuity_pixels(),
             "notes": self.depth.stats.notes,
         })
     }
@@ -661,6 +763,78 @@ pub fn surface_from_normals(
 ) -> Result<Surface> {
     let g = gradients_from_normals(width, height, normals, mask, max_slope)?;
     surface_from_gradients(g, weights, integrator, max_slope, progress)
+}
+
+/// How [`integrate_normal_map`] integrates a normal map.
+#[derive(Clone, Copy, Debug)]
+pub struct NormalMapIntegration<'a> {
+    /// The integrator, with its default parameters (default `bilateral`).
+    pub method: IntegratorKind,
+    /// Cap on the slopes, pixels per pixel (default [`DEFAULT_MAX_SLOPE`]).
+    pub max_slope: f32,
+    /// A pinhole camera and the object's mean distance along its axis (mm): the depth is then
+    /// Z in mm ([`perspective::perspective_surface`]); `None`, heights in pixels.
+    pub camera: Option<(&'a crate::model::lightmodel::Camera, f64)>,
+}
+
+impl Default for NormalMapIntegration<'_> {
+    fn default() -> Self {
+        NormalMapIntegration {
+            method: IntegratorKind::default(),
+            max_slope: DEFAULT_MAX_SLOPE,
+            camera: None,
+        }
+    }
+}
+
+/// A normal map (`height * width` vectors, row-major) into a [`Surface`], orthographic or
+/// through a camera: the entry point of the front ends. `mask` defaults to [`default_mask`];
+/// `weights` (0..1) trust each pixel. The result holds the depth (NaN outside the integrated
+/// pixels), the curl map, the discontinuity map of `bilateral` (`depth.discontinuities`), the
+/// counts of dropped and capped pixels and the integrator's figures and notes. Errors name
+/// the parameter at fault (`max_slope`, `distance`, wrong lengths).
+pub fn integrate_normal_map(
+    width: usize,
+    height: usize,
+    normals: &[[f32; 3]],
+    mask: Option<&[bool]>,
+    weights: Option<&[f32]>,
+    how: &NormalMapIntegration,
+    progress: &dyn Progress,
+) -> Result<Surface> {
+    let integrator = how.method.integrator();
+    match how.camera {
+        Some((camera, distance)) => {
+            if !(distance.is_finite() && distance > 0.0) {
+                return Err(Error::parameter(
+                    "distance",
+                    format!("{distance}: expected the object's mean distance in mm, positive"),
+                ));
+            }
+            perspective::perspective_surface(
+                width,
+                height,
+                normals,
+                mask,
+                weights,
+                camera,
+                distance,
+                integrator.as_ref(),
+                how.max_slope,
+                progress,
+            )
+        }
+        None => surface_from_normals(
+            width,
+            height,
+            normals,
+            mask,
+            weights,
+            integrator.as_ref(),
+            how.max_slope,
+            progress,
+        ),
+    }
 }
 
 /// [`surface_from_normals`] from gradients already taken (`max_slope` the cap they were
@@ -686,6 +860,7 @@ pub fn surface_from_gradients(
         mean_abs_curl,
         rejected_invalid: g.rejected_invalid,
         rejected_backfacing: g.rejected_backfacing,
+        not_unit: g.not_unit,
         capped: g.capped,
         max_slope,
     })
@@ -1155,6 +1330,7 @@ pub(crate) fn to_depth(
         height,
         values,
         stats,
+        discontinuities: None,
     }
 }
 
@@ -1179,5 +1355,6 @@ pub(crate) fn into_depth(
         height,
         values,
         stats,
+        discontinuities: None,
     }
 }

@@ -17,7 +17,7 @@
 //! The coarsest grid (at most 8×8) is solved exactly by a dense Cholesky factorisation, with one
 //! diagonal entry doubled in each component that nothing anchors.
 //!
-//! Storage (bounded memory, issue 12): the finest level stores nothing — its edge weights, extra
+//! Storage (bounded memory): the finest level stores nothing — its edge weights, extra
 //! diagonal and `1/d` are computed row by row from the caller's mask and per-pixel weights
 //! ([`Level::problem`], [`Level::fill`]) into a few scratch rows per thread. The coarse levels
 //! (a third of the fine cells together) store their weights in f32. Every vector is f32 (the
@@ -347,6 +347,15 @@ impl<'a> Level<'a> {
 
     pub fn n(&self) -> usize {
         self.w * self.h
+    }
+
+    /// The east and south edge weights of a stored level, given back for reuse (empty vectors
+    /// for a computed level).
+    pub fn into_edges(self) -> (Vec<f32>, Vec<f32>) {
+        match self.kind {
+            Kind::Stored { east, south, .. } => (east, south),
+            _ => (Vec::new(), Vec::new()),
+        }
     }
 
     /// The same operator with its rows stored (bit for bit what [`Level::rows`] computes).
@@ -1094,6 +1103,11 @@ impl<'a> Hierarchy<'a> {
             zeros,
             sweeps: 1,
         }
+    }
+
+    /// The finest level, the others dropped.
+    pub fn into_fine(mut self) -> Level<'a> {
+        self.levels.swap_remove(0)
     }
 
     /// The finest level.

@@ -18,9 +18,19 @@ use crate::base::progress::Progress;
 use crate::model::lightmodel::Camera;
 use rayon::prelude::*;
 
-/// Gradients of ln Z (per pixel) from a normal map seen through `camera`, over `mask` (default:
-/// non-zero normals). Normals facing away from their ray (n · r ≥ 0) are dropped and counted
-/// as back-facing.
+/// The scale `f̄ = √(f_x f_y)` (pixels) by which the log-depth gradients are multiplied: the
+/// integrated `f̄ · ln Z` changes by one where the depth changes by `Z / f̄`, the size of a
+/// pixel at that depth, so its gradients, curl and jumps read in pixels as in the orthographic
+/// case (and the same discontinuity threshold serves both).
+pub fn log_depth_scale(camera: &Camera) -> f64 {
+    (camera.fx * camera.fy).sqrt()
+}
+
+/// Gradients of `f̄ · ln Z` ([`log_depth_scale`]) per pixel from a normal map seen through
+/// `camera`, over `mask` (default: [`super::default_mask`]). A normal is usable when it faces
+/// the camera along its own ray (`n · r < 0`), whatever the sign of its `n_z`; the others are
+/// dropped and counted as back-facing. The height-like slopes `n_x / (n · r)` and
+/// `n_y / (n · r)` are capped at `max_slope`.
 pub fn log_depth_gradients(
     width: usize,
     height: usize,
@@ -29,46 +39,28 @@ pub fn log_depth_gradients(
     camera: &Camera,
     max_slope: f32,
 ) -> Result<Gradients> {
-    // Reuse the orthographic checks (lengths, invalid normals), then replace the gradients.
-    let mut g = super::gradients_from_normals(width, height, normals, mask, f32::MAX)?;
-    if !(max_slope > 0.0 && max_slope.is_finite()) {
-        return Err(Error::invalid(format!(
-            "max_slope {max_slope}: expected a positive finite number"
-        )));
-    }
-    let cap = max_slope as f64;
-    let mut capped = 0;
-    let mut backfacing = 0;
-    for (i, n) in normals.iter().enumerate() {
-        if !g.mask[i] {
-            continue;
-        }
-        let (nx, ny, nz) = (n[0] as f64, n[1] as f64, n[2] as f64);
-        let r = camera.ray((i % width) as f64, (i / width) as f64);
-        let nr = nx * r[0] + ny * r[1] + nz * r[2];
-        if nr >= -1e-9 {
-            g.mask[i] = false;
-            g.p[i] = 0.0;
-            g.q[i] = 0.0;
-            backfacing += 1;
-            continue;
-        }
-        let a = -nx / nr;
-        let b = ny / nr;
-        if a.abs() > cap || b.abs() > cap {
-            capped += 1;
-        }
-        g.p[i] = (a.clamp(-cap, cap) / camera.fx) as f32;
-        g.q[i] = (b.clamp(-cap, cap) / camera.fy) as f32;
-    }
-    g.capped = capped;
-    g.rejected_backfacing += backfacing;
-    Ok(g)
+    let scale = log_depth_scale(camera);
+    let to_log = [scale / camera.fx, scale / camera.fy];
+    super::gradients_with(
+        width,
+        height,
+        normals,
+        mask,
+        max_slope,
+        to_log,
+        |i, [nx, ny, nz]| {
+            let r = camera.ray((i % width) as f64, (i / width) as f64);
+            let nr = nx * r[0] + ny * r[1] + nz * r[2];
+            // f_x ∂z̃/∂col = −n_x / (n · r), f_y ∂z̃/∂row = n_y / (n · r) (the module notes).
+            (nr < -1e-9).then(|| (-nx / nr, ny / nr))
+        },
+    )
 }
 
 /// Integrates a normal map seen through `camera` into Z (mm along the optical axis, NaN outside
-/// the integrated pixels), the mean of Z over them equal to `mean_distance`. The curl map is
-/// that of the log-depth gradients (per pixel, dimensionless).
+/// the integrated pixels), the mean of Z over them equal to `mean_distance`. The integrator
+/// sees the gradients of `f̄ · ln Z` ([`log_depth_gradients`]), and the curl map is theirs: in
+/// pixels, like the orthographic one.
 #[allow(clippy::too_many_arguments)]
 pub fn perspective_surface(
     width: usize,
@@ -97,6 +89,11 @@ pub fn perspective_surface(
         ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
     };
     let mut depth = integrator.integrate(&problem, progress)?;
+    // Back from f̄ · ln Z to ln Z.
+    let inv_scale = 1.0 / log_depth_scale(camera);
+    depth.values.par_iter_mut().for_each(|v| {
+        *v = (*v as f64 * inv_scale) as f32;
+    });
     let (sum, count) = depth
         .values
         .iter()
@@ -123,6 +120,7 @@ pub fn perspective_surface(
         mean_abs_curl,
         rejected_invalid: g.rejected_invalid,
         rejected_backfacing: g.rejected_backfacing,
+        not_unit: g.not_unit,
         capped: g.capped,
         max_slope,
     })
@@ -184,16 +182,26 @@ pub fn normals_from_z(
 mod tests {
     use super::*;
     use crate::base::progress::Silent;
-    use crate::geometry::integrate::{Poisson, DEFAULT_MAX_SLOPE};
+    use crate::geometry::integrate::{Integrator, Poisson, DEFAULT_MAX_SLOPE};
 
     /// A sphere cap of radius 40 mm centred 330 mm away on the axis, seen by a 20° camera:
     /// Z(ray) solved exactly; its normals are (X − C)/R.
     fn sphere(size: usize) -> (Camera, Vec<[f32; 3]>, Vec<f32>, Vec<bool>) {
-        let f = size as f64 * 3.0;
+        sphere_seen(size, 3.0, [4.0, -3.0, -330.0], 40.0, 0.35)
+    }
+
+    /// A sphere of `radius` mm centred at `centre` seen by a camera of focal length
+    /// `focal · size` pixels, where its normals are within acos(`min_cos`) of the rays.
+    fn sphere_seen(
+        size: usize,
+        focal: f64,
+        centre: [f64; 3],
+        radius: f64,
+        min_cos: f64,
+    ) -> (Camera, Vec<[f32; 3]>, Vec<f32>, Vec<bool>) {
+        let f = size as f64 * focal;
         let c = (size as f64 - 1.0) / 2.0;
         let cam = Camera::new(f, f * 1.01, c + 3.0, c - 2.0).unwrap();
-        let centre = [4.0, -3.0, -330.0];
-        let radius = 40.0;
         let mut normals = vec![[0f32; 3]; size * size];
         let mut z = vec![f32::NAN; size * size];
         let mut mask = vec![false; size * size];
@@ -214,9 +222,8 @@ mod tests {
                 (x[1] - centre[1]) / radius,
                 (x[2] - centre[2]) / radius,
             ];
-            // Keep the part whose normals are within 70° of the ray (well-conditioned).
             let cos = -(n[0] * r[0] + n[1] * r[1] + n[2] * r[2]) / a.sqrt();
-            if cos < 0.35 {
+            if cos < min_cos {
                 continue;
             }
             normals[i] = [n[0] as f32, n[1] as f32, n[2] as f32];
@@ -280,6 +287,127 @@ mod tests {
             err / (count as f64) < 1.0,
             "re-derived normals {}°",
             err / count as f64
+        );
+    }
+
+    #[test]
+    fn normals_facing_the_camera_along_their_ray_are_integrated_whatever_their_n_z() {
+        // A wide-angle camera (90°) and a sphere off to the side: on its limb toward the axis
+        // the normals point away from the optical axis's direction (n_z < 0) yet face their
+        // own rays.
+        let size = 96;
+        let (cam, normals, z, mask) = sphere_seen(size, 0.5, [90.0, 0.0, -100.0], 30.0, 0.08);
+        let behind = (0..size * size)
+            .filter(|&i| mask[i] && normals[i][2] <= 0.0)
+            .count();
+        assert!(behind > 10, "{behind} pixels with n_z ≤ 0");
+        let mean = {
+            let t: Vec<f64> = z
+                .iter()
+                .filter(|v| v.is_finite())
+                .map(|&v| v as f64)
+                .collect();
+            t.iter().sum::<f64>() / t.len() as f64
+        };
+        let s = perspective_surface(
+            size,
+            size,
+            &normals,
+            Some(&mask),
+            None,
+            &cam,
+            mean,
+            &Poisson::default(),
+            1000.0,
+            &Silent,
+        )
+        .unwrap();
+        assert_eq!(s.rejected_backfacing, 0);
+        for (i, &inside) in mask.iter().enumerate() {
+            assert_eq!(s.depth.values[i].is_finite(), inside, "pixel {i}");
+        }
+    }
+
+    #[test]
+    fn bilateral_keeps_a_jump_seen_through_the_camera() {
+        // A half cylinder (radius 12.5 pixels at the plane's distance) rising out of a plane
+        // 300 mm away, its sides level with the plane on row 10 and 0.5 pixel higher on every
+        // row below: Z = 300 − (height in pixels) · 300 / f. Normals from X = Z · ray.
+        let size = 80;
+        let cam = Camera::new(400.0, 404.0, 42.0, 37.0).unwrap();
+        let mm = 300.0 / 400.0;
+        let radius = 12.5f64;
+        let edge = (radius * radius - 144.0f64).sqrt();
+        let height = |c: f64, r: f64| {
+            let d = c - 40.0;
+            let above = 0.5 * (r - 10.0) - edge + (radius * radius - d * d).max(0.0).sqrt();
+            if d.abs() < radius {
+                above.max(0.0)
+            } else {
+                0.0
+            }
+        };
+        let point = |c: f64, r: f64| {
+            let ray = cam.ray(c, r);
+            let z = 300.0 - mm * height(c, r);
+            [z * ray[0], z * ray[1], z * ray[2]]
+        };
+        let n = size * size;
+        let mut normals = vec![[0f32; 3]; n];
+        let mut truth = vec![0f64; n];
+        let e = 1e-5;
+        for i in 0..n {
+            let (c, r) = ((i % size) as f64, (i / size) as f64);
+            let (a, b) = (point(c + e, r), point(c - e, r));
+            let du = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+            let (a, b) = (point(c, r - e), point(c, r + e));
+            let dv = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+            let m = [
+                du[1] * dv[2] - du[2] * dv[1],
+                du[2] * dv[0] - du[0] * dv[2],
+                du[0] * dv[1] - du[1] * dv[0],
+            ];
+            let len = (m[0] * m[0] + m[1] * m[1] + m[2] * m[2]).sqrt();
+            normals[i] = m.map(|v| (v / len) as f32);
+            truth[i] = 300.0 - mm * height(c, r);
+        }
+        let mean = truth.iter().sum::<f64>() / n as f64;
+        let range = mm * (0.5 * (size as f64 - 11.0) + radius);
+        // The contour pixels (either side of each side) may be claimed by either side.
+        let judged = |i: usize| ![27, 28, 52, 53].contains(&(i % size));
+        let mut errors = Vec::new();
+        for integrator in [
+            &Poisson::default() as &dyn Integrator,
+            &super::super::Bilateral::default(),
+        ] {
+            let s = perspective_surface(
+                size, size, &normals, None, None, &cam, mean, integrator, 1000.0, &Silent,
+            )
+            .unwrap();
+            // Align the levels (the mean distance includes the contour pixels).
+            let ids: Vec<usize> = (0..n).filter(|&i| judged(i)).collect();
+            let shift = ids
+                .iter()
+                .map(|&i| truth[i] - s.depth.values[i] as f64)
+                .sum::<f64>()
+                / ids.len() as f64;
+            let rmse = (ids
+                .iter()
+                .map(|&i| (s.depth.values[i] as f64 + shift - truth[i]).powi(2))
+                .sum::<f64>()
+                / ids.len() as f64)
+                .sqrt();
+            errors.push(rmse / range);
+        }
+        assert!(
+            errors[1] <= 0.005,
+            "bilateral: {:.3}% of the range",
+            100.0 * errors[1]
+        );
+        assert!(
+            errors[0] >= 10.0 * errors[1],
+            "poisson: {:.3}% of the range should be far worse",
+            100.0 * errors[0]
         );
     }
 }

@@ -252,6 +252,7 @@ impl Poisson {
             filled_pixels: filled,
             levels: hier.depth(),
             direct: false,
+            reweightings: 0,
             notes,
         };
         Ok(into_depth(w, h, x, problem.mask, stats))
@@ -286,6 +287,7 @@ impl Poisson {
             filled_pixels: 0,
             levels: 0,
             direct: true,
+            reweightings: 0,
             notes,
         };
         to_depth(w, h, &f, problem.mask, stats)

@@ -7,7 +7,9 @@ use crate::base::error::{Error, Result};
 use crate::base::progress::Progress;
 use crate::io::imageio::{read_image, read_mask};
 use crate::io::photometry::{Linearisation, PhotometryReport};
-use crate::model::capture::{interleave, light_scale, Capture, CaptureParts};
+use crate::model::capture::{
+    interleave, light_scale, zero_non_finite, Capture, CaptureParts, MissingReadings,
+};
 use crate::model::image::Image;
 use crate::model::memory::{CaptureSize, Force, Layout, MemoryPlan};
 use crate::model::store::{Decode, SampleStore, SampleType, Tiling};
@@ -279,10 +281,13 @@ impl CaptureFiles {
             lin,
         };
         progress.begin("loading", (n * h) as u64);
+        // Streamed images are integer PNGs, whose readings are always finite.
+        let mut notes = self.notes.clone();
         if infos.iter().all(|i| i.streamable) && lin.is_identity() {
             fill.stream_rows(&mut store, progress)?;
         } else {
-            fill.patch_decoded(&mut store, progress)?;
+            let missing = fill.patch_decoded(&mut store, progress)?;
+            notes.extend(missing.verdict(&self.images)?);
         }
         progress.end();
         Ok(Capture::from_parts(CaptureParts {
@@ -296,7 +301,7 @@ impl CaptureFiles {
             samples: Vec::new(),
             store: Some(Arc::new(store)),
             sources: self.images.clone(),
-            notes: self.notes.clone(),
+            notes,
         }))
     }
 
@@ -402,6 +407,12 @@ impl CaptureFiles {
             planes.push(r?);
         }
         progress.end();
+        let mut missing = MissingReadings::new(n, pixels.len() * c);
+        for (count, plane) in missing.per_image.iter_mut().zip(planes.iter_mut()) {
+            *count = zero_non_finite(plane);
+        }
+        let mut notes = self.notes.clone();
+        notes.extend(missing.verdict(&self.images)?);
         let samples = interleave(&planes, pixels.len(), c);
         let capture = Capture::from_parts(CaptureParts {
             width: w,
@@ -414,7 +425,7 @@ impl CaptureFiles {
             samples,
             store: None,
             sources: self.images.clone(),
-            notes: self.notes.clone(),
+            notes,
         });
         Ok(capture)
     }
@@ -504,7 +515,13 @@ impl TileFill<'_> {
 
     /// Other formats, decoded whole, as many at a time as there are threads; each group
     /// patched into every tile.
-    fn patch_decoded(&self, store: &mut SampleStore, progress: &dyn Progress) -> Result<()> {
+    ///
+    /// Non-finite readings at the mask pixels are set to 0 and counted ([`MissingReadings`]).
+    fn patch_decoded(
+        &self,
+        store: &mut SampleStore,
+        progress: &dyn Progress,
+    ) -> Result<MissingReadings> {
         let (w, h, c) = self.size;
         let files = self.files;
         let n = files.images.len();
@@ -512,10 +529,11 @@ impl TileFill<'_> {
         let pb = n * sb;
         let mut raw: Vec<u8> = Vec::new();
         let group = rayon::current_num_threads().max(1);
+        let mut missing = MissingReadings::new(n, self.pixels.len() * c);
         for k0 in (0..n).step_by(group) {
             crate::base::progress::check_cancelled(progress)?;
             let ks: Vec<usize> = (k0..(k0 + group).min(n)).collect();
-            let images: Vec<Image> = ks
+            let images: Vec<(Image, usize)> = ks
                 .par_iter()
                 .map(|&k| {
                     let mut img = read_image(&files.images[k])?;
@@ -525,34 +543,45 @@ impl TileFill<'_> {
                     {
                         return Err(e);
                     }
+                    let zeroed: usize = self
+                        .pixels
+                        .iter()
+                        .map(|&i| zero_non_finite(&mut img.data[i as usize * c..][..c]))
+                        .sum();
                     progress.advance(h as u64);
-                    Ok(img)
+                    Ok((img, zeroed))
                 })
                 .collect::<Result<_>>()?;
+            for (&k, (_, zeroed)) in ks.iter().zip(&images) {
+                missing.per_image[k] = *zeroed;
+            }
             for t in 0..self.tiling.len() {
                 let tile_pixels = &self.pixels[self.tiling.pixels(t)];
                 store.read_raw(t, &mut raw)?;
                 raw.par_chunks_mut(pb)
                     .zip(tile_pixels.par_iter())
                     .for_each(|(px, &i)| {
-                        let mut bytes = Vec::with_capacity(sb);
-                        for (&k, img) in ks.iter().zip(&images) {
-                            bytes.clear();
+                        for (&k, (img, _)) in ks.iter().zip(&images) {
                             let src = &img.data[i as usize * c..(i as usize + 1) * c];
-                            for &v in src {
-                                match self.kind {
-                                    SampleType::U16 => bytes
-                                        .extend_from_slice(&self.decode[k].to_u16(v).to_ne_bytes()),
-                                    SampleType::F32 => bytes.extend_from_slice(&v.to_ne_bytes()),
+                            let dst = &mut px[k * sb..(k + 1) * sb];
+                            match self.kind {
+                                SampleType::U16 => {
+                                    for (d, &v) in dst.chunks_exact_mut(2).zip(src) {
+                                        d.copy_from_slice(&self.decode[k].to_u16(v).to_ne_bytes());
+                                    }
+                                }
+                                SampleType::F32 => {
+                                    for (d, &v) in dst.chunks_exact_mut(4).zip(src) {
+                                        d.copy_from_slice(&v.to_ne_bytes());
+                                    }
                                 }
                             }
-                            px[k * sb..(k + 1) * sb].copy_from_slice(&bytes);
                         }
                     });
                 store.write_raw(t, &raw)?;
             }
         }
-        Ok(())
+        Ok(missing)
     }
 }
 

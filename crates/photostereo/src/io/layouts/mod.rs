@@ -1,7 +1,7 @@
 //! Capture layouts on disk (CONVENTIONS.md, "Capture layouts"): where the images, lights and
 //! mask of a capture are — the DiLiGenT folder, the list file, explicit image lists, the
 //! near-light folder and `.lp` files ([`near`]), sphere captures for calibration ([`sphere`]) —
-//! and their decoding, in parallel, into one [`Capture`] held whole or in tiles ([`load`]).
+//! and their decoding, in parallel, into one [`Capture`](crate::model::capture::Capture) held whole or in tiles ([`load`]).
 
 pub mod load;
 pub use load::LoadOptions;

@@ -8,7 +8,7 @@
 //! triangle indices (3 × u32), little-endian, one block after the other.
 
 use super::folder::RunFolder;
-use super::tiles::write_js_payload;
+use super::pyramid::write_js_payload;
 use crate::base::error::Result;
 use std::path::Path;
 

@@ -1,16 +1,15 @@
 //! The result viewer: `photostereo view FOLDER` turns a run's output folder into a page,
 //! `FOLDER/index.html`, that relights the normals and albedo, shows every map as a layer with a
 //! legend, turns the mesh in 3D and probes pixels — WebGL2, no network, opened straight from the
-//! file system. The maps travel beside it in `FOLDER/view/` as a tiled pyramid ([`tiles`]) of
+//! file system. The maps travel beside it in `FOLDER/view/` as a tiled pyramid ([`pyramid`]) of
 //! small JavaScript files, so that an 8000 × 6000 result opens at its reduced level first and
 //! loads only the tiles on screen.
 //!
-//! - [`relight`]: the relighting model, the same expression the page's shader evaluates.
+//! - [`relight`](mod@relight): the relighting model, the expression the page's shader evaluates.
 //! - [`folder`]: reading an output folder.
-//! - [`tiles`], [`mesh`]: the files the page loads.
+//! - [`pyramid`], [`mesh`]: the files the page loads.
 //! - [`page`]: the page itself (HTML, JavaScript and GLSL from `assets/`).
 //! - [`openlime`]: what OpenLIME's BRDF layer reads.
-//! - [`serve`]: a minimal HTTP server on 127.0.0.1 for browsers or tools that want one.
 //!
 //! The page's state lives in its URL fragment (`#layer=relight&light=x,y,z&probe=row,col…`), so
 //! a view can be shared, and in the `<pre id="ps-state">` element as JSON, which tests read.
@@ -19,8 +18,8 @@ pub mod folder;
 pub mod mesh;
 pub mod openlime;
 pub mod page;
+pub mod pyramid;
 pub mod relight;
-pub mod tiles;
 
 pub use folder::RunFolder;
 pub use relight::{albedo_white, relight, RelightParams};
@@ -203,7 +202,7 @@ impl MapScales {
         )
         .filter(|&m| m > 0.0)
         .unwrap_or(1.0);
-        let depth_range = f.depth.as_deref().and_then(tiles::depth_range);
+        let depth_range = f.depth.as_deref().and_then(pyramid::depth_range);
         let residual_max = f
             .residual
             .as_ref()
@@ -221,7 +220,7 @@ impl MapScales {
 /// every map group, level by level down to a single tile, and the mesh.
 fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Written> {
     let tiles_dir = staging.join("tiles");
-    let mut level = tiles::Level::base(f, scales.depth_range);
+    let mut level = pyramid::Level::base(f, scales.depth_range);
     let mut groups = vec!['n', 'a', 'q'];
     if level.depth_rgb.is_some() {
         groups.push('d');
@@ -235,14 +234,14 @@ fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Wri
     let (mut files, mut bytes) = (0usize, 0u64);
     let mut levels = Vec::new();
     for l in 0.. {
-        let (nf, nb) = tiles::write_level(&tiles_dir, l, &level, &groups, scales.albedo_max)?;
+        let (nf, nb) = pyramid::write_level(&tiles_dir, l, &level, &groups, scales.albedo_max)?;
         files += nf;
         bytes += nb;
         levels.push(json!({
             "width": level.width, "height": level.height,
             "cols": level.cols(), "rows": level.rows(),
         }));
-        if level.width <= tiles::TILE && level.height <= tiles::TILE {
+        if level.width <= pyramid::TILE && level.height <= pyramid::TILE {
             break;
         }
         level = level.reduce();
@@ -288,7 +287,7 @@ fn manifest(
         "title": title,
         "width": f.width,
         "height": f.height,
-        "tile": tiles::TILE,
+        "tile": pyramid::TILE,
         "levels": written.levels,
         "groups": written.groups.iter().map(|g| g.to_string()).collect::<Vec<_>>(),
         "layers": layers,

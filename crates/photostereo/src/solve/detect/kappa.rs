@@ -27,11 +27,10 @@ use rayon::prelude::*;
 /// root of the median of κ_p² over the pixels (negative medians give 0). Pixels with fewer than
 /// four readings kept or fewer than three pairs do not count. None (not measurable) with fewer
 /// than [`MIN_KAPPA_LIGHTS`] lights, with near lights (before the surface is known a pixel's
-/// light vectors carry the error of its unknown depth: measured there, κ took the recursive
-/// error on the near ring's 128² sphere from 0.52° to 19.9°) or with fewer than 100 pixels
-/// counted; the noise model then keeps [`DEFAULT_RELATIVE_NOISE`](super::DEFAULT_RELATIVE_NOISE). Measured this way κ is
-/// 0.5–1.1% on DiLiGenT (whose lobes the robust scale of all residuals took for model error:
-/// 1.3–4.0%), 2.7–4.2% on psmImages, at most 1% on the demo's renders of five lights or more.
+/// light vectors carry the error of its unknown depth, which κ would take for model error) or
+/// with fewer than 100 pixels counted; the noise model then keeps
+/// [`DEFAULT_RELATIVE_NOISE`](super::DEFAULT_RELATIVE_NOISE). Typical values: κ is 0.5–1.1% on
+/// DiLiGenT, 2.7–4.2% on psmImages, at most 1% on renders of five lights or more.
 pub fn estimate_kappa(
     capture: &Capture,
     sigma0: f64,
