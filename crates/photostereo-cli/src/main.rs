@@ -12,6 +12,7 @@ mod demo;
 mod eval;
 mod integrate;
 mod params;
+mod photometry;
 mod run;
 mod serve;
 mod synth;

@@ -27,6 +27,8 @@ pub struct RunArgs {
     /// mean_distance.txt.
     #[arg(long)]
     pub distance: Option<f64>,
+    #[command(flatten)]
+    pub photometry: crate::photometry::PhotometryArgs,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG) to score against.
     #[arg(long)]
     pub gt: Option<PathBuf>,
@@ -82,7 +84,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.intensities.as_deref(),
         a.mask.as_deref(),
     )?;
-    let files = CaptureFiles::from_inputs_with(
+    let mut files = CaptureFiles::from_inputs_with(
         &a.input,
         a.lights.as_deref(),
         a.intensities.as_deref(),
@@ -90,10 +92,12 @@ pub fn main(a: RunArgs) -> Result<()> {
         a.distance,
         None,
     )?;
+    a.photometry.apply(&mut files)?;
     // --force never replaces an input or a folder holding one.
     let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
+    inputs.extend(files.photometry.ambient.as_deref());
     inputs.extend(a.lights.as_deref());
     inputs.extend(a.intensities.as_deref());
     inputs.extend(a.gt.as_deref());
@@ -119,11 +123,12 @@ pub fn main(a: RunArgs) -> Result<()> {
     if a.out.json {
         // The JSON on stdout holds every note; a recursion that did not settle and a missing
         // mask are also said on stderr.
-        for n in r
-            .notes
-            .iter()
-            .filter(|n| n.starts_with("recursive: not converged") || n.starts_with("no mask:"))
-        {
+        for n in r.notes.iter().filter(|n| {
+            n.starts_with("recursive: not converged")
+                || n.starts_with("no mask:")
+                || n.starts_with("photometry:")
+                || n.starts_with("response:")
+        }) {
             eprintln!("note: {n}");
         }
         let mut v = serde_json::to_value(r)?;

@@ -50,6 +50,25 @@ pub struct SynthArgs {
     /// Per-light intensities: uniform, varied (grey) or coloured.
     #[arg(long, default_value = "uniform")]
     pub intensities: String,
+    /// Write the images as a camera would, through this response: linear, srgb or gamma:G
+    /// (encoded = linear^(1/G)); the default writes linear 16-bit PNGs.
+    #[arg(long, value_parser = parse_camera_response)]
+    pub response: Option<photostereo::io::photometry::Response>,
+    /// Ambient light added to every image, its brightest reading as a share of full scale
+    /// (e.g. 0.08); its frame is written as ambient.* beside the images.
+    #[arg(long, default_value_t = 0.0)]
+    pub ambient: f64,
+    /// Exposures that change from image to image over ×1/F to ×F about their middle
+    /// (recorded in EXIF; needs --format jpeg).
+    #[arg(long, default_value_t = 1.0)]
+    pub exposure_jitter: f64,
+    /// Image format: png (16-bit, or 8-bit with a --response other than linear), png8, png16
+    /// or jpeg (baseline, with EXIF).
+    #[arg(long, default_value = "png")]
+    pub format: String,
+    /// JPEG quality, 1 to 100.
+    #[arg(long, default_value_t = 90)]
+    pub quality: u8,
     /// Output folder (default: synth-SCENE).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -75,7 +94,16 @@ pub fn main(a: SynthArgs) -> Result<()> {
         other => bail!("--albedo {other}: expected texture or constant"),
     };
     let (width, height) = a.size;
+    let camera = camera_spec(&a)?;
+    let camera_refused = |what: &str| {
+        anyhow::anyhow!(
+            "--response, --ambient, --exposure-jitter and --format apply to distant rigs              rendered whole; {what}"
+        )
+    };
     if let Some(rig) = photostereo::scene::near::NearRig::parse(&a.rig) {
+        if camera.is_some() {
+            return Err(camera_refused("this is a near-light rig"));
+        }
         if width != height {
             bail!("--size {width}x{height}: near-light rigs take square images (--size N)");
         }
@@ -112,6 +140,11 @@ pub fn main(a: SynthArgs) -> Result<()> {
     if photostereo::scene::render::in_memory_bytes(width, height, n_lights) > budget
         || width != height
     {
+        if camera.is_some() {
+            return Err(camera_refused(
+                "this capture is rendered one light at a time (non-square, or beyond the memory budget)",
+            ));
+        }
         let need = photostereo::scene::render::streamed_bytes(width, height);
         if need > budget {
             bail!(
@@ -152,7 +185,10 @@ pub fn main(a: SynthArgs) -> Result<()> {
     if !(8..=8192).contains(&width) {
         bail!("--size {width}: expected 8..=8192 pixels for a square capture rendered whole");
     }
-    let (rendered, target) = synth_to_folder(&spec, &output, a.out.force)?;
+    let (rendered, target) = match &camera {
+        Some(c) => photostereo::io::synth::synth_camera_to_folder(&spec, c, &output, a.out.force)?,
+        None => synth_to_folder(&spec, &output, a.out.force)?,
+    };
     let s = &rendered.stats;
     if a.out.json {
         print_json(&serde_json::json!({
@@ -166,6 +202,12 @@ pub fn main(a: SynthArgs) -> Result<()> {
             "noise_sigma": spec.render.noise_sigma,
             "shot_full_well": spec.render.shot_full_well,
             "seed": spec.render.seed,
+            "camera": camera.map(|c| serde_json::json!({
+                "response": c.response.name(),
+                "ambient": c.ambient,
+                "exposure_jitter": c.exposure_jitter,
+                "format": a.format,
+            })),
             "stats": s,
         }));
     } else if a.out.text() {
@@ -183,6 +225,44 @@ pub fn main(a: SynthArgs) -> Result<()> {
         print_stats(s, &target);
     }
     Ok(())
+}
+
+fn parse_camera_response(s: &str) -> Result<photostereo::io::photometry::Response, String> {
+    use photostereo::io::photometry::ResponseChoice;
+    match s.parse::<ResponseChoice>().map_err(|e| e.to_string())? {
+        ResponseChoice::Fixed(r) => Ok(r),
+        ResponseChoice::Auto => Err("auto: expected linear, srgb or gamma:G".into()),
+    }
+}
+
+/// The camera the images are written as, when a flag asks for one.
+fn camera_spec(a: &SynthArgs) -> Result<Option<photostereo::io::camera::CameraSpec>> {
+    use photostereo::io::camera::{CameraFormat, CameraSpec};
+    use photostereo::io::photometry::Response;
+    let response = a.response.unwrap_or(Response::Linear);
+    let format = match a.format.as_str() {
+        "png" if response == Response::Linear => CameraFormat::Png16,
+        "png" | "png8" => CameraFormat::Png8,
+        "png16" => CameraFormat::Png16,
+        "jpeg" | "jpg" => CameraFormat::Jpeg(a.quality),
+        other => bail!("--format {other}: expected png, png8, png16 or jpeg"),
+    };
+    if a.exposure_jitter != 1.0 && !matches!(format, CameraFormat::Jpeg(_)) {
+        bail!(
+            "--exposure-jitter {}: needs --format jpeg (the exposures are recorded in EXIF)",
+            a.exposure_jitter
+        );
+    }
+    if a.response.is_none() && a.ambient == 0.0 && a.exposure_jitter == 1.0 && a.format == "png" {
+        return Ok(None);
+    }
+    Ok(Some(CameraSpec {
+        response,
+        ambient: a.ambient,
+        exposure_jitter: a.exposure_jitter,
+        format,
+        seed: a.seed,
+    }))
 }
 
 /// A near-light scene in the near-light layout.

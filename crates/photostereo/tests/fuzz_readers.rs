@@ -665,6 +665,38 @@ fn fuzz_tiff() {
     fuzz("tiff", tiff_seeds(), byte_mutations, decode);
 }
 
+/// The libjpeg-turbo fixtures of `tests/data/jpeg` (baseline, progressive, grey), one with an
+/// EXIF block (orientation 6 and exposure) written by the crate's own encoder.
+fn jpeg_seeds() -> Vec<Vec<u8>> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/jpeg");
+    let mut seeds: Vec<Vec<u8>> = ["baseline.jpg", "progressive.jpg", "grey.jpg"]
+        .iter()
+        .map(|n| std::fs::read(dir.join(n)).unwrap())
+        .collect();
+    let tmp = tempfile::tempdir().unwrap();
+    let p = tmp.path().join("exif.jpg");
+    let exif = photostereo::io::camera::exif_block_oriented(
+        &photostereo::io::photometry::Exposure {
+            time_s: Some(0.01),
+            iso: Some(200.0),
+            f_number: Some(4.0),
+        },
+        6,
+    );
+    let px: Vec<u8> = (0..12 * 8 * 3).map(|i| (i * 7 % 256) as u8).collect();
+    photostereo::io::camera::write_jpeg(&p, 12, 8, 3, &px, 80, exif).unwrap();
+    seeds.push(std::fs::read(&p).unwrap());
+    seeds
+}
+
+#[test]
+fn fuzz_jpeg() {
+    fuzz("jpeg", jpeg_seeds(), byte_mutations, |b| {
+        let meta = photostereo::io::photometry::meta::read_meta(b).is_ok();
+        decode(b) || meta
+    });
+}
+
 #[test]
 fn fuzz_exr() {
     fuzz("exr", exr_seeds(), byte_mutations, decode);

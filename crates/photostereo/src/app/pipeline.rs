@@ -225,7 +225,7 @@ pub fn run(
         ground_truth: truth.is_some(),
         ..Default::default()
     };
-    let mut capture = files.load_with(progress, &load_options)?;
+    let (mut capture, photometry) = files.load_measured(progress, &load_options)?;
     let mut subset = None;
     if let Some(s) = &options.light_subset {
         let keep = s.resolve(&capture.lights)?;
@@ -265,6 +265,10 @@ pub fn run(
         ));
     let report = &mut rec.report;
     report.input.mask_file = files.mask.as_ref().map(|p| p.display().to_string());
+    report.extra.insert(
+        "photometry".into(),
+        serde_json::to_value(&photometry).map_err(|e| Error::invalid(e.to_string()))?,
+    );
     report
         .timings_s
         .shift_insert(0, "load".into(), load_seconds.into());

@@ -1,5 +1,7 @@
-//! Image decoding and encoding: PNG (8/16-bit, grey or RGB), TIFF (8/16-bit, 32-bit float) and
-//! OpenEXR in; PNG and OpenEXR out. Integer images are scaled to [0, 1] by their bit depth and
+//! Image decoding and encoding: PNG (8/16-bit, grey or RGB), JPEG (baseline and progressive,
+//! [`crate::io::jpeg`]), TIFF (8/16-bit, 32-bit float) and OpenEXR in; PNG and OpenEXR out.
+//! JPEG and TIFF images are returned upright (their EXIF orientation applied). The values are
+//! the files' encoded ones: [`crate::io::photometry`] makes them linear. Integer images are scaled to [0, 1] by their bit depth and
 //! 16-bit data is never reduced to 8 bits. Alpha channels are dropped.
 
 use crate::base::error::{Error, Result};
@@ -15,6 +17,7 @@ pub enum Format {
     Png,
     Tiff,
     Exr,
+    Jpeg,
 }
 
 /// Identifies the format from the file's first bytes.
@@ -29,6 +32,8 @@ pub fn sniff(bytes: &[u8]) -> Option<Format> {
         Some(Format::Tiff)
     } else if bytes.starts_with(&[0x76, 0x2f, 0x31, 0x01]) {
         Some(Format::Exr)
+    } else if bytes.starts_with(&[0xFF, 0xD8, 0xFF]) {
+        Some(Format::Jpeg)
     } else {
         None
     }
@@ -44,14 +49,18 @@ pub fn read_image(path: &Path) -> Result<Image> {
     decode_image(&bytes).map_err(|m| Error::file(path, m))
 }
 
-/// Decodes an in-memory image (PNG, TIFF or OpenEXR). The declared size is checked against
+/// Decodes an in-memory image (PNG, JPEG, TIFF or OpenEXR). The declared size is checked against
 /// [`crate::io::limits`], against what `bytes` can hold and against the available memory first.
 pub fn decode_image(bytes: &[u8]) -> Result<Image, String> {
     match sniff(bytes) {
         Some(Format::Png) => decode_png(bytes),
-        Some(Format::Tiff) => decode_tiff(bytes),
+        Some(Format::Tiff) => decode_tiff(bytes).map(|img| {
+            let o = crate::io::jpeg::container_orientation(bytes);
+            crate::io::jpeg::orient(img, o)
+        }),
         Some(Format::Exr) => decode_exr(bytes),
-        None => Err("unsupported image format (expected PNG, TIFF or OpenEXR)".into()),
+        Some(Format::Jpeg) => crate::io::jpeg::decode_jpeg(bytes),
+        None => Err("unsupported image format (expected PNG, JPEG, TIFF or OpenEXR)".into()),
     }
 }
 
@@ -970,8 +979,11 @@ mod tests {
         let e = read_image(&p).unwrap_err().to_string();
         assert!(e.contains("a.png") && e.contains("PNG"), "{e}");
         let q = dir.path().join("b.jpg");
-        std::fs::write(&q, b"\xff\xd8\xff\xe0 not really").unwrap();
+        std::fs::write(&q, b"GIF89a not really").unwrap();
         let e = read_image(&q).unwrap_err().to_string();
         assert!(e.contains("unsupported image format"), "{e}");
+        std::fs::write(&q, b"\xff\xd8\xff\xe0 not really").unwrap();
+        let e = read_image(&q).unwrap_err().to_string();
+        assert!(e.contains("b.jpg") && e.contains("corrupt JPEG"), "{e}");
     }
 }

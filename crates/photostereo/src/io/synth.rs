@@ -112,6 +112,24 @@ pub fn synth_to_folder(
     Ok((rendered, target))
 }
 
+/// [`synth_to_folder`], the images then written as a camera would (`camera`: response,
+/// ambient light and its frame, exposures recorded in EXIF, format) in place of the linear
+/// 16-bit PNGs; the ground truth is the same.
+pub fn synth_camera_to_folder(
+    spec: &SynthSpec,
+    camera: &crate::io::camera::CameraSpec,
+    output: &Path,
+    force: bool,
+) -> Result<(Rendered, PathBuf)> {
+    let folder = OutputFolder::create(output, force, OutputKind::Synth)?;
+    let rendered = synthesize(spec)?;
+    write_capture(folder.path(), &rendered, Some(spec))?;
+    let files = crate::io::layouts::CaptureFiles::diligent(folder.path())?;
+    crate::io::camera::reencode_capture(&files, folder.path(), camera)?;
+    let target = folder.commit()?;
+    Ok((rendered, target))
+}
+
 /// Writes the header of a `.npy` file of booleans of `shape`; the data follows.
 fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::Result<()> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();

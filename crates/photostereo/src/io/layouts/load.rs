@@ -6,6 +6,7 @@ use super::CaptureFiles;
 use crate::base::error::{Error, Result};
 use crate::base::progress::Progress;
 use crate::io::imageio::{read_image, read_mask};
+use crate::io::photometry::{Linearisation, PhotometryReport};
 use crate::model::capture::{
     interleave, light_scale, zero_non_finite, Capture, CaptureParts, MissingReadings,
 };
@@ -28,6 +29,16 @@ impl CaptureFiles {
     /// capture's `memory`. A budget too small for the capture's full-frame stages is refused
     /// (naming `memory_limit` and the smallest budget that works) before the samples are read.
     pub fn load_with(&self, progress: &dyn Progress, options: &LoadOptions) -> Result<Capture> {
+        self.load_measured(progress, options).map(|(c, _)| c)
+    }
+
+    /// [`CaptureFiles::load_with`], with what was done to make each image linear (see
+    /// [`crate::io::photometry`]): report.json's `photometry`.
+    pub fn load_measured(
+        &self,
+        progress: &dyn Progress,
+        options: &LoadOptions,
+    ) -> Result<(Capture, PhotometryReport)> {
         self.check_counts()?;
         let budget = options
             .budget
@@ -92,10 +103,15 @@ impl CaptureFiles {
         }
         let mask = self.read_mask_for(info.width, info.height)?;
         size.pixels = mask.iter().filter(|&&m| m).count();
+        let photometric = self.photometric_plan(&mask, info.channels)?;
+        let lin = &photometric.linearisation;
+        if !lin.is_identity() {
+            size.sample_type = SampleType::F32;
+        }
         let (layout, plan) =
             crate::model::memory::plan(&size, budget, options.force).map_err(refusal)?;
         let mut capture = if layout == Layout::InMemory {
-            self.load_in_memory(progress, mask)?
+            self.load_in_memory(progress, mask, lin)?
         } else {
             if options.return_freed_memory_when_tiled {
                 crate::base::machine::return_freed_memory();
@@ -106,6 +122,7 @@ impl CaptureFiles {
                 mask,
                 &plan,
                 (layout == Layout::Spill).then_some(&*dir),
+                lin,
             )?
         };
         capture.memory = Some(plan);
@@ -114,7 +131,17 @@ impl CaptureFiles {
         capture.notes.extend(notes);
         let (w, h) = (capture.width, capture.height);
         capture.notes.extend(self.whole_frame_note(w, h));
-        Ok(capture)
+        capture.notes.extend(photometric.notes);
+        let mut report = photometric.report;
+        if lin.ambient.is_none() {
+            report.offset_check = crate::io::layouts::photometric::offset_of(&capture)?;
+            if let Some(c) = report.offset_check.as_ref().filter(|c| c.detected) {
+                capture
+                    .notes
+                    .push(crate::io::layouts::photometric::offset_note(c));
+            }
+        }
+        Ok((capture, report))
     }
 
     fn check_counts(&self) -> Result<()> {
@@ -200,6 +227,7 @@ impl CaptureFiles {
         mask: Vec<bool>,
         plan: &MemoryPlan,
         spill_dir: Option<&Path>,
+        lin: &Linearisation,
     ) -> Result<Capture> {
         let n = self.images.len();
         let infos: Vec<crate::io::imageio::ImageInfo> = self
@@ -213,7 +241,8 @@ impl CaptureFiles {
                 return Err(e);
             }
         }
-        let kind = if infos.iter().any(|i| i.bit_depth == 32) {
+        // Linearised readings are no integer levels: held as floats.
+        let kind = if infos.iter().any(|i| i.bit_depth == 32) || !lin.is_identity() {
             SampleType::F32
         } else {
             SampleType::U16
@@ -250,11 +279,12 @@ impl CaptureFiles {
             pixels: &pixels,
             tiling: &tiling,
             size: (w, h, c),
+            lin,
         };
         progress.begin("loading", (n * h) as u64);
         // Streamed images are integer PNGs, whose readings are always finite.
         let mut notes = self.notes.clone();
-        if infos.iter().all(|i| i.streamable) {
+        if infos.iter().all(|i| i.streamable) && lin.is_identity() {
             fill.stream_rows(&mut store, progress)?;
         } else {
             let missing = fill.patch_decoded(&mut store, progress)?;
@@ -277,10 +307,17 @@ impl CaptureFiles {
     }
 
     /// The loader of captures held whole as `f32`.
-    fn load_in_memory(&self, progress: &dyn Progress, mask: Vec<bool>) -> Result<Capture> {
+    fn load_in_memory(
+        &self,
+        progress: &dyn Progress,
+        mask: Vec<bool>,
+        lin: &Linearisation,
+    ) -> Result<Capture> {
         let n = self.images.len();
         progress.begin("loading", n as u64);
-        let first = read_image(&self.images[0])?;
+        let mut first = read_image(&self.images[0])?;
+        let bit_depth = first.bit_depth;
+        lin.apply(0, &mut first);
         progress.advance(1);
         if mask.len() != first.width * first.height {
             return Err(Error::file(
@@ -328,7 +365,6 @@ impl CaptureFiles {
             out
         };
         let first_planes = gather(0, &first);
-        let bit_depth = first.bit_depth;
         drop(first);
         let rest: Vec<Result<Vec<f32>>> = (1..n)
             .into_par_iter()
@@ -359,6 +395,8 @@ impl CaptureFiles {
                         ),
                     ));
                 }
+                let mut img = img;
+                lin.apply(k, &mut img);
                 let planes = gather(k, &img);
                 progress.advance(1);
                 Ok(planes)
@@ -424,6 +462,8 @@ struct TileFill<'a> {
     pixels: &'a [u32],
     tiling: &'a Tiling,
     size: (usize, usize, usize),
+    /// How each image is made linear (identity when the rows are streamed).
+    lin: &'a Linearisation,
 }
 
 impl TileFill<'_> {
@@ -498,6 +538,7 @@ impl TileFill<'_> {
                 .par_iter()
                 .map(|&k| {
                     let mut img = read_image(&files.images[k])?;
+                    self.lin.apply(k, &mut img);
                     if let Some(e) =
                         files.mismatch(k, (w, h, c), (img.width, img.height, img.channels))
                     {

@@ -6,6 +6,7 @@
 pub mod load;
 pub use load::LoadOptions;
 pub mod near;
+mod photometric;
 pub mod sphere;
 
 use crate::base::error::{param, param_set, Error, Result};
@@ -24,6 +25,9 @@ pub struct CaptureFiles {
     pub mask: Option<PathBuf>,
     /// Remarks made while resolving the layout.
     pub notes: Vec<String>,
+    /// How the images are made linear (response, exposure, ambient frame): the layout's
+    /// `ambient.*` file, the rest from the files unless set.
+    pub photometry: crate::io::photometry::Photometry,
 }
 
 impl CaptureFiles {
@@ -248,6 +252,10 @@ impl CaptureFiles {
             lights,
             mask: mask.exists().then_some(mask),
             notes: Vec::new(),
+            photometry: crate::io::photometry::Photometry {
+                ambient: ambient_frame(dir)?,
+                ..Default::default()
+            },
         };
         files.note_renormalised();
         Ok(files)
@@ -269,6 +277,7 @@ impl CaptureFiles {
             lights,
             mask: listed.mask,
             notes: listed.notes,
+            photometry: Default::default(),
         };
         files.note_renormalised();
         Ok(files)
@@ -292,6 +301,7 @@ impl CaptureFiles {
             lights,
             mask,
             notes: Vec::new(),
+            photometry: Default::default(),
         };
         files.note_renormalised();
         Ok(files)
@@ -325,9 +335,35 @@ impl CaptureFiles {
     }
 }
 
+/// The image extensions a capture folder's images are found by.
+const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "exr", "jpg", "jpeg"];
+
+/// A capture folder's ambient frame (`ambient.png`, `ambient.jpg`, …: the scene with every
+/// controlled light off), if it has one; two are refused.
+pub(crate) fn ambient_frame(dir: &Path) -> Result<Option<PathBuf>> {
+    let found: Vec<PathBuf> = IMAGE_EXTENSIONS
+        .iter()
+        .map(|e| dir.join(format!("ambient.{e}")))
+        .filter(|p| p.is_file())
+        .collect();
+    match found.as_slice() {
+        [] => Ok(None),
+        [one] => Ok(Some(one.clone())),
+        [a, b, ..] => Err(Error::file(
+            dir,
+            format!(
+                "two ambient frames, {} and {}: keep one",
+                a.display(),
+                b.display()
+            ),
+        )),
+    }
+}
+
 /// The images of a capture folder: the names listed in `filenames.txt` (one per line, blank
-/// lines skipped) when it exists, else every PNG, TIFF or OpenEXR file of the folder but the mask
-/// and the ground truth (`mask*`, `Normal_gt*`), sorted by name.
+/// lines skipped) when it exists, else every PNG, JPEG, TIFF or OpenEXR file of the folder but
+/// the mask, the ground truth and the ambient frame (`mask*`, `Normal_gt*`, `ambient.*`),
+/// sorted by name.
 pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
     let names = dir.join("filenames.txt");
     if names.is_file() {
@@ -348,8 +384,9 @@ pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
                 .and_then(|e| e.to_str())
                 .unwrap_or("")
                 .to_ascii_lowercase();
-            matches!(ext.as_str(), "png" | "tif" | "tiff" | "exr")
+            IMAGE_EXTENSIONS.contains(&ext.as_str())
                 && !name.starts_with("mask")
+                && !name.starts_with("ambient.")
                 && !name.starts_with("Normal_gt")
         })
         .collect();

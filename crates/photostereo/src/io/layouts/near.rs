@@ -534,6 +534,10 @@ pub fn near_capture_files_with(
             layout.camera.cx,
             layout.camera.cy
         )],
+        photometry: crate::io::photometry::Photometry {
+            ambient: super::ambient_frame(dir)?,
+            ..Default::default()
+        },
     })
 }
 
@@ -679,6 +683,7 @@ pub fn lp_capture_files(path: &Path) -> Result<CaptureFiles> {
         lights,
         mask: None,
         notes: vec![format!("lights and images from {}", path.display())],
+        photometry: Default::default(),
     })
 }
 

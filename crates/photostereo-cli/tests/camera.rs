@@ -1,0 +1,161 @@
+//! Captures as cameras write them, end to end: `synth --response/--ambient/--exposure-jitter/
+//! --format jpeg`, then `run` with no flag (report.json's per-image photometry), with
+//! `--response`, `--ambient` and `--ignore-exposure`, and the flags' refusals.
+
+use std::path::Path;
+
+mod common;
+use common::photostereo;
+
+fn stderr(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stderr).to_string()
+}
+
+fn report(dir: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(dir.join("report.json")).unwrap()).unwrap()
+}
+
+fn mean_error(dir: &Path) -> f64 {
+    report(dir)["error"]["mean_deg"].as_f64().unwrap()
+}
+
+fn synth(dir: &Path, name: &str, extra: &[&str]) {
+    let mut args = vec![
+        "synth", "sphere", "--rig", "dome-24", "--brdf", "lambert", "--size", "64", "-q", "-o",
+        name,
+    ];
+    args.extend_from_slice(extra);
+    let o = photostereo(&args, dir);
+    assert!(o.status.success(), "{}", stderr(&o));
+}
+
+fn run(dir: &Path, capture: &str, out: &str, extra: &[&str]) -> std::process::Output {
+    let gt = format!("{capture}/gt/normal.npy");
+    let mut args = vec![
+        "run",
+        capture,
+        "--gt",
+        &gt,
+        "--method",
+        "l2",
+        "--no-depth",
+        "-o",
+        out,
+    ];
+    args.extend_from_slice(extra);
+    photostereo(&args, dir)
+}
+
+#[test]
+fn a_cameras_jpegs_reconstruct_like_the_linear_capture() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "linear", &[]);
+    synth(
+        dir,
+        "camera",
+        &[
+            "--response",
+            "srgb",
+            "--format",
+            "jpeg",
+            "--exposure-jitter",
+            "2",
+            "--ambient",
+            "0.05",
+        ],
+    );
+    assert!(dir.join("camera/ambient.jpg").is_file());
+    assert!(dir.join("camera/001.jpg").is_file() && !dir.join("camera/001.png").exists());
+    assert!(run(dir, "linear", "r-linear", &[]).status.success());
+    let o = run(dir, "camera", "r-camera", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("exposures differ"), "{}", stderr(&o));
+    let (base, cam) = (
+        mean_error(&dir.join("r-linear")),
+        mean_error(&dir.join("r-camera")),
+    );
+    assert!(cam < base + 0.8, "camera {cam:.2}° vs linear {base:.2}°");
+    let r = report(&dir.join("r-camera"));
+    let images = r["photometry"]["images"].as_array().unwrap();
+    assert_eq!(images.len(), 24);
+    for i in images {
+        assert!(i["decoder"].as_str().unwrap().starts_with("jpeg baseline"));
+        assert_eq!(i["response"], "srgb");
+        assert_eq!(i["ambient_removed"], true);
+        assert!(i["exposure"]["time_s"].as_f64().unwrap() > 0.0);
+        let f = i["exposure_factor"].as_f64().unwrap();
+        assert!((0.2..=5.0).contains(&f), "{f}");
+    }
+    assert!(r["photometry"]["ambient_file"]
+        .as_str()
+        .unwrap()
+        .ends_with("ambient.jpg"));
+    // Each step left out costs accuracy: the exposures, the response.
+    let o = run(dir, "camera", "r-raw", &["--ignore-exposure"]);
+    assert!(o.status.success());
+    assert!(mean_error(&dir.join("r-raw")) > cam + 2.0);
+    let o = run(dir, "camera", "r-lin", &["--response", "linear"]);
+    assert!(o.status.success());
+    assert!(mean_error(&dir.join("r-lin")) > cam + 2.0);
+    let r = report(&dir.join("r-lin"));
+    assert_eq!(
+        r["photometry"]["images"][0]["response_source"],
+        "--response"
+    );
+}
+
+#[test]
+fn an_untagged_gamma_capture_is_flagged_and_auto_recovers_it() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "gamma", &["--response", "gamma:2.2"]);
+    let o = run(dir, "gamma", "r-plain", &[]);
+    assert!(o.status.success());
+    assert!(
+        stderr(&o).contains("--response gamma:2.2") || stderr(&o).contains("--response gamma:2.1"),
+        "{}",
+        stderr(&o)
+    );
+    let o = run(dir, "gamma", "r-auto", &["--response", "auto"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e = &report(&dir.join("r-auto"))["photometry"]["response_estimate"];
+    let g = e["gamma"].as_f64().unwrap();
+    assert!((g - 2.2).abs() <= 0.1, "{e}");
+    assert!(mean_error(&dir.join("r-auto")) < mean_error(&dir.join("r-plain")));
+}
+
+#[test]
+fn photometry_flags_are_refused_clearly() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "linear", &[]);
+    let o = run(dir, "linear", "r1", &["--response", "gamma:9"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--response") && stderr(&o).contains("gamma:G"));
+    let o = run(dir, "linear", "r2", &["--ambient", "nowhere.png"]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("--ambient nowhere.png"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("r2").exists());
+    // An ambient frame of another size names the file.
+    let o = photostereo(
+        &["synth", "sphere", "--size", "32", "-q", "-o", "small"],
+        dir,
+    );
+    assert!(o.status.success());
+    let o = run(dir, "linear", "r3", &["--ambient", "small/001.png"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("small/001.png"), "{}", stderr(&o));
+    assert!(!dir.join("r3").exists());
+    // Exposures need EXIF: PNG cannot carry them here.
+    let o = photostereo(
+        &["synth", "sphere", "--exposure-jitter", "2", "-o", "x"],
+        dir,
+    );
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("--format jpeg"), "{}", stderr(&o));
+}
