@@ -11,6 +11,7 @@ pub mod light_files;
 pub mod limits;
 pub mod maps;
 pub mod matfile;
+pub mod rti;
 pub mod shadow_figure;
 pub mod surface;
 pub mod synth;
