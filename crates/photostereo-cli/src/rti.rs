@@ -100,10 +100,7 @@ pub fn main(a: RtiArgs) -> Result<()> {
             lam["mean_rmse_8bit"].as_f64().unwrap_or(f64::NAN),
             100.0 * lam["mean_relative"].as_f64().unwrap_or(f64::NAN),
         );
-        println!(
-            "wrote {}",
-            a.output.join(image_name(a.basis)).display()
-        );
+        println!("wrote {}", a.output.join(image_name(a.basis)).display());
     }
     Ok(())
 }

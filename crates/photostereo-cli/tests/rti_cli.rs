@@ -13,7 +13,9 @@ fn stderr(o: &std::process::Output) -> String {
 
 fn synth(dir: &Path, rig: &str, name: &str) {
     let o = photostereo(
-        &["synth", "sphere", "--rig", rig, "--size", "40", "-o", name, "--quiet"],
+        &[
+            "synth", "sphere", "--rig", rig, "--size", "40", "-o", name, "--quiet",
+        ],
         dir,
     );
     assert!(o.status.success(), "{}", stderr(&o));
@@ -36,13 +38,19 @@ fn fits_every_basis_and_writes_its_file_and_report() {
         ("hsh3", "image.rti"),
     ] {
         let out = format!("out-{basis}");
-        let o = photostereo(&["rti", "cap", "--basis", basis, "-o", &out, "--quiet"], dir);
+        let o = photostereo(
+            &["rti", "cap", "--basis", basis, "-o", &out, "--quiet"],
+            dir,
+        );
         assert!(o.status.success(), "{basis}: {}", stderr(&o));
         assert!(dir.join(&out).join(file).is_file(), "{basis}");
         assert!(dir.join(&out).join("coefficients.npy").is_file());
         let r = report(&dir.join(&out).join("report.json"));
         assert_eq!(r["basis"], basis);
-        assert_eq!(r["leave_one_out"]["rmse_8bit"].as_array().unwrap().len(), 30);
+        assert_eq!(
+            r["leave_one_out"]["rmse_8bit"].as_array().unwrap().len(),
+            30
+        );
         let m = r["leave_one_out"]["mean_rmse_8bit"].as_f64().unwrap();
         assert!(m.is_finite() && m > 0.0, "{basis}: {m}");
         let lam = r["lambertian_reference"]["errors"]["mean_rmse_8bit"]
@@ -58,10 +66,17 @@ fn fits_every_basis_and_writes_its_file_and_report() {
     assert!(!o.status.success() && stderr(&o).contains("out-hsh3"));
     let o = photostereo(&["rti", "cap", "-o", "out-hsh3", "--force", "--quiet"], dir);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = photostereo(&["run", "cap", "--no-depth", "-o", "run-out", "--quiet"], dir);
+    let o = photostereo(
+        &["run", "cap", "--no-depth", "-o", "run-out", "--quiet"],
+        dir,
+    );
     assert!(o.status.success(), "{}", stderr(&o));
     let o = photostereo(&["rti", "cap", "-o", "run-out", "--force", "--quiet"], dir);
-    assert!(!o.status.success() && stderr(&o).contains("run folder"), "{}", stderr(&o));
+    assert!(
+        !o.status.success() && stderr(&o).contains("run folder"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 #[test]
@@ -92,7 +107,17 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert!(!dir.join("x").exists());
     // Near lights.
     let o = photostereo(
-        &["synth", "sphere", "--rig", "near-dome", "--size", "40", "-o", "near", "--quiet"],
+        &[
+            "synth",
+            "sphere",
+            "--rig",
+            "near-dome",
+            "--size",
+            "40",
+            "-o",
+            "near",
+            "--quiet",
+        ],
         dir,
     );
     assert!(o.status.success(), "{}", stderr(&o));

@@ -54,7 +54,9 @@ fn truth(basis: Basis, p: usize, c: usize, j: usize) -> f64 {
 fn model(basis: Basis, p: usize, c: usize, l: [f64; 3]) -> f64 {
     let mut b = [0.0; MAX_TERMS];
     basis.eval(l, &mut b);
-    (0..basis.terms()).map(|j| truth(basis, p, c, j) * b[j]).sum()
+    (0..basis.terms())
+        .map(|j| truth(basis, p, c, j) * b[j])
+        .sum()
 }
 
 #[test]
@@ -159,8 +161,7 @@ fn closed_form_leave_one_out_equals_refits_without_each_light() {
         for basis in Basis::ALL {
             let f = fit(&cap, basis, None).unwrap();
             let brute = brute_force_loo(&cap, &f, &|_, _| true);
-            for k in 0..dirs.len() {
-                let (a, b) = (f.loo.sse[k], brute[k]);
+            for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
                 assert!(
                     (a - b).abs() <= 1e-4 * b.max(1e-6),
                     "{} C={c} light {k}: closed form {a} vs refits {b}",
@@ -186,13 +187,11 @@ fn excluded_readings_leave_the_fit_and_its_error() {
     for basis in [Basis::PtmLrgb, Basis::Hsh3] {
         let f = fit(&cap, basis, Some(&flags)).unwrap();
         let brute = brute_force_loo(&cap, &f, &kept);
-        for k in 0..n {
+        for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
             assert!(
-                (f.loo.sse[k] - brute[k]).abs() <= 1e-4 * brute[k].max(1e-6),
-                "{} light {k}: {} vs {}",
-                basis.name(),
-                f.loo.sse[k],
-                brute[k]
+                (a - b).abs() <= 1e-4 * b.max(1e-6),
+                "{} light {k}: {a} vs {b}",
+                basis.name()
             );
         }
         assert_eq!(
@@ -210,7 +209,12 @@ fn lines(bytes: &[u8], n: usize) -> (Vec<String>, &[u8]) {
     let mut rest = bytes;
     while out.len() < n {
         let end = rest.iter().position(|&b| b == b'\n').unwrap();
-        out.push(String::from_utf8(rest[..end].to_vec()).unwrap().trim().to_string());
+        out.push(
+            String::from_utf8(rest[..end].to_vec())
+                .unwrap()
+                .trim()
+                .to_string(),
+        );
         rest = &rest[end + 1..];
     }
     (out, rest)
@@ -223,8 +227,14 @@ fn read_ptm(path: &std::path::Path) -> (String, usize, usize, Vec<f64>, Vec<f64>
     let (head, mut rest) = lines(&bytes, 6);
     assert_eq!(head[0], "PTM_1.2");
     let (w, h): (usize, usize) = (head[2].parse().unwrap(), head[3].parse().unwrap());
-    let scale: Vec<f64> = head[4].split_whitespace().map(|v| v.parse().unwrap()).collect();
-    let bias: Vec<i32> = head[5].split_whitespace().map(|v| v.parse().unwrap()).collect();
+    let scale: Vec<f64> = head[4]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let bias: Vec<i32> = head[5]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
     assert_eq!((scale.len(), bias.len()), (6, 6));
     let planes = if head[1] == "PTM_FORMAT_LRGB" { 1 } else { 3 };
     let mut coeffs = vec![0.0; w * h * planes * 6];
@@ -256,13 +266,23 @@ fn read_hsh(path: &std::path::Path) -> (usize, usize, usize, Vec<f64>, Vec<f64>)
     let (head, rest) = lines(&bytes, 4);
     assert!(head[0].starts_with('#'));
     assert_eq!(head[1], "3");
-    let dims: Vec<usize> = head[2].split_whitespace().map(|v| v.parse().unwrap()).collect();
-    let basis: Vec<usize> = head[3].split_whitespace().map(|v| v.parse().unwrap()).collect();
+    let dims: Vec<usize> = head[2]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let basis: Vec<usize> = head[3]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
     let (w, h, t) = (dims[0], dims[1], basis[0]);
     assert_eq!((dims[2], basis[1], basis[2]), (3, 2, 1));
     let f32s = |at: usize| -> Vec<f64> {
         (0..t)
-            .map(|j| f64::from(f32::from_le_bytes(rest[at + 4 * j..at + 4 * j + 4].try_into().unwrap())))
+            .map(|j| {
+                f64::from(f32::from_le_bytes(
+                    rest[at + 4 * j..at + 4 * j + 4].try_into().unwrap(),
+                ))
+            })
             .collect()
     };
     let (scale, bias) = (f32s(0), f32s(4 * t));
@@ -311,9 +331,17 @@ fn files_hold_the_fit_within_their_quantisation() {
                         };
                         // Quantisation: half a step per coefficient (and per chroma byte).
                         let step: f64 = (0..6).map(|j| 0.5 * scale[j] * b[j].abs()).sum::<f64>()
-                            + if basis.luminance() { poly.abs() / 255.0 } else { 0.0 };
+                            + if basis.luminance() {
+                                poly.abs() / 255.0
+                            } else {
+                                0.0
+                            };
                         let err = (shown - 255.0 * want[ch]).abs();
-                        assert!(err <= step * 1.01 + 1e-6, "{} p{p} k{k} ch{ch}: {err} > {step}", basis.name());
+                        assert!(
+                            err <= step * 1.01 + 1e-6,
+                            "{} p{p} k{k} ch{ch}: {err} > {step}",
+                            basis.name()
+                        );
                     }
                 }
             }

@@ -54,7 +54,9 @@ pub fn rti(
     check_capture(&capture, options)?;
     let t = Instant::now();
     let rec = reference(&capture, options, progress)?;
-    let exclude = options.exclude_unreliable.then(|| unused_readings(&capture, &rec));
+    let exclude = options
+        .exclude_unreliable
+        .then(|| unused_readings(&capture, &rec));
     let reference_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let fitted = fit(&capture, options.basis, exclude.as_deref())?;
@@ -103,7 +105,8 @@ fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
     let per_pixel = RtiFit::bytes_per_pixel(options.basis, capture.channels);
     // Writing holds the frame's coefficients as floats and as bytes once more.
     let frame = (capture.width * capture.height) as u64;
-    let need = per_pixel * capture.n_pixels() as u64 + frame * (15 * options.basis.terms() as u64 + 3);
+    let need =
+        per_pixel * capture.n_pixels() as u64 + frame * (15 * options.basis.terms() as u64 + 3);
     let budget = options
         .memory_limit
         .unwrap_or_else(crate::model::memory::default_budget);

@@ -188,7 +188,11 @@ impl RelightErrors {
 
     /// Mean over the lights (with readings) of the per-light 8-bit RMSE.
     pub fn mean_rmse_8bit(&self) -> f64 {
-        mean((0..self.sse.len()).filter(|&k| self.count[k] > 0).map(|k| self.rmse_8bit(k)))
+        mean(
+            (0..self.sse.len())
+                .filter(|&k| self.count[k] > 0)
+                .map(|k| self.rmse_8bit(k)),
+        )
     }
 
     /// Mean over the lights (with readings) of the per-light relative RMSE.
@@ -314,7 +318,7 @@ fn cholesky(a: &mut [f64; MAX_TERMS * MAX_TERMS], t: usize) -> bool {
         for k in 0..j {
             d -= a[j * t + k] * a[j * t + k];
         }
-        if !(d > 1e-12 * scale) {
+        if d.is_nan() || d <= 1e-12 * scale {
             return false;
         }
         let d = d.sqrt();
@@ -382,8 +386,8 @@ impl Design {
         for k in 0..n {
             x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
             cholesky_solve(&g, t, &mut x[..t]);
-            for j in 0..t {
-                projector[j * n + k] = x[j];
+            for (j, &xj) in x.iter().enumerate().take(t) {
+                projector[j * n + k] = xj;
             }
             leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
         }
@@ -596,8 +600,8 @@ impl TileJob<'_> {
             if chroma.is_some() {
                 s.y[k] = r.iter().map(|&x| f64::from(x)).sum::<f64>() / c as f64 * self.gain;
             } else {
-                for ch in 0..c {
-                    s.y[ch * n + k] = f64::from(r[ch]) * self.gain;
+                for (ch, &v) in r.iter().enumerate() {
+                    s.y[ch * n + k] = f64::from(v) * self.gain;
                 }
             }
         }
@@ -654,8 +658,8 @@ impl TileJob<'_> {
         for k in 0..n {
             x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
             cholesky_solve(&g, t, &mut x[..t]);
-            for j in 0..t {
-                s.projector[j * n + k] = x[j];
+            for (j, &xj) in x.iter().enumerate().take(t) {
+                s.projector[j * n + k] = xj;
             }
             s.leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
         }
@@ -690,8 +694,8 @@ impl TileJob<'_> {
             for k in (0..n).filter(|&k| kept(k)) {
                 let e = d.y[k] - fitted(0, k);
                 let y_loo = d.y[k] - e / (1.0 - leverage[k]);
-                for ch in 0..c {
-                    let chroma_loo = ratio(sc[ch] - reading(k, ch), sy - d.y[k]);
+                for (ch, &total) in sc.iter().enumerate().take(c) {
+                    let chroma_loo = ratio(total - reading(k, ch), sy - d.y[k]);
                     errors.add(k, chroma_loo * y_loo, reading(k, ch));
                 }
             }

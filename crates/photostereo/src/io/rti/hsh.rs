@@ -26,7 +26,12 @@ pub fn write_hsh(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
             fit.basis.name()
         )));
     }
-    let (w, h, t, fc) = (fit.width, fit.height, fit.basis.terms(), fit.fitted_channels);
+    let (w, h, t, fc) = (
+        fit.width,
+        fit.height,
+        fit.basis.terms(),
+        fit.fitted_channels,
+    );
     let values = frame_coefficients(fit, 1.0);
     let maps: Vec<TermMap> = term_ranges(&values, t)
         .into_iter()

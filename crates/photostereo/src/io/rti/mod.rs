@@ -3,7 +3,7 @@
 //! [`hsh`]), with the float coefficients beside them as `.npy` for checking the quantisation.
 //!
 //! Both formats store one byte per coefficient with a per-term linear map shared by every pixel
-//! (and channel); [`Quantiser`] holds it. Pixels outside the mask are written with zero
+//! (and channel); [`TermMap`] holds it. Pixels outside the mask are written with zero
 //! coefficients (and, for PTM LRGB, black chroma).
 
 pub mod hsh;

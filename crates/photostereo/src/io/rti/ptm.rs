@@ -16,6 +16,10 @@
 //! luminance polynomial. The fit's luminance Y and chroma χ_c (channel / Y) are stored as
 //! L = 255 · m · Y and R, G, B = 255 · χ_c / m with m = max_c χ_c, so that the chroma bytes use
 //! their whole range and R · L / 255 = 255 · χ_c · Y.
+//!
+//! RTIViewer truncates each dequantised coefficient to an integer; with the 8-bit scale above
+//! that costs at most one unit of the polynomial's coefficient, about a quantisation step for a
+//! term whose range spans 254 units.
 
 use super::{term_ranges, write_file, TermMap};
 use crate::base::error::Result;

@@ -18,8 +18,8 @@ pub mod folder;
 pub mod mesh;
 pub mod openlime;
 pub mod page;
-pub mod relight;
 pub mod pyramid;
+pub mod relight;
 
 pub use folder::RunFolder;
 pub use relight::{albedo_white, relight, RelightParams};
