@@ -13,6 +13,7 @@ mod eval;
 mod integrate;
 mod params;
 mod photometry;
+mod rti;
 mod run;
 mod serve;
 mod synth;
@@ -51,6 +52,9 @@ enum Command {
     View(view::ViewArgs),
     /// Write what OpenLIME's BRDF layer reads (kd, normals, layer configuration, a page).
     ExportOpenlime(view::ExportOpenLimeArgs),
+    /// Fit a relightable image (PTM or hemispherical harmonics) per pixel and write image.ptm
+    /// or image.rti for RTIViewer, with the fit's leave-one-out error in report.json.
+    Rti(rti::RtiArgs),
 }
 
 /// Removes the output in progress when the process is interrupted, then ends it by the same
@@ -137,5 +141,6 @@ fn run_command(command: Command) -> anyhow::Result<()> {
         Command::Synth(a) => synth::main(a),
         Command::View(a) => view::main(a),
         Command::ExportOpenlime(a) => view::export_main(a),
+        Command::Rti(a) => rti::main(a),
     }
 }

@@ -51,10 +51,12 @@ pub enum OutputKind {
     OpenLime,
     /// A colour-mapped angular-error picture (`eval --error-map`).
     ErrorMap,
+    /// Relightable-image files fitted to a capture (`rti`).
+    Rti,
 }
 
 impl OutputKind {
-    const ALL: [OutputKind; 8] = [
+    const ALL: [OutputKind; 9] = [
         OutputKind::Run,
         OutputKind::Synth,
         OutputKind::Demo,
@@ -63,6 +65,7 @@ impl OutputKind {
         OutputKind::Integration,
         OutputKind::OpenLime,
         OutputKind::ErrorMap,
+        OutputKind::Rti,
     ];
 
     /// The name recorded in markers and PNG chunks.
@@ -76,6 +79,7 @@ impl OutputKind {
             OutputKind::Integration => "integration",
             OutputKind::OpenLime => "openlime",
             OutputKind::ErrorMap => "error-map",
+            OutputKind::Rti => "rti",
         }
     }
 

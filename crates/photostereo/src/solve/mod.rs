@@ -10,4 +10,5 @@ pub mod metrics;
 pub mod near_lobe;
 pub mod plausibility;
 pub mod refine;
+pub mod rti;
 pub mod tiled;

@@ -1,0 +1,106 @@
+//! `photostereo rti`: fit a relightable image (PTM or hemispherical harmonics) to a capture and
+//! write the file RTIViewer and OpenLIME read, with the fit's leave-one-out error.
+
+use crate::common::{print_json, OutputOpts};
+use anyhow::Result;
+use clap::Args;
+use photostereo::app::rti::{image_name, rti, RtiOptions};
+use photostereo::io::layouts::CaptureFiles;
+use photostereo::solve::rti::Basis;
+use std::path::{Path, PathBuf};
+
+#[derive(Args, Debug)]
+pub struct RtiArgs {
+    /// A DiLiGenT-layout folder, a list file (with --lights), or image files (with --lights),
+    /// as `run` takes them. Distant lights only: a near-light capture is refused.
+    #[arg(required = true)]
+    pub input: Vec<PathBuf>,
+    /// Light directions (N rows `x y z`, optionally preceded by a count line).
+    #[arg(long)]
+    pub lights: Option<PathBuf>,
+    /// Per-light intensities (N rows `R G B` or one value each).
+    #[arg(long)]
+    pub intensities: Option<PathBuf>,
+    /// Mask image (non-zero = object); overrides the layout's own mask.
+    #[arg(long)]
+    pub mask: Option<PathBuf>,
+    /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
+    /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
+    /// written as .rti).
+    #[arg(long, default_value = "hsh3", value_parser = parse_basis)]
+    pub basis: Basis,
+    /// Run the recursive method first and leave out of each pixel's fit the readings it found
+    /// to be shadows or highlights.
+    #[arg(long)]
+    pub exclude_unreliable: bool,
+    /// Memory budget (e.g. `4G`, `500M`; powers of 1024), as `run`'s; the coefficients must fit.
+    #[arg(long, value_parser = crate::common::parse_memory_limit)]
+    pub memory_limit: Option<u64>,
+    /// Output folder: image.ptm or image.rti, coefficients.npy (chroma.npy for ptm), report.json.
+    #[arg(short, long, default_value = "photostereo-rti")]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub out: OutputOpts,
+}
+
+fn parse_basis(s: &str) -> Result<Basis, String> {
+    s.parse().map_err(|e: photostereo::Error| e.to_string())
+}
+
+pub fn main(a: RtiArgs) -> Result<()> {
+    crate::common::check_input_paths(
+        &a.input,
+        a.lights.as_deref(),
+        a.intensities.as_deref(),
+        a.mask.as_deref(),
+    )?;
+    let files = CaptureFiles::from_inputs(
+        &a.input,
+        a.lights.as_deref(),
+        a.intensities.as_deref(),
+        a.mask.as_deref(),
+    )?;
+    // --force never replaces an input or a folder holding one.
+    let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
+    inputs.extend(files.images.iter().map(PathBuf::as_path));
+    inputs.extend(files.mask.as_deref());
+    inputs.extend(a.lights.as_deref());
+    inputs.extend(a.intensities.as_deref());
+    photostereo::io::export::check_output(
+        &a.output,
+        a.out.force,
+        photostereo::io::export::OutputKind::Rti,
+        &inputs,
+    )?;
+    let options = RtiOptions {
+        basis: a.basis,
+        exclude_unreliable: a.exclude_unreliable,
+        memory_limit: a.memory_limit,
+    };
+    let progress = a.out.progress();
+    let mut report = rti(&files, &options, &a.output, a.out.force, &progress)
+        .map_err(crate::common::flag_error)?;
+    if a.out.json {
+        report["output"] = serde_json::Value::from(a.output.display().to_string());
+        print_json(&report);
+    } else if !a.out.quiet {
+        let loo = &report["leave_one_out"];
+        let lam = &report["lambertian_reference"]["errors"];
+        println!(
+            "{}: {} lights, {} mask pixels, basis {}",
+            a.input[0].display(),
+            report["input"]["lights"],
+            report["input"]["mask_pixels"],
+            a.basis.name()
+        );
+        println!(
+            "leave-one-out RMSE: {:.2} (8-bit), {:.2}% relative; Lambertian reference {:.2} (8-bit), {:.2}%",
+            loo["mean_rmse_8bit"].as_f64().unwrap_or(f64::NAN),
+            100.0 * loo["mean_relative"].as_f64().unwrap_or(f64::NAN),
+            lam["mean_rmse_8bit"].as_f64().unwrap_or(f64::NAN),
+            100.0 * lam["mean_relative"].as_f64().unwrap_or(f64::NAN),
+        );
+        println!("wrote {}", a.output.join(image_name(a.basis)).display());
+    }
+    Ok(())
+}

@@ -1,0 +1,210 @@
+//! The `rti` driver: load a capture, fit a relightable-image basis per pixel
+//! ([`crate::solve::rti`]), measure its leave-one-out relighting error beside the Lambertian
+//! relighting of photostereo's own normals and albedo, and write the viewer file, the float
+//! coefficients and `report.json` into an output folder atomically.
+
+use crate::base::error::{Error, Result};
+use crate::base::progress::Progress;
+use crate::io::export::{write_json, OutputFolder, OutputKind};
+use crate::io::layouts::{CaptureFiles, LoadOptions};
+use crate::method::engine::{reconstruct, Method, Params, Reconstruction};
+use crate::model::capture::Capture;
+use crate::solve::lambert::status;
+use crate::solve::rti::{fit, lambert_errors, Basis, RelightErrors, RtiFit};
+use serde_json::{json, Value};
+use std::path::Path;
+use std::time::Instant;
+
+/// What an `rti` run does.
+#[derive(Clone, Debug)]
+pub struct RtiOptions {
+    /// The basis fitted.
+    pub basis: Basis,
+    /// Run the recursive method first and leave out of each pixel's fit the readings it did
+    /// not use (shadows and highlights).
+    pub exclude_unreliable: bool,
+    /// Memory budget in bytes (`None`: half the memory available), as `run`'s.
+    pub memory_limit: Option<u64>,
+}
+
+/// The file name of the viewer file of `basis`.
+pub fn image_name(basis: Basis) -> &'static str {
+    match basis {
+        Basis::PtmLrgb | Basis::PtmRgb => "image.ptm",
+        Basis::Hsh2 | Basis::Hsh3 => "image.rti",
+    }
+}
+
+/// The whole `rti` command: returns the report it wrote to `output/report.json`.
+pub fn rti(
+    files: &CaptureFiles,
+    options: &RtiOptions,
+    output: &Path,
+    force: bool,
+    progress: &dyn Progress,
+) -> Result<Value> {
+    let start = Instant::now();
+    let folder = OutputFolder::create(output, force, OutputKind::Rti)?;
+    let load = LoadOptions {
+        budget: options.memory_limit,
+        spill_dir: Some(folder.path().to_path_buf()),
+        ..Default::default()
+    };
+    let capture = files.load_with(progress, &load)?;
+    check_capture(&capture, options)?;
+    let t = Instant::now();
+    let rec = reference(&capture, options, progress)?;
+    let exclude = options
+        .exclude_unreliable
+        .then(|| unused_readings(&capture, &rec));
+    let reference_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    let fitted = fit(&capture, options.basis, exclude.as_deref())?;
+    let lambert = lambert_errors(
+        &capture,
+        &rec.normals,
+        &rec.albedo,
+        fitted.gain,
+        exclude.as_deref(),
+    )?;
+    drop(exclude);
+    let fit_s = t.elapsed().as_secs_f64();
+    let mut report = report(&capture, &fitted, &lambert, &rec, options);
+    // The files are written from the fit alone.
+    drop((capture, rec));
+    let t = Instant::now();
+    let image = folder.file(image_name(options.basis));
+    let maps = match options.basis {
+        Basis::PtmLrgb | Basis::PtmRgb => crate::io::rti::ptm::write_ptm(&image, &fitted)?,
+        Basis::Hsh2 | Basis::Hsh3 => crate::io::rti::hsh::write_hsh(&image, &fitted)?,
+    };
+    crate::io::rti::write_float_coefficients(folder.path(), &fitted)?;
+    report["file"] = json!({ "name": image_name(options.basis), "terms": maps });
+    report["timings_s"] = json!({
+        "reference": reference_s,
+        "fit": fit_s,
+        "write": t.elapsed().as_secs_f64(),
+        "total": start.elapsed().as_secs_f64(),
+    });
+    write_json(&folder.file("report.json"), &report)?;
+    folder.commit()?;
+    Ok(report)
+}
+
+/// Refuses what the fit cannot serve: near lights, and coefficients beyond the memory budget
+/// (per mask pixel [`RtiFit::bytes_per_pixel`]; per frame pixel, while writing, the
+/// coefficients of up to three planes as f32 and as bytes, 15 · T + 3 bytes).
+fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
+    if capture.lights.near.is_some() {
+        return Err(Error::invalid(
+            "rti: this capture has near lights (light_positions.txt); RTI bases (PTM, HSH) \
+             model the reflectance under distant lights, whose direction is the same at every \
+             pixel, and photostereo does not fit them with per-pixel directions",
+        ));
+    }
+    let per_pixel = RtiFit::bytes_per_pixel(options.basis, capture.channels);
+    // Writing holds the frame's coefficients as floats and as bytes once more.
+    let frame = (capture.width * capture.height) as u64;
+    let need =
+        per_pixel * capture.n_pixels() as u64 + frame * (15 * options.basis.terms() as u64 + 3);
+    let budget = options
+        .memory_limit
+        .unwrap_or_else(crate::model::memory::default_budget);
+    if need > budget {
+        return Err(Error::parameter(
+            "memory_limit",
+            format!(
+                "{}: the {} coefficients of {} mask pixels need {} ({per_pixel} bytes a mask \
+                 pixel, and {} a frame pixel while writing); RTI fits are held whole in memory",
+                crate::model::memory::size_flag(budget),
+                options.basis.name(),
+                capture.n_pixels(),
+                crate::model::memory::size_flag(need),
+                15 * options.basis.terms() + 3
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// photostereo's own normals and albedo: the recursive method with `exclude_unreliable` (its
+/// statuses make the light mask), else least squares over every light.
+fn reference(
+    capture: &Capture,
+    options: &RtiOptions,
+    progress: &dyn Progress,
+) -> Result<Reconstruction> {
+    let d = Params::default();
+    let params = Params {
+        method: if options.exclude_unreliable {
+            Method::Recursive
+        } else {
+            Method::L2
+        },
+        detect: options.exclude_unreliable,
+        integrate: false,
+        memory_limit: options.memory_limit,
+        ..d
+    };
+    reconstruct(capture, &params, progress)
+}
+
+/// Per mask pixel and light, whether the reconstruction left the reading out (any status but
+/// USED).
+fn unused_readings(capture: &Capture, rec: &Reconstruction) -> Vec<bool> {
+    let n = capture.n_lights();
+    (0..capture.n_pixels())
+        .flat_map(|p| (0..n).map(move |k| (p, k)))
+        .map(|(p, k)| rec.light_status.code(p, k) != status::USED)
+        .collect()
+}
+
+/// Per-light and mean figures of a relighting error.
+fn errors_json(e: &RelightErrors) -> Value {
+    let n = e.sse.len();
+    json!({
+        "mean_rmse_8bit": e.mean_rmse_8bit(),
+        "mean_relative": e.mean_relative(),
+        "rmse_8bit": (0..n).map(|k| e.rmse_8bit(k)).collect::<Vec<_>>(),
+        "relative": (0..n).map(|k| e.relative(k)).collect::<Vec<_>>(),
+        "readings": e.count.clone(),
+    })
+}
+
+fn report(
+    capture: &Capture,
+    fitted: &RtiFit,
+    lambert: &RelightErrors,
+    rec: &Reconstruction,
+    options: &RtiOptions,
+) -> Value {
+    let ranges: Vec<[f32; 2]> = fitted
+        .coefficient_ranges()
+        .into_iter()
+        .map(|(a, b)| [a, b])
+        .collect();
+    json!({
+        "basis": options.basis.name(),
+        "terms": options.basis.terms(),
+        "input": {
+            "width": capture.width,
+            "height": capture.height,
+            "channels": capture.channels,
+            "lights": capture.n_lights(),
+            "mask_pixels": capture.n_pixels(),
+        },
+        "display_gain": fitted.gain,
+        "coefficient_ranges": ranges,
+        "exclude_unreliable": options.exclude_unreliable,
+        "excluded_readings": fitted.excluded_readings,
+        "pixels_fitted_with_every_light": fitted.fell_back_to_all_lights,
+        "leave_one_out": errors_json(&fitted.loo),
+        "lambertian_reference": {
+            "method": rec.report.method.clone(),
+            "note": "photostereo's normals × albedo, I = ρ max(0, n·l), relit under every light \
+                     over the readings the RTI fit used; its normals were fitted with those \
+                     lights (not left out)",
+            "errors": errors_json(lambert),
+        },
+    })
+}

@@ -1,0 +1,759 @@
+//! Reflectance transformation imaging (RTI): per-pixel least-squares fits of a light-dependent
+//! reflectance function, the representation heritage viewers (RTIViewer, OpenLIME) relight.
+//!
+//! A basis of T functions b_j(l) of the unit light direction l = (l_x, l_y, l_z) (camera frame:
+//! x right, y up, z toward the camera) models the reading of pixel p under light k as
+//! I_pk ≈ Σ_j c_pj · b_j(l_k). The coefficients are the least-squares solution of the normal
+//! equations (AᵀA) c = Aᵀ y with A_kj = b_j(l_k). With distant lights A is the same for every
+//! pixel, so G = AᵀA is factored once and the projector P = G⁻¹Aᵀ (T × N) is applied to each
+//! pixel's readings; a pixel with excluded readings (a per-pixel light mask, e.g. the recursive
+//! method's shadows and highlights) gets its own normal equations over the lights it keeps.
+//!
+//! Bases:
+//! - PTM (Malzbender, Gelb & Wolters 2001, "Polynomial texture maps"; HP Labs "PTM file
+//!   format" v1.2): with the light projected on the image plane, (l_u, l_v) = (l_x, l_y),
+//!   L = a0 l_u² + a1 l_v² + a2 l_u l_v + a3 l_u + a4 l_v + a5. The LRGB variant fits the
+//!   luminance Y = mean of the channels and keeps a per-pixel chroma (the ratio of each
+//!   channel to Y, summed over the lights); the RGB variant fits each channel.
+//! - HSH, hemispherical harmonics (Gautron, Křivánek, Pattanaik & Bouatouch 2004, "A novel
+//!   hemispherical basis for accurate and efficient rendering"), in the order and
+//!   normalisation RTIViewer's `.rti` files use, with θ the light's angle from the view axis
+//!   (cos θ = l_z) and φ = atan2(l_y, l_x), s = √(cos θ − cos² θ):
+//!   - H0 = 1/√(2π)
+//!   - H1 = √(6/π) cos φ · s
+//!   - H2 = √(3/(2π)) (2 cos θ − 1)
+//!   - H3 = √(6/π) sin φ · s
+//!   - H4 = √(30/π) cos 2φ (cos² θ − cos θ)
+//!   - H5 = √(30/π) cos φ (2 cos θ − 1) s
+//!   - H6 = √(5/(2π)) (6 cos² θ − 6 cos θ + 1)
+//!   - H7 = √(30/π) sin φ (2 cos θ − 1) s
+//!   - H8 = √(30/π) sin 2φ (cos² θ − cos θ)
+//!
+//!   Order 2 is H0…H3 (4 terms), order 3 H0…H8 (9 terms), per channel.
+//!
+//! Leave-one-out (LOO) error: for a linear least-squares fit with hat matrix H = A G⁻¹ Aᵀ, the
+//! residual of reading k when the fit leaves k out is e_k / (1 − h_kk), e_k the residual of the
+//! full fit (the PRESS identity; e.g. Hastie, Tibshirani & Friedman, "The Elements of
+//! Statistical Learning", eq. 7.52 for linear smoothers). It is exact, so no refit per light is
+//! needed; [`RtiFit`]'s figures use it for every basis. For PTM LRGB the chroma left out of
+//! light k is recomputed without k as well, so its LOO prediction is exact too.
+//!
+//! Units: readings are the capture's intensity-normalised samples times a display gain
+//! ([`display_gain`]), so that 1.0 is the top of the 8-bit range of the files (RTIViewer shows
+//! HSH values × 255 and PTM values as they are, with the PTM coefficients stored × 255).
+//! Memory: the coefficients, f32, `4 · (C·T + 3)` bytes per mask pixel (C channels fitted), and
+//! the capture's samples `4 · N · C` bytes per mask pixel (or its tiles).
+
+use crate::base::error::{Error, Result};
+use crate::model::capture::Capture;
+use rayon::prelude::*;
+use std::str::FromStr;
+
+/// The most terms a basis has (HSH order 3).
+pub const MAX_TERMS: usize = 9;
+
+/// A reflectance basis of the RTI fits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Basis {
+    /// PTM of the luminance with a per-pixel RGB chroma (`PTM_FORMAT_LRGB`).
+    PtmLrgb,
+    /// PTM of each channel (`PTM_FORMAT_RGB`).
+    PtmRgb,
+    /// Hemispherical harmonics of order 2: 4 terms per channel.
+    Hsh2,
+    /// Hemispherical harmonics of order 3: 9 terms per channel.
+    Hsh3,
+}
+
+impl Basis {
+    /// Every basis, in the order tables list them.
+    pub const ALL: [Basis; 4] = [Basis::PtmLrgb, Basis::PtmRgb, Basis::Hsh2, Basis::Hsh3];
+
+    /// The name `--basis` accepts.
+    pub fn name(self) -> &'static str {
+        match self {
+            Basis::PtmLrgb => "ptm",
+            Basis::PtmRgb => "ptm-rgb",
+            Basis::Hsh2 => "hsh2",
+            Basis::Hsh3 => "hsh3",
+        }
+    }
+
+    /// Number of basis functions T.
+    pub fn terms(self) -> usize {
+        match self {
+            Basis::PtmLrgb | Basis::PtmRgb => 6,
+            Basis::Hsh2 => 4,
+            Basis::Hsh3 => 9,
+        }
+    }
+
+    /// Whether the fit is of the luminance with a per-pixel chroma (PTM LRGB).
+    pub fn luminance(self) -> bool {
+        self == Basis::PtmLrgb
+    }
+
+    /// The basis functions at the unit light direction `l` (module documentation), into
+    /// `out[..terms]`. A light below the horizon (l_z < 0) is evaluated at the horizon.
+    pub fn eval(self, l: [f64; 3], out: &mut [f64]) {
+        use std::f64::consts::PI;
+        match self {
+            Basis::PtmLrgb | Basis::PtmRgb => {
+                let (u, v) = (l[0], l[1]);
+                out[..6].copy_from_slice(&[u * u, v * v, u * v, u, v, 1.0]);
+            }
+            Basis::Hsh2 | Basis::Hsh3 => {
+                let ct = l[2].clamp(0.0, 1.0);
+                let phi = l[1].atan2(l[0]);
+                let s = (ct - ct * ct).max(0.0).sqrt();
+                out[0] = 1.0 / (2.0 * PI).sqrt();
+                out[1] = (6.0 / PI).sqrt() * phi.cos() * s;
+                out[2] = (3.0 / (2.0 * PI)).sqrt() * (2.0 * ct - 1.0);
+                out[3] = (6.0 / PI).sqrt() * phi.sin() * s;
+                if self == Basis::Hsh3 {
+                    let k = (30.0 / PI).sqrt();
+                    out[4] = k * (2.0 * phi).cos() * (ct * ct - ct);
+                    out[5] = k * phi.cos() * (2.0 * ct - 1.0) * s;
+                    out[6] = (5.0 / (2.0 * PI)).sqrt() * (6.0 * ct * ct - 6.0 * ct + 1.0);
+                    out[7] = k * phi.sin() * (2.0 * ct - 1.0) * s;
+                    out[8] = k * (2.0 * phi).sin() * (ct * ct - ct);
+                }
+            }
+        }
+    }
+}
+
+impl FromStr for Basis {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Basis::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| {
+                Error::parameter(
+                    "basis",
+                    format!("'{s}': expected one of ptm, ptm-rgb, hsh2, hsh3"),
+                )
+            })
+    }
+}
+
+/// Per-light sums of a relighting error over the mask pixels and channels, in display units
+/// (1.0 = 255 in 8 bits).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct RelightErrors {
+    /// Σ (prediction − reading)² per light.
+    pub sse: Vec<f64>,
+    /// Σ reading² per light (for the relative error).
+    pub sum_sq: Vec<f64>,
+    /// Readings compared per light.
+    pub count: Vec<u64>,
+}
+
+impl RelightErrors {
+    /// Zero sums for `n` lights.
+    pub fn new(n: usize) -> Self {
+        RelightErrors {
+            sse: vec![0.0; n],
+            sum_sq: vec![0.0; n],
+            count: vec![0; n],
+        }
+    }
+
+    fn add(&mut self, k: usize, predicted: f64, reading: f64) {
+        let d = predicted - reading;
+        self.sse[k] += d * d;
+        self.sum_sq[k] += reading * reading;
+        self.count[k] += 1;
+    }
+
+    fn merge(mut self, o: RelightErrors) -> RelightErrors {
+        for k in 0..self.sse.len() {
+            self.sse[k] += o.sse[k];
+            self.sum_sq[k] += o.sum_sq[k];
+            self.count[k] += o.count[k];
+        }
+        self
+    }
+
+    /// RMSE of light k in 8-bit units (255 × display units); NaN without readings.
+    pub fn rmse_8bit(&self, k: usize) -> f64 {
+        255.0 * (self.sse[k] / self.count[k] as f64).sqrt()
+    }
+
+    /// RMSE of light k relative to the RMS of its readings.
+    pub fn relative(&self, k: usize) -> f64 {
+        (self.sse[k] / self.sum_sq[k]).sqrt()
+    }
+
+    /// Mean over the lights (with readings) of the per-light 8-bit RMSE.
+    pub fn mean_rmse_8bit(&self) -> f64 {
+        mean(
+            (0..self.sse.len())
+                .filter(|&k| self.count[k] > 0)
+                .map(|k| self.rmse_8bit(k)),
+        )
+    }
+
+    /// Mean over the lights (with readings) of the per-light relative RMSE.
+    pub fn mean_relative(&self) -> f64 {
+        mean(
+            (0..self.sse.len())
+                .filter(|&k| self.count[k] > 0 && self.sum_sq[k] > 0.0)
+                .map(|k| self.relative(k)),
+        )
+    }
+}
+
+fn mean(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0usize), |(s, n), x| (s + x, n + 1));
+    if n == 0 {
+        f64::NAN
+    } else {
+        s / n as f64
+    }
+}
+
+/// A capture's RTI fit: coefficients per mask pixel and the leave-one-out figures.
+#[derive(Clone, Debug)]
+pub struct RtiFit {
+    /// The basis.
+    pub basis: Basis,
+    /// Frame columns.
+    pub width: usize,
+    /// Frame rows.
+    pub height: usize,
+    /// Channels of the capture (1 or 3).
+    pub channels: usize,
+    /// Row-major frame index of each mask pixel (the capture's `pixels`).
+    pub pixels: Vec<u32>,
+    /// Channels fitted: 1 for PTM LRGB (the luminance), else the capture's channels.
+    pub fitted_channels: usize,
+    /// Coefficients, `[pixel][fitted channel][term]`, display units.
+    pub coefficients: Vec<f32>,
+    /// PTM LRGB: the chroma `[pixel][3]` (channel / luminance, 1 for grey); empty otherwise.
+    pub chroma: Vec<f32>,
+    /// The factor applied to the intensity-normalised samples ([`display_gain`]).
+    pub gain: f64,
+    /// Leave-one-out errors per light over the readings each fit used.
+    pub loo: RelightErrors,
+    /// Readings the light mask excluded from the fits.
+    pub excluded_readings: u64,
+    /// Pixels whose kept lights were too few for a leave-one-out fit (fewer than T + 2) and
+    /// that were fitted with every light instead.
+    pub fell_back_to_all_lights: u64,
+}
+
+impl RtiFit {
+    /// The fitted model of mask pixel `p` under the unit light `l`, per channel of the capture
+    /// (display units), into `out[..channels]`.
+    pub fn predict(&self, p: usize, l: [f64; 3], out: &mut [f64]) {
+        let t = self.basis.terms();
+        let mut b = [0.0; MAX_TERMS];
+        self.basis.eval(l, &mut b);
+        let fc = self.fitted_channels;
+        let c = &self.coefficients[p * fc * t..(p + 1) * fc * t];
+        let dot = |ch: usize| (0..t).map(|j| c[ch * t + j] as f64 * b[j]).sum::<f64>();
+        if self.basis.luminance() {
+            let y = dot(0);
+            for (ch, o) in out.iter_mut().take(self.channels).enumerate() {
+                *o = y * self.chroma[p * 3 + ch.min(2)] as f64;
+            }
+        } else {
+            for (ch, o) in out.iter_mut().take(self.channels).enumerate() {
+                *o = dot(ch);
+            }
+        }
+    }
+
+    /// Per term, the least and greatest coefficient over the mask pixels and fitted channels.
+    pub fn coefficient_ranges(&self) -> Vec<(f32, f32)> {
+        let t = self.basis.terms();
+        let mut r = vec![(f32::INFINITY, f32::NEG_INFINITY); t];
+        for (i, &c) in self.coefficients.iter().enumerate() {
+            let e = &mut r[i % t];
+            e.0 = e.0.min(c);
+            e.1 = e.1.max(c);
+        }
+        r
+    }
+
+    /// Bytes the fit holds per mask pixel (coefficients and chroma).
+    pub fn bytes_per_pixel(basis: Basis, channels: usize) -> u64 {
+        let fc = if basis.luminance() { 1 } else { channels };
+        4 * (fc * basis.terms() + 3) as u64
+    }
+}
+
+/// The factor that maps the capture's intensity-normalised readings to display units: 1 / the
+/// 99.5th percentile of the readings of up to 4096 evenly spaced mask pixels (all lights and
+/// channels), so that all but the brightest highlights fit the 8-bit range; 1 when that is 0.
+pub fn display_gain(capture: &Capture) -> Result<f64> {
+    let np = capture.n_pixels();
+    if np == 0 {
+        return Ok(1.0);
+    }
+    let step = np.div_ceil(4096).max(1);
+    let ids: Vec<usize> = (0..np).step_by(step).collect();
+    let view = capture.sampled(&ids)?;
+    let mut v: Vec<f32> = ids
+        .iter()
+        .flat_map(|&p| view.pixel_samples(p).iter().copied())
+        .filter(|x| x.is_finite())
+        .collect();
+    if v.is_empty() {
+        return Ok(1.0);
+    }
+    let i = ((v.len() - 1) as f64 * 0.995).round() as usize;
+    let (_, q, _) = v.select_nth_unstable_by(i, f32::total_cmp);
+    Ok(if *q > 0.0 { 1.0 / f64::from(*q) } else { 1.0 })
+}
+
+/// In-place Cholesky factor of the symmetric `t × t` matrix `a` (row-major, lower triangle
+/// used); false when it is not positive definite relative to its diagonal (rank deficient).
+fn cholesky(a: &mut [f64; MAX_TERMS * MAX_TERMS], t: usize) -> bool {
+    let scale = (0..t).map(|i| a[i * t + i]).fold(0.0f64, f64::max);
+    for j in 0..t {
+        let mut d = a[j * t + j];
+        for k in 0..j {
+            d -= a[j * t + k] * a[j * t + k];
+        }
+        if d.is_nan() || d <= 1e-12 * scale {
+            return false;
+        }
+        let d = d.sqrt();
+        a[j * t + j] = d;
+        for i in j + 1..t {
+            let mut s = a[i * t + j];
+            for k in 0..j {
+                s -= a[i * t + k] * a[j * t + k];
+            }
+            a[i * t + j] = s / d;
+        }
+    }
+    true
+}
+
+/// Solves L Lᵀ x = b in place with the factor of [`cholesky`].
+fn cholesky_solve(l: &[f64; MAX_TERMS * MAX_TERMS], t: usize, b: &mut [f64]) {
+    for i in 0..t {
+        let mut s = b[i];
+        for k in 0..i {
+            s -= l[i * t + k] * b[k];
+        }
+        b[i] = s / l[i * t + i];
+    }
+    for i in (0..t).rev() {
+        let mut s = b[i];
+        for k in i + 1..t {
+            s -= l[k * t + i] * b[k];
+        }
+        b[i] = s / l[i * t + i];
+    }
+}
+
+/// The design of a capture's lights: `A` (N × T, row-major), the projector P = G⁻¹Aᵀ
+/// (T × N, row-major) and the leverages h_kk.
+struct Design {
+    t: usize,
+    a: Vec<f64>,
+    projector: Vec<f64>,
+    leverage: Vec<f64>,
+}
+
+impl Design {
+    fn new(capture: &Capture, basis: Basis) -> Result<Design> {
+        let (n, t) = (capture.n_lights(), basis.terms());
+        let mut a = vec![0.0; n * t];
+        for (k, l) in capture.lights.directions.iter().enumerate() {
+            basis.eval(*l, &mut a[k * t..(k + 1) * t]);
+        }
+        let mut g = [0.0; MAX_TERMS * MAX_TERMS];
+        normal_matrix(&a, t, |_| true, &mut g);
+        if n < t + 1 || !cholesky(&mut g, t) {
+            return Err(Error::invalid(format!(
+                "the {n} light directions do not determine the {t} coefficients of {} (the \
+                 basis needs at least {} lights spread in azimuth and elevation; lights all at \
+                 one elevation leave PTM's l_u² + l_v² and its constant term apart only by the \
+                 readings' noise)",
+                basis.name(),
+                t + 1
+            )));
+        }
+        let mut projector = vec![0.0; t * n];
+        let mut leverage = vec![0.0; n];
+        let mut x = [0.0; MAX_TERMS];
+        for k in 0..n {
+            x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
+            cholesky_solve(&g, t, &mut x[..t]);
+            for (j, &xj) in x.iter().enumerate().take(t) {
+                projector[j * n + k] = xj;
+            }
+            leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
+        }
+        Ok(Design {
+            t,
+            a,
+            projector,
+            leverage,
+        })
+    }
+}
+
+/// G = Σ_k a_k a_kᵀ over the lights `keep` admits.
+fn normal_matrix(
+    a: &[f64],
+    t: usize,
+    keep: impl Fn(usize) -> bool,
+    g: &mut [f64; MAX_TERMS * MAX_TERMS],
+) {
+    g.fill(0.0);
+    for (k, row) in a.chunks_exact(t).enumerate() {
+        if keep(k) {
+            for i in 0..t {
+                for j in 0..=i {
+                    g[i * t + j] += row[i] * row[j];
+                }
+            }
+        }
+    }
+    for i in 0..t {
+        for j in i + 1..t {
+            g[i * t + j] = g[j * t + i];
+        }
+    }
+}
+
+/// Scratch of one worker: the readings of one pixel per fitted channel, the kept lights'
+/// leverages, and a pixel's own projector when it excludes lights.
+struct Scratch {
+    y: Vec<f64>,
+    leverage: Vec<f64>,
+    projector: Vec<f64>,
+    errors: RelightErrors,
+}
+
+/// Fits `basis` to every mask pixel of `capture` and measures its leave-one-out error.
+/// `exclude`, when given, flags per mask pixel and light (`[pixel][light]`, the capture's
+/// mask-pixel order) the readings to leave out of the pixel's fit and error.
+pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<RtiFit> {
+    let (np, n, c, t) = (
+        capture.n_pixels(),
+        capture.n_lights(),
+        capture.channels,
+        basis.terms(),
+    );
+    if capture.lights.near.is_some() {
+        return Err(Error::invalid(
+            "RTI bases model a reflectance under distant lights; this capture has near lights \
+             (light_positions.txt), whose direction changes across the object",
+        ));
+    }
+    if let Some(e) = exclude {
+        if e.len() != np * n {
+            return Err(Error::invalid(format!(
+                "light mask of {} flags for {np} pixels × {n} lights",
+                e.len()
+            )));
+        }
+    }
+    let design = Design::new(capture, basis)?;
+    let gain = display_gain(capture)?;
+    let fc = if basis.luminance() { 1 } else { c };
+    let per_pixel = fc * t;
+    let mut coefficients = vec![0f32; np * per_pixel];
+    let mut chroma = if basis.luminance() {
+        vec![1f32; np * 3]
+    } else {
+        Vec::new()
+    };
+    let mut loo = RelightErrors::new(n);
+    let (mut excluded, mut fell_back) = (0u64, 0u64);
+    capture.for_each_tile(|start, view| {
+        let count = view.n_pixels().min(np - start);
+        let out = &mut coefficients[start * per_pixel..(start + count) * per_pixel];
+        let chroma_out = if basis.luminance() {
+            &mut chroma[start * 3..(start + count) * 3]
+        } else {
+            &mut chroma[..]
+        };
+        let job = TileJob {
+            view,
+            start,
+            basis,
+            design: &design,
+            gain,
+            exclude,
+        };
+        let (errors, ex, fb) = job.run(out, chroma_out);
+        loo = std::mem::take(&mut loo).merge(errors);
+        excluded += ex;
+        fell_back += fb;
+        Ok(())
+    })?;
+    Ok(RtiFit {
+        basis,
+        width: capture.width,
+        height: capture.height,
+        channels: c,
+        pixels: capture.pixels.clone(),
+        fitted_channels: fc,
+        coefficients,
+        chroma,
+        gain,
+        loo,
+        excluded_readings: excluded,
+        fell_back_to_all_lights: fell_back,
+    })
+}
+
+/// One pixel's readings, fitted coefficients, leverages and kept lights.
+struct PixelData<'a> {
+    samples: &'a [f32],
+    coeffs: &'a [f32],
+    leverage: &'a [f64],
+    /// Readings per fitted channel, display units (`[channel][light]`).
+    y: &'a [f64],
+    kept: &'a dyn Fn(usize) -> bool,
+}
+
+/// The fits of one tile's pixels.
+struct TileJob<'a> {
+    view: &'a Capture,
+    start: usize,
+    basis: Basis,
+    design: &'a Design,
+    gain: f64,
+    exclude: Option<&'a [bool]>,
+}
+
+/// Pixels per rayon task (the scratch is allocated per task, not per pixel).
+const CHUNK: usize = 256;
+
+impl TileJob<'_> {
+    /// Fits the tile's pixels into `out` (and `chroma` for LRGB); returns the LOO sums, the
+    /// readings excluded and the pixels that fell back to every light.
+    fn run(&self, out: &mut [f32], chroma: &mut [f32]) -> (RelightErrors, u64, u64) {
+        let (n, t) = (self.view.n_lights(), self.design.t);
+        let fc = if self.basis.luminance() {
+            1
+        } else {
+            self.view.channels
+        };
+        let per_pixel = fc * t;
+        let chroma_stride = if self.basis.luminance() { 3 } else { 0 };
+        let mut chroma_chunks: Vec<&mut [f32]> = if chroma_stride > 0 {
+            chroma.chunks_mut(CHUNK * 3).collect()
+        } else {
+            Vec::new()
+        };
+        chroma_chunks.resize_with(out.len().div_ceil(CHUNK * per_pixel), Default::default);
+        out.par_chunks_mut(CHUNK * per_pixel)
+            .zip(chroma_chunks.into_par_iter())
+            .enumerate()
+            .fold(
+                || {
+                    let s = Scratch {
+                        y: vec![0.0; n * fc],
+                        leverage: vec![0.0; n],
+                        projector: vec![0.0; t * n],
+                        errors: RelightErrors::new(n),
+                    };
+                    (s, 0u64, 0u64)
+                },
+                |(mut s, mut ex, mut fb), (i, (coeffs, chroma))| {
+                    for (j, cp) in coeffs.chunks_mut(per_pixel).enumerate() {
+                        let local = i * CHUNK + j;
+                        let ch = if chroma.is_empty() {
+                            None
+                        } else {
+                            Some(&mut chroma[j * 3..j * 3 + 3])
+                        };
+                        let (e, f) = self.pixel(local, cp, ch, &mut s);
+                        ex += e;
+                        fb += u64::from(f);
+                    }
+                    (s, ex, fb)
+                },
+            )
+            .map(|(s, ex, fb)| (s.errors, ex, fb))
+            .reduce(
+                || (RelightErrors::new(n), 0, 0),
+                |a, b| (a.0.merge(b.0), a.1 + b.1, a.2 + b.2),
+            )
+    }
+
+    /// Fits one pixel (tile-local index `local`); returns the readings it excluded and whether
+    /// it fell back to every light.
+    fn pixel(
+        &self,
+        local: usize,
+        coeffs: &mut [f32],
+        chroma: Option<&mut [f32]>,
+        s: &mut Scratch,
+    ) -> (u64, bool) {
+        let (n, t, c) = (self.view.n_lights(), self.design.t, self.view.channels);
+        let samples = self.view.pixel_samples(local);
+        let fc = if chroma.is_some() { 1 } else { c };
+        for k in 0..n {
+            let r = &samples[k * c..(k + 1) * c];
+            if chroma.is_some() {
+                s.y[k] = r.iter().map(|&x| f64::from(x)).sum::<f64>() / c as f64 * self.gain;
+            } else {
+                for (ch, &v) in r.iter().enumerate() {
+                    s.y[ch * n + k] = f64::from(v) * self.gain;
+                }
+            }
+        }
+        let global = self.start + local;
+        let flags = self.exclude.map(|e| &e[global * n..(global + 1) * n]);
+        let excluded = flags.map_or(0, |f| f.iter().filter(|&&x| x).count());
+        let mut fell_back = false;
+        let own = excluded > 0 && {
+            if n - excluded < t + 2 || !self.own_projector(flags.unwrap_or(&[]), s) {
+                fell_back = true;
+                false
+            } else {
+                true
+            }
+        };
+        let (projector, leverage): (&[f64], &[f64]) = if own {
+            (&s.projector, &s.leverage)
+        } else {
+            (&self.design.projector, &self.design.leverage)
+        };
+        let kept = |k: usize| !own || !flags.is_some_and(|f| f[k]);
+        // Coefficients c = P y per fitted channel, over the kept lights.
+        for ch in 0..fc {
+            let y = &s.y[ch * n..(ch + 1) * n];
+            for j in 0..t {
+                let pj = &projector[j * n..(j + 1) * n];
+                coeffs[ch * t + j] = (0..n)
+                    .filter(|&k| kept(k))
+                    .map(|k| pj[k] * y[k])
+                    .sum::<f64>() as f32;
+            }
+        }
+        let data = PixelData {
+            samples,
+            coeffs,
+            leverage,
+            y: &s.y,
+            kept: &kept,
+        };
+        self.loo_errors(&data, chroma, &mut s.errors);
+        (excluded as u64 * u64::from(own), fell_back)
+    }
+
+    /// The projector and leverages of a pixel over the lights `flags` does not exclude; false
+    /// when those lights do not determine the coefficients.
+    fn own_projector(&self, flags: &[bool], s: &mut Scratch) -> bool {
+        let (n, t, a) = (self.view.n_lights(), self.design.t, &self.design.a);
+        let mut g = [0.0; MAX_TERMS * MAX_TERMS];
+        normal_matrix(a, t, |k| !flags[k], &mut g);
+        if !cholesky(&mut g, t) {
+            return false;
+        }
+        let mut x = [0.0; MAX_TERMS];
+        for k in 0..n {
+            x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
+            cholesky_solve(&g, t, &mut x[..t]);
+            for (j, &xj) in x.iter().enumerate().take(t) {
+                s.projector[j * n + k] = xj;
+            }
+            s.leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
+        }
+        true
+    }
+
+    /// Adds the pixel's leave-one-out errors (closed form e_k / (1 − h_kk)) over its kept
+    /// lights to `errors`, and for LRGB writes the chroma.
+    fn loo_errors(&self, d: &PixelData, chroma: Option<&mut [f32]>, errors: &mut RelightErrors) {
+        let (n, t, c) = (self.view.n_lights(), self.design.t, self.view.channels);
+        let (samples, coeffs, leverage, kept) = (d.samples, d.coeffs, d.leverage, d.kept);
+        let a = &self.design.a;
+        let fitted = |ch: usize, k: usize| -> f64 {
+            (0..t)
+                .map(|j| f64::from(coeffs[ch * t + j]) * a[k * t + j])
+                .sum()
+        };
+        let reading = |k: usize, ch: usize| f64::from(samples[k * c + ch]) * self.gain;
+        if let Some(chroma) = chroma {
+            // Chroma: Σ_k I_kc / Σ_k Y_k over the kept lights (1 for a dark pixel).
+            let (mut sc, mut sy) = ([0.0f64; 3], 0.0);
+            for k in (0..n).filter(|&k| kept(k)) {
+                sy += d.y[k];
+                for (ch, v) in sc.iter_mut().enumerate().take(c) {
+                    *v += reading(k, ch);
+                }
+            }
+            let ratio = |num: f64, den: f64| if den > 1e-12 { num / den } else { 1.0 };
+            for ch in 0..3 {
+                chroma[ch] = ratio(sc[ch.min(c - 1)], sy) as f32;
+            }
+            for k in (0..n).filter(|&k| kept(k)) {
+                let e = d.y[k] - fitted(0, k);
+                let y_loo = d.y[k] - e / (1.0 - leverage[k]);
+                for (ch, &total) in sc.iter().enumerate().take(c) {
+                    let chroma_loo = ratio(total - reading(k, ch), sy - d.y[k]);
+                    errors.add(k, chroma_loo * y_loo, reading(k, ch));
+                }
+            }
+        } else {
+            for ch in 0..c {
+                for k in (0..n).filter(|&k| kept(k)) {
+                    let y = d.y[ch * n + k];
+                    let e = y - fitted(ch, k);
+                    errors.add(k, y - e / (1.0 - leverage[k]), y);
+                }
+            }
+        }
+    }
+}
+
+/// The relighting error of a Lambertian model, I_kc = ρ_c · max(0, n · l_k), with full-frame
+/// normals (H·W) and albedo (H·W·C, the capture's intensity-normalised units) against the
+/// capture's readings, in display units (`gain` as [`RtiFit::gain`]), over the readings
+/// `exclude` (as [`fit`] takes it) does not flag. The model's own fit, not left out: a
+/// reference for the RTI bases' leave-one-out figures.
+pub fn lambert_errors(
+    capture: &Capture,
+    normals: &[[f32; 3]],
+    albedo: &[f32],
+    gain: f64,
+    exclude: Option<&[bool]>,
+) -> Result<RelightErrors> {
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let dirs = &capture.lights.directions;
+    let mut total = RelightErrors::new(n);
+    capture.for_each_tile(|start, view| {
+        let e = (0..view.n_pixels())
+            .into_par_iter()
+            .fold(
+                || RelightErrors::new(n),
+                |mut acc, p| {
+                    let i = capture.pixels[start + p] as usize;
+                    let nn = normals[i];
+                    let s = view.pixel_samples(p);
+                    for (k, l) in dirs.iter().enumerate() {
+                        if exclude.is_some_and(|e| e[(start + p) * n + k]) {
+                            continue;
+                        }
+                        let shade = (f64::from(nn[0]) * l[0]
+                            + f64::from(nn[1]) * l[1]
+                            + f64::from(nn[2]) * l[2])
+                            .max(0.0);
+                        for ch in 0..c {
+                            let pred = f64::from(albedo[i * c + ch]) * shade * gain;
+                            acc.add(k, pred, f64::from(s[k * c + ch]) * gain);
+                        }
+                    }
+                    acc
+                },
+            )
+            .reduce(|| RelightErrors::new(n), RelightErrors::merge);
+        total = std::mem::take(&mut total).merge(e);
+        Ok(())
+    })?;
+    Ok(total)
+}

@@ -1,0 +1,410 @@
+//! RTI fits against independent truth: coefficients recovered from readings synthesised from
+//! known coefficients; the closed-form leave-one-out error against refits without each light
+//! (nalgebra's SVD, not the library's normal equations); and the `.ptm` / `.rti` files read back
+//! by readers written here from the format descriptions (PTM v1.2: bottom-up rows, a =
+//! (c' − bias) · scale; RTIViewer's HSH: top-down rows, value = c / 255 · scale + bias).
+
+use nalgebra::{DMatrix, DVector};
+use ndarray::Array4;
+use photostereo::model::capture::Stack;
+use photostereo::solve::rti::{fit, Basis, RtiFit, MAX_TERMS};
+use photostereo::{Capture, Lights};
+
+/// `n` lights on a spiral over the upper hemisphere: elevations from 15° to 80°.
+fn lights(n: usize) -> Vec<[f64; 3]> {
+    (0..n)
+        .map(|k| {
+            let f = k as f64 / (n - 1) as f64;
+            let elev = (15.0 + 65.0 * f).to_radians();
+            let az = k as f64 * 2.399963; // golden angle
+            [elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin()]
+        })
+        .collect()
+}
+
+/// A capture whose reading at pixel p, light k, channel c is `value(p, k, c, l_k)`.
+fn capture(
+    w: usize,
+    h: usize,
+    c: usize,
+    dirs: &[[f64; 3]],
+    value: impl Fn(usize, usize, usize, [f64; 3]) -> f64,
+) -> Capture {
+    let mut a = Array4::<f32>::zeros((dirs.len(), h, w, c));
+    for (k, l) in dirs.iter().enumerate() {
+        for p in 0..w * h {
+            for ch in 0..c {
+                a[[k, p / w, p % w, ch]] = value(p, k, ch, *l) as f32;
+            }
+        }
+    }
+    Capture::from_stack(Stack::F32(a.view()), Lights::new(dirs).unwrap(), None).unwrap()
+}
+
+/// Known coefficients of pixel p, channel c, term j: a smooth positive reflectance.
+fn truth(basis: Basis, p: usize, c: usize, j: usize) -> f64 {
+    let base = match basis {
+        Basis::PtmLrgb | Basis::PtmRgb => [0.0, 0.0, 0.0, 0.0, 0.0, 0.5],
+        _ => [1.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+    };
+    let b = if j < 6 { base[j] } else { 0.0 };
+    b + 0.05 * (((p * 7 + c * 3 + j * 5) % 11) as f64 / 11.0 - 0.5)
+}
+
+fn model(basis: Basis, p: usize, c: usize, l: [f64; 3]) -> f64 {
+    let mut b = [0.0; MAX_TERMS];
+    basis.eval(l, &mut b);
+    (0..basis.terms())
+        .map(|j| truth(basis, p, c, j) * b[j])
+        .sum()
+}
+
+#[test]
+fn coefficients_are_recovered_from_readings_of_the_basis() {
+    let dirs = lights(40);
+    for basis in [Basis::PtmRgb, Basis::Hsh2, Basis::Hsh3] {
+        let cap = capture(5, 4, 3, &dirs, |p, _, c, l| model(basis, p, c, l));
+        let f = fit(&cap, basis, None).unwrap();
+        let t = basis.terms();
+        for p in 0..20 {
+            for c in 0..3 {
+                for j in 0..t {
+                    let got = f64::from(f.coefficients[(p * 3 + c) * t + j]) / f.gain;
+                    let want = truth(basis, p, c, j);
+                    assert!(
+                        (got - want).abs() < 2e-5,
+                        "{} p{p} c{c} term {j}: {got} vs {want}",
+                        basis.name()
+                    );
+                }
+            }
+        }
+        // An exact model leaves nothing to predict: the LOO error is at float precision.
+        assert!(f.loo.mean_rmse_8bit() < 1e-3, "{}", f.loo.mean_rmse_8bit());
+    }
+    // LRGB: a grey luminance polynomial times a fixed chroma per pixel.
+    let chroma = |p: usize, c: usize| [0.9, 1.0, 1.1][c] * (1.0 + 0.01 * p as f64);
+    let cap = capture(5, 4, 3, &dirs, |p, _, c, l| {
+        chroma(p, c) * model(Basis::PtmLrgb, p, 0, l)
+    });
+    let f = fit(&cap, Basis::PtmLrgb, None).unwrap();
+    for p in 0..20 {
+        let mean: f64 = (0..3).map(|c| chroma(p, c)).sum::<f64>() / 3.0;
+        for j in 0..6 {
+            let got = f64::from(f.coefficients[p * 6 + j]) / f.gain;
+            let want = mean * truth(Basis::PtmLrgb, p, 0, j);
+            assert!((got - want).abs() < 2e-5, "p{p} term {j}: {got} vs {want}");
+        }
+        for c in 0..3 {
+            let got = f64::from(f.chroma[p * 3 + c]);
+            assert!((got - chroma(p, c) / mean).abs() < 1e-5, "chroma p{p} c{c}");
+        }
+    }
+}
+
+/// A reflectance no basis holds exactly: Lambertian plus a Phong lobe, per channel.
+fn glossy(p: usize, _k: usize, c: usize, l: [f64; 3]) -> f64 {
+    let n = [0.1 * (p % 3) as f64, -0.1 * (p % 2) as f64, 1.0];
+    let nn = (n[0] * n[0] + n[1] * n[1] + 1.0f64).sqrt();
+    let ndl = ((n[0] * l[0] + n[1] * l[1] + n[2] * l[2]) / nn).max(0.0);
+    let hz = (l[2] + 1.0) / (2.0 * (1.0 + l[2])).sqrt();
+    0.3 + 0.1 * c as f64 + 0.6 * ndl + 0.4 * hz.powi(20)
+}
+
+/// The leave-one-out sums by refitting without each light (nalgebra's SVD least squares),
+/// over the lights `kept(p, k)` admits.
+fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> bool) -> Vec<f64> {
+    let (n, c, t, basis) = (cap.n_lights(), cap.channels, f.basis.terms(), f.basis);
+    let mut sse = vec![0.0; n];
+    let row = |k: usize| {
+        let mut b = [0.0; MAX_TERMS];
+        basis.eval(cap.lights.directions[k], &mut b);
+        b
+    };
+    for p in 0..cap.n_pixels() {
+        let s = cap.pixel_samples(p);
+        let y = |k: usize, ch: usize| f64::from(s[k * c + ch]) * f.gain;
+        let lum = |k: usize| (0..c).map(|ch| y(k, ch)).sum::<f64>() / c as f64;
+        for k in (0..n).filter(|&k| kept(p, k)) {
+            let others: Vec<usize> = (0..n).filter(|&i| i != k && kept(p, i)).collect();
+            let a = DMatrix::from_fn(others.len(), t, |r, j| row(others[r])[j]);
+            let svd = a.svd(true, true);
+            let solve = |v: &dyn Fn(usize) -> f64| {
+                let b = DVector::from_fn(others.len(), |r, _| v(others[r]));
+                let x = svd.solve(&b, 1e-12).unwrap();
+                (0..t).map(|j| x[j] * row(k)[j]).sum::<f64>()
+            };
+            if basis.luminance() {
+                let l_pred = solve(&lum);
+                let sy: f64 = others.iter().map(|&i| lum(i)).sum();
+                for ch in 0..c {
+                    let sc: f64 = others.iter().map(|&i| y(i, ch)).sum();
+                    let d = sc / sy * l_pred - y(k, ch);
+                    sse[k] += d * d;
+                }
+            } else {
+                for ch in 0..c {
+                    let d = solve(&|i| y(i, ch)) - y(k, ch);
+                    sse[k] += d * d;
+                }
+            }
+        }
+    }
+    sse
+}
+
+#[test]
+fn closed_form_leave_one_out_equals_refits_without_each_light() {
+    let dirs = lights(24);
+    for c in [1, 3] {
+        let cap = capture(4, 3, c, &dirs, glossy);
+        for basis in Basis::ALL {
+            let f = fit(&cap, basis, None).unwrap();
+            let brute = brute_force_loo(&cap, &f, &|_, _| true);
+            for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-4 * b.max(1e-6),
+                    "{} C={c} light {k}: closed form {a} vs refits {b}",
+                    basis.name()
+                );
+            }
+            // The glossy lobe is not in any basis: the error is real, not zero.
+            assert!(f.loo.mean_rmse_8bit() > 0.1, "{}", basis.name());
+        }
+    }
+}
+
+#[test]
+fn excluded_readings_leave_the_fit_and_its_error() {
+    let dirs = lights(24);
+    let cap = capture(4, 3, 3, &dirs, glossy);
+    let n = dirs.len();
+    // Exclude a different handful of lights per pixel (and none at pixel 0).
+    let kept = |p: usize, k: usize| p == 0 || (k + p) % 5 != 0;
+    let flags: Vec<bool> = (0..cap.n_pixels())
+        .flat_map(|p| (0..n).map(move |k| !kept(p, k)))
+        .collect();
+    for basis in [Basis::PtmLrgb, Basis::Hsh3] {
+        let f = fit(&cap, basis, Some(&flags)).unwrap();
+        let brute = brute_force_loo(&cap, &f, &kept);
+        for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
+            assert!(
+                (a - b).abs() <= 1e-4 * b.max(1e-6),
+                "{} light {k}: {a} vs {b}",
+                basis.name()
+            );
+        }
+        assert_eq!(
+            f.excluded_readings,
+            flags.iter().filter(|&&x| x).count() as u64
+        );
+    }
+}
+
+// ---- Readers from the format descriptions -------------------------------------------------
+
+/// Splits `n` newline-terminated ASCII lines off the front of `bytes`.
+fn lines(bytes: &[u8], n: usize) -> (Vec<String>, &[u8]) {
+    let mut out = Vec::new();
+    let mut rest = bytes;
+    while out.len() < n {
+        let end = rest.iter().position(|&b| b == b'\n').unwrap();
+        out.push(
+            String::from_utf8(rest[..end].to_vec())
+                .unwrap()
+                .trim()
+                .to_string(),
+        );
+        rest = &rest[end + 1..];
+    }
+    (out, rest)
+}
+
+/// A `.ptm` file: (format, width, height, coefficients `[row from top][col][plane][6]`, scales,
+/// rgb `[row from top][col][3]` for LRGB).
+fn read_ptm(path: &std::path::Path) -> (String, usize, usize, Vec<f64>, Vec<f64>, Vec<u8>) {
+    let bytes = std::fs::read(path).unwrap();
+    let (head, mut rest) = lines(&bytes, 6);
+    assert_eq!(head[0], "PTM_1.2");
+    let (w, h): (usize, usize) = (head[2].parse().unwrap(), head[3].parse().unwrap());
+    let scale: Vec<f64> = head[4]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let bias: Vec<i32> = head[5]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    assert_eq!((scale.len(), bias.len()), (6, 6));
+    let planes = if head[1] == "PTM_FORMAT_LRGB" { 1 } else { 3 };
+    let mut coeffs = vec![0.0; w * h * planes * 6];
+    for plane in 0..planes {
+        for y in (0..h).rev() {
+            for x in 0..w {
+                for j in 0..6 {
+                    let v = (f64::from(rest[0]) - f64::from(bias[j])) * scale[j];
+                    coeffs[((y * w + x) * planes + plane) * 6 + j] = v;
+                    rest = &rest[1..];
+                }
+            }
+        }
+    }
+    let mut rgb = vec![0u8; if planes == 1 { w * h * 3 } else { 0 }];
+    if planes == 1 {
+        for y in (0..h).rev() {
+            rgb[y * w * 3..(y + 1) * w * 3].copy_from_slice(&rest[..w * 3]);
+            rest = &rest[w * 3..];
+        }
+    }
+    assert!(rest.is_empty(), "{} bytes after the data", rest.len());
+    (head[1].clone(), w, h, coeffs, scale, rgb)
+}
+
+/// A `.rti` HSH file: (width, height, terms, coefficients `[row][col][band][term]`, scales).
+fn read_hsh(path: &std::path::Path) -> (usize, usize, usize, Vec<f64>, Vec<f64>) {
+    let bytes = std::fs::read(path).unwrap();
+    let (head, rest) = lines(&bytes, 4);
+    assert!(head[0].starts_with('#'));
+    assert_eq!(head[1], "3");
+    let dims: Vec<usize> = head[2]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let basis: Vec<usize> = head[3]
+        .split_whitespace()
+        .map(|v| v.parse().unwrap())
+        .collect();
+    let (w, h, t) = (dims[0], dims[1], basis[0]);
+    assert_eq!((dims[2], basis[1], basis[2]), (3, 2, 1));
+    let f32s = |at: usize| -> Vec<f64> {
+        (0..t)
+            .map(|j| {
+                f64::from(f32::from_le_bytes(
+                    rest[at + 4 * j..at + 4 * j + 4].try_into().unwrap(),
+                ))
+            })
+            .collect()
+    };
+    let (scale, bias) = (f32s(0), f32s(4 * t));
+    let data = &rest[8 * t..];
+    assert_eq!(data.len(), w * h * 3 * t);
+    let coeffs = data
+        .iter()
+        .enumerate()
+        .map(|(i, &b)| f64::from(b) / 255.0 * scale[i % t] + bias[i % t])
+        .collect();
+    (w, h, t, coeffs, scale)
+}
+
+#[test]
+fn files_hold_the_fit_within_their_quantisation() {
+    let dirs = lights(30);
+    let (w, h) = (7, 5);
+    let cap = capture(w, h, 3, &dirs, glossy);
+    let dir = std::env::temp_dir().join(format!("photostereo-rti-files-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for basis in Basis::ALL {
+        let f = fit(&cap, basis, None).unwrap();
+        let t = basis.terms();
+        let mut b = [0.0; MAX_TERMS];
+        let mut want = [0.0; 3];
+        if basis.luminance() || basis == Basis::PtmRgb {
+            let path = dir.join("image.ptm");
+            let maps = photostereo::io::rti::ptm::write_ptm(&path, &f).unwrap();
+            let (format, fw, fh, coeffs, scale, rgb) = read_ptm(&path);
+            assert_eq!((fw, fh), (w, h));
+            assert_eq!(format == "PTM_FORMAT_LRGB", basis.luminance());
+            let planes = if basis.luminance() { 1 } else { 3 };
+            for p in 0..w * h {
+                for (k, l) in dirs.iter().enumerate().step_by(7) {
+                    basis.eval(*l, &mut b);
+                    f.predict(p, *l, &mut want);
+                    for ch in 0..3 {
+                        let plane = ch.min(planes - 1);
+                        let c = &coeffs[(p * planes + plane) * 6..(p * planes + plane + 1) * 6];
+                        let poly: f64 = (0..6).map(|j| c[j] * b[j]).sum();
+                        // A viewer's colour: R · L / 255 (LRGB) or the polynomial (RGB).
+                        let shown = if basis.luminance() {
+                            f64::from(rgb[p * 3 + ch]) * poly / 255.0
+                        } else {
+                            poly
+                        };
+                        // Quantisation: half a step per coefficient (and per chroma byte).
+                        let step: f64 = (0..6).map(|j| 0.5 * scale[j] * b[j].abs()).sum::<f64>()
+                            + if basis.luminance() {
+                                poly.abs() / 255.0
+                            } else {
+                                0.0
+                            };
+                        let err = (shown - 255.0 * want[ch]).abs();
+                        assert!(
+                            err <= step * 1.01 + 1e-6,
+                            "{} p{p} k{k} ch{ch}: {err} > {step}",
+                            basis.name()
+                        );
+                    }
+                }
+            }
+            assert_eq!(maps.len(), 6);
+        } else {
+            let path = dir.join("image.rti");
+            photostereo::io::rti::hsh::write_hsh(&path, &f).unwrap();
+            let (fw, fh, ft, coeffs, scale) = read_hsh(&path);
+            assert_eq!((fw, fh, ft), (w, h, t));
+            for p in 0..w * h {
+                for ch in 0..3 {
+                    for j in 0..t {
+                        let got = coeffs[(p * 3 + ch) * t + j];
+                        let float = f64::from(f.coefficients[(p * 3 + ch) * t + j]);
+                        assert!((got - float).abs() <= scale[j] / 255.0 * 0.5 * 1.001 + 1e-7);
+                    }
+                }
+            }
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn near_lights_and_degenerate_rigs_are_refused() {
+    // Every light at one elevation: PTM's l_u² + l_v² equals its constant term.
+    let ring: Vec<[f64; 3]> = (0..12)
+        .map(|k| {
+            let a = k as f64 * std::f64::consts::PI / 6.0;
+            [0.6 * a.cos(), 0.6 * a.sin(), 0.8]
+        })
+        .collect();
+    let cap = capture(3, 3, 1, &ring, |_, k, _, _| 0.5 + 0.01 * k as f64);
+    let e = fit(&cap, Basis::PtmLrgb, None).unwrap_err().to_string();
+    assert!(e.contains("do not determine"), "{e}");
+}
+
+#[test]
+fn hsh_basis_is_orthonormal_over_the_hemisphere() {
+    // ∫ H_i H_j dω over the upper hemisphere = δ_ij (Gautron et al. 2004), by a midpoint rule
+    // in (cos θ, φ) with dω = d(cos θ) dφ.
+    let (m, t) = (400, 9);
+    let mut gram = vec![0.0; t * t];
+    let mut b = [0.0; MAX_TERMS];
+    let w = 2.0 * std::f64::consts::PI / (m * m) as f64;
+    for i in 0..m {
+        let ct = (i as f64 + 0.5) / m as f64;
+        let st = (1.0 - ct * ct).sqrt();
+        for j in 0..m {
+            let phi = (j as f64 + 0.5) / m as f64 * 2.0 * std::f64::consts::PI;
+            Basis::Hsh3.eval([st * phi.cos(), st * phi.sin(), ct], &mut b);
+            for a in 0..t {
+                for c in 0..t {
+                    gram[a * t + c] += b[a] * b[c] * w;
+                }
+            }
+        }
+    }
+    for a in 0..t {
+        for c in 0..t {
+            let want = if a == c { 1.0 } else { 0.0 };
+            let got = gram[a * t + c];
+            assert!((got - want).abs() < 1e-3, "({a},{c}) {got}");
+        }
+    }
+}

@@ -1,0 +1,141 @@
+"""`photostereo rti` files read by readers written here from the format descriptions, not by
+the library: PTM v1.2 (HP Labs: ASCII header, bottom-up rows, coefficient = (byte - bias) *
+scale) and RTIViewer's HSH `.rti` (ASCII header, float32 scales and biases, top-down rows,
+coefficient = byte / 255 * scale + bias). The dequantised coefficients must equal the fit's
+float coefficients (coefficients.npy) within half a quantisation step, and relighting from the
+file must match relighting from the floats."""
+
+import json
+import math
+import subprocess
+
+import numpy as np
+import pytest
+
+
+def hsh_basis(l, terms):
+    """Hemispherical harmonics (Gautron et al. 2004) in RTIViewer's order, cos(theta) = l_z."""
+    ct = min(max(l[2], 0.0), 1.0)
+    phi = math.atan2(l[1], l[0])
+    s = math.sqrt(max(ct - ct * ct, 0.0))
+    h = [
+        1 / math.sqrt(2 * math.pi),
+        math.sqrt(6 / math.pi) * math.cos(phi) * s,
+        math.sqrt(3 / (2 * math.pi)) * (2 * ct - 1),
+        math.sqrt(6 / math.pi) * math.sin(phi) * s,
+        math.sqrt(30 / math.pi) * math.cos(2 * phi) * (ct * ct - ct),
+        math.sqrt(30 / math.pi) * math.cos(phi) * (2 * ct - 1) * s,
+        math.sqrt(5 / (2 * math.pi)) * (6 * ct * ct - 6 * ct + 1),
+        math.sqrt(30 / math.pi) * math.sin(phi) * (2 * ct - 1) * s,
+        math.sqrt(30 / math.pi) * math.sin(2 * phi) * (ct * ct - ct),
+    ]
+    return np.array(h[:terms])
+
+
+def ptm_basis(l):
+    u, v = l[0], l[1]
+    return np.array([u * u, v * v, u * v, u, v, 1.0])
+
+
+def header_lines(data, n):
+    lines, at = [], 0
+    while len(lines) < n:
+        end = data.index(b"\n", at)
+        lines.append(data[at:end].decode("ascii").strip())
+        at = end + 1
+    return lines, at
+
+
+def read_ptm(path):
+    data = path.read_bytes()
+    head, at = header_lines(data, 6)
+    assert head[0] == "PTM_1.2"
+    w, h = int(head[2]), int(head[3])
+    scale = np.array([float(x) for x in head[4].split()])
+    bias = np.array([int(x) for x in head[5].split()])
+    planes = 1 if head[1] == "PTM_FORMAT_LRGB" else 3
+    n = w * h * 6
+    coeffs = []
+    for _ in range(planes):
+        raw = np.frombuffer(data, np.uint8, n, at).reshape(h, w, 6)[::-1]  # bottom row first
+        coeffs.append((raw.astype(np.float64) - bias) * scale)
+        at += n
+    rgb = None
+    if planes == 1:
+        rgb = np.frombuffer(data, np.uint8, w * h * 3, at).reshape(h, w, 3)[::-1]
+        at += w * h * 3
+    assert at == len(data)
+    return head[1], np.stack(coeffs, axis=2), scale, rgb
+
+
+def read_hsh(path):
+    data = path.read_bytes()
+    head, at = header_lines(data, 4)
+    assert head[0].startswith("#") and head[1] == "3"
+    w, h, bands = map(int, head[2].split())
+    terms, basis_type, size = map(int, head[3].split())
+    assert (bands, basis_type, size) == (3, 2, 1)
+    scale = np.frombuffer(data, "<f4", terms, at).astype(np.float64)
+    bias = np.frombuffer(data, "<f4", terms, at + 4 * terms).astype(np.float64)
+    raw = np.frombuffer(data, np.uint8, w * h * 3 * terms, at + 8 * terms)
+    assert at + 8 * terms + raw.size == len(data)
+    coeffs = raw.reshape(h, w, 3, terms).astype(np.float64) / 255.0 * scale + bias
+    return coeffs, scale
+
+
+@pytest.fixture(scope="module")
+def capture(cli, tmp_path_factory):
+    folder = tmp_path_factory.mktemp("rti") / "dome"
+    subprocess.run([cli, "synth", "sphere", "--rig", "dome-30", "--size", "40", "-o",
+                    str(folder), "--quiet"], check=True)
+    lights = np.loadtxt(folder / "light_directions.txt")
+    return folder, lights
+
+
+@pytest.mark.parametrize("basis", ["ptm", "ptm-rgb", "hsh2", "hsh3"])
+def test_files_hold_the_fit_within_quantisation(cli, capture, tmp_path, basis):
+    folder, lights = capture
+    out = tmp_path / basis
+    subprocess.run([cli, "rti", str(folder), "--basis", basis, "-o", str(out), "--quiet"],
+                   check=True)
+    report = json.loads((out / "report.json").read_text())
+    assert report["basis"] == basis
+    assert len(report["leave_one_out"]["rmse_8bit"]) == len(lights)
+    floats = np.load(out / "coefficients.npy")  # (H, W, fitted channels, T), display units
+    mask = np.any(floats != 0, axis=(2, 3))
+    assert mask.sum() > 100
+    if basis.startswith("ptm"):
+        fmt, coeffs, scale, rgb = read_ptm(out / "image.ptm")
+        assert fmt == ("PTM_FORMAT_LRGB" if basis == "ptm" else "PTM_FORMAT_RGB")
+        if basis == "ptm":
+            chroma = np.load(out / "chroma.npy")
+            m = np.maximum(chroma.max(axis=2), 1e-30)[..., None]
+            want = 255.0 * m[..., None] * floats  # L = 255 m Y
+            assert np.all(np.abs(coeffs - want)[mask] <= 0.5 * scale * 1.001 + 1e-6)
+            assert np.all(np.abs(rgb - 255.0 * chroma / m)[mask] <= 0.5 + 1e-4)
+        else:
+            want = 255.0 * np.repeat(floats, 3, axis=2) if floats.shape[2] == 1 else 255.0 * floats
+            assert np.all(np.abs(coeffs - want)[mask] <= 0.5 * scale * 1.001 + 1e-6)
+        for l in lights[::5]:
+            b = ptm_basis(l)
+            poly = coeffs @ b  # (H, W, planes)
+            shown = rgb * poly / 255.0 if basis == "ptm" else poly
+            if basis == "ptm":
+                truth = 255.0 * chroma * (floats[:, :, 0, :] @ b)[..., None]
+                bound = 0.5 * np.abs(b) @ scale + np.abs(poly) / 255.0
+            else:
+                truth = 255.0 * (floats @ b)
+                bound = 0.5 * np.abs(b) @ scale
+            err = np.abs(shown - truth)[mask]
+            bound = np.broadcast_to(bound, shown.shape)[mask]
+            assert np.all(err <= bound * 1.001 + 1e-6), err.max()
+    else:
+        coeffs, scale = read_hsh(out / "image.rti")
+        terms = coeffs.shape[3]
+        assert terms == (4 if basis == "hsh2" else 9)
+        full = np.repeat(floats, 3, axis=2) if floats.shape[2] == 1 else floats
+        assert np.all(np.abs(coeffs - full)[mask] <= scale / 255.0 * 0.5 * 1.001 + 1e-7)
+        for l in lights[::5]:
+            b = hsh_basis(l, terms)
+            err = np.abs(255.0 * (coeffs @ b) - 255.0 * (full @ b))[mask]
+            assert np.all(err <= 255.0 * (np.abs(b) @ scale) / 255.0 * 0.5 * 1.001 + 1e-5)
