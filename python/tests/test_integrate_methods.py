@@ -45,7 +45,7 @@ def test_a_plane_through_the_camera_is_at_its_distance():
     "kwargs, needle",
     [
         (dict(method="splines"), "method"),
-        (dict(camera=np.eye(3) * 100), "distance"),
+        (dict(camera=np.diag([100.0, 100.0, 1.0])), "distance"),
         (dict(distance=100.0), "camera"),
         (dict(camera=np.eye(2), distance=100.0), "camera"),
         (dict(camera=np.diag([100.0, 100.0, 1.0]), distance=-5.0), "distance"),

@@ -166,7 +166,7 @@ def test_every_keyword_reaches_the_library():
 def test_params_nests_by_stage_checks_values_and_pickles():
     p = ps.Params(method="l2", confidence=0.99, max_iterations=3)
     assert p.method == "l2" and p.detection.confidence == 0.99
-    assert p.recursive.max_iterations == 3 and p.integration.integrator == "poisson"
+    assert p.recursive.max_iterations == 3 and p.integration.integrator == "bilateral"
     assert p.to_dict() == dict(ps.defaults(), method="l2", confidence=0.99, max_iterations=3)
     assert p.replace(fallback="brightest").recursive.fallback == "brightest"
     assert p.recursive.fallback == "neighbours"
