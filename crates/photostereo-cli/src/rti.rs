@@ -78,8 +78,7 @@ pub fn main(a: RtiArgs) -> Result<()> {
         memory_limit: a.memory_limit,
     };
     let progress = a.out.progress();
-    let mut report = rti(&files, &options, &a.output, a.out.force, &progress)
-        .map_err(crate::common::flag_error)?;
+    let mut report = rti(&files, &options, &a.output, a.out.force, &progress)?;
     if a.out.json {
         report["output"] = serde_json::Value::from(a.output.display().to_string());
         print_json(&report);

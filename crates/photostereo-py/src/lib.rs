@@ -2,7 +2,7 @@
 //! library like the command line. It converts numpy arrays and Python values to the library's
 //! types and back (arrays and dicts, never JSON text), releases the GIL while the library works,
 //! polls for Ctrl-C, and turns every library error into `PhotostereoError` with the library's
-//! message, parameters spelt as Python keywords ([`spell`]). No numerics live here, and no
+//! message, parameters spelt as Python keywords (`spell`). No numerics live here, and no
 //! parameter list: the parameters come from the library's table
 //! (`photostereo::method::params`).
 //!
