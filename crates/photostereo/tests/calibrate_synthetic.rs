@@ -276,7 +276,7 @@ fn a_lit_background_is_not_taken_for_a_cut_sphere() {
         .unwrap_err()
         .to_string();
     println!("{e}");
-    assert!(e.contains("pass --mask"), "{e}");
+    assert!(e.contains("with the sphere's mask"), "{e}");
     assert!(
         e.contains("not the sphere") && !e.contains("of the sphere's outline"),
         "{e}"
