@@ -161,6 +161,7 @@ fn integrator(kind: IntegratorKind) -> Box<dyn photostereo::geometry::integrate:
         inner_iterations: env("BIL_INNER_IT", d.inner_iterations),
         min_edge_weight: env("BIL_FLOOR", d.min_edge_weight),
         slope_weighting: env("BIL_SLOPEW", d.slope_weighting),
+        debias: env("BIL_DEBIAS", d.debias),
         ..d
     };
     if std::env::var("BIL_REF").is_ok() {

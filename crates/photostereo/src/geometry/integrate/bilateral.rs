@@ -20,13 +20,24 @@
 //!   graph Laplacian like `poisson`'s (with `w⁺ = w⁻ = ½` and `ω = 1` it is `poisson`'s
 //!   trapezoid energy), solved by the same multigrid-preconditioned CG;
 //! - iteratively reweighted least squares: solve (B4) with the weights fixed, update them by
-//!   (B3) from the new f, and stop when (B2) changes by less than `tolerance` of itself.
+//!   (B3) from the new f, and stop when (B2) changes by less than `tolerance` of itself;
+//! - (B5) the last system: the weights found serve as a jump detector, not as the surface's
+//!   discretisation. An edge is cut where the shares its two sides give it add up to less
+//!   than half those of a smooth edge (`w⁺_i + w⁻_j < ½` against `½ + ½`, i.e.
+//!   `w⁺_j − w⁺_i > ½`: the edge is more a jump than not); every other edge gets the
+//!   symmetric weight `ω̄_e = (ω_i + ω_j) / 2` and the trapezoid target `(p_i + p_j) / 2`, as in
+//!   `poisson`. Why: on a smooth but steep, curved surface the argument of (B3) is
+//!   `n_z² ((Δ⁻)² − (Δ⁺)²) ≈ −2 n_z² f′ f″`, far from 0, so the converged weights make (B4)
+//!   a one-sided, first-order difference there, and its error (`f″ / 2` per pixel) adds up
+//!   along the few steep paths that join the parts a jump separates (a bear's head and body).
+//!   The trapezoid target is second-order (error `f‴ / 12`); cut edges keep the floor weight.
 //!
 //! [`bilateral_reference`] is the plain version of the same equations (f64, Jacobi-
 //! preconditioned CG on an explicitly summed operator, every inner solve converged), kept to
 //! read and to test [`Bilateral`] against. [`Bilateral`] solves each reweighted system only
-//! roughly (the weights move anyway), starting from the last surface, and the converged
-//! weights' system tightly at the end.
+//! roughly (the weights move anyway), starting from the last surface, and the last system
+//! (B5) tightly. With `debias` false the last system is (B4) under the converged weights (the
+//! published method).
 //!
 //! Jumps are found in the units of the depth differences: heights in pixels (orthographic), or
 //! `f̄ · ln Z` from [`super::perspective`] (the relative depth change times the focal length in
@@ -74,6 +85,9 @@ pub struct Bilateral {
     pub min_edge_weight: f32,
     /// Weight each pixel by `n_z²` (B1); false weighs every pixel by its trust alone.
     pub slope_weighting: bool,
+    /// Solve the last system as (B5): trapezoid targets on the edges the weights keep, the
+    /// others cut. False solves (B4) under the converged weights instead.
+    pub debias: bool,
 }
 
 impl Default for Bilateral {
@@ -88,6 +102,7 @@ impl Default for Bilateral {
             fill_below: DEFAULT_FILL_BELOW,
             min_edge_weight: 1e-5,
             slope_weighting: true,
+            debias: true,
         }
     }
 }
@@ -207,6 +222,25 @@ impl Pixels<'_> {
             // Below the floor: the missing weight goes to the trapezoid target.
             (least, a * gi + b * gj + (least - weight) * 0.5 * (gi + gj))
         }
+    }
+
+    /// `(W_e, W_e d_e)` of (B5) for the edge from `i` to `j` along `axis`: the symmetric
+    /// weight and the trapezoid target, or `floor` times them where the edge is cut.
+    #[inline]
+    fn debiased_edge(
+        &self,
+        i: usize,
+        j: usize,
+        axis: usize,
+        plus_i: f32,
+        plus_j: f32,
+        floor: f32,
+    ) -> (f32, f32) {
+        let mean = 0.5 * (self.omega(i) + self.omega(j));
+        let target = 0.5 * (self.gradient(i, axis) + self.gradient(j, axis));
+        let cut = plus_i + (1.0 - plus_j) < 0.5; // (B5): w⁺_i + w⁻_j < ½
+        let weight = if cut { floor * mean } else { mean };
+        (weight, weight * target)
     }
 
     /// The energy (B2) of `f` under the forward weights `plus` (`[columns, rows]`).
@@ -498,6 +532,7 @@ impl Bilateral {
         self.edges(
             px,
             plus,
+            tight && self.debias,
             [&mut st.east, &mut st.south],
             [&mut st.pull_east, &mut st.pull_south],
         );
@@ -608,12 +643,14 @@ impl Bilateral {
         Ok(())
     }
 
-    /// `W_e` and `W_e d_e` of (B4) for every east and south edge (0 where the edge leaves the
-    /// mask): `weight[0]`, `pull[0]` east, `weight[1]`, `pull[1]` south.
+    /// `W_e` and `W_e d_e` of (B4), or of (B5) when `debiased`, for every east and south edge
+    /// (0 where the edge leaves the mask): `weight[0]`, `pull[0]` east, `weight[1]`, `pull[1]`
+    /// south.
     fn edges(
         &self,
         px: &Pixels,
         plus: [&[f32]; 2],
+        debiased: bool,
         weight: [&mut [f32]; 2],
         pull: [&mut [f32]; 2],
     ) {
@@ -632,7 +669,12 @@ impl Bilateral {
                         (*wo, *po) = match px.mask[i].then(|| px.next(i, axis)).flatten() {
                             Some(j) => {
                                 let pl = plus[axis];
-                                px.edge(i, j, axis, pl[i], pl[j], self.min_edge_weight)
+                                let floor = self.min_edge_weight;
+                                if debiased {
+                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor) // (B5)
+                                } else {
+                                    px.edge(i, j, axis, pl[i], pl[j], floor) // (B4)
+                                }
                             }
                             None => (0.0, 0.0),
                         };
@@ -710,6 +752,8 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
     let mut energy = f64::INFINITY;
     let mut reweightings = 0;
     loop {
+        // The last pass solves (B5) under the converged weights.
+        let last = reweightings >= params.max_iterations;
         // The normal equations of (B4): A f = b, A = Σ_e W_e (1_j − 1_i)(1_j − 1_i)ᵀ + λ I.
         let mut diag = vec![0f64; n];
         let mut edges = Vec::new(); // (i, j, W_e)
@@ -724,8 +768,13 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
             }
             for (axis, pl) in plus.iter().enumerate() {
                 if let Some(j) = px.next(i, axis) {
-                    let (we, wd) = px.edge(i, j, axis, pl[i], pl[j], params.min_edge_weight);
-                    let (we, wd) = (we as f64, wd as f64); // (B4)
+                    let floor = params.min_edge_weight;
+                    let (we, wd) = if last && params.debias {
+                        px.debiased_edge(i, j, axis, pl[i], pl[j], floor) // (B5)
+                    } else {
+                        px.edge(i, j, axis, pl[i], pl[j], floor)
+                    };
+                    let (we, wd) = (we as f64, wd as f64);
                     edges.push((i, j, we));
                     diag[i] += we;
                     diag[j] += we;
