@@ -1,6 +1,6 @@
 //! `photostereo rti` end to end: the files and report on a synthetic dome capture, the light
 //! mask of `--exclude-unreliable`, `--force` by the project's rule, and refusals (near lights,
-//! too few lights for the basis, an unknown basis) that name the cause and leave no output.
+//! too few lights for the basis, an unknown basis, RBF with a light mask) that name the cause and leave no output.
 
 mod common;
 
@@ -36,6 +36,7 @@ fn fits_every_basis_and_writes_its_file_and_report() {
         ("ptm-rgb", "image.ptm"),
         ("hsh2", "image.rti"),
         ("hsh3", "image.rti"),
+        ("rbf", "basis.npy"),
     ] {
         let out = format!("out-{basis}");
         let o = photostereo(
@@ -126,9 +127,29 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert!(stderr(&o).contains("near lights"), "{}", stderr(&o));
     assert!(!dir.join("y").exists());
     // An unknown basis names the flag.
-    let o = photostereo(&["rti", "four", "--basis", "rbf", "-o", "z"], dir);
+    let o = photostereo(&["rti", "four", "--basis", "rbf3", "-o", "z"], dir);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--basis"), "{}", stderr(&o));
+    // RBF has no per-pixel light mask.
+    let o = photostereo(
+        &[
+            "rti",
+            "four",
+            "--basis",
+            "rbf",
+            "--exclude-unreliable",
+            "-o",
+            "v",
+        ],
+        dir,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("--exclude-unreliable"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("v").exists());
     // A budget too small for the coefficients names --memory-limit.
     synth(dir, "dome-30", "cap");
     let o = photostereo(&["rti", "cap", "--memory-limit", "20K", "-o", "w"], dir);

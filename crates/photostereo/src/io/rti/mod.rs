@@ -74,6 +74,27 @@ pub fn write_float_coefficients(dir: &Path, fit: &RtiFit) -> Result<()> {
     Ok(())
 }
 
+/// Writes an RBF fit's model as `.npy` (1 + P, N, C): the mean reading per light and channel,
+/// then the P principal components (display units); returns the file's description. Fails
+/// for a fit of another basis.
+pub fn write_rbf_basis(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
+    let model = fit.rbf.as_ref().ok_or_else(|| {
+        crate::base::error::Error::invalid(format!(
+            "{} is not an RBF fit: no basis to write",
+            fit.basis.name()
+        ))
+    })?;
+    let (n, c) = (model.lights.len(), model.channels);
+    let values: Vec<f32> = model
+        .mean
+        .iter()
+        .chain(&model.planes)
+        .map(|&v| v as f32)
+        .collect();
+    write_npy_f32(path, &[1 + fit.basis.terms(), n, c], &values)?;
+    Ok(serde_json::json!({ "sigma": model.sigma, "shape": [1 + fit.basis.terms(), n, c] }))
+}
+
 /// Writes `bytes` to `path` through a buffer, naming the file on failure.
 pub(crate) fn write_file(path: &Path, parts: &[&[u8]]) -> Result<()> {
     let io = |e| crate::base::error::Error::io(path, e);
