@@ -46,6 +46,19 @@ fn fits_every_basis_and_writes_its_file_and_report() {
         assert!(o.status.success(), "{basis}: {}", stderr(&o));
         assert!(dir.join(&out).join(file).is_file(), "{basis}");
         assert!(dir.join(&out).join("coefficients.npy").is_file());
+        // relight's web folder: info.json and ceil(nplanes / 3) plane images.
+        let info = report(&dir.join(&out).join("relight/info.json"));
+        let planes = info["nplanes"].as_u64().unwrap() as usize;
+        for g in 0..planes.div_ceil(3) {
+            assert!(dir
+                .join(&out)
+                .join(format!("relight/plane_{g}.png"))
+                .is_file());
+        }
+        assert!(!dir
+            .join(&out)
+            .join(format!("relight/plane_{}.png", planes.div_ceil(3)))
+            .exists());
         let r = report(&dir.join(&out).join("report.json"));
         assert_eq!(r["basis"], basis);
         assert_eq!(

@@ -564,3 +564,154 @@ fn rbf_relights_readings_its_components_hold_by_the_kernel() {
     let e = fit(&few, Basis::Rbf, None).unwrap_err().to_string();
     assert!(e.contains("principal components"), "{e}");
 }
+
+/// relight's light functions as the format's readers define them (OpenLIME's `ShaderRTI`):
+/// PTM 1, x, y, x², xy, y²; HSH H0…H8 of θ = acos l_z and φ = atan2(l_y, l_x).
+fn relight_weights(kind: &str, l: [f64; 3]) -> Vec<f64> {
+    use std::f64::consts::PI;
+    let (x, y) = (l[0], l[1]);
+    if kind == "ptm" {
+        return vec![1.0, x, y, x * x, x * y, y * y];
+    }
+    let phi = y.atan2(x);
+    let ct = l[2];
+    let s = (ct - ct * ct).max(0.0).sqrt();
+    let k = (30.0 / PI).sqrt();
+    vec![
+        1.0 / (2.0 * PI).sqrt(),
+        (6.0 / PI).sqrt() * phi.cos() * s,
+        (3.0 / (2.0 * PI)).sqrt() * (2.0 * ct - 1.0),
+        (6.0 / PI).sqrt() * phi.sin() * s,
+        k * (2.0 * phi).cos() * (ct * ct - ct),
+        k * phi.cos() * (2.0 * ct - 1.0) * s,
+        (5.0 / (2.0 * PI)).sqrt() * (6.0 * ct * ct - 6.0 * ct + 1.0),
+        k * phi.sin() * (2.0 * ct - 1.0) * s,
+        k * (2.0 * phi).sin() * (ct * ct - ct),
+    ]
+}
+
+/// A relight web folder read back: info.json and the dequantised planes `[pixel][plane]`.
+fn read_relight(dir: &std::path::Path) -> (serde_json::Value, Vec<f64>) {
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("info.json")).unwrap()).unwrap();
+    let (w, h) = (
+        info["width"].as_u64().unwrap() as usize,
+        info["height"].as_u64().unwrap() as usize,
+    );
+    let n = info["nplanes"].as_u64().unwrap() as usize;
+    let ext = info["format"].as_str().unwrap();
+    let m = &info["materials"][0];
+    let f = |key: &str, q: usize| m[key][q].as_f64().unwrap();
+    let mut planes = vec![0.0; w * h * n];
+    for g in 0..n.div_ceil(3) {
+        assert_eq!(ext, "png");
+        let file = std::fs::File::open(dir.join(format!("plane_{g}.{ext}"))).unwrap();
+        let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+            .read_info()
+            .unwrap();
+        let mut bytes = vec![0u8; reader.output_buffer_size().unwrap()];
+        let frame = reader.next_frame(&mut bytes).unwrap();
+        assert_eq!((frame.width as usize, frame.height as usize), (w, h));
+        assert_eq!(frame.color_type, png::ColorType::Rgb);
+        for (i, px) in bytes[..w * h * 3].chunks_exact(3).enumerate() {
+            for k in 0..3 {
+                let q = 3 * g + k;
+                if q < n {
+                    let t = f64::from(px[k]) / 255.0;
+                    planes[i * n + q] = (t - f("bias", q)) * f("scale", q);
+                }
+            }
+        }
+    }
+    (info, planes)
+}
+
+#[test]
+fn relight_web_folders_relight_as_the_fit_within_their_quantisation() {
+    let dirs = lights(30);
+    let (w, h) = (7, 5);
+    let tmp = std::env::temp_dir().join(format!("photostereo-relight-{}", std::process::id()));
+    // Lights photographed and not, up to 70° from the view axis.
+    let mut probes: Vec<[f64; 3]> = dirs.iter().step_by(6).copied().collect();
+    probes.extend([[0.0, 0.0, 1.0], [0.4, -0.3, 0.866], [-0.9, 0.1, 0.42]]);
+    for c in [3, 1] {
+        let cap = capture(w, h, c, &dirs, varied);
+        for basis in Basis::ALL {
+            let f = fit(&cap, basis, None).unwrap();
+            let dir = tmp.join(format!("{}-{c}", basis.name()));
+            photostereo::io::rti::relight::write_relight(&dir, &f).unwrap();
+            let (info, planes) = read_relight(&dir);
+            let n = info["nplanes"].as_u64().unwrap() as usize;
+            let kind = info["type"].as_str().unwrap().to_string();
+            let space = info["colorspace"].as_str().unwrap().to_string();
+            let m = &info["materials"][0];
+            let half = |q: usize| 0.5 * m["scale"][q].as_f64().unwrap() / 255.0;
+            let mut want = [0.0; 3];
+            for &l in &probes {
+                let norm = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
+                let l = [l[0] / norm, l[1] / norm, l[2] / norm];
+                for p in 0..w * h {
+                    let v = &planes[p * n..(p + 1) * n];
+                    f.predict(p, l, &mut want);
+                    for ch in 0..3 {
+                        let (shown, bound) = match space.as_str() {
+                            "rgb" => {
+                                let b = relight_weights(&kind, l);
+                                let terms = n / 3;
+                                let shown: f64 = (0..terms).map(|j| b[j] * v[3 * j + ch]).sum();
+                                let bound: f64 =
+                                    (0..terms).map(|j| b[j].abs() * half(3 * j + ch)).sum();
+                                (shown, bound)
+                            }
+                            "lrgb" => {
+                                let b = relight_weights(&kind, l);
+                                let lum: f64 = (0..6).map(|j| b[j] * v[3 + j]).sum();
+                                let dl: f64 = (0..6).map(|j| b[j].abs() * half(3 + j)).sum();
+                                let base = v[ch];
+                                (lum * base, dl * base + lum.abs() * 0.5 / 255.0 + dl / 255.0)
+                            }
+                            _ => {
+                                let sigma = info["sigma"].as_f64().unwrap();
+                                let ls: Vec<[f64; 3]> = info["lights"]
+                                    .as_array()
+                                    .unwrap()
+                                    .chunks(3)
+                                    .map(|x| [0, 1, 2].map(|a| x[a].as_f64().unwrap()))
+                                    .collect();
+                                assert_eq!(ls.len(), dirs.len());
+                                let wts = rbf_weights(&ls, sigma, l, usize::MAX);
+                                let basis = info["basis"].as_array().unwrap();
+                                let range = &m["range"];
+                                let nl = ls.len();
+                                let at = |plane: usize, i: usize| {
+                                    basis[(plane * nl + i) * 3 + ch].as_f64().unwrap()
+                                };
+                                let mut shown: f64 =
+                                    (0..nl).map(|i| wts[i] * at(0, i) / 255.0).sum();
+                                let mut bound = 0.5 / 255.0 + 1e-3 / 255.0;
+                                for j in 0..n {
+                                    let r = range[j].as_f64().unwrap();
+                                    let e: f64 =
+                                        (0..nl).map(|i| wts[i] * (at(j + 1, i) - 127.0) / r).sum();
+                                    shown += v[j] * e;
+                                    bound += v[j].abs() * 0.5 / r + e.abs() * half(j);
+                                }
+                                (shown, bound)
+                            }
+                        };
+                        let err = (shown - want[ch.min(c - 1)]).abs();
+                        assert!(
+                            err <= bound * 1.001 + 1e-6,
+                            "{} C={c} p{p} ch{ch} l={l:?}: {shown} vs {} ({err} > {bound})",
+                            basis.name(),
+                            want[ch.min(c - 1)]
+                        );
+                    }
+                }
+            }
+            // Pixels are not all equal: the test relights something.
+            assert!(planes.iter().any(|&x| x.abs() > 1e-3));
+        }
+    }
+    std::fs::remove_dir_all(&tmp).unwrap();
+}

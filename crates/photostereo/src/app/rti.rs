@@ -1,7 +1,8 @@
 //! The `rti` driver: load a capture, fit a relightable-image basis per pixel
 //! ([`crate::solve::rti`]), measure its leave-one-out relighting error beside the Lambertian
-//! relighting of photostereo's own normals and albedo, and write the viewer file, the float
-//! coefficients and `report.json` into an output folder atomically.
+//! relighting of photostereo's own normals and albedo, and write the viewer file, relight's web
+//! folder for OpenLIME, the float coefficients and `report.json` into an output folder
+//! atomically.
 
 use crate::base::error::{Error, Result};
 use crate::base::progress::Progress;
@@ -26,6 +27,9 @@ pub struct RtiOptions {
     /// Memory budget in bytes (`None`: half the memory available), as `run`'s.
     pub memory_limit: Option<u64>,
 }
+
+/// The folder of relight's web format (info.json and the coefficient planes) in the output.
+pub const WEB_FOLDER: &str = "relight";
 
 /// The file name of the viewer file of `basis`.
 pub fn image_name(basis: Basis) -> &'static str {
@@ -81,7 +85,14 @@ pub fn rti(
         Basis::Rbf => crate::io::rti::write_rbf_basis(&image, &fitted)?,
     };
     crate::io::rti::write_float_coefficients(folder.path(), &fitted)?;
+    let web = crate::io::rti::relight::write_relight(&folder.file(WEB_FOLDER), &fitted)?;
     report["file"] = json!({ "name": image_name(options.basis), "terms": maps });
+    report["web"] = json!({
+        "folder": WEB_FOLDER,
+        "type": web["type"],
+        "colorspace": web["colorspace"],
+        "nplanes": web["nplanes"],
+    });
     report["timings_s"] = json!({
         "reference": reference_s,
         "fit": fit_s,

@@ -1,6 +1,7 @@
 //! Relightable-image files of an RTI fit ([`crate::solve::rti`]): `.ptm` (HP Labs' PTM file
-//! format v1.2, [`ptm`]) and `.rti` (the hemispherical-harmonics layout RTIViewer reads,
-//! [`hsh`]), with the float coefficients beside them as `.npy` for checking the quantisation.
+//! format v1.2, [`ptm`]), `.rti` (the hemispherical-harmonics layout RTIViewer reads, [`hsh`])
+//! and relight's web format that OpenLIME reads ([`relight`]), with the float coefficients
+//! beside them as `.npy` for checking the quantisation.
 //!
 //! Both formats store one byte per coefficient with a per-term linear map shared by every pixel
 //! (and channel); [`TermMap`] holds it. Pixels outside the mask are written with zero
@@ -8,6 +9,7 @@
 
 pub mod hsh;
 pub mod ptm;
+pub mod relight;
 
 use crate::base::error::Result;
 use crate::io::export::write_npy_f32;
