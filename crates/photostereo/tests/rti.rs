@@ -514,8 +514,7 @@ fn rbf_leave_one_out_equals_refits_without_each_light() {
                 }
             }
         }
-        for k in 0..n {
-            let (a, b) = (f.loo.sse[k], sse[k]);
+        for (k, (&a, &b)) in f.loo.sse.iter().zip(&sse).enumerate() {
             assert!(
                 (a - b).abs() <= 1e-6 * b.max(1e-9),
                 "C={c} light {k}: {a} vs {b}"
@@ -614,10 +613,10 @@ fn read_relight(dir: &std::path::Path) -> (serde_json::Value, Vec<f64>) {
         assert_eq!((frame.width as usize, frame.height as usize), (w, h));
         assert_eq!(frame.color_type, png::ColorType::Rgb);
         for (i, px) in bytes[..w * h * 3].chunks_exact(3).enumerate() {
-            for k in 0..3 {
+            for (k, &byte) in px.iter().enumerate() {
                 let q = 3 * g + k;
                 if q < n {
-                    let t = f64::from(px[k]) / 255.0;
+                    let t = f64::from(byte) / 255.0;
                     planes[i * n + q] = (t - f("bias", q)) * f("scale", q);
                 }
             }
@@ -714,4 +713,195 @@ fn relight_web_folders_relight_as_the_fit_within_their_quantisation() {
         }
     }
     std::fs::remove_dir_all(&tmp).unwrap();
+}
+
+/// A test image whose pixels name their position.
+fn test_rgb(w: usize, h: usize) -> Vec<u8> {
+    (0..w * h)
+        .flat_map(|i| {
+            let (x, y) = (i % w, i / w);
+            [
+                (x % 251) as u8,
+                (y % 241) as u8,
+                ((x * 7 + y * 13) % 256) as u8,
+            ]
+        })
+        .collect()
+}
+
+fn png_rgb(path: &std::path::Path) -> (usize, usize, Vec<u8>) {
+    let file = std::fs::File::open(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let mut reader = png::Decoder::new(std::io::BufReader::new(file))
+        .read_info()
+        .unwrap();
+    let mut bytes = vec![0u8; reader.output_buffer_size().unwrap()];
+    let frame = reader.next_frame(&mut bytes).unwrap();
+    assert_eq!(frame.color_type, png::ColorType::Rgb);
+    bytes.truncate(frame.width as usize * frame.height as usize * 3);
+    (frame.width as usize, frame.height as usize, bytes)
+}
+
+fn names(dir: &std::path::Path) -> std::collections::BTreeSet<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect()
+}
+
+#[test]
+fn deep_zoom_pyramid_follows_the_published_layout() {
+    // The Deep Zoom layout (Microsoft's DZI schema, as OpenSeadragon reads it): levels 0…L,
+    // L = ⌈log2 max(W, H)⌉, level k ⌈W/2^(L−k)⌉ wide; tiles `col_row` of T plus the overlap
+    // on the sides that have a neighbour.
+    let (w, h, t, o) = (600, 300, 254, 1);
+    let rgb = test_rgb(w, h);
+    let tmp = tempfile::tempdir().unwrap();
+    let dzi = tmp.path().join("img.dzi");
+    let (levels, tiles) =
+        photostereo::io::rti::tiles::write_deep_zoom(&dzi, (w, h), &rgb, t, o).unwrap();
+    let xml = std::fs::read_to_string(&dzi).unwrap();
+    for attr in [
+        "xmlns=\"http://schemas.microsoft.com/deepzoom/2008\"",
+        "Format=\"png\"",
+        "Overlap=\"1\"",
+        "TileSize=\"254\"",
+        "Width=\"600\"",
+        "Height=\"300\"",
+    ] {
+        assert!(xml.contains(attr), "{attr} in {xml}");
+    }
+    let top = 10; // 2^9 < 600 ≤ 2^10
+    assert_eq!(levels, top + 1);
+    let files = tmp.path().join("img_files");
+    assert_eq!(names(&files).len(), top + 1);
+    let mut counted = 0;
+    for k in 0..=top {
+        let div = 1usize << (top - k);
+        let (lw, lh) = (w.div_ceil(div), h.div_ceil(div));
+        let (cols, rows) = (lw.div_ceil(t), lh.div_ceil(t));
+        let dir = files.join(k.to_string());
+        let want: std::collections::BTreeSet<String> = (0..cols)
+            .flat_map(|c| (0..rows).map(move |r| format!("{c}_{r}.png")))
+            .collect();
+        assert_eq!(names(&dir), want, "level {k}");
+        for c in 0..cols {
+            for r in 0..rows {
+                let x0 = if c == 0 { 0 } else { c * t - o };
+                let y0 = if r == 0 { 0 } else { r * t - o };
+                let x1 = ((c + 1) * t + o).min(lw);
+                let y1 = ((r + 1) * t + o).min(lh);
+                let (tw, th, px) = png_rgb(&dir.join(format!("{c}_{r}.png")));
+                assert_eq!((tw, th), (x1 - x0, y1 - y0), "level {k} tile {c}_{r}");
+                if k == top - 1 {
+                    // One level down: each pixel the rounded mean of the 2 × 2 block it covers.
+                    for y in 0..th {
+                        for x in 0..tw {
+                            let (gx, gy) = (x0 + x, y0 + y);
+                            for ch in 0..3 {
+                                let block: Vec<u32> = [(0, 0), (1, 0), (0, 1), (1, 1)]
+                                    .iter()
+                                    .map(|(dx, dy)| (2 * gx + dx, 2 * gy + dy))
+                                    .filter(|&(sx, sy)| sx < w && sy < h)
+                                    .map(|(sx, sy)| u32::from(rgb[(sy * w + sx) * 3 + ch]))
+                                    .collect();
+                                let n = block.len() as u32;
+                                let mean = (block.iter().sum::<u32>() + n / 2) / n;
+                                assert_eq!(u32::from(px[(y * tw + x) * 3 + ch]), mean);
+                            }
+                        }
+                    }
+                }
+                if k == top {
+                    for y in 0..th {
+                        for x in 0..tw {
+                            let src = ((y0 + y) * w + x0 + x) * 3;
+                            assert_eq!(&px[(y * tw + x) * 3..][..3], &rgb[src..src + 3]);
+                        }
+                    }
+                }
+                counted += 1;
+            }
+        }
+    }
+    assert_eq!(tiles, counted);
+}
+
+#[test]
+fn iiif_level0_tiles_are_where_a_client_asks_for_them() {
+    // IIIF Image API 3.0: info.json of a level-0 service, and the tile requests
+    // {x},{y},{w},{h}/{w'},{h'}/0/default.jpg a client derives from it.
+    let (w, h, t) = (1100, 700, 512);
+    let rgb = test_rgb(w, h);
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path().join("iiif");
+    photostereo::io::rti::tiles::write_iiif(&dir, "https://example.org/img", (w, h), &rgb, t)
+        .unwrap();
+    let info: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("info.json")).unwrap()).unwrap();
+    assert_eq!(info["@context"], "http://iiif.io/api/image/3/context.json");
+    assert_eq!(info["type"], "ImageService3");
+    assert_eq!(info["protocol"], "http://iiif.io/api/image");
+    assert_eq!(info["profile"], "level0");
+    assert_eq!(info["id"], "https://example.org/img");
+    assert_eq!(
+        (info["width"].as_u64(), info["height"].as_u64()),
+        (Some(1100), Some(700))
+    );
+    let tiles = &info["tiles"][0];
+    assert_eq!(
+        (tiles["width"].as_u64(), tiles["height"].as_u64()),
+        (Some(512), Some(512))
+    );
+    // 1100 / 4 = 275 ≤ 512: scale factors 1, 2, 4.
+    let scales: Vec<u64> = tiles["scaleFactors"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_u64().unwrap())
+        .collect();
+    assert_eq!(scales, [1, 2, 4]);
+    let mut expected = std::collections::BTreeSet::from(["info.json".to_string(), "full".into()]);
+    for &s in &scales {
+        let s = s as usize;
+        let span = t * s;
+        for y in (0..h).step_by(span) {
+            for x in (0..w).step_by(span) {
+                let (rw, rh) = (span.min(w - x), span.min(h - y));
+                let (tw, th) = (rw.div_ceil(s), rh.div_ceil(s));
+                let region = format!("{x},{y},{rw},{rh}");
+                let path = dir.join(format!("{region}/{tw},{th}/0/default.jpg"));
+                let img = image::open(&path)
+                    .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+                    .to_rgb8();
+                assert_eq!((img.width() as usize, img.height() as usize), (tw, th));
+                if s == 1 {
+                    // JPEG at quality 90: the tile's pixels within a few levels of the image's.
+                    let err: f64 = img
+                        .pixels()
+                        .enumerate()
+                        .map(|(i, p)| {
+                            let src = ((y + i / tw) * w + x + i % tw) * 3;
+                            (0..3)
+                                .map(|k| (f64::from(p[k]) - f64::from(rgb[src + k])).abs())
+                                .sum::<f64>()
+                        })
+                        .sum::<f64>()
+                        / (3 * tw * th) as f64;
+                    assert!(err < 6.0, "{region}: mean error {err}");
+                }
+                expected.insert(region);
+            }
+        }
+    }
+    assert_eq!(names(&dir), expected);
+    // The sizes, each a whole image at full/{w},{h}.
+    let sizes = info["sizes"].as_array().unwrap();
+    assert_eq!(sizes.len(), 3);
+    for sz in sizes {
+        let (sw, sh) = (
+            sz["width"].as_u64().unwrap(),
+            sz["height"].as_u64().unwrap(),
+        );
+        assert!(dir.join(format!("full/{sw},{sh}/0/default.jpg")).is_file());
+    }
 }

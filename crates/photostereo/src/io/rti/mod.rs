@@ -10,6 +10,7 @@
 pub mod hsh;
 pub mod ptm;
 pub mod relight;
+pub mod tiles;
 
 use crate::base::error::Result;
 use crate::io::export::write_npy_f32;

@@ -18,6 +18,9 @@
 //!   the kernel interpolation of `basis` (`[plane 0…P][light][channel]` bytes: plane 0 the mean
 //!   × 255, plane p ≥ 1 the component e as 127 + range_p · e, range_p = 127 / max |e|).
 //!
+//! Each plane image is also written as a Deep Zoom pyramid, `plane_G.dzi` and
+//! `plane_G_files/` ([`super::tiles`]), which OpenLIME loads with its `deepzoom1px` layout.
+//!
 //! Pixels outside the mask are written as black: zero coefficients, and for RBF the
 //! coefficients of a black pixel, −E μ.
 
@@ -79,6 +82,13 @@ pub fn write_relight(dir: &Path, fit: &RtiFit) -> Result<Value> {
             }
         }
         write_png8(&dir.join(format!("plane_{g}.png")), w, h, 3, &frame)?;
+        super::tiles::write_deep_zoom(
+            &dir.join(format!("plane_{g}.dzi")),
+            (w, h),
+            &frame,
+            super::tiles::DZI_TILE,
+            super::tiles::DZI_OVERLAP,
+        )?;
     }
     let info = planes.info(fit, &maps);
     let text = serde_json::to_string_pretty(&info)
@@ -132,8 +142,8 @@ impl Planes {
             let coef = &fit.coefficients[p * fc * t..(p + 1) * fc * t];
             match fit.basis {
                 Basis::PtmLrgb => {
-                    for k in 0..3 {
-                        row[k] = (f64::from(fit.chroma[p * 3 + k]) / self.chroma_scale) as f32;
+                    for (v, &c) in row.iter_mut().zip(&fit.chroma[p * 3..p * 3 + 3]) {
+                        *v = (f64::from(c) / self.chroma_scale) as f32;
                     }
                     for (j, &o) in PTM_ORDER.iter().enumerate() {
                         row[3 + j] = (f64::from(coef[o]) * self.chroma_scale) as f32;
