@@ -73,6 +73,7 @@ __all__ = [
     "read_normals",
     "reconstruct",
     "render_scene",
+    "rti",
     "run",
     "synth",
     "__version__",
@@ -508,6 +509,63 @@ def run(
         progress,
         distance,
         _camera(camera),
+    )
+
+
+def rti(
+    path: Union[PathLike, Sequence[PathLike]],
+    output: PathLike,
+    *,
+    basis: str = "hsh3",
+    lights: Optional[PathLike] = None,
+    intensities: Optional[PathLike] = None,
+    mask: Optional[PathLike] = None,
+    exclude_unreliable: bool = False,
+    memory_limit: Optional[int] = None,
+    force: bool = False,
+    num_threads: Optional[int] = None,
+    progress: Optional[ProgressCallback] = None,
+) -> Dict[str, Any]:
+    """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
+    layout, as :func:`load_capture`; distant lights) and writes the output folder ``output``
+    atomically: the viewer file (``image.ptm``, ``image.rti``, or ``basis.npy`` for rbf),
+    relight's web folder ``relight/`` for OpenLIME, ``coefficients.npy`` and report.json.
+
+    Parameters
+    ----------
+    basis : str
+        ``"ptm"``, ``"ptm-rgb"``, ``"hsh2"``, ``"hsh3"`` or ``"rbf"``.
+    exclude_unreliable : bool
+        Run the recursive method first and leave its shadows and highlights out of each
+        pixel's fit (not with ``"rbf"``).
+    memory_limit : int, optional
+        Memory budget in bytes (default: half the memory available), as ``run``'s.
+    force : bool
+        Replace an existing ``rti`` output folder.
+
+    Returns
+    -------
+    dict
+        The content of report.json (``leave_one_out`` holds the leave-one-out RMSE per light
+        and its mean, ``lambertian_reference`` the same for the normals × albedo).
+
+    Raises
+    ------
+    PhotostereoError
+        A bad value, file or output folder, naming the keyword, file or line at fault.
+    """
+    return _native.rti(
+        _paths(path),
+        os.fspath(output),
+        basis,
+        _path(lights),
+        _path(intensities),
+        _path(mask),
+        exclude_unreliable,
+        memory_limit,
+        force,
+        num_threads,
+        progress,
     )
 
 

@@ -183,6 +183,21 @@ def run(
 ) -> Dict[str, Any]:
     """The command line's ``run``; returns report.json's content."""
 
+def rti(
+    inputs: Sequence[str],
+    output: str,
+    basis: str,
+    lights: Optional[str] = None,
+    intensities: Optional[str] = None,
+    mask: Optional[str] = None,
+    exclude_unreliable: bool = False,
+    memory_limit: Optional[int] = None,
+    force: bool = False,
+    num_threads: Optional[int] = None,
+    progress: Optional[Progress] = None,
+) -> Dict[str, Any]:
+    """The command line's ``rti``; returns report.json's content."""
+
 def integrate(
     normals: np.ndarray,
     mask: Optional[np.ndarray] = None,

@@ -139,3 +139,24 @@ def test_files_hold_the_fit_within_quantisation(cli, capture, tmp_path, basis):
             b = hsh_basis(l, terms)
             err = np.abs(255.0 * (coeffs @ b) - 255.0 * (full @ b))[mask]
             assert np.all(err <= 255.0 * (np.abs(b) @ scale) / 255.0 * 0.5 * 1.001 + 1e-5)
+
+
+@pytest.mark.parametrize("basis", ["hsh2", "rbf"])
+def test_python_rti_writes_what_the_command_line_writes(cli, capture, tmp_path, basis):
+    import photostereo
+
+    folder, lights = capture
+    report = photostereo.rti(folder, tmp_path / "py", basis=basis)
+    subprocess.run([cli, "rti", str(folder), "--basis", basis, "-o", str(tmp_path / "cli"),
+                    "--quiet"], check=True)
+    on_disk = json.loads((tmp_path / "cli" / "report.json").read_text())
+    assert report["basis"] == basis
+    assert len(report["leave_one_out"]["rmse_8bit"]) == len(lights)
+    assert report["leave_one_out"]["mean_rmse_8bit"] == pytest.approx(
+        on_disk["leave_one_out"]["mean_rmse_8bit"], rel=1e-9)
+    assert np.array_equal(np.load(tmp_path / "py" / "coefficients.npy"),
+                          np.load(tmp_path / "cli" / "coefficients.npy"))
+    assert (tmp_path / "py" / "relight" / "info.json").is_file()
+    with pytest.raises(photostereo.PhotostereoError, match="basis"):
+        photostereo.rti(folder, tmp_path / "bad", basis="rbf9")
+    assert not (tmp_path / "bad").exists()

@@ -26,7 +26,8 @@ pub struct RtiArgs {
     pub mask: Option<PathBuf>,
     /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
     /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
-    /// written as .rti).
+    /// written as .rti), rbf (relight's radial basis: 9 principal-component coefficients per
+    /// pixel interpolated over the lights; its model in basis.npy).
     #[arg(long, default_value = "hsh3", value_parser = parse_basis)]
     pub basis: Basis,
     /// Run the recursive method first and leave out of each pixel's fit the readings it found
@@ -36,7 +37,8 @@ pub struct RtiArgs {
     /// Memory budget (e.g. `4G`, `500M`; powers of 1024), as `run`'s; the coefficients must fit.
     #[arg(long, value_parser = crate::common::parse_memory_limit)]
     pub memory_limit: Option<u64>,
-    /// Output folder: image.ptm or image.rti, coefficients.npy (chroma.npy for ptm), report.json.
+    /// Output folder: image.ptm, image.rti or basis.npy, coefficients.npy (chroma.npy for ptm),
+    /// report.json.
     #[arg(short, long, default_value = "photostereo-rti")]
     pub output: PathBuf,
     #[command(flatten)]

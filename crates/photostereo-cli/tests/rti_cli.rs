@@ -1,6 +1,6 @@
 //! `photostereo rti` end to end: the files and report on a synthetic dome capture, the light
 //! mask of `--exclude-unreliable`, `--force` by the project's rule, and refusals (near lights,
-//! too few lights for the basis, an unknown basis) that name the cause and leave no output.
+//! too few lights for the basis, an unknown basis, RBF with a light mask) that name the cause and leave no output.
 
 mod common;
 
@@ -36,6 +36,7 @@ fn fits_every_basis_and_writes_its_file_and_report() {
         ("ptm-rgb", "image.ptm"),
         ("hsh2", "image.rti"),
         ("hsh3", "image.rti"),
+        ("rbf", "basis.npy"),
     ] {
         let out = format!("out-{basis}");
         let o = photostereo(
@@ -45,6 +46,19 @@ fn fits_every_basis_and_writes_its_file_and_report() {
         assert!(o.status.success(), "{basis}: {}", stderr(&o));
         assert!(dir.join(&out).join(file).is_file(), "{basis}");
         assert!(dir.join(&out).join("coefficients.npy").is_file());
+        // relight's web folder: info.json and ceil(nplanes / 3) plane images.
+        let info = report(&dir.join(&out).join("relight/info.json"));
+        let planes = info["nplanes"].as_u64().unwrap() as usize;
+        for g in 0..planes.div_ceil(3) {
+            assert!(dir
+                .join(&out)
+                .join(format!("relight/plane_{g}.png"))
+                .is_file());
+        }
+        assert!(!dir
+            .join(&out)
+            .join(format!("relight/plane_{}.png", planes.div_ceil(3)))
+            .exists());
         let r = report(&dir.join(&out).join("report.json"));
         assert_eq!(r["basis"], basis);
         assert_eq!(
@@ -126,9 +140,29 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert!(stderr(&o).contains("near lights"), "{}", stderr(&o));
     assert!(!dir.join("y").exists());
     // An unknown basis names the flag.
-    let o = photostereo(&["rti", "four", "--basis", "rbf", "-o", "z"], dir);
+    let o = photostereo(&["rti", "four", "--basis", "rbf3", "-o", "z"], dir);
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--basis"), "{}", stderr(&o));
+    // RBF has no per-pixel light mask.
+    let o = photostereo(
+        &[
+            "rti",
+            "four",
+            "--basis",
+            "rbf",
+            "--exclude-unreliable",
+            "-o",
+            "v",
+        ],
+        dir,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("--exclude-unreliable"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("v").exists());
     // A budget too small for the coefficients names --memory-limit.
     synth(dir, "dome-30", "cap");
     let o = photostereo(&["rti", "cap", "--memory-limit", "20K", "-o", "w"], dir);

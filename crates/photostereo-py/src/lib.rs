@@ -1020,6 +1020,53 @@ fn run<'py>(
     py_serde(py, &rec.report)
 }
 
+/// The command line's `rti`: fits a relightable-image basis and writes its folder; returns
+/// report.json's content.
+#[pyfunction]
+#[pyo3(signature = (inputs, output, basis, lights=None, intensities=None, mask=None,
+    exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None))]
+#[allow(clippy::too_many_arguments)]
+fn rti<'py>(
+    py: Python<'py>,
+    inputs: Vec<PathBuf>,
+    output: PathBuf,
+    basis: &str,
+    lights: Option<PathBuf>,
+    intensities: Option<PathBuf>,
+    mask: Option<PathBuf>,
+    exclude_unreliable: bool,
+    memory_limit: Option<u64>,
+    force: bool,
+    num_threads: Option<&Bound<'py, PyAny>>,
+    progress: Option<&Bound<'py, PyAny>>,
+) -> PyResult<Py<PyAny>> {
+    let basis = basis
+        .parse::<photostereo::solve::rti::Basis>()
+        .map_err(py_err)?;
+    let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
+    let options = photostereo::app::rti::RtiOptions {
+        basis,
+        exclude_unreliable,
+        memory_limit,
+    };
+    let report = run_detached(
+        py,
+        num_threads,
+        progress,
+        OnCancel::CleanUpFirst,
+        move |p| {
+            let files = CaptureFiles::from_inputs(
+                &inputs,
+                lights.as_deref(),
+                intensities.as_deref(),
+                mask.as_deref(),
+            )?;
+            photostereo::app::rti::rti(&files, &options, &output, force, p)
+        },
+    )?;
+    py_serde(py, &report)
+}
+
 // ---------------------------------------------------------------------------------------------
 // Integration, metrics, calibration, scenes.
 
@@ -1417,6 +1464,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(_capture_from_state, m)?)?;
     m.add_function(wrap_pyfunction!(reconstruct, m)?)?;
     m.add_function(wrap_pyfunction!(run, m)?)?;
+    m.add_function(wrap_pyfunction!(rti, m)?)?;
     m.add_function(wrap_pyfunction!(integrate, m)?)?;
     m.add_function(wrap_pyfunction!(angular_error, m)?)?;
     m.add_function(wrap_pyfunction!(calibrate, m)?)?;

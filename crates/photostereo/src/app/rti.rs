@@ -1,7 +1,8 @@
 //! The `rti` driver: load a capture, fit a relightable-image basis per pixel
 //! ([`crate::solve::rti`]), measure its leave-one-out relighting error beside the Lambertian
-//! relighting of photostereo's own normals and albedo, and write the viewer file, the float
-//! coefficients and `report.json` into an output folder atomically.
+//! relighting of photostereo's own normals and albedo, and write the viewer file, relight's web
+//! folder for OpenLIME, the float coefficients and `report.json` into an output folder
+//! atomically.
 
 use crate::base::error::{Error, Result};
 use crate::base::progress::Progress;
@@ -27,11 +28,15 @@ pub struct RtiOptions {
     pub memory_limit: Option<u64>,
 }
 
+/// The folder of relight's web format (info.json and the coefficient planes) in the output.
+pub const WEB_FOLDER: &str = "relight";
+
 /// The file name of the viewer file of `basis`.
 pub fn image_name(basis: Basis) -> &'static str {
     match basis {
         Basis::PtmLrgb | Basis::PtmRgb => "image.ptm",
         Basis::Hsh2 | Basis::Hsh3 => "image.rti",
+        Basis::Rbf => "basis.npy",
     }
 }
 
@@ -75,11 +80,19 @@ pub fn rti(
     let t = Instant::now();
     let image = folder.file(image_name(options.basis));
     let maps = match options.basis {
-        Basis::PtmLrgb | Basis::PtmRgb => crate::io::rti::ptm::write_ptm(&image, &fitted)?,
-        Basis::Hsh2 | Basis::Hsh3 => crate::io::rti::hsh::write_hsh(&image, &fitted)?,
+        Basis::PtmLrgb | Basis::PtmRgb => json!(crate::io::rti::ptm::write_ptm(&image, &fitted)?),
+        Basis::Hsh2 | Basis::Hsh3 => json!(crate::io::rti::hsh::write_hsh(&image, &fitted)?),
+        Basis::Rbf => crate::io::rti::write_rbf_basis(&image, &fitted)?,
     };
     crate::io::rti::write_float_coefficients(folder.path(), &fitted)?;
+    let web = crate::io::rti::relight::write_relight(&folder.file(WEB_FOLDER), &fitted)?;
     report["file"] = json!({ "name": image_name(options.basis), "terms": maps });
+    report["web"] = json!({
+        "folder": WEB_FOLDER,
+        "type": web["type"],
+        "colorspace": web["colorspace"],
+        "nplanes": web["nplanes"],
+    });
     report["timings_s"] = json!({
         "reference": reference_s,
         "fit": fit_s,
@@ -95,6 +108,14 @@ pub fn rti(
 /// (per mask pixel [`RtiFit::bytes_per_pixel`]; per frame pixel, while writing, the
 /// coefficients of up to three planes as f32 and as bytes, 15 · T + 3 bytes).
 fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
+    if options.basis == Basis::Rbf && options.exclude_unreliable {
+        return Err(Error::parameter(
+            "exclude_unreliable",
+            "rbf projects every pixel's readings under all the lights on one set of principal \
+             components and has no per-pixel light mask; use it without --exclude-unreliable, \
+             or fit ptm or hsh",
+        ));
+    }
     if capture.lights.near.is_some() {
         return Err(Error::invalid(
             "rti: this capture has near lights (light_positions.txt); RTI bases (PTM, HSH) \
@@ -183,8 +204,17 @@ fn report(
         .into_iter()
         .map(|(a, b)| [a, b])
         .collect();
+    let rbf = fitted.rbf.as_ref().map(|m| {
+        json!({
+            "sigma": m.sigma,
+            "planes": options.basis.terms(),
+            "explained_variance": m.explained_variance,
+            "pca_pixels": m.pca_pixels,
+        })
+    });
     json!({
         "basis": options.basis.name(),
+        "rbf": rbf,
         "terms": options.basis.terms(),
         "input": {
             "width": capture.width,

@@ -1,6 +1,7 @@
 //! Relightable-image files of an RTI fit ([`crate::solve::rti`]): `.ptm` (HP Labs' PTM file
-//! format v1.2, [`ptm`]) and `.rti` (the hemispherical-harmonics layout RTIViewer reads,
-//! [`hsh`]), with the float coefficients beside them as `.npy` for checking the quantisation.
+//! format v1.2, [`ptm`]), `.rti` (the hemispherical-harmonics layout RTIViewer reads, [`hsh`])
+//! and relight's web format that OpenLIME reads ([`relight`]), with the float coefficients
+//! beside them as `.npy` for checking the quantisation.
 //!
 //! Both formats store one byte per coefficient with a per-term linear map shared by every pixel
 //! (and channel); [`TermMap`] holds it. Pixels outside the mask are written with zero
@@ -8,6 +9,8 @@
 
 pub mod hsh;
 pub mod ptm;
+pub mod relight;
+pub mod tiles;
 
 use crate::base::error::Result;
 use crate::io::export::write_npy_f32;
@@ -72,6 +75,27 @@ pub fn write_float_coefficients(dir: &Path, fit: &RtiFit) -> Result<()> {
         write_npy_f32(&dir.join("chroma.npy"), &[h, w, 3], &chroma)?;
     }
     Ok(())
+}
+
+/// Writes an RBF fit's model as `.npy` (1 + P, N, C): the mean reading per light and channel,
+/// then the P principal components (display units); returns the file's description. Fails
+/// for a fit of another basis.
+pub fn write_rbf_basis(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
+    let model = fit.rbf.as_ref().ok_or_else(|| {
+        crate::base::error::Error::invalid(format!(
+            "{} is not an RBF fit: no basis to write",
+            fit.basis.name()
+        ))
+    })?;
+    let (n, c) = (model.lights.len(), model.channels);
+    let values: Vec<f32> = model
+        .mean
+        .iter()
+        .chain(&model.planes)
+        .map(|&v| v as f32)
+        .collect();
+    write_npy_f32(path, &[1 + fit.basis.terms(), n, c], &values)?;
+    Ok(serde_json::json!({ "sigma": model.sigma, "shape": [1 + fit.basis.terms(), n, c] }))
 }
 
 /// Writes `bytes` to `path` through a buffer, naming the file on failure.

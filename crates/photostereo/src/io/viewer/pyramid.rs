@@ -50,6 +50,39 @@ pub struct Level {
     pub planes: usize,
 }
 
+/// The size of the next level of a pyramid: both sides halved, rounded up (a pixel of the
+/// next level covers the 2 × 2 block of pixels at twice its coordinates, cut at the border).
+/// Deep Zoom's levels follow the same rule (level sizes ⌈W / 2^k⌉).
+pub fn half(w: usize, h: usize) -> (usize, usize) {
+    (w.div_ceil(2), h.div_ceil(2))
+}
+
+/// The next level of an 8-bit image with `c` interleaved channels: each pixel the rounded mean
+/// of the (up to four) pixels it covers ([`half`]).
+pub fn halve_u8(w: usize, h: usize, c: usize, data: &[u8]) -> (usize, usize, Vec<u8>) {
+    let (w2, h2) = half(w, h);
+    let mut out = vec![0u8; w2 * h2 * c];
+    out.par_chunks_mut(w2 * c)
+        .enumerate()
+        .for_each(|(r2, row)| {
+            for c2 in 0..w2 {
+                let rows = 2 * r2..(2 * r2 + 2).min(h);
+                let cols = 2 * c2..(2 * c2 + 2).min(w);
+                let n = (rows.len() * cols.len()) as u32;
+                for k in 0..c {
+                    let mut sum = 0u32;
+                    for r in rows.clone() {
+                        for col in cols.clone() {
+                            sum += u32::from(data[(r * w + col) * c + k]);
+                        }
+                    }
+                    row[c2 * c + k] = ((sum + n / 2) / n) as u8;
+                }
+            }
+        });
+    (w2, h2, out)
+}
+
 /// Light direction of the depth layer's hill shade (upper left, camera frame).
 const HILL_LIGHT: [f32; 3] = [-0.4851, 0.4851, 0.7276];
 
@@ -201,7 +234,7 @@ impl Level {
     /// The next level: both sides halved (rounded up).
     pub fn reduce(&self) -> Level {
         let (w, h) = (self.width, self.height);
-        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+        let (w2, h2) = half(w, h);
         let children = |r2: usize, c2: usize| {
             let mut v = [usize::MAX; 4];
             let mut k = 0;

@@ -30,6 +30,9 @@
 //!   - H8 = √(30/π) sin 2φ (cos² θ − cos θ)
 //!
 //!   Order 2 is H0…H3 (4 terms), order 3 H0…H8 (9 terms), per channel.
+//! - RBF: relight's radial-basis model, the readings' principal components interpolated over
+//!   the lights by normalised Gaussian weights, P = 9 coefficients a pixel ([`rbf`]). It is not
+//!   a fixed basis of l: its fit and leave-one-out error are [`rbf::fit`]'s.
 //!
 //! Leave-one-out (LOO) error: for a linear least-squares fit with hat matrix H = A G⁻¹ Aᵀ, the
 //! residual of reading k when the fit leaves k out is e_k / (1 − h_kk), e_k the residual of the
@@ -43,6 +46,8 @@
 //! HSH values × 255 and PTM values as they are, with the PTM coefficients stored × 255).
 //! Memory: the coefficients, f32, `4 · (C·T + 3)` bytes per mask pixel (C channels fitted), and
 //! the capture's samples `4 · N · C` bytes per mask pixel (or its tiles).
+
+pub mod rbf;
 
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
@@ -63,11 +68,24 @@ pub enum Basis {
     Hsh2,
     /// Hemispherical harmonics of order 3: 9 terms per channel.
     Hsh3,
+    /// relight's RBF: 9 principal-component coefficients per pixel, interpolated over the
+    /// lights ([`rbf`]).
+    Rbf,
 }
 
 impl Basis {
     /// Every basis, in the order tables list them.
-    pub const ALL: [Basis; 4] = [Basis::PtmLrgb, Basis::PtmRgb, Basis::Hsh2, Basis::Hsh3];
+    pub const ALL: [Basis; 5] = [
+        Basis::PtmLrgb,
+        Basis::PtmRgb,
+        Basis::Hsh2,
+        Basis::Hsh3,
+        Basis::Rbf,
+    ];
+
+    /// The bases that are fixed functions of the light ([`Basis::eval`]), fitted by least
+    /// squares per pixel.
+    pub const LINEAR: [Basis; 4] = [Basis::PtmLrgb, Basis::PtmRgb, Basis::Hsh2, Basis::Hsh3];
 
     /// The name `--basis` accepts.
     pub fn name(self) -> &'static str {
@@ -76,6 +94,7 @@ impl Basis {
             Basis::PtmRgb => "ptm-rgb",
             Basis::Hsh2 => "hsh2",
             Basis::Hsh3 => "hsh3",
+            Basis::Rbf => "rbf",
         }
     }
 
@@ -85,6 +104,7 @@ impl Basis {
             Basis::PtmLrgb | Basis::PtmRgb => 6,
             Basis::Hsh2 => 4,
             Basis::Hsh3 => 9,
+            Basis::Rbf => rbf::PLANES,
         }
     }
 
@@ -93,8 +113,14 @@ impl Basis {
         self == Basis::PtmLrgb
     }
 
+    /// Whether the basis is a fixed function of the light ([`Basis::LINEAR`]).
+    pub fn linear(self) -> bool {
+        self != Basis::Rbf
+    }
+
     /// The basis functions at the unit light direction `l` (module documentation), into
-    /// `out[..terms]`. A light below the horizon (l_z < 0) is evaluated at the horizon.
+    /// `out[..terms]`. A light below the horizon (l_z < 0) is evaluated at the horizon. RBF,
+    /// whose functions are the fit's own ([`rbf::RbfModel::light_basis`]), writes zeros.
     pub fn eval(self, l: [f64; 3], out: &mut [f64]) {
         use std::f64::consts::PI;
         match self {
@@ -119,6 +145,7 @@ impl Basis {
                     out[8] = k * (2.0 * phi).sin() * (ct * ct - ct);
                 }
             }
+            Basis::Rbf => out[..rbf::PLANES].fill(0.0),
         }
     }
 }
@@ -132,7 +159,7 @@ impl FromStr for Basis {
             .ok_or_else(|| {
                 Error::parameter(
                     "basis",
-                    format!("'{s}': expected one of ptm, ptm-rgb, hsh2, hsh3"),
+                    format!("'{s}': expected one of ptm, ptm-rgb, hsh2, hsh3, rbf"),
                 )
             })
     }
@@ -242,6 +269,8 @@ pub struct RtiFit {
     /// Pixels whose kept lights were too few for a leave-one-out fit (fewer than T + 2) and
     /// that were fitted with every light instead.
     pub fell_back_to_all_lights: u64,
+    /// RBF: the model the coefficients weight; `None` for the other bases.
+    pub rbf: Option<rbf::RbfModel>,
 }
 
 impl RtiFit {
@@ -249,6 +278,19 @@ impl RtiFit {
     /// (display units), into `out[..channels]`.
     pub fn predict(&self, p: usize, l: [f64; 3], out: &mut [f64]) {
         let t = self.basis.terms();
+        if let Some(model) = &self.rbf {
+            let c = self.channels;
+            let mut b = vec![0.0; (t + 1) * c];
+            model.light_basis(l, &mut b);
+            let coef = &self.coefficients[p * t..(p + 1) * t];
+            for (ch, o) in out.iter_mut().take(c).enumerate() {
+                *o = b[ch]
+                    + (0..t)
+                        .map(|j| f64::from(coef[j]) * b[(j + 1) * c + ch])
+                        .sum::<f64>();
+            }
+            return;
+        }
         let mut b = [0.0; MAX_TERMS];
         self.basis.eval(l, &mut b);
         let fc = self.fitted_channels;
@@ -280,7 +322,11 @@ impl RtiFit {
 
     /// Bytes the fit holds per mask pixel (coefficients and chroma).
     pub fn bytes_per_pixel(basis: Basis, channels: usize) -> u64 {
-        let fc = if basis.luminance() { 1 } else { channels };
+        let fc = if basis.luminance() || basis == Basis::Rbf {
+            1
+        } else {
+            channels
+        };
         4 * (fc * basis.terms() + 3) as u64
     }
 }
@@ -437,18 +483,24 @@ struct Scratch {
 /// `exclude`, when given, flags per mask pixel and light (`[pixel][light]`, the capture's
 /// mask-pixel order) the readings to leave out of the pixel's fit and error.
 pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<RtiFit> {
+    if basis == Basis::Rbf {
+        if exclude.is_some() {
+            return Err(Error::parameter(
+                "exclude_unreliable",
+                "rbf projects every pixel's readings under all the lights on one set of \
+                 principal components; it has no per-pixel light mask (use ptm or hsh)",
+            ));
+        }
+        check_distant(capture)?;
+        return rbf::fit(capture);
+    }
     let (np, n, c, t) = (
         capture.n_pixels(),
         capture.n_lights(),
         capture.channels,
         basis.terms(),
     );
-    if capture.lights.near.is_some() {
-        return Err(Error::invalid(
-            "RTI bases model a reflectance under distant lights; this capture has near lights \
-             (light_positions.txt), whose direction changes across the object",
-        ));
-    }
+    check_distant(capture)?;
     if let Some(e) = exclude {
         if e.len() != np * n {
             return Err(Error::invalid(format!(
@@ -504,7 +556,19 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<
         loo,
         excluded_readings: excluded,
         fell_back_to_all_lights: fell_back,
+        rbf: None,
     })
+}
+
+/// Refuses a capture with near lights.
+fn check_distant(capture: &Capture) -> Result<()> {
+    if capture.lights.near.is_some() {
+        return Err(Error::invalid(
+            "RTI bases model a reflectance under distant lights; this capture has near lights \
+             (light_positions.txt), whose direction changes across the object",
+        ));
+    }
+    Ok(())
 }
 
 /// One pixel's readings, fitted coefficients, leverages and kept lights.

@@ -1,0 +1,245 @@
+//! relight's web format (CNR-ISTI), the one OpenLIME's RTI layer loads: a folder with
+//! `info.json` and the coefficient planes as 8-bit RGB images `plane_0.png`, `plane_1.png`, …,
+//! image g holding planes 3g, 3g + 1, 3g + 2 in its red, green and blue.
+//!
+//! `info.json` (the fields relight writes and OpenLIME's `ShaderRTI` reads): `width`, `height`,
+//! `format` (the planes' file suffix; here `png`, lossless), `type` (`ptm`, `hsh`, `rbf`),
+//! `colorspace` (`lrgb`, `rgb`, `mrgb`), `nplanes`, `lights` (x, y, z per light, flat; the
+//! camera frame: x right, y up, z toward the camera), for `rbf` `sigma` and `basis`, and
+//! `materials`: one object with per-plane `scale` and `bias` (and `range` for `mrgb`).
+//!
+//! A byte b of plane q stands for the value (b / 255 − bias_q) · scale_q, in the viewer's units
+//! (1 = white); photostereo's display units are the same. A viewer then computes, per channel:
+//! - `rgb` (PTM, HSH): Σ_j w_j(l) · value(plane 3j + channel), with w_j relight's functions of
+//!   the light: PTM in the order 1, l_x, l_y, l_x², l_x l_y, l_y²; HSH H0…H8 as `.rti` files.
+//! - `lrgb` (PTM): planes 0–2 a base colour (scale 1, bias 0), planes 3… the luminance
+//!   polynomial's six coefficients in the same order; colour = Σ_j w_j(l) value(3 + j) · base.
+//! - `mrgb` (RBF): base_0(l) + Σ_j value(j) · base_{j+1}(l), with base_p(l) = Σ_i w_i(l) B_{p,i}
+//!   the kernel interpolation of `basis` (`[plane 0…P][light][channel]` bytes: plane 0 the mean
+//!   × 255, plane p ≥ 1 the component e as 127 + range_p · e, range_p = 127 / max |e|).
+//!
+//! Each plane image is also written as a Deep Zoom pyramid, `plane_G.dzi` and
+//! `plane_G_files/` ([`super::tiles`]), which OpenLIME loads with its `deepzoom1px` layout.
+//!
+//! Pixels outside the mask are written as black: zero coefficients, and for RBF the
+//! coefficients of a black pixel, −E μ.
+
+use super::{term_ranges, TermMap};
+use crate::base::error::{Error, Result};
+use crate::io::imageio::write_png8;
+use crate::solve::rti::{rbf, Basis, RtiFit};
+use serde_json::{json, Value};
+use std::path::Path;
+
+/// The PTM terms in relight's order (1, x, y, x², xy, y²) as indices of photostereo's
+/// (x², y², xy, x, y, 1).
+const PTM_ORDER: [usize; 6] = [5, 3, 4, 0, 2, 1];
+
+/// Writes `fit` as relight's web format into the folder `dir` (created; files in it are
+/// replaced); returns the `info.json` it wrote.
+pub fn write_relight(dir: &Path, fit: &RtiFit) -> Result<Value> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let planes = Planes::new(fit);
+    let (values, outside) = planes.values(fit);
+    let n = planes.count;
+    let ranges = term_ranges(&values, n);
+    let maps: Vec<TermMap> = (0..n)
+        .map(|q| {
+            if planes.fixed_base && q < 3 {
+                return TermMap {
+                    scale: 1.0,
+                    bias: 0.0,
+                };
+            }
+            let (lo, hi) = ranges[q];
+            let (lo, hi) = (lo.min(outside[q]), hi.max(outside[q]));
+            let span = (hi - lo).max(1e-9);
+            TermMap {
+                scale: span,
+                bias: -lo / span,
+            }
+        })
+        .collect();
+    let (w, h) = (fit.width, fit.height);
+    let mut frame = vec![0u8; w * h * 3];
+    for g in 0..n.div_ceil(3) {
+        frame.fill(0);
+        for px in frame.chunks_exact_mut(3) {
+            for (k, b) in px.iter_mut().enumerate() {
+                let q = 3 * g + k;
+                if q < n {
+                    *b = quantise(outside[q], &maps[q]);
+                }
+            }
+        }
+        for (p, &i) in fit.pixels.iter().enumerate() {
+            let px = &mut frame[i as usize * 3..i as usize * 3 + 3];
+            for (k, b) in px.iter_mut().enumerate() {
+                let q = 3 * g + k;
+                if q < n {
+                    *b = quantise(f64::from(values[p * n + q]), &maps[q]);
+                }
+            }
+        }
+        write_png8(&dir.join(format!("plane_{g}.png")), w, h, 3, &frame)?;
+        super::tiles::write_deep_zoom(
+            &dir.join(format!("plane_{g}.dzi")),
+            (w, h),
+            &frame,
+            super::tiles::DZI_TILE,
+            super::tiles::DZI_OVERLAP,
+        )?;
+    }
+    let info = planes.info(fit, &maps);
+    let text = serde_json::to_string_pretty(&info)
+        .map_err(|e| Error::invalid(format!("info.json: {e}")))?;
+    super::write_file(&dir.join("info.json"), &[text.as_bytes()])?;
+    Ok(info)
+}
+
+/// The byte of `v` under `m`: round(255 (v / scale + bias)), clamped.
+fn quantise(v: f64, m: &TermMap) -> u8 {
+    (255.0 * (v / m.scale + m.bias)).round().clamp(0.0, 255.0) as u8
+}
+
+/// How a basis maps onto relight's planes.
+struct Planes {
+    count: usize,
+    /// `lrgb`: planes 0–2 are the base colour, stored with scale 1 and bias 0.
+    fixed_base: bool,
+    /// `lrgb`: the factor dividing the chroma (and multiplying the luminance coefficients) so
+    /// that the base colour is within [0, 1].
+    chroma_scale: f64,
+}
+
+impl Planes {
+    fn new(fit: &RtiFit) -> Planes {
+        let lrgb = fit.basis.luminance();
+        let count = match fit.basis {
+            Basis::PtmLrgb => 9,
+            Basis::Rbf => fit.basis.terms(),
+            _ => 3 * fit.basis.terms(),
+        };
+        let chroma_scale = if lrgb {
+            fit.chroma.iter().fold(1.0f64, |m, &c| m.max(f64::from(c)))
+        } else {
+            1.0
+        };
+        Planes {
+            count,
+            fixed_base: lrgb,
+            chroma_scale,
+        }
+    }
+
+    /// Per mask pixel the plane values (`[pixel][plane]`), and the values written outside the
+    /// mask.
+    fn values(&self, fit: &RtiFit) -> (Vec<f32>, Vec<f64>) {
+        let (n, t, fc) = (self.count, fit.basis.terms(), fit.fitted_channels);
+        let np = fit.pixels.len();
+        let mut out = vec![0f32; np * n];
+        for (p, row) in out.chunks_exact_mut(n).enumerate() {
+            let coef = &fit.coefficients[p * fc * t..(p + 1) * fc * t];
+            match fit.basis {
+                Basis::PtmLrgb => {
+                    for (v, &c) in row.iter_mut().zip(&fit.chroma[p * 3..p * 3 + 3]) {
+                        *v = (f64::from(c) / self.chroma_scale) as f32;
+                    }
+                    for (j, &o) in PTM_ORDER.iter().enumerate() {
+                        row[3 + j] = (f64::from(coef[o]) * self.chroma_scale) as f32;
+                    }
+                }
+                Basis::PtmRgb => {
+                    for (j, &o) in PTM_ORDER.iter().enumerate() {
+                        for c in 0..3 {
+                            row[3 * j + c] = coef[c.min(fc - 1) * t + o];
+                        }
+                    }
+                }
+                Basis::Hsh2 | Basis::Hsh3 => {
+                    for j in 0..t {
+                        for c in 0..3 {
+                            row[3 * j + c] = coef[c.min(fc - 1) * t + j];
+                        }
+                    }
+                }
+                Basis::Rbf => row.copy_from_slice(coef),
+            }
+        }
+        let mut outside = vec![0.0; n];
+        if let Some(m) = &fit.rbf {
+            let d = m.mean.len();
+            for (j, o) in outside.iter_mut().enumerate() {
+                *o = -(0..d).map(|r| m.planes[j * d + r] * m.mean[r]).sum::<f64>();
+            }
+        }
+        (out, outside)
+    }
+
+    /// The `info.json` object.
+    fn info(&self, fit: &RtiFit, maps: &[TermMap]) -> Value {
+        let (kind, colorspace) = match fit.basis {
+            Basis::PtmLrgb => ("ptm", "lrgb"),
+            Basis::PtmRgb => ("ptm", "rgb"),
+            Basis::Hsh2 | Basis::Hsh3 => ("hsh", "rgb"),
+            Basis::Rbf => ("rbf", "mrgb"),
+        };
+        let round = |v: f64| (v * 1e6).round() / 1e6;
+        let mut material = json!({
+            "scale": maps.iter().map(|m| m.scale).collect::<Vec<_>>(),
+            "bias": maps.iter().map(|m| m.bias).collect::<Vec<_>>(),
+        });
+        let mut info = json!({
+            "width": fit.width,
+            "height": fit.height,
+            "format": "png",
+            "type": kind,
+            "colorspace": colorspace,
+            "nplanes": self.count,
+        });
+        if let Some(m) = &fit.rbf {
+            let (bytes, range) = rbf_basis(m);
+            info["sigma"] = json!(m.sigma);
+            info["lights"] = json!(m
+                .lights
+                .iter()
+                .flat_map(|l| l.iter().map(|&v| round(v)))
+                .collect::<Vec<_>>());
+            info["basis"] = json!(bytes);
+            material["range"] = json!(range);
+        }
+        info["materials"] = json!([material]);
+        info
+    }
+}
+
+/// An RBF model's `basis` bytes (`[plane 0…P][light][channel of 3]`) and the per-component
+/// `range` (module documentation); a grey capture's channel is repeated.
+fn rbf_basis(m: &rbf::RbfModel) -> (Vec<u8>, Vec<f64>) {
+    let (n, c) = (m.lights.len(), m.channels);
+    let d = n * c;
+    let p = m.planes.len() / d;
+    let range: Vec<f64> = (0..p)
+        .map(|j| {
+            let top = m.planes[j * d..(j + 1) * d]
+                .iter()
+                .fold(0.0f64, |a, &v| a.max(v.abs()));
+            127.0 / top.max(1e-12)
+        })
+        .collect();
+    let mut bytes = Vec::with_capacity((p + 1) * n * 3);
+    for plane in 0..=p {
+        for i in 0..n {
+            for k in 0..3 {
+                let r = i * c + k.min(c - 1);
+                let b = if plane == 0 {
+                    255.0 * m.mean[r]
+                } else {
+                    127.0 + range[plane - 1] * m.planes[(plane - 1) * d + r]
+                };
+                bytes.push(b.round().clamp(0.0, 255.0) as u8);
+            }
+        }
+    }
+    (bytes, range)
+}

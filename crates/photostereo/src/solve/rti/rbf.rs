@@ -1,0 +1,341 @@
+//! The RBF basis of relight (CNR-ISTI) as its `mrgb` colour space stores it: the readings of a
+//! pixel under the N lights, one vector x ∈ R^D (D = N·C, light-major, channels interleaved),
+//! are modelled as x ≈ μ + Σ_j c_j e_j, with μ the mean over pixels and e_1…e_P the leading
+//! principal components (unit vectors) of the pixels' readings: P coefficients per pixel (the
+//! "planes"), shared by the channels. Under a light l that was not photographed the mean and
+//! each component are interpolated over the lights by normalised Gaussian weights
+//!
+//!   w_i(l) = exp(−|l − l_i|² / σ²) / Σ_m exp(−|l − l_m|² / σ²),
+//!
+//! after which the weights below [`MIN_WEIGHT`] are dropped and the rest renormalised (the rule
+//! relight's renderer and OpenLIME's RTI shader apply, so a file renders as the fit predicts).
+//! The prediction is I_c(l) = Σ_i w_i(l) (μ_{i,c} + Σ_j c_j e_{j,i,c}).
+//!
+//! σ is the median over the lights of the chord distance to the nearest other light: the
+//! kernel reaches a light's neighbours and no further, whatever the rig's density.
+//!
+//! Leave-one-out: the fit without light k is the PCA of the same pixels' readings without
+//! light k's C entries — the mean without them and the eigenvectors of the covariance with
+//! light k's rows and columns deleted — the projection of the pixel's other readings on it,
+//! and the kernel interpolation at l_k over the other lights. All of it is linear in the
+//! pixel's readings, so the prediction of light k is a_{k,c} + W_{k,c} · x (W zero on light k's
+//! entries), precomputed once per light: exact, and N·C·D operations a pixel.
+//!
+//! The PCA uses up to [`PCA_PIXELS`] evenly spaced mask pixels (as relight samples its
+//! pixels); the covariance is D × D in f64, `8 · D²` bytes.
+
+use super::{display_gain, RelightErrors, RtiFit, MAX_TERMS};
+use crate::base::error::{Error, Result};
+use crate::model::capture::Capture;
+use nalgebra::{DMatrix, SymmetricEigen};
+use rayon::prelude::*;
+
+/// Principal components kept: the coefficient planes of each pixel (three RGB images).
+pub const PLANES: usize = MAX_TERMS;
+/// Normalised kernel weights below this are dropped (relight's and OpenLIME's rule).
+pub const MIN_WEIGHT: f64 = 0.001;
+/// Mask pixels the PCA samples at most.
+pub const PCA_PIXELS: usize = 65_536;
+
+/// The model shared by every pixel of an RBF fit: the lights, the kernel width, the mean and
+/// the principal components (display units; `[light][channel]` within each vector).
+#[derive(Clone, Debug, PartialEq)]
+pub struct RbfModel {
+    /// The light directions (unit, camera frame).
+    pub lights: Vec<[f64; 3]>,
+    /// Kernel width σ (chord length on the unit sphere).
+    pub sigma: f64,
+    /// Channels C per light.
+    pub channels: usize,
+    /// Mean reading μ, D = N·C values.
+    pub mean: Vec<f64>,
+    /// The P principal components, `[plane][D]`, unit length.
+    pub planes: Vec<f64>,
+    /// Share of the readings' variance (about the mean) the P components hold.
+    pub explained_variance: f64,
+    /// Pixels the PCA sampled.
+    pub pca_pixels: usize,
+}
+
+impl RbfModel {
+    /// The kernel weights at `l` over the lights (with light `skip` left out), into `w`.
+    pub fn weights(&self, l: [f64; 3], skip: Option<usize>, w: &mut [f64]) {
+        kernel_weights(&self.lights, self.sigma, l, skip, w);
+    }
+
+    /// The mean and the components interpolated at `l`: `[1 + P][channel]` into `out`.
+    pub fn light_basis(&self, l: [f64; 3], out: &mut [f64]) {
+        let (n, c) = (self.lights.len(), self.channels);
+        let mut w = vec![0.0; n];
+        self.weights(l, None, &mut w);
+        let d = n * c;
+        out[..(PLANES + 1) * c].fill(0.0);
+        for (i, &wi) in w.iter().enumerate().filter(|(_, &wi)| wi > 0.0) {
+            for ch in 0..c {
+                out[ch] += wi * self.mean[i * c + ch];
+                for j in 0..PLANES {
+                    out[(j + 1) * c + ch] += wi * self.planes[j * d + i * c + ch];
+                }
+            }
+        }
+    }
+}
+
+/// Normalised Gaussian weights of the unit light `l` over `lights` (light `skip` weighted 0),
+/// the small ones dropped and the rest renormalised, into `w`.
+pub fn kernel_weights(
+    lights: &[[f64; 3]],
+    sigma: f64,
+    l: [f64; 3],
+    skip: Option<usize>,
+    w: &mut [f64],
+) {
+    let radius = 1.0 / (sigma * sigma);
+    for (i, li) in lights.iter().enumerate() {
+        let d2 = (0..3).map(|a| (li[a] - l[a]) * (li[a] - l[a])).sum::<f64>();
+        w[i] = if Some(i) == skip {
+            0.0
+        } else {
+            (-radius * d2).exp()
+        };
+    }
+    let total: f64 = w.iter().sum();
+    if total <= 0.0 || !total.is_finite() {
+        // Every light is too far for the kernel (underflow): the nearest takes all.
+        let nearest = (0..lights.len())
+            .filter(|&i| Some(i) != skip)
+            .min_by(|&a, &b| {
+                let d = |i: usize| (0..3).map(|x| (lights[i][x] - l[x]).powi(2)).sum::<f64>();
+                d(a).total_cmp(&d(b))
+            });
+        w.fill(0.0);
+        if let Some(i) = nearest {
+            w[i] = 1.0;
+        }
+        return;
+    }
+    let mut kept = 0.0;
+    for x in w.iter_mut() {
+        *x /= total;
+        if *x > MIN_WEIGHT {
+            kept += *x;
+        } else {
+            *x = 0.0;
+        }
+    }
+    for x in w.iter_mut() {
+        *x /= kept;
+    }
+}
+
+/// The kernel width: the median over the lights of the chord distance to the nearest other.
+pub fn kernel_width(lights: &[[f64; 3]]) -> f64 {
+    let mut nn: Vec<f64> = (0..lights.len())
+        .map(|i| {
+            (0..lights.len())
+                .filter(|&j| j != i)
+                .map(|j| {
+                    (0..3)
+                        .map(|a| (lights[i][a] - lights[j][a]).powi(2))
+                        .sum::<f64>()
+                        .sqrt()
+                })
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    nn.sort_by(f64::total_cmp);
+    nn[nn.len() / 2]
+}
+
+/// Mean and covariance (D × D) of the readings × `gain` of up to [`PCA_PIXELS`] evenly spaced
+/// mask pixels; returns them with the number of pixels used.
+fn moments(capture: &Capture, gain: f64) -> Result<(Vec<f64>, DMatrix<f64>, usize)> {
+    let (np, d) = (capture.n_pixels(), capture.n_lights() * capture.channels);
+    let step = np.div_ceil(PCA_PIXELS).max(1);
+    let ids: Vec<usize> = (0..np).step_by(step).collect();
+    let sampled;
+    let view = if capture.is_tiled() {
+        sampled = capture.sampled(&ids)?;
+        &sampled
+    } else {
+        capture
+    };
+    let m = ids.len();
+    let mut mean = vec![0.0; d];
+    for &p in &ids {
+        for (a, &x) in mean.iter_mut().zip(view.pixel_samples(p)) {
+            *a += f64::from(x) * gain;
+        }
+    }
+    mean.iter_mut().for_each(|a| *a /= m as f64);
+    // Σ (x − μ)(x − μ)ᵀ by blocks of pixels (a block's centred readings as a matrix).
+    const BLOCK: usize = 2048;
+    let cov = ids
+        .par_chunks(BLOCK)
+        .map(|block| {
+            let x = DMatrix::from_fn(d, block.len(), |r, col| {
+                f64::from(view.pixel_samples(block[col])[r]) * gain - mean[r]
+            });
+            &x * x.transpose()
+        })
+        .reduce(|| DMatrix::zeros(d, d), |a, b| a + b)
+        / m as f64;
+    Ok((mean, cov, m))
+}
+
+/// The `PLANES` leading unit eigenvectors of the symmetric `cov` (`[plane][dim]`) and the share
+/// of its trace they hold.
+fn principal(cov: DMatrix<f64>) -> (Vec<f64>, f64) {
+    let d = cov.nrows();
+    let trace = cov.trace();
+    let eig = SymmetricEigen::new(cov);
+    let mut order: Vec<usize> = (0..d).collect();
+    order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
+    let mut planes = vec![0.0; PLANES * d];
+    let mut held = 0.0;
+    for (j, &o) in order.iter().take(PLANES).enumerate() {
+        held += eig.eigenvalues[o].max(0.0);
+        for r in 0..d {
+            planes[j * d + r] = eig.eigenvectors[(r, o)];
+        }
+    }
+    (planes, if trace > 0.0 { held / trace } else { 1.0 })
+}
+
+/// The covariance without light k's C rows and columns.
+fn without_light(cov: &DMatrix<f64>, k: usize, c: usize) -> DMatrix<f64> {
+    let d = cov.nrows();
+    let keep: Vec<usize> = (0..d).filter(|&r| r / c != k).collect();
+    DMatrix::from_fn(keep.len(), keep.len(), |a, b| cov[(keep[a], keep[b])])
+}
+
+/// The leave-one-out predictor of light k: per channel, a_c and W_c (length D, zero on light
+/// k's entries) with prediction a_c + W_c · x.
+fn loo_predictor(model: &RbfModel, cov: &DMatrix<f64>, k: usize) -> (Vec<f64>, Vec<f64>) {
+    let (n, c) = (model.lights.len(), model.channels);
+    let d = n * c;
+    let (planes, _) = principal(without_light(cov, k, c));
+    let dk = d - c;
+    // Positions in x of the reduced vector's entries.
+    let at = |r: usize| if r / c < k { r } else { r + c };
+    let mut w = vec![0.0; n];
+    model.weights(model.lights[k], Some(k), &mut w);
+    let mut offset = vec![0.0; c];
+    let mut weights = vec![0.0; c * d];
+    for ch in 0..c {
+        // b_j = Σ_i w_i e_j[i, ch] over the other lights (reduced indices).
+        let b: Vec<f64> = (0..PLANES)
+            .map(|j| {
+                (0..n)
+                    .filter(|&i| i != k)
+                    .map(|i| {
+                        let r = if i < k { i * c + ch } else { (i - 1) * c + ch };
+                        w[i] * planes[j * dk + r]
+                    })
+                    .sum()
+            })
+            .collect();
+        let row = &mut weights[ch * d..(ch + 1) * d];
+        for (j, &bj) in b.iter().enumerate() {
+            for r in 0..dk {
+                row[at(r)] += bj * planes[j * dk + r];
+            }
+        }
+        let mean_at_k: f64 = (0..n).map(|i| w[i] * model.mean[i * c + ch]).sum();
+        offset[ch] = mean_at_k - (0..d).map(|r| row[r] * model.mean[r]).sum::<f64>();
+    }
+    (offset, weights)
+}
+
+/// Fits the RBF basis to every mask pixel of `capture` and measures its leave-one-out error
+/// (module documentation). The result's coefficients are `[pixel][plane]` (one fitted channel).
+pub fn fit(capture: &Capture) -> Result<RtiFit> {
+    let (np, n, c) = (capture.n_pixels(), capture.n_lights(), capture.channels);
+    let d = n * c;
+    if n < 2 || d - c < PLANES {
+        return Err(Error::invalid(format!(
+            "rbf keeps {PLANES} principal components of each pixel's readings under the other \
+             lights; {n} lights × {c} channels leave {} (needs {} lights with colour, {} grey)",
+            d.saturating_sub(c),
+            PLANES.div_ceil(3) + 1,
+            PLANES + 1
+        )));
+    }
+    let gain = display_gain(capture)?;
+    let lights = capture.lights.directions.clone();
+    let sigma = kernel_width(&lights);
+    let (mean, cov, pca_pixels) = moments(capture, gain)?;
+    let (planes, explained_variance) = principal(cov.clone());
+    let model = RbfModel {
+        lights,
+        sigma,
+        channels: c,
+        mean,
+        planes,
+        explained_variance,
+        pca_pixels,
+    };
+    let predictors: Vec<(Vec<f64>, Vec<f64>)> = (0..n)
+        .into_par_iter()
+        .map(|k| loo_predictor(&model, &cov, k))
+        .collect();
+    drop(cov);
+    let mut coefficients = vec![0f32; np * PLANES];
+    let mut loo = RelightErrors::new(n);
+    capture.for_each_tile(|start, view| {
+        let count = view.n_pixels().min(np - start);
+        let out = &mut coefficients[start * PLANES..(start + count) * PLANES];
+        let e = out
+            .par_chunks_mut(PLANES * 256)
+            .enumerate()
+            .fold(
+                || (RelightErrors::new(n), vec![0.0; d]),
+                |(mut e, mut x), (i, chunk)| {
+                    for (j, coef) in chunk.chunks_mut(PLANES).enumerate() {
+                        let s = view.pixel_samples(i * 256 + j);
+                        for (xr, &v) in x.iter_mut().zip(s) {
+                            *xr = f64::from(v) * gain;
+                        }
+                        project(&model, &x, coef);
+                        for (k, (a, wts)) in predictors.iter().enumerate() {
+                            for ch in 0..c {
+                                let row = &wts[ch * d..(ch + 1) * d];
+                                let pred =
+                                    a[ch] + row.iter().zip(&x).map(|(w, v)| w * v).sum::<f64>();
+                                e.add(k, pred, x[k * c + ch]);
+                            }
+                        }
+                    }
+                    (e, x)
+                },
+            )
+            .map(|(e, _)| e)
+            .reduce(|| RelightErrors::new(n), RelightErrors::merge);
+        loo = std::mem::take(&mut loo).merge(e);
+        Ok(())
+    })?;
+    Ok(RtiFit {
+        basis: super::Basis::Rbf,
+        width: capture.width,
+        height: capture.height,
+        channels: c,
+        pixels: capture.pixels.clone(),
+        fitted_channels: 1,
+        coefficients,
+        chroma: Vec::new(),
+        gain,
+        loo,
+        excluded_readings: 0,
+        fell_back_to_all_lights: 0,
+        rbf: Some(model),
+    })
+}
+
+/// The coefficients c_j = e_j · (x − μ) of one pixel's readings `x` (display units).
+fn project(model: &RbfModel, x: &[f64], coef: &mut [f32]) {
+    let d = x.len();
+    for (j, cj) in coef.iter_mut().enumerate() {
+        let e = &model.planes[j * d..(j + 1) * d];
+        *cj = (0..d).map(|r| e[r] * (x[r] - model.mean[r])).sum::<f64>() as f32;
+    }
+}
