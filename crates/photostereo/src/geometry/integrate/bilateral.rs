@@ -671,7 +671,8 @@ impl Bilateral {
                                 let pl = plus[axis];
                                 let floor = self.min_edge_weight;
                                 if debiased {
-                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor) // (B5)
+                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor)
+                                // (B5)
                                 } else {
                                     px.edge(i, j, axis, pl[i], pl[j], floor) // (B4)
                                 }
