@@ -670,10 +670,11 @@ impl Bilateral {
                             Some(j) => {
                                 let pl = plus[axis];
                                 let floor = self.min_edge_weight;
+                                // (B5) in the last system, (B4) before it.
                                 if debiased {
-                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor) // (B5)
+                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor)
                                 } else {
-                                    px.edge(i, j, axis, pl[i], pl[j], floor) // (B4)
+                                    px.edge(i, j, axis, pl[i], pl[j], floor)
                                 }
                             }
                             None => (0.0, 0.0),
