@@ -1661,7 +1661,10 @@ fn integrate(
                 initial: (!initial.is_empty()).then_some(&initial[..]),
                 ..problem
             };
-            integration.method.integrator().integrate(&problem, &Silent)
+            integration
+                .method
+                .intermediate_integrator()
+                .integrate(&problem, &Silent)
         }
     }
 }
@@ -1684,7 +1687,7 @@ fn near_surface(
         Some(weights),
         &near.camera,
         near.mean_distance,
-        integration.method.integrator().as_ref(),
+        integration.method.intermediate_integrator().as_ref(),
         integration.max_slope,
         &Silent,
     )?;

@@ -561,6 +561,24 @@ impl IntegratorKind {
     }
 }
 
+impl IntegratorKind {
+    /// The integrator of the recursive method's intermediate surfaces, which serve only its
+    /// shadow maps: as [`IntegratorKind::integrator`], except that `bilateral` solves its last
+    /// system as (B4) under the converged weights. (B5) removes the one-sided slope bias of the
+    /// exported depth, but on estimated normals that are wrong near a jump its symmetric targets
+    /// carry those errors into the surface that casts the shadows; (B4) keeps them damped, and
+    /// the recursion's normal errors are those of the published method.
+    pub fn intermediate_integrator(self) -> Box<dyn Integrator> {
+        match self {
+            IntegratorKind::Bilateral => Box::new(Bilateral {
+                debias: false,
+                ..Bilateral::default()
+            }),
+            other => other.integrator(),
+        }
+    }
+}
+
 impl FromStr for IntegratorKind {
     type Err = Error;
     fn from_str(s: &str) -> Result<Self> {
