@@ -824,9 +824,9 @@ pub const PARAMETERS: &[Parameter] = &[
         },
         unit: "",
         doc: "Reflectance model of the final estimate with distant lights: at pixels with a \
-              highlight, the normal fitted jointly with a specular lobe (lobe), only where that \
-              fit passes the chi-square test (auto), or from the lights left after dropping the \
-              highlight (lambert).",
+              highlight, the normal fitted jointly with a specular lobe where the chi-square \
+              evidence says the lobe is significant (auto), wherever the fit finds a lobe \
+              (lobe), or from the lights left after dropping the highlight (lambert).",
         methods: RECURSIVE,
         report_key: "recursive.reflectance",
     },

@@ -20,6 +20,10 @@
 //!    robust prior ([`SurfacePrior`]), which steadies the pixels the readings determine
 //!    poorly (few usable lights, dark readings) and leaves the others.
 //!
+//! 8. With distant lights and `reflectance` other than lambert, the pixels with a highlight
+//!    are fitted with a specular lobe over all their lights out of shadow
+//!    ([`crate::solve::gloss`]) and take that fit's normal where the χ² evidence says so.
+//!
 //! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
 //! completed by [`Fallback`].
 
@@ -1141,7 +1145,7 @@ impl Recursion {
         } else {
             None
         };
-        // Step 7b: the highlights' lobes, where the reflectance model asks for them.
+        // Step 8: the highlights' lobes, where the reflectance model asks for them.
         let gloss = if params.reflectance != Reflectance::Lambert && !setting.near_lights() {
             let (summary, maps) = crate::solve::gloss::model_highlights(
                 capture,

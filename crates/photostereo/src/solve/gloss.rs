@@ -22,13 +22,19 @@
 //! map s (the lobe's peak, in the units of the intensity-normalised readings, like the albedo).
 //!
 //! A pixel is fitted where the recursion attributed a highlight to one of its lights and at
-//! least [`MIN_LIGHTS`] lights are out of shadow. The lobe is significant where it lowers the
-//! χ² of the best Lambertian fit over the same lights by more than the χ²₁ quantile at the
-//! detector's confidence. With [`Reflectance::Lobe`] a significant fit's normal replaces the
-//! recursion's; with [`Reflectance::Auto`] only where the fit also passes the χ² test (its χ²
-//! at most the quantile of N_fit − 4 degrees of freedom, or N_fit − 5 with its own m): where
-//! the lobe does not explain the readings either (another BRDF, interreflections), the
-//! recursion's choice of lights stands.
+//! least [`MIN_LIGHTS`] lights are out of shadow, from the recursion's normal (a
+//! Levenberg–Marquardt descent, [`descend`]). The lobe is significant where it lowers the χ² of
+//! the best Lambertian fit over the same lights by more than the χ²₁ quantile at the detector's
+//! confidence (one more parameter, s). With [`Reflectance::Auto`] a significant fit's normal
+//! replaces the recursion's; with [`Reflectance::Lobe`] every fit with a lobe (s > 0) does;
+//! elsewhere the recursion's choice of lights stands. The fit's own χ² test (χ² at most the
+//! quantile of N_fit − 4 degrees of freedom, N_fit − 5 with its own m) is reported, not used:
+//! on real captures the lobe, like the Lambertian model over the lights the recursion keeps,
+//! rarely explains the readings to the noise level, while its normal is the better one.
+//!
+//! Light ring and four-light rigs leave fewer than [`MIN_LIGHTS`] lights: nothing is fitted
+//! there. Cost: a few Gauss–Newton passes over the pixel's lights per fitted pixel; memory two
+//! f32 maps per mask pixel.
 
 use crate::base::error::Result;
 use crate::model::capture::Capture;
@@ -43,11 +49,12 @@ use std::str::FromStr;
 /// degrees of freedom for the residual to be compared with the Lambertian fit's.
 pub const MIN_LIGHTS: usize = crate::solve::near_lobe::MIN_LIGHTS;
 /// The lobe sharpnesses m tried: the near-light fit's ([`crate::solve::near_lobe::LOBE_EXPONENTS`],
-/// half height 13.3° to 3.4° from the peak) and two broader ones (half height 19.6° and 16.1°,
-/// roughness 0.41 and 0.33): with lights all around, the broad lobes of rough plastics and
-/// ceramics show in the readings as well as the sharp ones.
+/// half height 13.3° to 3.4° from the peak), two broader ones (half height 19.6° and 16.1°,
+/// roughness 0.41 and 0.33) and two sharper ones (2.9° and 2.4°, roughness 0.06 and 0.05):
+/// with many lights all around, the broad lobes of rough plastics and the sharp ones of
+/// polished metal both show in the readings.
 pub const LOBE_EXPONENTS: &[f64] = &[
-    12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0, 140.0, 200.0, 280.0, 400.0,
+    12.0, 18.0, 25.0, 35.0, 50.0, 70.0, 100.0, 140.0, 200.0, 280.0, 400.0, 560.0, 800.0,
 ];
 /// Pixels sampled to choose the capture's lobe sharpness (evenly spaced over the candidates).
 const SAMPLE_PIXELS: usize = 400;
@@ -58,10 +65,10 @@ pub enum Reflectance {
     /// Lambert only: the highlight lights are dropped (the paper).
     #[serde(rename = "lambert")]
     Lambert,
-    /// Lambert plus a specular lobe wherever the lobe is significant.
+    /// Lambert plus a specular lobe wherever the fit finds one (s > 0).
     #[serde(rename = "lobe")]
     Lobe,
-    /// The lobe where it is significant and explains the readings (χ² test), Lambert elsewhere.
+    /// The lobe where the χ² evidence says it is significant, Lambert elsewhere.
     #[serde(rename = "auto")]
     Auto,
 }
@@ -219,6 +226,7 @@ impl Lights<'_> {
         let (_, rho, strength) = fit_at(d, normal, exponent);
         let lambert = diffuse_residual(d);
         let dof = count.saturating_sub(4 + own_exponent as usize);
+
         PixelFit {
             normal,
             rho,
