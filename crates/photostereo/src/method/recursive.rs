@@ -118,7 +118,9 @@ pub struct RecursiveParams {
     pub surface_prior_deg: f64,
     /// The reflectance model of the final estimate with distant lights
     /// ([`crate::solve::gloss`]): at pixels with a highlight, the normal fitted jointly with a
-    /// specular lobe instead of from the lights left after the highlight is dropped.
+    /// specular lobe instead of from the lights left after the highlight is dropped. Default
+    /// lambert (the paper): with a dozen 8-bit lights the lobe fit can trade the diffuse
+    /// readings for a broad lobe and turn a normal far from the readings' own.
     pub reflectance: Reflectance,
 }
 
@@ -131,7 +133,7 @@ impl Default for RecursiveParams {
             fallback: Fallback::Neighbours,
             consensus_radius: 2,
             surface_prior_deg: 1.0,
-            reflectance: Reflectance::Auto,
+            reflectance: Reflectance::Lambert,
         }
     }
 }

@@ -76,7 +76,7 @@ pub enum Reflectance {
 impl Reflectance {
     /// Every choice, default first.
     pub const ALL: &'static [Reflectance] =
-        &[Reflectance::Auto, Reflectance::Lambert, Reflectance::Lobe];
+        &[Reflectance::Lambert, Reflectance::Auto, Reflectance::Lobe];
 
     /// The name accepted by `--reflectance` (and the Python keyword `reflectance`).
     pub fn name(self) -> &'static str {
