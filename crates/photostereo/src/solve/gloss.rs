@@ -180,9 +180,9 @@ impl Scratch {
         }
         channel_mean(samples, channels, &mut self.g);
         let mut count = 0;
-        for k in 0..st.len() {
-            self.used[k] = st[k] == status::USED || st[k] == status::HIGHLIGHT;
-            self.diffuse[k] = st[k] == status::USED;
+        for (k, &code) in st.iter().enumerate() {
+            self.used[k] = code == status::USED || code == status::HIGHLIGHT;
+            self.diffuse[k] = code == status::USED;
             count += self.used[k] as usize;
             let f = lights.noise.light_factor.get(k).copied().unwrap_or(1.0);
             let w = 1.0 / (f * lights.noise.variance(self.g[k].max(0.0)).sqrt());
