@@ -158,6 +158,10 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             1,
             &bytes(&r.fewer_than_three),
         )?;
+        if let Some(g) = &r.gloss {
+            write_npy_f32(&dir.join("specular_strength.npy"), &[h, w], &g.strength)?;
+            write_npy_f32(&dir.join("roughness.npy"), &[h, w], &g.roughness)?;
+        }
     }
     if let Some(surface) = &rec.surface {
         let d = &surface.depth;

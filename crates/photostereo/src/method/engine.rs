@@ -200,6 +200,9 @@ pub struct RecursiveMaps {
     pub reliable: Vec<bool>,
     /// Per-iteration figures.
     pub iterations: Vec<crate::method::recursive::IterationRecord>,
+    /// (H, W) each: the fitted highlight lobes' strength and roughness, when the reflectance
+    /// model fitted them ([`crate::solve::gloss`]).
+    pub gloss: Option<crate::solve::gloss::GlossMaps>,
 }
 
 /// The result of [`reconstruct`]: every map full frame (shapes in the module documentation).
@@ -510,6 +513,11 @@ fn recursive_maps(d: RecursiveDiagnostics, report: &mut Report) -> RecursiveMaps
             "surface_prior": d.surface_prior,
         }),
     );
+    if let Some((summary, _)) = &d.gloss {
+        report
+            .extra
+            .insert("reflectance".into(), serde_json::json!(summary));
+    }
     if !d.converged {
         report.notes.push(format!("recursive: {}", d.stop_reason));
     }
@@ -522,6 +530,7 @@ fn recursive_maps(d: RecursiveDiagnostics, report: &mut Report) -> RecursiveMaps
         fewer_than_three: d.fewer_than_three,
         reliable: d.reliable,
         iterations: d.iterations,
+        gloss: d.gloss.map(|(_, maps)| maps),
     }
 }
 

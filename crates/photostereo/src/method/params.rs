@@ -807,6 +807,30 @@ pub const PARAMETERS: &[Parameter] = &[
         report_key: "recursive.surface_prior_deg",
     },
     Parameter {
+        name: "reflectance",
+        stage: Stage::Recursive,
+        kind: Kind::Choice {
+            names: || {
+                crate::solve::gloss::Reflectance::ALL
+                    .iter()
+                    .map(|r| r.name())
+                    .collect()
+            },
+            get: |p| p.recursive.reflectance.name(),
+            set: |p, v| {
+                p.recursive.reflectance = v.parse()?;
+                Ok(())
+            },
+        },
+        unit: "",
+        doc: "Reflectance model of the final estimate with distant lights: at pixels with a \
+              highlight, the normal fitted jointly with a specular lobe where the chi-square \
+              evidence says the lobe is significant (auto), wherever the fit finds a lobe \
+              (lobe), or from the lights left after dropping the highlight (lambert).",
+        methods: RECURSIVE,
+        report_key: "recursive.reflectance",
+    },
+    Parameter {
         name: "attached_tolerance",
         stage: Stage::Recursive,
         kind: Kind::Number {

@@ -20,6 +20,10 @@
 //!    robust prior ([`SurfacePrior`]), which steadies the pixels the readings determine
 //!    poorly (few usable lights, dark readings) and leaves the others.
 //!
+//! 8. With distant lights and `reflectance` other than lambert, the pixels with a highlight
+//!    are fitted with a specular lobe over all their lights out of shadow
+//!    ([`crate::solve::gloss`]) and take that fit's normal where the χ² evidence says so.
+//!
 //! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
 //! completed by [`Fallback`].
 
@@ -35,6 +39,7 @@ use crate::solve::detect::{
     AttributionScratch, Attributor, Detection, DetectionParams, NoiseModel,
 };
 use crate::solve::estimate::Estimator;
+use crate::solve::gloss::{GlossMaps, GlossSummary, Reflectance};
 use crate::solve::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
 use crate::solve::metrics::angular_error_deg;
 use rayon::prelude::*;
@@ -111,6 +116,12 @@ pub struct RecursiveParams {
     /// ([`SurfacePrior`]): its angular standard deviation in degrees (default 1; 0 turns the
     /// step off and the estimate is the usable lights' least squares).
     pub surface_prior_deg: f64,
+    /// The reflectance model of the final estimate with distant lights
+    /// ([`crate::solve::gloss`]): at pixels with a highlight, the normal fitted jointly with a
+    /// specular lobe instead of from the lights left after the highlight is dropped. Default
+    /// lambert (the paper): with a dozen 8-bit lights the lobe fit can trade the diffuse
+    /// readings for a broad lobe and turn a normal far from the readings' own.
+    pub reflectance: Reflectance,
 }
 
 impl Default for RecursiveParams {
@@ -122,6 +133,7 @@ impl Default for RecursiveParams {
             fallback: Fallback::Neighbours,
             consensus_radius: 2,
             surface_prior_deg: 1.0,
+            reflectance: Reflectance::Lambert,
         }
     }
 }
@@ -177,6 +189,8 @@ pub struct RecursiveDiagnostics {
     pub stop_reason: String,
     /// The final re-estimate with the surface as prior, when it ran.
     pub surface_prior: Option<SurfacePriorRecord>,
+    /// The highlight lobes' fit (distant lights) and its maps, full frame, when it ran.
+    pub gloss: Option<(GlossSummary, GlossMaps)>,
 }
 
 /// The normals, albedo and light statuses of a recursive run, and its diagnostics.
@@ -1133,6 +1147,24 @@ impl Recursion {
         } else {
             None
         };
+        // Step 8: the highlights' lobes, where the reflectance model asks for them.
+        let gloss = if params.reflectance != Reflectance::Lambert && !setting.near_lights() {
+            let (summary, maps) = crate::solve::gloss::model_highlights(
+                capture,
+                &self.light_status,
+                &mut self.est,
+                noise,
+                setting.detection_params.confidence,
+                params.reflectance,
+            )?;
+            let full = GlossMaps {
+                strength: capture.scatter(&maps.strength, 1, f32::NAN),
+                roughness: capture.scatter(&maps.roughness, 1, f32::NAN),
+            };
+            Some((summary, full))
+        } else {
+            None
+        };
         let final_trust = self.trust(setting);
         let diagnostics = RecursiveDiagnostics {
             trust: capture.scatter(&final_trust, 1, 0.0),
@@ -1147,6 +1179,7 @@ impl Recursion {
             converged,
             stop_reason,
             surface_prior,
+            gloss,
         };
         let mut est = self.est;
         est.light_status = Some(self.light_status);

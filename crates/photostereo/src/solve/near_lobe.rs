@@ -86,17 +86,17 @@ pub struct LobeSummary {
 
 /// One pixel's data: scaled light vectors v_k = b_k l_k, unit half vectors, grey readings and
 /// the lights in the fit.
-struct PixelData<'a> {
-    v: &'a [[f64; 3]],
-    h: &'a [[f64; 3]],
-    b: &'a [f64],
-    g: &'a [f64],
-    used: &'a [bool],
+pub(crate) struct PixelData<'a> {
+    pub v: &'a [[f64; 3]],
+    pub h: &'a [[f64; 3]],
+    pub b: &'a [f64],
+    pub g: &'a [f64],
+    pub used: &'a [bool],
 }
 
 /// The fit at normal `n` with sharpness `m`: (squared residual, ρ, s).
 #[inline]
-fn fit_at(d: &PixelData, n: [f64; 3], m: f64) -> (f64, f64, f64) {
+pub(crate) fn fit_at(d: &PixelData, n: [f64; 3], m: f64) -> (f64, f64, f64) {
     let (mut aa, mut ab, mut bb, mut ag, mut bg, mut gg) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
     for k in 0..d.v.len() {
         if !d.used[k] {
@@ -208,7 +208,7 @@ fn fit_pixel(
 
 /// Pattern search on the sphere of normals: eight directions, the step halved when none
 /// improves, from 2° (half the grid spacing) down to [`FINEST_STEP`].
-fn search(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
+pub(crate) fn search(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
     let mut n = from;
     let mut e = fit_at(d, n, m).0;
     let mut step = (GRID_STEP_DEG / 2.0).to_radians();
@@ -237,7 +237,7 @@ fn search(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
 
 /// Squared residual of the best purely diffuse fit (unconstrained least squares, 3 unknowns)
 /// over the used lights; infinite when they do not span three dimensions.
-fn diffuse_residual(d: &PixelData) -> f64 {
+pub(crate) fn diffuse_residual(d: &PixelData) -> f64 {
     let used = (0..d.v.len()).filter(|&k| d.used[k]);
     match crate::solve::lambert::solve_with(d.v, Some(d.used), d.g) {
         Some(x) => used
@@ -361,7 +361,7 @@ fn seed_of(x: [f32; 3]) -> Option<[f64; 3]> {
 }
 
 /// χ² quantiles at `confidence` for 0..=n degrees of freedom (0 for none).
-fn quantiles(confidence: f64, n: usize) -> Vec<f64> {
+pub(crate) fn quantiles(confidence: f64, n: usize) -> Vec<f64> {
     (0..=n)
         .map(|k| {
             if k == 0 {
@@ -1119,7 +1119,7 @@ pub fn correct_without_spare(
 
 /// Two unit vectors orthogonal to unit `n` and to each other.
 #[inline]
-fn basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
+pub(crate) fn basis(n: [f64; 3]) -> ([f64; 3], [f64; 3]) {
     let a = if n[0].abs() < 0.9 {
         [1.0, 0.0, 0.0]
     } else {
