@@ -477,6 +477,9 @@ fn tiled_and_whole_loads_make_the_same_linear_samples() {
     }
 }
 
+/// True normals, one per pixel.
+type Normals = Vec<[f32; 3]>;
+
 /// The encodings the response estimate is measured on.
 fn encodings() -> Vec<(&'static str, Option<Response>)> {
     vec![
@@ -504,7 +507,7 @@ fn response_estimates_on_real_captures() {
         .unwrap()
         .to_path_buf();
     let root = tempfile::tempdir().unwrap();
-    let mut captures: Vec<(String, CaptureFiles, Option<Vec<[f32; 3]>>)> = Vec::new();
+    let mut captures: Vec<(String, CaptureFiles, Option<Normals>)> = Vec::new();
     for name in ["ball", "bear", "cat"] {
         let src = diligent(name);
         let truth = photostereo::io::groundtruth::read_normal_map(&src.join("Normal_gt.mat"))

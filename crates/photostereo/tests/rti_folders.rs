@@ -80,7 +80,8 @@ fn an_rtibuilder_folder_is_found_and_paired_by_name_or_order() {
         .map(|k| format!("C:\\rti\\project\\jpeg-exports\\IMG_{k:04}.JPG"))
         .collect();
     std::fs::write(&lp, lp_text(&names, &dirs)).unwrap();
-    let files = CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
+    let files =
+        CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
     assert_eq!(files.images.len(), n);
     assert!(files.images[3].ends_with("jpeg-exports/img_0004.jpg"));
     assert!(!files.notes.iter().any(|m| m.contains("sorted order")));
@@ -89,7 +90,8 @@ fn an_rtibuilder_folder_is_found_and_paired_by_name_or_order() {
     // Names that are not there: paired by sorted order, and said.
     let names: Vec<String> = (1..=n).map(|k| format!("shot-{k}.tif")).collect();
     std::fs::write(&lp, lp_text(&names, &dirs)).unwrap();
-    let files = CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
+    let files =
+        CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
     assert!(
         files
             .notes
@@ -104,7 +106,8 @@ fn an_rtibuilder_folder_is_found_and_paired_by_name_or_order() {
     let mut shuffled = dirs.clone();
     shuffled.reverse();
     std::fs::write(&lp, lp_text(&names, &shuffled)).unwrap();
-    let files = CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
+    let files =
+        CaptureFiles::from_inputs(std::slice::from_ref(&project), None, None, None).unwrap();
     assert!(l2_error(&files, &truth) > base + 5.0);
     // Fewer lines than images: refused, naming the file and the counts.
     std::fs::write(&lp, lp_text(&names[..n - 1], &dirs[..n - 1])).unwrap();
