@@ -159,3 +159,60 @@ fn photometry_flags_are_refused_clearly() {
     assert!(!o.status.success());
     assert!(stderr(&o).contains("--format jpeg"), "{}", stderr(&o));
 }
+
+/// An RTIBuilder project folder (JPEGs in `jpeg-exports/`, an `.lp` in `assembly-files/` naming
+/// files of another machine): `run FOLDER` finds the light file, pairs its lines with the
+/// images in sorted order, says so, and reconstructs like the folder it came from.
+#[test]
+fn run_finds_an_rtibuilder_projects_light_file() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "camera", &["--response", "srgb", "--format", "jpeg"]);
+    let o = run(dir, "camera", "r-folder", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let project = dir.join("project");
+    std::fs::create_dir_all(project.join("jpeg-exports")).unwrap();
+    std::fs::create_dir_all(project.join("assembly-files")).unwrap();
+    let dirs = std::fs::read_to_string(dir.join("camera/light_directions.txt")).unwrap();
+    let dirs: Vec<&str> = dirs.lines().filter(|l| !l.trim().is_empty()).collect();
+    let mut images: Vec<_> = std::fs::read_dir(dir.join("camera"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "jpg") && !p.ends_with("ambient.jpg"))
+        .collect();
+    images.sort();
+    assert_eq!(images.len(), dirs.len());
+    let mut lp = format!("{}\n", dirs.len());
+    for (k, (img, d)) in images.iter().zip(&dirs).enumerate() {
+        std::fs::copy(
+            img,
+            project.join("jpeg-exports").join(img.file_name().unwrap()),
+        )
+        .unwrap();
+        lp += &format!("D:\\capture\\IMG_{:04}.JPG {d}\n", k + 1);
+    }
+    std::fs::write(project.join("assembly-files").join("capture.lp"), lp).unwrap();
+    let o = photostereo(
+        &[
+            "run",
+            "project",
+            "--gt",
+            "camera/gt/normal.npy",
+            "--mask",
+            "camera/mask.png",
+            "--method",
+            "l2",
+            "--no-depth",
+            "-o",
+            "r-project",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("sorted order"), "{}", stderr(&o));
+    let (a, b) = (
+        mean_error(&dir.join("r-folder")),
+        mean_error(&dir.join("r-project")),
+    );
+    assert!((a - b).abs() < 0.05, "{a:.3}° vs {b:.3}°");
+}

@@ -476,3 +476,144 @@ fn tiled_and_whole_loads_make_the_same_linear_samples() {
         assert_eq!(view.pixel_samples(p), whole.pixel_samples(p), "pixel {p}");
     }
 }
+
+/// True normals, one per pixel.
+type Normals = Vec<[f32; 3]>;
+
+/// The encodings the response estimate is measured on.
+fn encodings() -> Vec<(&'static str, Option<Response>)> {
+    vec![
+        ("as-is", None),
+        ("gamma1.8", Some(Response::Gamma(1.8))),
+        ("gamma2.2", Some(Response::Gamma(2.2))),
+        ("gamma2.4", Some(Response::Gamma(2.4))),
+        ("srgb", Some(Response::Srgb)),
+    ]
+}
+
+/// `--response auto` on the DiLiGenT objects and psmImages, as they are and re-encoded into
+/// 8-bit PNG through power laws and sRGB: the estimate, its basis and uncertainty, and `l2`'s
+/// mean error against the original's (DiLiGenT, which has ground truth). psmImages are 8-bit
+/// files of unknown response; their re-encodings treat the stored values as linear.
+#[test]
+#[ignore = "minutes: reads and re-encodes ../shared/data"]
+fn response_estimates_on_real_captures() {
+    use photostereo::io::layouts::LoadOptions;
+    let only: Option<String> = std::env::var("PHOTOSTEREO_OBJECTS").ok();
+    let data = diligent("ball")
+        .parent()
+        .unwrap()
+        .parent()
+        .unwrap()
+        .to_path_buf();
+    let root = tempfile::tempdir().unwrap();
+    let mut captures: Vec<(String, CaptureFiles, Option<Normals>)> = Vec::new();
+    for name in ["ball", "bear", "cat"] {
+        let src = diligent(name);
+        let truth = photostereo::io::groundtruth::read_normal_map(&src.join("Normal_gt.mat"))
+            .unwrap()
+            .normals;
+        captures.push((
+            name.into(),
+            CaptureFiles::diligent(&src).unwrap(),
+            Some(truth),
+        ));
+    }
+    for name in ["cat", "gray", "buddha", "owl", "horse", "rock"] {
+        let psm = data.join("psmImages");
+        let files = CaptureFiles::list_file(
+            &psm.join(format!("{name}.txt")),
+            &psm.join("lights.reference.txt"),
+        )
+        .unwrap();
+        captures.push((format!("psm-{name}"), files, None));
+    }
+    let mut failures = Vec::new();
+    for (name, original, truth) in &captures {
+        if only
+            .as_deref()
+            .is_some_and(|o| !o.split(',').any(|x| x == name))
+        {
+            continue;
+        }
+        // PHOTOSTEREO_SKIP=name:N leaves out an object's first N images (and lights).
+        let skip: usize = std::env::var("PHOTOSTEREO_SKIP")
+            .ok()
+            .and_then(|v| {
+                let (o, n) = v.split_once(':')?;
+                (o == name).then(|| n.parse().ok())?
+            })
+            .unwrap_or(0);
+        let mut original = original.clone();
+        if skip > 0 {
+            original.images.drain(..skip);
+            original.lights.directions.drain(..skip);
+            original.lights.intensities.drain(..skip);
+        }
+        let original = &original;
+        let base = truth.as_ref().map(|t| l2_error(original, t).0);
+        for (kind, response) in encodings() {
+            let dir = root.path().join(format!("{name}-{kind}"));
+            let mut files = match response {
+                None => original.clone(),
+                Some(r) => {
+                    std::fs::create_dir_all(&dir).unwrap();
+                    let spec = CameraSpec {
+                        response: r,
+                        ambient: 0.0,
+                        exposure_jitter: 1.0,
+                        format: CameraFormat::Png8,
+                        seed: 11,
+                    };
+                    let (images, _) = reencode_capture(original, &dir, &spec).unwrap();
+                    let mut f = original.clone();
+                    f.images = images;
+                    f
+                }
+            };
+            files.photometry.response = Some(ResponseChoice::Auto);
+            let loaded = files.load_measured(&Silent, &LoadOptions::default());
+            let Some(e) = loaded
+                .as_ref()
+                .ok()
+                .and_then(|l| l.1.response_estimate.clone())
+            else {
+                println!("{name} {kind}: no estimate ({:?})", loaded.err());
+                failures.push(format!("{name} {kind}: no estimate"));
+                continue;
+            };
+            let err = truth.as_ref().map(|t| l2_error(&files, t).0);
+            println!(
+                "{name} {kind}: chose {} ({} {:.3} ± {:.3}; shading {:.2} ± {:.2}; sRGB slope \
+                 {:?}; {} rows); l2 {}",
+                e.chosen,
+                e.basis,
+                e.gamma,
+                e.gamma_std,
+                e.gamma_shading,
+                e.gamma_shading_std,
+                e.srgb_slope,
+                e.rows,
+                match (err, base) {
+                    (Some(a), Some(b)) => format!("{a:.2}° ({:+.2} vs the original)", a - b),
+                    _ => "-".into(),
+                }
+            );
+            if truth.is_some() {
+                let ok = match response {
+                    None => e.response == Response::Linear,
+                    Some(Response::Gamma(g)) => match e.response {
+                        Response::Gamma(h) => (h - g).abs() <= 0.1,
+                        _ => false,
+                    },
+                    Some(r) => e.response == r,
+                };
+                if !ok {
+                    failures.push(format!("{name} {kind}: {}", e.chosen));
+                }
+            }
+            let _ = std::fs::remove_dir_all(&dir);
+        }
+    }
+    assert!(failures.is_empty(), "{failures:#?}");
+}

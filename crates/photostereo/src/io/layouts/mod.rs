@@ -7,6 +7,7 @@ pub mod load;
 pub use load::LoadOptions;
 pub mod near;
 mod photometric;
+pub mod rti_folders;
 pub mod sphere;
 
 use crate::base::error::{param, param_set, Error, Result};
@@ -84,11 +85,30 @@ impl CaptureFiles {
                         ),
                     ));
                 }
-                let f = crate::io::layouts::near::lp_capture_files(lp)?;
+                let f = crate::io::layouts::rti_folders::lp_capture_files(lp)?;
                 match intensities {
                     Some(p) => f.with_intensities_file(p)?,
                     None => f,
                 }
+            }
+            [dome]
+                if dome.is_file()
+                    && dome
+                        .extension()
+                        .is_some_and(|e| e.eq_ignore_ascii_case("dome")) =>
+            {
+                let dir = dome.parent().unwrap_or(Path::new("."));
+                rti_capture(dome, dir, lights, intensities)?
+            }
+            [dir]
+                if dir.is_dir()
+                    && lights.is_none()
+                    && !dir.join("light_directions.txt").exists()
+                    && crate::io::layouts::rti_folders::find_light_file(dir)?.is_some() =>
+            {
+                let found = crate::io::layouts::rti_folders::find_light_file(dir)?;
+                let file = found.expect("checked by the guard");
+                rti_capture(&file, dir, lights, intensities)?
             }
             [dir] if dir.is_dir() => {
                 let mut f = CaptureFiles::diligent_with_lights(dir, lights)?;
@@ -337,6 +357,39 @@ impl CaptureFiles {
 
 /// The image extensions a capture folder's images are found by.
 const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "exr", "jpg", "jpeg"];
+
+/// The capture of an RTI tool's light file (`.lp` or `.dome`) whose images lie in `dir`
+/// (a `.dome` names none), with `intensities` replacing the file's own.
+fn rti_capture(
+    file: &Path,
+    dir: &Path,
+    lights: Option<&Path>,
+    intensities: Option<&Path>,
+) -> Result<CaptureFiles> {
+    if let Some(l) = lights {
+        return Err(Error::file(
+            l,
+            format!(
+                "{} carries its own light directions, so {} does not apply (give one or the \
+                 other)",
+                file.display(),
+                param("lights")
+            ),
+        ));
+    }
+    let is_lp = file
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("lp"));
+    let f = if is_lp {
+        crate::io::layouts::rti_folders::lp_capture_files(file)?
+    } else {
+        crate::io::layouts::rti_folders::dome_capture_files(file, dir)?
+    };
+    match intensities {
+        Some(p) => f.with_intensities_file(p),
+        None => Ok(f),
+    }
+}
 
 /// A capture folder's ambient frame (`ambient.png`, `ambient.jpg`, …: the scene with every
 /// controlled light off), if it has one; two are refused.

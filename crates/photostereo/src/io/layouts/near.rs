@@ -1,7 +1,7 @@
 //! io for real rigs (CONVENTIONS.md, "Near lights and perspective cameras"): the near-light
 //! layout (`K.txt`, `light_positions.txt`, `light_axes.txt`, `light_anisotropy.txt`,
-//! `light_intensities.txt`, `mean_distance.txt` or `--distance`) and the `.lp` light files of
-//! the RTI tools. Every inconsistency is an error naming the file (and line) and what was
+//! `light_intensities.txt`, `mean_distance.txt` or `--distance`) and the parser of the `.lp`
+//! light files of the RTI tools ([`crate::io::layouts::rti_folders`] pairs them with images). Every inconsistency is an error naming the file (and line) and what was
 //! expected.
 
 use crate::base::error::{param, param_set, Error, Result};
@@ -673,18 +673,6 @@ pub fn parse_lp(text: &str, path: &Path) -> Result<(Vec<PathBuf>, Lights)> {
     }
     let lights = Lights::new(&dirs).map_err(|e| Error::file(path, e.to_string()))?;
     Ok((images, lights))
-}
-
-/// The capture files of an `.lp` file (images and distant directions in one file).
-pub fn lp_capture_files(path: &Path) -> Result<CaptureFiles> {
-    let (images, lights) = parse_lp(&crate::io::limits::read_text(path)?, path)?;
-    Ok(CaptureFiles {
-        images,
-        lights,
-        mask: None,
-        notes: vec![format!("lights and images from {}", path.display())],
-        photometry: Default::default(),
-    })
 }
 
 #[cfg(test)]

@@ -6,7 +6,7 @@ use super::CaptureFiles;
 use crate::base::error::{Error, Result};
 use crate::io::imageio::decode_image;
 use crate::io::photometry::estimate::{
-    estimate_response, offset_check, OffsetCheck, ResponseEstimate, Samples,
+    estimate_response, offset_check, LightInfo, OffsetCheck, ResponseEstimate, Samples,
 };
 use crate::io::photometry::meta::{read_meta, ImageMeta};
 use crate::io::photometry::{
@@ -73,18 +73,13 @@ impl CaptureFiles {
         }
         if p.response == Some(ResponseChoice::Auto) || (p.response.is_none() && unknown_8bit) {
             let samples = self.encoded_samples(mask, channels, ambient.as_ref())?;
-            let lights: Vec<[f64; 3]> = self
-                .lights
-                .directions
-                .iter()
-                .zip(&self.lights.intensities)
-                .map(|(d, i)| {
-                    let s = (i[0] + i[1] + i[2]) / 3.0;
-                    [d[0] * s, d[1] * s, d[2] * s]
-                })
-                .collect();
-            let scale: Vec<f64> = factors.iter().map(|f| 1.0 / f).collect();
-            estimate = estimate_response(&samples, &lights, &scale, 1.0 / ambient_factor);
+            let lights = LightInfo {
+                directions: self.lights.directions.clone(),
+                intensities: self.lights.intensities.clone(),
+                scale: factors.iter().map(|f| 1.0 / f).collect(),
+                ambient_scale: 1.0 / ambient_factor,
+            };
+            estimate = estimate_response(&samples, &lights);
             match (&estimate, p.response) {
                 (Some(e), Some(ResponseChoice::Auto)) => {
                     responses = vec![
@@ -107,7 +102,7 @@ impl CaptureFiles {
                          images, {} pixel(s) lit by every light; it needs five images and 30 \
                          such pixels): give it (--response srgb, gamma:G or linear)",
                         metas.len(),
-                        lit_pixels(&samples)
+                        lit_pixels(&samples, &lights)
                     )))
                 }
                 (None, _) => {}
@@ -289,6 +284,7 @@ impl CaptureFiles {
             encoded,
             ambient,
             images: n,
+            channels,
             bit_depth: planes.iter().map(|p| p.1).max().unwrap_or(8),
         })
     }
@@ -319,17 +315,35 @@ fn read_image_checked(path: &Path, files: &CaptureFiles, channels: usize) -> Res
     Ok(img)
 }
 
-fn lit_pixels(s: &Samples) -> usize {
-    crate::io::photometry::estimate::lit_rows(s).len()
+fn lit_pixels(s: &Samples, lights: &LightInfo) -> usize {
+    use crate::io::photometry::estimate::{lit_rows, pilot_response};
+    lit_rows(s, lights, pilot_response(s)).len()
 }
 
 /// The note of a response estimate: used (`--response auto`) or only reported.
 fn estimate_note(e: &ResponseEstimate, used: bool) -> String {
+    let basis = if e.basis == "brightness" {
+        "from how each light's brightness shows in the readings against its given intensity \
+         and exposure"
+            .to_string()
+    } else {
+        format!(
+            "from the shading alone, which a surface darker than matte at grazing light biases \
+             low{}",
+            match e.intensities_disagree {
+                Some([g, sd]) => format!(
+                    "; the given light intensities disagree with the images (each light's \
+                     brightness shows as its intensity to the power {g:.2} ± {sd:.2}), so they \
+                     could not be used"
+                ),
+                None => String::new(),
+            }
+        )
+    };
     let what = format!(
         "the readings fit the Lambertian model best under the response {} (best power law \
-         {:.2} ± {:.2}; median reduced χ² {:.3} under it, {:.3} under sRGB, {:.3} if linear; \
-         {} pixel-channels lit by every light)",
-        e.chosen, e.gamma, e.gamma_std, e.score_gamma, e.score_srgb, e.score_linear, e.rows
+         {:.2} ± {:.2}, {basis}; {} pixel-channels lit by every light)",
+        e.chosen, e.gamma, e.gamma_std, e.rows
     );
     if used {
         format!("response: {what}")
@@ -337,8 +351,8 @@ fn estimate_note(e: &ResponseEstimate, used: bool) -> String {
         format!(
             "response: 8-bit images without colour metadata are read as linear, but {what}: \
              if a camera or an editor wrote them, give their response (--response srgb for \
-             most; --response {} is the capture's own estimate, which a surface darker than \
-             matte at grazing light lowers)",
+             most; --response {} is this estimate, which rests on the given intensities or on \
+             a matte surface)",
             e.chosen
         )
     }

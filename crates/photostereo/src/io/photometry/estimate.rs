@@ -1,32 +1,51 @@
 //! What the readings themselves say about their photometry.
 //!
-//! **Response.** A Lambertian surface lit by every light reads `x_k = s_k · ρ n · l_k`: across
-//! the lights, a pixel's linear readings lie in the 3-D subspace the light vectors span. Read
-//! through the wrong response they do not (a power of a sum is no sum of powers). A candidate
-//! response is scored by how well a rank-3 model `x_rk ≈ g_k l_k · b_r` fits the readings it
-//! makes linear, its subspace the one the given light directions `l_k` span: the gains `g_k`
-//! (each light's brightness as the readings see it) and `b` (one per pixel and channel) are
-//! fitted by alternating weighted least squares, each residual weighted by the
-//! noise of its encoded value (the quantisation step) carried through the candidate's slope:
-//! the residuals are measured where the noise is, in the file's own units, so the candidates'
-//! scores are comparable χ² values. (Measured relative to the linear values instead, a
-//! response that flattens every reading towards one value would fit best.) The subspace is
-//! anchored on the lights rather than fitted freely: with lights around the viewing direction
-//! any smooth function of `n · l` is nearly affine in the light's direction, so a freely fitted
-//! rank-3 model absorbs a compressive response as a constant and cannot tell it from linear. The score is the median over pixels of the reduced χ² (a few
-//! highlights do not move it). Candidates: powers 1 to 3 in steps of 0.02 and sRGB. The
-//! estimate's spread is that of the best power over eight disjoint sets of pixels; sRGB is
-//! chosen when it fits better than every power, linear when 1 lies within the 99% interval of
-//! the best power.
+//! **Response.** A Lambertian surface lit by every light reads `x_k = m_k ρ n · l_k`, where
+//! `m_k` is what is known of light k's brightness (its given intensity times its image's
+//! exposure): across the lights, a pixel's linear readings lie in the 3-D subspace the light
+//! vectors span. Read through the wrong response they do not (a power of a sum is no sum of
+//! powers). Two things tell a candidate response (powers 1 to 3 in steps of 0.02, and sRGB)
+//! from the right one.
 //!
-//! Only pixels lit by every light ([`lit_rows`]) enter: a shadowed reading is no projection of
-//! the normal.
+//! *The lights' known brightness* (the basis `"brightness"`). A power law is blind to every
+//! factor: read through `linear = encoded^γ'` a file encoded with `γ` gives
+//! `(m_k ρ n · l_k)^(γ'/γ)`, so each light's gain `G_k` (its brightness as the rank-3 model
+//! `x_rk ≈ G_k l_k · b_r` fitted to the readings sees it) is `m_k^(γ'/γ)` times what the
+//! surface's shape and material make of the light's direction. Regressing `ln(G_k / m_k)` on
+//! `ln m_k`, with one constant per channel and a term linear in `l_k` for the direction's
+//! share, gives the slope `β = γ'/γ − 1`: zero under the right response whatever the
+//! material, with a standard error from the regression's residuals. The exponent is the
+//! candidate's `γ' / (1 + β)` where `|β|` is smallest. This needs brightness that varies in a
+//! way the directions do not explain — calibrated intensities such as DiLiGenT's (×6 from the
+//! dimmest light to the brightest), or exposures that change — and is used when its standard
+//! error is at most [`BRIGHTNESS_MAX_STD`] and it is no exponent below 1 (which no file has:
+//! the given intensities then disagree with the images, and the note says so). The fits are
+//! robust: each row's `b_r` is fitted with every reading relative to its light's gain (so that
+//! the gains scale with the lights), each gain is the median ratio of readings to model over
+//! the rows, and the regression weighs the lights by Huber's and then Tukey's weights.
 //!
-//! The test cannot tell a response from a material whose brightness falls off with `n · l`
-//! other than linearly: `(n · l)^p` through a linear camera reads like a Lambertian surface
-//! through a power `p`. On real objects the estimate is therefore biased towards the
-//! material's falloff (a 2.2 power on DiLiGenT's cat is estimated at 1.8); on matte ones it
-//! holds within ±0.1.
+//! *The shading* (the basis `"shading"`, when the brightness does not decide). A candidate is
+//! scored by how well the same rank-3 model fits the readings it makes linear, the gains
+//! fitted by least squares, each residual weighted by the noise of its encoded value (the
+//! quantisation step) carried through the candidate's slope: the residuals are measured where
+//! the noise is, in the file's own units, so the candidates' scores are comparable χ² values.
+//! (Measured relative to the linear values instead, a response that flattens every reading
+//! towards one value would fit best.) The subspace is anchored on the lights rather than
+//! fitted freely: with lights around the viewing direction any smooth function of `n · l` is
+//! nearly affine in the light's direction, so a freely fitted rank-3 model absorbs a
+//! compressive response as a constant and cannot tell it from linear. The score is the median
+//! over rows of the reduced χ² (highlights do not move it); the spread is that of the best
+//! power over eight disjoint sets of pixels. The shading cannot tell a power-law response from
+//! a material whose brightness falls off as `(n · l)^p` (a Lambertian surface through a power
+//! `p` reads the same): on real objects this estimate carries the material's falloff (surfaces
+//! darker than matte at grazing light lower it), which no spread over pixels shows.
+//!
+//! Either way sRGB is chosen when it fits the shading at least as well as the power nearest the
+//! exponent (and, with the brightness basis, its own slope `β` is within the 99% interval of
+//! zero or [`SYSTEMATIC`]), linear when 1 lies within the 99% interval of the exponent or
+//! [`SYSTEMATIC`] of it. Only pixels lit by every light ([`lit_rows`]) enter: a shadowed
+//! reading is no projection of the normal, a saturated one no measurement; the shading is
+//! scored on the well-lit ones among them.
 //!
 //! **Offset.** Light left on in the room, or a black level not removed, adds to every image
 //! the same amount per pixel: readings `x_k = s_k (ρ n · l_k + a)`, a fourth dimension the
@@ -44,11 +63,13 @@ use serde::Serialize;
 /// Encoded (not yet linear) readings of some pixels of a capture.
 #[derive(Clone, Debug)]
 pub struct Samples {
-    /// `[row][image]`: one row per pixel and channel.
+    /// `[row][image]`: one row per pixel and channel (pixel-major, channels interleaved).
     pub encoded: Vec<f32>,
     /// The ambient frame's encoded value per row, when there is one.
     pub ambient: Option<Vec<f32>>,
     pub images: usize,
+    /// Channels per pixel: row `r` is channel `r % channels`.
+    pub channels: usize,
     /// Bits per sample of the encoded values (8, 16; 32 for float data).
     pub bit_depth: u8,
 }
@@ -59,17 +80,47 @@ impl Samples {
     }
 }
 
+/// The lights as the estimate sees them.
+#[derive(Clone, Debug)]
+pub struct LightInfo {
+    /// Unit directions.
+    pub directions: Vec<[f64; 3]>,
+    /// Each light's red, green and blue intensity (grey images use their mean).
+    pub intensities: Vec<[f64; 3]>,
+    /// What each image's linear readings are multiplied by (1 / its exposure factor).
+    pub scale: Vec<f64>,
+    /// The same for the ambient frame.
+    pub ambient_scale: f64,
+}
+
 /// The response the capture shows, with its uncertainty (report.json
 /// `photometry.response_estimate`).
 #[derive(Clone, Debug, Serialize)]
 pub struct ResponseEstimate {
     /// The response chosen: `linear`, `srgb` or `gamma:G`.
     pub chosen: String,
-    /// The best power law's exponent.
+    /// What the estimate rests on: `brightness` (the lights' known brightness, blind to the
+    /// material) or `shading` (the rank-3 fit alone, which a material's falloff biases).
+    pub basis: String,
+    /// The power-law exponent the basis gives.
     pub gamma: f64,
-    /// Its standard error (from disjoint pixel sets).
+    /// Its standard error.
     pub gamma_std: f64,
-    /// Median reduced χ² of the rank-3 fit under the best power, sRGB, and linear.
+    /// The brightness test's slope β under sRGB and its standard error (absent without a
+    /// lever).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub srgb_slope: Option<[f64; 2]>,
+    /// When the brightness test gives an exponent significantly below 1 (no file's): that
+    /// exponent and its standard error. The given intensities then disagree with the images
+    /// (each light's brightness as the readings show it goes as its intensity to this power)
+    /// and the estimate rests on the shading.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub intensities_disagree: Option<[f64; 2]>,
+    /// The best power by the shading alone, with its standard error over pixel sets.
+    pub gamma_shading: f64,
+    pub gamma_shading_std: f64,
+    /// Median reduced χ² of the rank-3 fit under the power `gamma` (nearest candidate),
+    /// sRGB, and linear.
     pub score_gamma: f64,
     pub score_srgb: f64,
     pub score_linear: f64,
@@ -87,107 +138,367 @@ const GROUPS: usize = 8;
 /// the exponent is taken as 1 (linear) when it lies within this many standard errors of it,
 /// a two-sided 99% interval.
 const T7_995: f64 = 3.499;
+/// The largest standard error of the brightness basis's exponent for it to decide: half the
+/// ±0.1 that separates the power laws files are written with (1.8, 2.2, 2.4).
+pub const BRIGHTNESS_MAX_STD: f64 = 0.05;
+
+/// The systematic error allowed the brightness test, in its slope β and in the exponent near
+/// 1: what the lights' calibration and a material's departure from Lambert's law leave. It
+/// lies far below the gaps between the responses files are written with (1; 1.8; 2.2 and sRGB;
+/// 2.4), so linear is chosen for an exponent within it of 1 and sRGB for a slope within it of
+/// 0.
+const SYSTEMATIC: f64 = 0.025;
 
 /// The candidates' exponents: 1 to 3 in steps of 0.02. Files are encoded to spend their levels
-/// on the dark end (exponents above 1); none below 1 is searched, because a surface darker than
-/// Lambertian at grazing light reads like one (DiLiGenT's bear and cat, linear, score best
-/// at 0.6 and 0.8).
+/// on the dark end (exponents above 1); the shading searches none below 1, because a surface
+/// darker than Lambertian at grazing light reads like one.
 fn gamma_grid() -> Vec<f64> {
     (0..=100).map(|i| 1.0 + 0.02 * i as f64).collect()
 }
 
-/// The rows (pixel-channel) lit by every light: every encoded reading at least a quarter of
-/// the row's brightest and five quantisation levels above black (0.5% of full scale for float
-/// data), none above 99% of full scale. Under any response that brightens the dark end no
-/// more than a 2.2 power does, a quarter of the brightest encoded reading is more than 4% of
-/// its light: a shadow, which reads only noise or ambient light, falls below it.
-pub fn lit_rows(s: &Samples) -> Vec<usize> {
+/// The least elevation of every light above a used pixel's horizon (by its pilot normal).
+const MIN_ELEVATION_DEG: f64 = 15.0;
+
+/// The rows (pixel-channel) lit by every light and read within range: every encoded reading
+/// five quantisation levels above black (0.5% of full scale for float data) and none above 99%
+/// of full scale; the row's normal, fitted by least squares to the readings made linear by
+/// the `pilot` response (each divided by its light's known brightness), sees every light at
+/// least [`MIN_ELEVATION_DEG`] above its horizon (attached shadows and grazing light out); no
+/// reading below half of that fit's prediction (a cast shadow). The choice rests on the fitted
+/// normal, not on how one reading compares with another, so that it does not favour pixels
+/// where a dim light happens to read high (which would bias the lights' gains).
+pub fn lit_rows(s: &Samples, lights: &LightInfo, pilot: Response) -> Vec<usize> {
     let level: f64 = match s.bit_depth {
         8 => 1.0 / 255.0,
         16 => 1.0 / 65535.0,
         _ => 0.001,
     };
     let lo = (5.0 * level).max(0.005) as f32;
+    let c = s.channels.max(1);
+    let min_cos = MIN_ELEVATION_DEG.to_radians().sin();
+    // 1 / m per light and channel (m: intensity × exposure); unknown brightness counts as 1.
+    let inv: Vec<f64> = (0..s.images * c)
+        .map(|i| {
+            let (k, ch) = (i / c, i % c);
+            let m = lights
+                .intensities
+                .get(k)
+                .map_or(1.0, |int| channel_intensity(int, ch, c))
+                / lights.scale.get(k).copied().unwrap_or(1.0);
+            if m > 0.0 && m.is_finite() {
+                1.0 / m
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let dirs = &lights.directions;
     (0..s.rows())
         .filter(|&r| {
             let row = &s.encoded[r * s.images..(r + 1) * s.images];
-            let max = row.iter().cloned().fold(0.0f32, f32::max);
-            row.iter().all(|&e| e >= lo.max(0.25 * max) && e <= 0.99)
+            let ch = r % c;
+            if dirs.len() != s.images || !row.iter().all(|&e| e >= lo && e <= 0.99) {
+                return false;
+            }
+            let x: Vec<f64> = row
+                .iter()
+                .enumerate()
+                .map(|(k, &e)| pilot.linear(e as f64) * inv[k * c + ch])
+                .collect();
+            let b = solve_weighted(dirs.iter().zip(&x).map(|(d, v)| (*d, *v, 1.0)));
+            let norm = dot(b, b).sqrt();
+            norm > 0.0
+                && dirs.iter().zip(&x).all(|(d, v)| {
+                    let p = dot(*d, b);
+                    p >= min_cos * norm && *v >= 0.5 * p
+                })
         })
         .collect()
 }
 
-/// Estimates the capture's response from `s`: `lights` are the given light vectors (intensity
-/// included), `scale[k]` what image k's linear readings are multiplied by (1 / its exposure
-/// factor), `ambient_scale` the same for the ambient frame. `None` with fewer than five images
-/// or fewer than 30 rows lit by every light (too little to tell).
-pub fn estimate_response(
-    s: &Samples,
-    lights: &[[f64; 3]],
-    scale: &[f64],
-    ambient_scale: f64,
-) -> Option<ResponseEstimate> {
-    let rows = lit_rows(s);
-    if s.images < 5 || rows.len() < 30 {
+/// Of `rows`, those the shading is scored on: the encoded readings, each divided by its
+/// light's known brightness to the power 1/2.2 (the common encoding's), the smallest at least a
+/// quarter of the largest. Through a 2.2 power that keeps each light at least 4.7% of the
+/// best-lit one's `n · l`; read linearly, 25%: the grazing light where a material departs most
+/// from Lambert's law, and which the shading cannot tell from a response, stays out. (The
+/// brightness test keeps every row: its choice would depend on the readings compared.)
+fn well_lit(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Vec<usize> {
+    let c = s.channels.max(1);
+    let weight = |k: usize, ch: usize| -> f32 {
+        let m = lights
+            .intensities
+            .get(k)
+            .map_or(1.0, |int| channel_intensity(int, ch, c))
+            / lights.scale.get(k).copied().unwrap_or(1.0);
+        if m > 0.0 && m.is_finite() {
+            m.powf(-1.0 / 2.2) as f32
+        } else {
+            1.0
+        }
+    };
+    rows.iter()
+        .copied()
+        .filter(|&r| {
+            let row = &s.encoded[r * s.images..(r + 1) * s.images];
+            let (mut min, mut max) = (f32::MAX, 0.0f32);
+            for (k, &e) in row.iter().enumerate() {
+                let v = e * weight(k, r % c);
+                min = min.min(v);
+                max = max.max(v);
+            }
+            min >= 0.25 * max
+        })
+        .collect()
+}
+
+/// The response rows are first chosen under: a 2.2 power for 8-bit data, linear for deeper.
+pub fn pilot_response(s: &Samples) -> Response {
+    if s.bit_depth <= 8 {
+        Response::Gamma(2.2)
+    } else {
+        Response::Linear
+    }
+}
+
+/// Estimates the capture's response from `s` and its `lights`. `None` with fewer than five
+/// images or fewer than 30 rows lit by every light (too little to tell).
+pub fn estimate_response(s: &Samples, lights: &LightInfo) -> Option<ResponseEstimate> {
+    // Rows chosen under a pilot response, then again under the first estimate's.
+    let pilot = pilot_response(s);
+    let other = if pilot == Response::Linear {
+        Response::Gamma(2.2)
+    } else {
+        Response::Linear
+    };
+    let first = estimate_on(s, lights, &lit_rows(s, lights, pilot))
+        .or_else(|| estimate_on(s, lights, &lit_rows(s, lights, other)));
+    let rows = lit_rows(s, lights, first.as_ref()?.response);
+    estimate_on(s, lights, &rows).or(first)
+}
+
+/// [`estimate_response`] on the given rows.
+fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<ResponseEstimate> {
+    if s.images < 5 || rows.len() < 30 || lights.directions.len() != s.images {
         return None;
     }
     let grid = gamma_grid();
     let mut candidates: Vec<Response> = grid.iter().map(|&g| Response::Gamma(g)).collect();
     candidates.push(Response::Srgb);
-    let fit = Fit {
+    let fit = Fit { s, rows, lights };
+    let shading_rows = well_lit(s, lights, rows);
+    let shading = Fit {
         s,
-        rows: &rows,
+        rows: if shading_rows.len() >= 30 {
+            &shading_rows
+        } else {
+            rows
+        },
         lights,
-        scale,
-        ambient_scale,
     };
-    // Per candidate, each row's reduced χ².
-    let chi: Vec<Vec<f64>> = candidates.par_iter().map(|&r| fit.row_chi2(r)).collect();
-    let score = |c: &[f64], group: Option<usize>| -> f64 {
-        let mut v: Vec<f64> = c
+    // Per candidate: each row's reduced χ² (shading) and the brightness slope β ± se.
+    let per: Vec<(Vec<f64>, Option<[f64; 3]>)> = candidates
+        .par_iter()
+        .map(|&r| {
+            (
+                shading.row_chi2(r),
+                brightness_slope(&fit.gains(r), s, lights),
+            )
+        })
+        .collect();
+    let srgb = grid.len();
+    let score = |i: usize, group: Option<usize>| -> f64 {
+        let mut v: Vec<f64> = per[i]
+            .0
             .iter()
             .enumerate()
-            .filter(|(i, _)| group.is_none_or(|g| i % GROUPS == g))
+            .filter(|(j, _)| group.is_none_or(|g| j % GROUPS == g))
             .map(|(_, x)| *x)
             .collect();
         median(&mut v)
     };
     let best = |group: Option<usize>| -> usize {
         (0..grid.len())
-            .min_by(|&a, &b| score(&chi[a], group).total_cmp(&score(&chi[b], group)))
+            .min_by(|&a, &b| score(a, group).total_cmp(&score(b, group)))
             .unwrap_or(0)
     };
-    let b = best(None);
+    let shading_best = best(None);
     let group_best: Vec<f64> = (0..GROUPS).map(|g| grid[best(Some(g))]).collect();
     let mean = group_best.iter().sum::<f64>() / GROUPS as f64;
     let var = group_best.iter().map(|g| (g - mean).powi(2)).sum::<f64>() / (GROUPS - 1) as f64;
     // The grid's own resolution bounds how small the error can be.
-    let gamma_std = (var / GROUPS as f64).sqrt().max(0.02 / 12f64.sqrt());
-    let gamma = grid[b];
-    let score_gamma = score(&chi[b], None);
-    let score_srgb = score(&chi[grid.len()], None);
-    let linear = grid
+    let shading_std = (var / GROUPS as f64).sqrt().max(0.02 / 12f64.sqrt());
+    let brightness = brightness_exponent(&grid, &per);
+    // An exponent significantly below 1 is no file's: the given intensities disagree with the
+    // images, and the brightness cannot be the basis.
+    let disagree = brightness.filter(|(g, sd, t)| *g < 1.0 - (t * sd).max(SYSTEMATIC));
+    let (basis, gamma, gamma_std, t) = match brightness {
+        Some((g, sd, t)) if sd <= BRIGHTNESS_MAX_STD && disagree.is_none() => {
+            ("brightness", g, sd, t)
+        }
+        _ => ("shading", grid[shading_best], shading_std, T7_995),
+    };
+    // The candidate nearest the exponent, for its shading score.
+    let near = grid
         .iter()
-        .position(|g| (g - 1.0).abs() < 1e-9)
-        .unwrap_or(0);
-    let score_linear = score(&chi[linear], None);
-    let response = if score_srgb < score_gamma {
+        .enumerate()
+        .min_by(|a, b| (a.1 - gamma).abs().total_cmp(&(b.1 - gamma).abs()))
+        .map_or(0, |(i, _)| i);
+    let score_gamma = score(near, None);
+    let score_srgb = score(srgb, None);
+    let srgb_slope = per[srgb].1.map(|b| [b[0], b[1]]);
+    let srgb_consistent = match (basis, per[srgb].1) {
+        ("brightness", Some([b, se, dof])) => b.abs() <= (t_995(dof) * se).max(SYSTEMATIC),
+        ("brightness", None) => false,
+        _ => true,
+    };
+    let response = if srgb_consistent && score_srgb <= score_gamma {
         Response::Srgb
-    } else if (gamma - 1.0).abs() <= T7_995 * gamma_std {
+    } else if (gamma - 1.0).abs() <= (t * gamma_std).max(SYSTEMATIC) {
         Response::Linear
     } else {
-        Response::Gamma(gamma)
+        Response::Gamma((gamma * 100.0).round() / 100.0)
     };
     Some(ResponseEstimate {
         chosen: response.name(),
+        basis: basis.into(),
         gamma,
         gamma_std,
+        srgb_slope,
+        intensities_disagree: disagree.map(|d| [d.0, d.1]),
+        gamma_shading: grid[shading_best],
+        gamma_shading_std: shading_std,
         score_gamma,
         score_srgb,
-        score_linear,
+        score_linear: score(0, None),
         rows: rows.len(),
         response,
     })
+}
+
+/// The exponent the lights' brightness gives, its standard error and the 99% t quantile of its
+/// regression: `γ' / (1 + β)` at the power candidate whose slope `|β|` is smallest. `None`
+/// without a lever (the brightness constant, or explained by the directions).
+fn brightness_exponent(
+    grid: &[f64],
+    per: &[(Vec<f64>, Option<[f64; 3]>)],
+) -> Option<(f64, f64, f64)> {
+    let (i, [b, se, dof]) = grid
+        .iter()
+        .enumerate()
+        .filter_map(|(i, _)| per[i].1.map(|s| (i, s)))
+        .min_by(|a, b| a.1[0].abs().total_cmp(&b.1[0].abs()))?;
+    if 1.0 + b <= 0.0 || !se.is_finite() {
+        return None;
+    }
+    let g = grid[i] / (1.0 + b);
+    let sd = grid[i] * se / (1.0 + b).powi(2);
+    Some((g, sd, t_995(dof)))
+}
+
+/// Student's t quantile 0.995 with `dof` degrees of freedom (Cornish–Fisher expansion about
+/// the normal quantile; within 1% from 5 degrees of freedom up).
+fn t_995(dof: f64) -> f64 {
+    let z: f64 = 2.575_829;
+    let d = dof.max(1.0);
+    z + (z.powi(3) + z) / (4.0 * d)
+        + (5.0 * z.powi(5) + 16.0 * z.powi(3) + 3.0 * z) / (96.0 * d * d)
+        + (3.0 * z.powi(7) + 19.0 * z.powi(5) + 17.0 * z.powi(3) - 15.0 * z) / (384.0 * d * d * d)
+}
+
+/// The brightness test on a candidate's gains (`[k * C + c]`): the least-squares slope β of
+/// `ln(G_kc / I_kc)` on `ln(I_kc / scale_k)` (the light's known brightness in channel c, its
+/// exposure included), with a constant per channel and `l_k` as further regressors; returns
+/// `[β, its standard error, degrees of freedom]`. `None` with fewer than three degrees of
+/// freedom, or when the known brightness varies by less than 1% beyond what the other
+/// regressors explain (no lever).
+fn brightness_slope(gains: &[f64], s: &Samples, lights: &LightInfo) -> Option<[f64; 3]> {
+    let c = s.channels.max(1);
+    let p = c + 4;
+    let mut points: Vec<(nalgebra::DVector<f64>, f64)> = Vec::with_capacity(gains.len());
+    for (k, (d, i)) in lights
+        .directions
+        .iter()
+        .zip(&lights.intensities)
+        .enumerate()
+    {
+        for ch in 0..c {
+            let (g, int) = (gains[k * c + ch], channel_intensity(i, ch, c));
+            if !(g > 0.0 && int > 0.0 && lights.scale[k] > 0.0) {
+                continue;
+            }
+            let mut row = nalgebra::DVector::<f64>::zeros(p);
+            row[ch] = 1.0;
+            row[c] = d[0];
+            row[c + 1] = d[1];
+            row[c + 2] = d[2];
+            row[c + 3] = (int / lights.scale[k]).ln();
+            points.push((row, (g / int).ln()));
+        }
+    }
+    let dof = points.len() as f64 - p as f64;
+    if dof < 3.0 {
+        return None;
+    }
+    // A robust fit by iteratively reweighted least squares: Huber's weights (k = 1.345 robust
+    // standard deviations) to convergence, then Tukey's biweight (c = 4.685; both 95%
+    // efficient under normal errors), which gives no weight to lights whose given intensity is
+    // grossly off.
+    let mut weights = vec![1.0; points.len()];
+    let mut result = None;
+    let mut tukey = false;
+    for _ in 0..40 {
+        let mut ata = nalgebra::DMatrix::<f64>::zeros(p, p);
+        let mut atb = nalgebra::DVector::<f64>::zeros(p);
+        for ((a, y), w) in points.iter().zip(&weights) {
+            ata += *w * a * a.transpose();
+            atb += *w * *y * a;
+        }
+        let inv = ata.try_inverse()?;
+        let sxx = 1.0 / inv[(p - 1, p - 1)];
+        // The known brightness's spread beyond the other regressors, per point: at least 1%.
+        if !(sxx.is_finite() && sxx > 1e-4 * weights.iter().sum::<f64>()) {
+            return None;
+        }
+        let coef = &inv * atb;
+        let res: Vec<f64> = points.iter().map(|(a, y)| y - a.dot(&coef)).collect();
+        let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
+        let scale = (1.4826 * median(&mut abs)).max(1e-12);
+        let rss: f64 = res.iter().zip(&weights).map(|(r, w)| w * r * r).sum();
+        let wsum: f64 = weights.iter().sum();
+        let se = (rss / (wsum - p as f64).max(1.0) / sxx).sqrt();
+        let done = result.is_some_and(|[b, _, _]: [f64; 3]| (b - coef[p - 1]).abs() < 1e-6);
+        result = Some([coef[p - 1], se, dof]);
+        for (w, r) in weights.iter_mut().zip(&res) {
+            let z = r.abs() / scale;
+            *w = if !tukey {
+                if z <= 1.345 {
+                    1.0
+                } else {
+                    1.345 / z
+                }
+            } else if z < 4.685 {
+                (1.0 - (z / 4.685).powi(2)).powi(2)
+            } else {
+                0.0
+            };
+        }
+        if done && !tukey {
+            tukey = true;
+        } else if done {
+            break;
+        }
+    }
+    result
+}
+
+/// A light's intensity in channel `ch` of images with `channels` channels (grey images: the
+/// mean of red, green and blue).
+fn channel_intensity(i: &[f64; 3], ch: usize, channels: usize) -> f64 {
+    if channels == 3 {
+        i[ch]
+    } else {
+        (i[0] + i[1] + i[2]) / 3.0
+    }
 }
 
 fn median(v: &mut [f64]) -> f64 {
@@ -198,17 +509,16 @@ fn median(v: &mut [f64]) -> f64 {
     *v.select_nth_unstable_by(m, f64::total_cmp).1
 }
 
-/// The rank-3 fit of a candidate response.
+/// The rank-3 fits of a candidate response.
 struct Fit<'a> {
     s: &'a Samples,
     rows: &'a [usize],
-    lights: &'a [[f64; 3]],
-    scale: &'a [f64],
-    ambient_scale: f64,
+    lights: &'a LightInfo,
 }
 
 impl Fit<'_> {
-    /// Linear readings and their weights (1 / variance) of every used row under `r`.
+    /// Linear readings (exposure corrected, ambient removed) and their weights (1 / variance)
+    /// of every used row under `r`.
     fn linear(&self, r: Response) -> (Vec<f64>, Vec<f64>) {
         let n = self.s.images;
         let q = match self.s.bit_depth {
@@ -216,6 +526,8 @@ impl Fit<'_> {
             16 => 1.0 / 65535.0,
             _ => 1e-4,
         } / 12f64.sqrt();
+        let scale = &self.lights.scale;
+        let ambient_scale = self.lights.ambient_scale;
         let mut x = Vec::with_capacity(self.rows.len() * n);
         let mut w = Vec::with_capacity(self.rows.len() * n);
         for &row in self.rows {
@@ -223,16 +535,16 @@ impl Fit<'_> {
                 Some(amb) => {
                     let e = amb[row] as f64;
                     (
-                        r.linear(e) * self.ambient_scale,
-                        (r.slope(e) * self.ambient_scale * q).powi(2),
+                        r.linear(e) * ambient_scale,
+                        (r.slope(e) * ambient_scale * q).powi(2),
                     )
                 }
                 None => (0.0, 0.0),
             };
-            for k in 0..n {
-                let e = self.s.encoded[row * n + k] as f64;
-                let v = r.linear(e) * self.scale[k] - a;
-                let var = (r.slope(e) * self.scale[k] * q).powi(2) + va;
+            for (&e, &sc) in self.s.encoded[row * n..(row + 1) * n].iter().zip(scale) {
+                let e = e as f64;
+                let v = r.linear(e) * sc - a;
+                let var = (r.slope(e) * sc * q).powi(2) + va;
                 x.push(v);
                 w.push(1.0 / var.max(1e-30));
             }
@@ -240,11 +552,22 @@ impl Fit<'_> {
         (x, w)
     }
 
+    /// The light vectors with each light's mean intensity.
+    fn light_vectors(&self) -> Vec<[f64; 3]> {
+        self.lights
+            .directions
+            .iter()
+            .zip(&self.lights.intensities)
+            .map(|(d, i)| d.map(|v| v * (i[0] + i[1] + i[2]) / 3.0))
+            .collect()
+    }
+
     /// Each used row's reduced χ² under the rank-3 model fitted to the readings `r` makes.
     fn row_chi2(&self, r: Response) -> Vec<f64> {
         let n = self.s.images;
         let (x, w) = self.linear(r);
-        let mut u: Vec<[f64; 3]> = self.lights.to_vec();
+        let lights = self.light_vectors();
+        let mut u = lights.clone();
         let mut b = vec![[0.0; 3]; self.rows.len()];
         for _ in 0..3 {
             for (i, bi) in b.iter_mut().enumerate() {
@@ -257,12 +580,12 @@ impl Fit<'_> {
             for (k, uk) in u.iter_mut().enumerate() {
                 let (mut num, mut den) = (0.0, 0.0);
                 for (i, bi) in b.iter().enumerate() {
-                    let p = dot(self.lights[k], *bi);
+                    let p = dot(lights[k], *bi);
                     num += w[i * n + k] * x[i * n + k] * p;
                     den += w[i * n + k] * p * p;
                 }
                 let g = if den > 0.0 { num / den } else { 1.0 };
-                *uk = self.lights[k].map(|v| v * g);
+                *uk = lights[k].map(|v| v * g);
             }
         }
         b.iter()
@@ -277,6 +600,50 @@ impl Fit<'_> {
                 chi / (n - 3) as f64
             })
             .collect()
+    }
+
+    /// Each light's gain per channel (`[k * C + c]`) under `r`: the model `x_rk ≈ G_kc l_k ·
+    /// b_r` fitted with each reading relative to its gain (each row's `b_r` then scales with
+    /// the gains, whatever they are), each gain the median over the channel's rows of reading
+    /// over model.
+    fn gains(&self, r: Response) -> Vec<f64> {
+        let n = self.s.images;
+        let c = self.s.channels.max(1);
+        let (x, _) = self.linear(r);
+        let dirs = &self.lights.directions;
+        let mut g: Vec<f64> = (0..n * c)
+            .map(|i| channel_intensity(&self.lights.intensities[i / c], i % c, c))
+            .collect();
+        let mut b = vec![[0.0; 3]; self.rows.len()];
+        let mut ratios: Vec<Vec<f64>> = vec![Vec::with_capacity(self.rows.len() / c + 1); n * c];
+        for _ in 0..3 {
+            for (i, bi) in b.iter_mut().enumerate() {
+                let ch = self.rows[i] % c;
+                let xs = &x[i * n..(i + 1) * n];
+                *bi = solve_weighted(
+                    dirs.iter()
+                        .zip(xs)
+                        .enumerate()
+                        .map(|(k, (d, v))| (*d, v / g[k * c + ch], 1.0)),
+                );
+            }
+            ratios.iter_mut().for_each(Vec::clear);
+            for (i, bi) in b.iter().enumerate() {
+                let ch = self.rows[i] % c;
+                for (k, d) in dirs.iter().enumerate() {
+                    let p = dot(*d, *bi);
+                    if p > 0.0 {
+                        ratios[k * c + ch].push(x[i * n + k] / p);
+                    }
+                }
+            }
+            for (gk, rs) in g.iter_mut().zip(ratios.iter_mut()) {
+                if !rs.is_empty() {
+                    *gk = median(rs);
+                }
+            }
+        }
+        g
     }
 }
 
@@ -408,19 +775,28 @@ mod tests {
         v
     }
 
-    /// Lambertian readings of random normals within 30° of the view (lit by every light),
-    /// offset by `ambient`, encoded by `r` into `bits`-bit levels.
-    fn samples(r: Response, bits: u8, ambient: f64, seed: u64) -> Samples {
+    /// Readings `(ρ I_k (n · l_k)^p + ambient)` of random normals within 30° of the view (lit by
+    /// every light; `p = 1` is Lambertian, `p > 1` a surface darker than matte at grazing
+    /// light), encoded by `r` into `bits`-bit levels.
+    fn readings(
+        r: Response,
+        bits: u8,
+        ambient: f64,
+        seed: u64,
+        intensities: &[f64],
+        p: f64,
+    ) -> Samples {
         let l = lights();
         let mut rng = Pcg32::new(seed, 0);
         let levels = ((1u32 << bits) - 1) as f64;
+        let top = intensities.iter().cloned().fold(0.0, f64::max);
         let mut encoded = Vec::new();
         for _ in 0..2000 {
             let (a, t) = (rng.next_f64() * 0.5, rng.next_f64() * std::f64::consts::TAU);
             let n = [a.sin() * t.cos(), a.sin() * t.sin(), a.cos()];
             let rho = 0.3 + 0.6 * rng.next_f64();
-            for lk in &l {
-                let x = (rho * dot(n, *lk) + ambient).min(1.0);
+            for (lk, ik) in l.iter().zip(intensities) {
+                let x = (rho * ik / top * dot(n, *lk).powf(p) + ambient).min(1.0);
                 encoded.push(((r.encode(x) * levels).round() / levels) as f32);
             }
         }
@@ -428,20 +804,34 @@ mod tests {
             encoded,
             ambient: None,
             images: l.len(),
+            channels: 1,
             bit_depth: bits,
+        }
+    }
+
+    fn samples(r: Response, bits: u8, ambient: f64, seed: u64) -> Samples {
+        readings(r, bits, ambient, seed, &vec![1.0; lights().len()], 1.0)
+    }
+
+    fn info(intensities: &[f64]) -> LightInfo {
+        LightInfo {
+            directions: lights(),
+            intensities: intensities.iter().map(|&i| [i; 3]).collect(),
+            scale: vec![1.0; intensities.len()],
+            ambient_scale: 1.0,
         }
     }
 
     #[test]
     fn the_response_is_recovered_on_analytic_scenes() {
-        let l = lights();
-        let ones = vec![1.0; l.len()];
+        let ones = vec![1.0; lights().len()];
+        let l = info(&ones);
         for (truth, seed) in [
             (Response::Gamma(2.2), 1),
             (Response::Gamma(1.8), 2),
             (Response::Gamma(2.6), 3),
         ] {
-            let e = estimate_response(&samples(truth, 8, 0.0, seed), &l, &ones, 1.0).unwrap();
+            let e = estimate_response(&samples(truth, 8, 0.0, seed), &l).unwrap();
             let Response::Gamma(g) = e.response else {
                 panic!("{truth:?}: {e:?}")
             };
@@ -449,14 +839,65 @@ mod tests {
                 unreachable!()
             };
             assert!((g - t).abs() <= 0.1, "{truth:?}: {e:?}");
+            // Equal lights give the brightness test no lever.
+            assert_eq!(e.basis, "shading");
         }
-        let e = estimate_response(&samples(Response::Srgb, 8, 0.0, 4), &l, &ones, 1.0).unwrap();
+        let e = estimate_response(&samples(Response::Srgb, 8, 0.0, 4), &l).unwrap();
         assert_eq!(e.response, Response::Srgb, "{e:?}");
         for bits in [8, 16] {
-            let e = estimate_response(&samples(Response::Linear, bits, 0.0, 5), &l, &ones, 1.0)
-                .unwrap();
+            let e = estimate_response(&samples(Response::Linear, bits, 0.0, 5), &l).unwrap();
             assert_eq!(e.response, Response::Linear, "{bits}-bit: {e:?}");
         }
+    }
+
+    /// Lights whose brightness varies ×4 in an order unrelated to their directions.
+    fn uneven() -> Vec<f64> {
+        let mut rng = Pcg32::new(99, 1);
+        (0..lights().len())
+            .map(|_| 4f64.powf(rng.next_f64()))
+            .collect()
+    }
+
+    /// A surface darker than matte at grazing light (`(n · l)^1.5`) through a power law reads
+    /// like a Lambertian one through a power 1.5 times smaller: the shading is fooled, the
+    /// lights' uneven brightness is not.
+    #[test]
+    fn the_lights_brightness_tells_the_response_from_the_material() {
+        let int = uneven();
+        let l = info(&int);
+        for (truth, seed) in [
+            (Response::Gamma(2.2), 11),
+            (Response::Gamma(1.8), 12),
+            (Response::Gamma(2.4), 13),
+        ] {
+            let Response::Gamma(t) = truth else {
+                unreachable!()
+            };
+            let e = estimate_response(&readings(truth, 8, 0.0, seed, &int, 1.5), &l).unwrap();
+            assert_eq!(e.basis, "brightness", "{e:?}");
+            assert!((e.gamma - t).abs() <= 0.1, "{truth:?}: {e:?}");
+            assert!(
+                (e.gamma - t).abs() <= 3.0 * e.gamma_std + 0.02,
+                "{truth:?}: {e:?}"
+            );
+            assert!(e.gamma_shading < t - 0.3, "{truth:?}: {e:?}");
+        }
+        let e = estimate_response(&readings(Response::Srgb, 8, 0.0, 14, &int, 1.5), &l).unwrap();
+        assert_eq!(e.response, Response::Srgb, "{e:?}");
+        let e = estimate_response(&readings(Response::Linear, 16, 0.0, 15, &int, 1.5), &l).unwrap();
+        assert_eq!(e.response, Response::Linear, "{e:?}");
+        // Exposures that change are a lever too: equal lights, images exposed ×0.5 to ×2.
+        let mut rng = Pcg32::new(5, 5);
+        let exposure: Vec<f64> = (0..lights().len())
+            .map(|_| 4f64.powf(rng.next_f64() - 0.5))
+            .collect();
+        let ones = vec![1.0; exposure.len()];
+        let s = readings(Response::Gamma(2.2), 8, 0.0, 16, &exposure, 1.5);
+        let mut l = info(&ones);
+        l.scale = exposure.iter().map(|f| 1.0 / f).collect();
+        let e = estimate_response(&s, &l).unwrap();
+        assert_eq!(e.basis, "brightness", "{e:?}");
+        assert!((e.gamma - 2.2).abs() <= 0.1, "{e:?}");
     }
 
     #[test]
