@@ -1,6 +1,7 @@
 //! Foundations every layer may use: the error type, progress reporting, the random number
 //! generator, distribution functions. Names nothing above it.
 
+pub mod cholesky;
 pub mod error;
 pub mod machine;
 pub mod number;

@@ -23,7 +23,7 @@
 //!
 //! A pixel is fitted where the recursion attributed a highlight to one of its lights and at
 //! least [`MIN_LIGHTS`] lights are out of shadow, from the recursion's normal (a
-//! Levenberg–Marquardt descent, [`descend`]). The lobe is significant where it lowers the χ² of
+//! Levenberg–Marquardt descent, `descend`). The lobe is significant where it lowers the χ² of
 //! the best Lambertian fit over the same lights by more than the χ²₁ quantile at the detector's
 //! confidence (one more parameter, s). With [`Reflectance::Auto`] a significant fit's normal
 //! replaces the recursion's; with [`Reflectance::Lobe`] every fit with a lobe (s > 0) does;

@@ -25,6 +25,7 @@
 //! `A x` are taken in f64.
 
 use super::{Components, LabelSlice};
+use crate::base::cholesky::{self, SmallPivot};
 use crate::base::progress::Progress;
 use rayon::prelude::*;
 
@@ -995,29 +996,9 @@ impl CoarseSolver {
                 a[start * m + start] *= 2.0;
             }
         }
-        // In-place Cholesky; a non-positive pivot (cannot happen once every component is
-        // anchored, but f32 round-off on huge grids could bring one near zero) is replaced by a
-        // tiny positive one.
-        let scale = (0..m).map(|k| a[k * m + k]).fold(0f64, f64::max).max(1e-30);
-        for j in 0..m {
-            let mut d = a[j * m + j];
-            for k in 0..j {
-                d -= a[j * m + k] * a[j * m + k];
-            }
-            let d = if d > 1e-12 * scale {
-                d.sqrt()
-            } else {
-                (1e-12 * scale).sqrt()
-            };
-            a[j * m + j] = d;
-            for i in j + 1..m {
-                let mut s = a[i * m + j];
-                for k in 0..j {
-                    s -= a[i * m + k] * a[j * m + k];
-                }
-                a[i * m + j] = s / d;
-            }
-        }
+        // A non-positive pivot cannot happen once every component is anchored, but f32
+        // round-off on huge grids could bring one near zero: it is raised to a tiny positive one.
+        cholesky::factor(&mut a, m, SmallPivot::Raise);
         CoarseSolver { cells, factor: a }
     }
 
@@ -1025,20 +1006,7 @@ impl CoarseSolver {
         let m = self.cells.len();
         let l = &self.factor;
         let mut y: Vec<f64> = self.cells.iter().map(|&i| b[i] as f64).collect();
-        for i in 0..m {
-            let mut s = y[i];
-            for k in 0..i {
-                s -= l[i * m + k] * y[k];
-            }
-            y[i] = s / l[i * m + i];
-        }
-        for i in (0..m).rev() {
-            let mut s = y[i];
-            for k in i + 1..m {
-                s -= l[k * m + i] * y[k];
-            }
-            y[i] = s / l[i * m + i];
-        }
+        cholesky::solve(l, m, &mut y);
         x.fill(0.0);
         for (k, &i) in self.cells.iter().enumerate() {
             x[i] = y[k] as f32;

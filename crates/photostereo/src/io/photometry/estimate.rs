@@ -147,7 +147,7 @@ pub const BRIGHTNESS_MAX_STD: f64 = 0.05;
 /// lies far below the gaps between the responses files are written with (1; 1.8; 2.2 and sRGB;
 /// 2.4), so linear is chosen for an exponent within it of 1 and sRGB for a slope within it of
 /// 0.
-const SYSTEMATIC: f64 = 0.025;
+pub const SYSTEMATIC: f64 = 0.025;
 
 /// The candidates' exponents: 1 to 3 in steps of 0.02. Files are encoded to spend their levels
 /// on the dark end (exponents above 1); the shading searches none below 1, because a surface
@@ -157,7 +157,7 @@ fn gamma_grid() -> Vec<f64> {
 }
 
 /// The least elevation of every light above a used pixel's horizon (by its pilot normal).
-const MIN_ELEVATION_DEG: f64 = 15.0;
+pub const MIN_ELEVATION_DEG: f64 = 15.0;
 
 /// The rows (pixel-channel) lit by every light and read within range: every encoded reading
 /// five quantisation levels above black (0.5% of full scale for float data) and none above 99%
@@ -180,16 +180,7 @@ pub fn lit_rows(s: &Samples, lights: &LightInfo, pilot: Response) -> Vec<usize> 
     let inv: Vec<f64> = (0..s.images * c)
         .map(|i| {
             let (k, ch) = (i / c, i % c);
-            let m = lights
-                .intensities
-                .get(k)
-                .map_or(1.0, |int| channel_intensity(int, ch, c))
-                / lights.scale.get(k).copied().unwrap_or(1.0);
-            if m > 0.0 && m.is_finite() {
-                1.0 / m
-            } else {
-                1.0
-            }
+            brightness(lights, k, ch, c).map_or(1.0, |m| 1.0 / m)
         })
         .collect();
     let dirs = &lights.directions;
@@ -216,6 +207,17 @@ pub fn lit_rows(s: &Samples, lights: &LightInfo, pilot: Response) -> Vec<usize> 
         .collect()
 }
 
+/// Light `k`'s known brightness in channel `ch` of `c` (its intensity × exposure, relative);
+/// `None` when it is not a positive finite number. Unknown intensities count as 1.
+fn brightness(lights: &LightInfo, k: usize, ch: usize, c: usize) -> Option<f64> {
+    let m = lights
+        .intensities
+        .get(k)
+        .map_or(1.0, |int| channel_intensity(int, ch, c))
+        / lights.scale.get(k).copied().unwrap_or(1.0);
+    (m > 0.0 && m.is_finite()).then_some(m)
+}
+
 /// Of `rows`, those the shading is scored on: the encoded readings, each divided by its
 /// light's known brightness to the power 1/2.2 (the common encoding's), the smallest at least a
 /// quarter of the largest. Through a 2.2 power that keeps each light at least 4.7% of the
@@ -225,16 +227,7 @@ pub fn lit_rows(s: &Samples, lights: &LightInfo, pilot: Response) -> Vec<usize> 
 fn well_lit(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Vec<usize> {
     let c = s.channels.max(1);
     let weight = |k: usize, ch: usize| -> f32 {
-        let m = lights
-            .intensities
-            .get(k)
-            .map_or(1.0, |int| channel_intensity(int, ch, c))
-            / lights.scale.get(k).copied().unwrap_or(1.0);
-        if m > 0.0 && m.is_finite() {
-            m.powf(-1.0 / 2.2) as f32
-        } else {
-            1.0
-        }
+        brightness(lights, k, ch, c).map_or(1.0, |m| m.powf(-1.0 / 2.2) as f32)
     };
     rows.iter()
         .copied()

@@ -49,6 +49,7 @@
 
 pub mod rbf;
 
+use crate::base::cholesky::{self, SmallPivot};
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
 use rayon::prelude::*;
@@ -355,49 +356,6 @@ pub fn display_gain(capture: &Capture) -> Result<f64> {
     Ok(if *q > 0.0 { 1.0 / f64::from(*q) } else { 1.0 })
 }
 
-/// In-place Cholesky factor of the symmetric `t × t` matrix `a` (row-major, lower triangle
-/// used); false when it is not positive definite relative to its diagonal (rank deficient).
-fn cholesky(a: &mut [f64; MAX_TERMS * MAX_TERMS], t: usize) -> bool {
-    let scale = (0..t).map(|i| a[i * t + i]).fold(0.0f64, f64::max);
-    for j in 0..t {
-        let mut d = a[j * t + j];
-        for k in 0..j {
-            d -= a[j * t + k] * a[j * t + k];
-        }
-        if d.is_nan() || d <= 1e-12 * scale {
-            return false;
-        }
-        let d = d.sqrt();
-        a[j * t + j] = d;
-        for i in j + 1..t {
-            let mut s = a[i * t + j];
-            for k in 0..j {
-                s -= a[i * t + k] * a[j * t + k];
-            }
-            a[i * t + j] = s / d;
-        }
-    }
-    true
-}
-
-/// Solves L Lᵀ x = b in place with the factor of [`cholesky`].
-fn cholesky_solve(l: &[f64; MAX_TERMS * MAX_TERMS], t: usize, b: &mut [f64]) {
-    for i in 0..t {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i * t + k] * b[k];
-        }
-        b[i] = s / l[i * t + i];
-    }
-    for i in (0..t).rev() {
-        let mut s = b[i];
-        for k in i + 1..t {
-            s -= l[k * t + i] * b[k];
-        }
-        b[i] = s / l[i * t + i];
-    }
-}
-
 /// The design of a capture's lights: `A` (N × T, row-major), the projector P = G⁻¹Aᵀ
 /// (T × N, row-major) and the leverages h_kk.
 struct Design {
@@ -416,7 +374,7 @@ impl Design {
         }
         let mut g = [0.0; MAX_TERMS * MAX_TERMS];
         normal_matrix(&a, t, |_| true, &mut g);
-        if n < t + 1 || !cholesky(&mut g, t) {
+        if n < t + 1 || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse) {
             return Err(Error::invalid(format!(
                 "the {n} light directions do not determine the {t} coefficients of {} (the \
                  basis needs at least {} lights spread in azimuth and elevation; lights all at \
@@ -431,7 +389,7 @@ impl Design {
         let mut x = [0.0; MAX_TERMS];
         for k in 0..n {
             x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
-            cholesky_solve(&g, t, &mut x[..t]);
+            cholesky::solve(&g[..t * t], t, &mut x[..t]);
             for (j, &xj) in x.iter().enumerate().take(t) {
                 projector[j * n + k] = xj;
             }
@@ -715,13 +673,13 @@ impl TileJob<'_> {
         let (n, t, a) = (self.view.n_lights(), self.design.t, &self.design.a);
         let mut g = [0.0; MAX_TERMS * MAX_TERMS];
         normal_matrix(a, t, |k| !flags[k], &mut g);
-        if !cholesky(&mut g, t) {
+        if !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse) {
             return false;
         }
         let mut x = [0.0; MAX_TERMS];
         for k in 0..n {
             x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
-            cholesky_solve(&g, t, &mut x[..t]);
+            cholesky::solve(&g[..t * t], t, &mut x[..t]);
             for (j, &xj) in x.iter().enumerate().take(t) {
                 s.projector[j * n + k] = xj;
             }
