@@ -70,7 +70,7 @@ mod tests {
     #[test]
     fn solves_a_symmetric_positive_definite_system() {
         let n = 7;
-        let mut rng = crate::base::rng::Rng::new(3, 0);
+        let mut rng = crate::base::rng::Pcg32::new(3, 0);
         let b: Vec<f64> = (0..n * n).map(|_| rng.next_f64() - 0.5).collect();
         let mut a = vec![0.0; n * n];
         for i in 0..n {
