@@ -1,11 +1,61 @@
-//! Options and helpers shared by the subcommands: `--quiet`, `--json`, `--force`, and the
-//! terminal progress bar.
+//! Options and helpers shared by the subcommands: the capture they read, `--quiet`, `--json`,
+//! `--force`, and the terminal progress bar.
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use photostereo::base::progress::Progress;
 use std::io::IsTerminal;
 use std::sync::Mutex;
+
+/// The capture a subcommand reads (`run`, `compare`, `rti`), given as `run` takes it.
+#[derive(Args, Debug, Clone)]
+pub struct CaptureInput {
+    /// A DiLiGenT-layout folder, an RTI capture folder (with its .lp or .dome), a list file
+    /// (with --lights), or image files (with --lights).
+    #[arg(required = true)]
+    pub input: Vec<std::path::PathBuf>,
+    /// Light directions (N rows `x y z`, optionally preceded by a count line).
+    #[arg(long)]
+    pub lights: Option<std::path::PathBuf>,
+    /// Per-light intensities (N rows `R G B` or one value each).
+    #[arg(long)]
+    pub intensities: Option<std::path::PathBuf>,
+    /// Mask image (non-zero = object); overrides the layout's own mask.
+    #[arg(long)]
+    pub mask: Option<std::path::PathBuf>,
+}
+
+impl CaptureInput {
+    /// Checks that the paths exist ([`check_input_paths`]) and reads the capture's layout.
+    pub fn files(&self) -> anyhow::Result<photostereo::io::layouts::CaptureFiles> {
+        self.check()?;
+        Ok(photostereo::io::layouts::CaptureFiles::from_inputs(
+            &self.input,
+            self.lights.as_deref(),
+            self.intensities.as_deref(),
+            self.mask.as_deref(),
+        )?)
+    }
+
+    /// Checks that the paths exist, naming the flag that gave each.
+    pub fn check(&self) -> anyhow::Result<()> {
+        check_input_paths(
+            &self.input,
+            self.lights.as_deref(),
+            self.intensities.as_deref(),
+            self.mask.as_deref(),
+        )
+    }
+
+    /// The paths given on the command line besides the mask (`--force` never replaces them).
+    pub fn given(&self) -> impl Iterator<Item = &std::path::Path> {
+        self.input
+            .iter()
+            .map(std::path::PathBuf::as_path)
+            .chain(self.lights.as_deref())
+            .chain(self.intensities.as_deref())
+    }
+}
 
 /// Options common to every subcommand that writes output.
 #[derive(Args, Debug, Clone)]

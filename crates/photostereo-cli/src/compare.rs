@@ -8,24 +8,13 @@ use anyhow::{bail, Result};
 use clap::Args;
 use photostereo::app::compare::{compare, CompareOptions, FIGURE};
 use photostereo::app::pipeline::LightSubset;
-use photostereo::io::layouts::CaptureFiles;
 use photostereo::method::engine::Method;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
 pub struct CompareArgs {
-    /// A DiLiGenT-layout folder, a list file (with --lights), or image files (with --lights).
-    #[arg(required = true)]
-    pub input: Vec<PathBuf>,
-    /// Light directions (N rows `x y z`, optionally preceded by a count line).
-    #[arg(long)]
-    pub lights: Option<PathBuf>,
-    /// Per-light intensities (N rows `R G B` or one value each).
-    #[arg(long)]
-    pub intensities: Option<PathBuf>,
-    /// Mask image (non-zero = object); overrides the layout's own mask.
-    #[arg(long)]
-    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub capture: crate::common::CaptureInput,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG): adds the Table 1
     /// row (mean angular error) and error maps.
     #[arg(long)]
@@ -89,18 +78,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
             methods.push(*m);
         }
     }
-    crate::common::check_input_paths(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
-    let files = CaptureFiles::from_inputs(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
+    let files = a.capture.files()?;
     let options = CompareOptions {
         params,
         methods,
@@ -110,7 +88,7 @@ pub fn main(a: CompareArgs) -> Result<()> {
         save_runs: a.save_runs,
         panel_size: a.panel_size,
     };
-    let name = capture_name(&a.input);
+    let name = capture_name(&a.capture.input);
     let progress = a.out.progress();
     let c = compare(&files, &options, &a.output, a.out.force, &name, &progress)?;
     if a.out.json {

@@ -53,7 +53,8 @@ enum Command {
     /// Write what OpenLIME's BRDF layer reads (kd, normals, layer configuration, a page).
     ExportOpenlime(view::ExportOpenLimeArgs),
     /// Fit a relightable image (PTM or hemispherical harmonics) per pixel and write image.ptm
-    /// or image.rti for RTIViewer, with the fit's leave-one-out error in report.json.
+    /// or image.rti for RTIViewer, with the fit's leave-one-out error in report.json. Distant
+    /// lights only: a near-light capture is refused.
     Rti(rti::RtiArgs),
 }
 

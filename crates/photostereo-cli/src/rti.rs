@@ -5,25 +5,13 @@ use crate::common::{print_json, OutputOpts};
 use anyhow::Result;
 use clap::Args;
 use photostereo::app::rti::{image_name, rti, RtiOptions};
-use photostereo::io::layouts::CaptureFiles;
 use photostereo::solve::rti::Basis;
 use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
 pub struct RtiArgs {
-    /// A DiLiGenT-layout folder, a list file (with --lights), or image files (with --lights),
-    /// as `run` takes them. Distant lights only: a near-light capture is refused.
-    #[arg(required = true)]
-    pub input: Vec<PathBuf>,
-    /// Light directions (N rows `x y z`, optionally preceded by a count line).
-    #[arg(long)]
-    pub lights: Option<PathBuf>,
-    /// Per-light intensities (N rows `R G B` or one value each).
-    #[arg(long)]
-    pub intensities: Option<PathBuf>,
-    /// Mask image (non-zero = object); overrides the layout's own mask.
-    #[arg(long)]
-    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub capture: crate::common::CaptureInput,
     /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
     /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
     /// written as .rti), rbf (relight's radial basis: 9 principal-component coefficients per
@@ -50,24 +38,11 @@ fn parse_basis(s: &str) -> Result<Basis, String> {
 }
 
 pub fn main(a: RtiArgs) -> Result<()> {
-    crate::common::check_input_paths(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
-    let files = CaptureFiles::from_inputs(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
+    let files = a.capture.files()?;
     // --force never replaces an input or a folder holding one.
-    let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
+    let mut inputs: Vec<&Path> = a.capture.given().collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
-    inputs.extend(a.lights.as_deref());
-    inputs.extend(a.intensities.as_deref());
     photostereo::io::export::check_output(
         &a.output,
         a.out.force,
@@ -89,7 +64,7 @@ pub fn main(a: RtiArgs) -> Result<()> {
         let lam = &report["lambertian_reference"]["errors"];
         println!(
             "{}: {} lights, {} mask pixels, basis {}",
-            a.input[0].display(),
+            a.capture.input[0].display(),
             report["input"]["lights"],
             report["input"]["mask_pixels"],
             a.basis.name()

@@ -10,18 +10,8 @@ use std::path::{Path, PathBuf};
 
 #[derive(Args, Debug)]
 pub struct RunArgs {
-    /// A DiLiGenT-layout folder, a list file (with --lights), or image files (with --lights).
-    #[arg(required = true)]
-    pub input: Vec<PathBuf>,
-    /// Light directions (N rows `x y z`, optionally preceded by a count line).
-    #[arg(long)]
-    pub lights: Option<PathBuf>,
-    /// Per-light intensities (N rows `R G B` or one value each).
-    #[arg(long)]
-    pub intensities: Option<PathBuf>,
-    /// Mask image (non-zero = object); overrides the layout's own mask.
-    #[arg(long)]
-    pub mask: Option<PathBuf>,
+    #[command(flatten)]
+    pub capture: crate::common::CaptureInput,
     /// A folder with light_positions.txt (near lights) or K.txt (a camera with distant lights):
     /// the object's mean distance from the camera along the optical axis, mm; replaces
     /// mean_distance.txt.
@@ -78,28 +68,21 @@ fn check_options(a: &RunArgs) -> Result<()> {
 pub fn main(a: RunArgs) -> Result<()> {
     let params = a.params.params()?;
     check_options(&a)?;
-    crate::common::check_input_paths(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
-    )?;
+    a.capture.check()?;
     let mut files = CaptureFiles::from_inputs_with(
-        &a.input,
-        a.lights.as_deref(),
-        a.intensities.as_deref(),
-        a.mask.as_deref(),
+        &a.capture.input,
+        a.capture.lights.as_deref(),
+        a.capture.intensities.as_deref(),
+        a.capture.mask.as_deref(),
         a.distance,
         None,
     )?;
     a.photometry.apply(&mut files)?;
     // --force never replaces an input or a folder holding one.
-    let mut inputs: Vec<&Path> = a.input.iter().map(PathBuf::as_path).collect();
+    let mut inputs: Vec<&Path> = a.capture.given().collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
     inputs.extend(files.photometry.ambient.as_deref());
-    inputs.extend(a.lights.as_deref());
-    inputs.extend(a.intensities.as_deref());
     inputs.extend(a.gt.as_deref());
     photostereo::io::export::check_output(
         &a.output,
@@ -143,7 +126,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         }
         println!(
             "{}: {} lights, {}×{}, {} mask pixels, method {}",
-            a.input[0].display(),
+            a.capture.input[0].display(),
             r.input.lights,
             r.input.width,
             r.input.height,
