@@ -925,8 +925,15 @@ fn bilateral_keeps_jumps_that_poisson_spreads() {
 
 #[test]
 fn bilateral_equals_its_reference_version() {
-    // A small grid (the reference is O(n^1.5)): a bump and a cylinder rising out of it (see
-    // `with_cylinder`), on an irregular mask, with weights and a zero-weight pixel.
+    // On an irregular mask, and on the whole grid (where the fast version starts from the
+    // DCT's unit-weight surface).
+    bilateral_against_reference(|r, c| (c - 20.0).hypot(r - 15.0) < 16.0 || (r < 4.0 && c > 30.0));
+    bilateral_against_reference(|_, _| true);
+}
+
+/// A small grid (the reference is O(n^1.5)): a bump and a cylinder rising out of it (see
+/// `with_cylinder`), on the mask `inside(row, column)`, with weights and a zero-weight pixel.
+fn bilateral_against_reference(inside: impl Fn(f64, f64) -> bool) {
     let (w, h) = (40, 30);
     let radius = 8.5;
     let edge = (radius * radius - 64.0f64).sqrt();
@@ -952,10 +959,7 @@ fn bilateral_equals_its_reference_version() {
         truth[i] = f(c, r);
     }
     let mask: Vec<bool> = (0..w * h)
-        .map(|i| {
-            let (r, c) = ((i / w) as f64, (i % w) as f64);
-            (c - 20.0).hypot(r - 15.0) < 16.0 || (r < 4.0 && c > 30.0)
-        })
+        .map(|i| inside((i / w) as f64, (i % w) as f64))
         .collect();
     let mut weights = vec![1f32; w * h];
     weights[15 * w + 10] = 0.0;

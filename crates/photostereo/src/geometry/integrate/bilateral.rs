@@ -45,6 +45,7 @@
 //! setting; a larger k breaks the surface more readily.
 
 use super::multigrid::{par_zeros, pcg, Hierarchy, Level};
+use super::spectral::dct_solve;
 use super::{
     fill_unreliable, into_depth, Components, Depth, IntegrationProblem, IntegrationStats,
     Integrator, DEFAULT_FILL_BELOW, DEFAULT_TOLERANCE,
@@ -88,6 +89,11 @@ pub struct Bilateral {
     /// Solve the last system as (B5): trapezoid targets on the edges the weights keep, the
     /// others cut. False solves (B4) under the converged weights instead.
     pub debias: bool,
+    /// On a mask that covers the whole grid, start the reweighting from the unit-weight surface
+    /// the DCT solves directly (`poisson`'s) and its weights (B3), in place of a first solve
+    /// under ½ weights: a smooth surface then settles after one reweighted solve. False starts
+    /// from ½ weights everywhere (the published method).
+    pub poisson_start: bool,
 }
 
 impl Default for Bilateral {
@@ -103,6 +109,7 @@ impl Default for Bilateral {
             min_edge_weight: 1e-5,
             slope_weighting: true,
             debias: true,
+            poisson_start: true,
         }
     }
 }
@@ -124,6 +131,42 @@ fn slope_weight(p: f32, q: f32) -> f32 {
 #[inline]
 fn forward_weight(k: f32, nz2: f32, backward: f32, forward: f32) -> f32 {
     sigmoid(k, nz2 * (backward * backward - forward * forward)) // (B3)
+}
+
+/// `(W_e, W_e d_e)` of (B4) for an edge whose pixels have `ω` `oi`, `oj`, forward weights
+/// `plus_i`, `plus_j` and gradients `gi`, `gj` along it; `W_e` is at least `floor` times the
+/// mean `ω`.
+#[inline]
+fn edge_of(oi: f32, oj: f32, plus_i: f32, plus_j: f32, gi: f32, gj: f32, floor: f32) -> (f32, f32) {
+    let a = oi * plus_i; // ω_i w⁺_i
+    let b = oj * (1.0 - plus_j); // ω_j w⁻_j
+    let weight = a + b; // (B4)
+    let least = floor * 0.5 * (oi + oj);
+    if weight >= least {
+        (weight, a * gi + b * gj) // (B4)
+    } else {
+        // Below the floor: the missing weight goes to the trapezoid target.
+        (least, a * gi + b * gj + (least - weight) * 0.5 * (gi + gj))
+    }
+}
+
+/// `(W_e, W_e d_e)` of (B5) for the edge of [`edge_of`]: the symmetric weight and the
+/// trapezoid target, or `floor` times them where the edge is cut.
+#[inline]
+fn debiased_edge_of(
+    oi: f32,
+    oj: f32,
+    plus_i: f32,
+    plus_j: f32,
+    gi: f32,
+    gj: f32,
+    floor: f32,
+) -> (f32, f32) {
+    let mean = 0.5 * (oi + oj);
+    let target = 0.5 * (gi + gj);
+    let cut = plus_i + (1.0 - plus_j) < 0.5; // (B5): w⁺_i + w⁻_j < ½
+    let weight = if cut { floor * mean } else { mean };
+    (weight, weight * target)
 }
 
 /// The per-pixel inputs of (B1)–(B3) shared by both versions.
@@ -151,14 +194,31 @@ impl Pixels<'_> {
     /// `ω_i` of (B1); trust below 1e-3 counts as 1e-3 (a filled pixel keeps the graph whole).
     #[inline]
     fn omega(&self, i: usize) -> f32 {
+        self.omega_with(i, self.nz2(i))
+    }
+
+    /// [`Pixels::omega`] from the pixel's `n_z²` (`nz2`, as [`Pixels::nz2`] gives it).
+    #[inline]
+    fn omega_with(&self, i: usize, nz2: f32) -> f32 {
         let t = self.weights.map_or(1.0, |ws| ws[i].max(1e-3));
-        t * self.nz2(i) // (B1)
+        t * nz2 // (B1)
     }
 
     /// The forward neighbour of `i` along the columns (`axis` 0) or rows (1) inside the mask.
     #[inline]
     fn next(&self, i: usize, axis: usize) -> Option<usize> {
-        let (r, c) = (i / self.w, i % self.w);
+        self.next_at(i, i / self.w, i % self.w, axis)
+    }
+
+    /// The backward neighbour of `i` along `axis` inside the mask.
+    #[inline]
+    fn prev(&self, i: usize, axis: usize) -> Option<usize> {
+        self.prev_at(i, i / self.w, i % self.w, axis)
+    }
+
+    /// [`Pixels::next`] of pixel `i` at row `r`, column `c` (no division in the row passes).
+    #[inline]
+    fn next_at(&self, i: usize, r: usize, c: usize, axis: usize) -> Option<usize> {
         let j = match axis {
             0 if c + 1 < self.w => i + 1,
             1 if r + 1 < self.h => i + self.w,
@@ -167,10 +227,9 @@ impl Pixels<'_> {
         self.mask[j].then_some(j)
     }
 
-    /// The backward neighbour of `i` along `axis` inside the mask.
+    /// [`Pixels::prev`] of pixel `i` at row `r`, column `c`.
     #[inline]
-    fn prev(&self, i: usize, axis: usize) -> Option<usize> {
-        let (r, c) = (i / self.w, i % self.w);
+    fn prev_at(&self, i: usize, r: usize, c: usize, axis: usize) -> Option<usize> {
         let j = match axis {
             0 if c > 0 => i - 1,
             1 if r > 0 => i - self.w,
@@ -192,10 +251,98 @@ impl Pixels<'_> {
     /// The forward weight (B3) of pixel `i` along `axis` from the depth `f`.
     #[inline]
     fn weight_from<T: Copy + Into<f64>>(&self, k: f32, f: &[T], i: usize, axis: usize) -> f32 {
+        self.weight_at(k, f, i, i / self.w, i % self.w, axis)
+    }
+
+    /// [`Pixels::weight_from`] of pixel `i` at row `r`, column `c`.
+    #[inline]
+    fn weight_at<T: Copy + Into<f64>>(
+        &self,
+        k: f32,
+        f: &[T],
+        i: usize,
+        r: usize,
+        c: usize,
+        axis: usize,
+    ) -> f32 {
         let d = |a: usize, b: usize| (f[b].into() - f[a].into()) as f32;
-        let forward = self.next(i, axis).map_or(0.0, |j| d(i, j));
-        let backward = self.prev(i, axis).map_or(0.0, |j| d(j, i));
+        let forward = self.next_at(i, r, c, axis).map_or(0.0, |j| d(i, j));
+        let backward = self.prev_at(i, r, c, axis).map_or(0.0, |j| d(j, i));
         forward_weight(k, self.nz2(i), backward, forward)
+    }
+
+    /// `ω` (B1) of the pixels of row `r` into `out`.
+    #[inline]
+    fn omega_row(&self, r: usize, out: &mut [f32]) {
+        let lo = r * self.w;
+        for (c, o) in out.iter_mut().enumerate() {
+            *o = self.omega(lo + c);
+        }
+    }
+
+    /// The edges of row `r` by (B4), or (B5) when `debiased`, from the `ω` of its pixels (`om`)
+    /// and of the next row's (`om_below`, unread on the last row): `(W_e, W_e d_e)` of the east
+    /// edges into `east`, of the south edges into `south`; 0 where an edge leaves the mask. The
+    /// values of [`Pixels::edge`] and [`Pixels::debiased_edge`], each `ω` computed once.
+    #[allow(clippy::too_many_arguments)]
+    fn row_edges(
+        &self,
+        plus: [&[f32]; 2],
+        debiased: bool,
+        floor: f32,
+        r: usize,
+        om: &[f32],
+        om_below: &[f32],
+        east: [&mut [f32]; 2],
+        south: [&mut [f32]; 2],
+    ) {
+        // One loop per system, free of branches on `debiased` (they vectorise).
+        if debiased {
+            let edge = |oi, oj, pi, pj, gi, gj| debiased_edge_of(oi, oj, pi, pj, gi, gj, floor);
+            self.row_edges_by(edge, plus, r, om, om_below, east, south); // (B5)
+        } else {
+            let edge = |oi, oj, pi, pj, gi, gj| edge_of(oi, oj, pi, pj, gi, gj, floor);
+            self.row_edges_by(edge, plus, r, om, om_below, east, south); // (B4)
+        }
+    }
+
+    /// [`Pixels::row_edges`] with the edge rule `edge(ω_i, ω_j, w⁺_i, w⁺_j, g_i, g_j)`; every
+    /// edge of the row is computed, and those that leave the mask are set to 0.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    fn row_edges_by(
+        &self,
+        edge: impl Fn(f32, f32, f32, f32, f32, f32) -> (f32, f32),
+        plus: [&[f32]; 2],
+        r: usize,
+        om: &[f32],
+        om_below: &[f32],
+        east: [&mut [f32]; 2],
+        south: [&mut [f32]; 2],
+    ) {
+        let (w, lo) = (self.w, r * self.w);
+        let m = &self.mask[lo..lo + w];
+        let inside = |a: bool, b: bool, e: (f32, f32)| if a & b { e } else { (0.0, 0.0) };
+        let [ew, ep] = east;
+        let (pl, g) = (&plus[0][lo..lo + w], &self.p[lo..lo + w]);
+        for c in 0..w - 1 {
+            let e = edge(om[c], om[c + 1], pl[c], pl[c + 1], g[c], g[c + 1]);
+            (ew[c], ep[c]) = inside(m[c], m[c + 1], e);
+        }
+        (ew[w - 1], ep[w - 1]) = (0.0, 0.0);
+        let [sw, sp] = south;
+        if r + 1 == self.h {
+            sw.fill(0.0);
+            sp.fill(0.0);
+            return;
+        }
+        let (next, md) = (lo + w, &self.mask[lo + w..lo + 2 * w]);
+        let (pl, pd) = (&plus[1][lo..lo + w], &plus[1][next..next + w]);
+        let (g, gd) = (&self.q[lo..lo + w], &self.q[next..next + w]);
+        for c in 0..w {
+            let e = edge(om[c], om_below[c], pl[c], pd[c], g[c], gd[c]);
+            (sw[c], sp[c]) = inside(m[c], md[c], e);
+        }
     }
 
     /// `(W_e, W_e d_e)` of (B4) for the edge from `i` to `j` along `axis`, `plus_i` the forward
@@ -210,18 +357,8 @@ impl Pixels<'_> {
         plus_j: f32,
         floor: f32,
     ) -> (f32, f32) {
-        let (oi, oj) = (self.omega(i), self.omega(j));
-        let a = oi * plus_i; // ω_i w⁺_i
-        let b = oj * (1.0 - plus_j); // ω_j w⁻_j
         let (gi, gj) = (self.gradient(i, axis), self.gradient(j, axis));
-        let weight = a + b; // (B4)
-        let least = floor * 0.5 * (oi + oj);
-        if weight >= least {
-            (weight, a * gi + b * gj) // (B4)
-        } else {
-            // Below the floor: the missing weight goes to the trapezoid target.
-            (least, a * gi + b * gj + (least - weight) * 0.5 * (gi + gj))
-        }
+        edge_of(self.omega(i), self.omega(j), plus_i, plus_j, gi, gj, floor)
     }
 
     /// `(W_e, W_e d_e)` of (B5) for the edge from `i` to `j` along `axis`: the symmetric
@@ -236,11 +373,8 @@ impl Pixels<'_> {
         plus_j: f32,
         floor: f32,
     ) -> (f32, f32) {
-        let mean = 0.5 * (self.omega(i) + self.omega(j));
-        let target = 0.5 * (self.gradient(i, axis) + self.gradient(j, axis));
-        let cut = plus_i + (1.0 - plus_j) < 0.5; // (B5): w⁺_i + w⁻_j < ½
-        let weight = if cut { floor * mean } else { mean };
-        (weight, weight * target)
+        let (gi, gj) = (self.gradient(i, axis), self.gradient(j, axis));
+        debiased_edge_of(self.omega(i), self.omega(j), plus_i, plus_j, gi, gj, floor)
     }
 
     /// The energy (B2) of `f` under the forward weights `plus` (`[columns, rows]`).
@@ -286,10 +420,10 @@ impl Pixels<'_> {
                 let mut d = 0f32;
                 for (axis, pl) in plus.iter().enumerate() {
                     let cut = |a: usize, b: usize| (pl[b] - pl[a]).clamp(0.0, 1.0);
-                    if let Some(j) = self.next(i, axis) {
+                    if let Some(j) = self.next_at(i, r, c, axis) {
                         d = d.max(cut(i, j));
                     }
-                    if let Some(j) = self.prev(i, axis) {
+                    if let Some(j) = self.prev_at(i, r, c, axis) {
                         d = d.max(cut(j, i));
                     }
                 }
@@ -455,6 +589,12 @@ impl Crop {
 impl Bilateral {
     /// [`Integrator::integrate`] on a validated problem: solve (B4), reweight by (B3), until
     /// the energy (B2) settles; then the converged weights' system, tightly.
+    ///
+    /// With `poisson_start`, on a mask that covers the whole grid, the iteration starts from the
+    /// unit-weight solution that the DCT gives directly (`poisson`'s surface, the first
+    /// reweighted system's solution up to its `ω`): its weights (B3) replace the first solve.
+    /// On a smooth surface the reweighted solves then barely move it, and the energy settles
+    /// after one.
     fn solve(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
         let (w, h) = (problem.width, problem.height);
         let (p, q, filled) = fill_unreliable(problem, self.fill_below);
@@ -468,17 +608,28 @@ impl Bilateral {
             slope_weighting: self.slope_weighting,
         };
         let components = Components::of(w, h, problem.mask);
-        let mut state = State::new(problem, &components);
+        let from_dct = self.poisson_start
+            && problem.initial.is_none()
+            && components.is_whole_grid()
+            && self.max_iterations > 0;
+        let start = from_dct.then(|| {
+            let g = |i: usize| (p[i] as f64, q[i] as f64);
+            let (f, _) = dct_solve(w, h, g, problem.mask, problem.prior, false);
+            f.par_iter().map(|&v| v as f32).collect::<Vec<f32>>()
+        });
+        let mut state = State::new(problem, &components, start);
         let mut energy = f64::INFINITY;
         let mut reweightings = 0;
         progress.begin("integrate", self.max_iterations as u64 + 1);
+        if from_dct {
+            energy = self.reweight(&px, &state.x, &mut state.plus); // (B3), (B2)
+        }
         while reweightings < self.max_iterations {
             self.solve_reweighted(&px, problem, &mut state, false);
             progress.advance(1);
             reweightings += 1;
             // (B3) from the new surface, and the energy (B2) under the new weights.
-            self.update_weights(&px, &state.x, &mut state.plus);
-            let new_energy = px.energy(&state.x, [&state.plus[0], &state.plus[1]]);
+            let new_energy = self.reweight(&px, &state.x, &mut state.plus);
             let change = (energy - new_energy).abs() / new_energy.max(f64::MIN_POSITIVE);
             energy = new_energy;
             if change < self.tolerance {
@@ -488,11 +639,21 @@ impl Bilateral {
         let (relative_residual, levels) = self.solve_reweighted(&px, problem, &mut state, true);
         progress.advance(1);
         progress.end();
-        let State { mut x, plus, .. } = state;
+        let cg_iterations = state.cg_iterations;
+        let State {
+            mut x,
+            plus,
+            east,
+            south,
+            r,
+            ..
+        } = state;
+        drop((east, south, r));
         if problem.prior.is_none_or(|pr| pr.lambda == 0.0) {
             components.remove_means(&mut x);
         }
         let discontinuities = px.discontinuities([&plus[0], &plus[1]]);
+        drop(plus);
         let mut notes = Vec::new();
         if relative_residual > self.final_tolerance {
             notes.push(format!(
@@ -502,7 +663,7 @@ impl Bilateral {
         }
         let stats = IntegrationStats {
             method: "bilateral".into(),
-            iterations: state.cg_iterations,
+            iterations: cg_iterations,
             relative_residual,
             components: components.count,
             filled_pixels: filled,
@@ -516,8 +677,8 @@ impl Bilateral {
 
     /// Solves (B4) under the current weights from the current surface: roughly (the starting
     /// residual reduced by `inner_reduction`, at least one CG iteration), or with `tight` to
-    /// `final_tolerance`. Returns the relative residual `‖b − A f‖ / ‖b‖` and the multigrid
-    /// levels.
+    /// `final_tolerance` (as (B5) when `debias`). Returns the relative residual
+    /// `‖b − A f‖ / ‖b‖` and the multigrid levels.
     fn solve_reweighted(
         &self,
         px: &Pixels,
@@ -529,13 +690,8 @@ impl Bilateral {
         let prior = problem.prior.filter(|pr| pr.lambda > 0.0);
         let lambda = prior.map_or(0.0, |pr| pr.lambda);
         let plus = [&st.plus[0][..], &st.plus[1][..]];
-        self.edges(
-            px,
-            plus,
-            tight && self.debias,
-            [&mut st.east, &mut st.south],
-            [&mut st.pull_east, &mut st.pull_south],
-        );
+        let debiased = tight && self.debias;
+        self.edges(px, plus, debiased, [&mut st.east, &mut st.south]);
         let level = Level::from_parts(
             w,
             h,
@@ -544,10 +700,11 @@ impl Bilateral {
             |i| if problem.mask[i] { lambda } else { 0.0 },
             problem.mask,
         );
-        let pull = [&st.pull_east[..], &st.pull_south[..]];
+        // The right-hand side's `W_e d_e` are recomputed row by row rather than stored.
+        let floor = self.min_edge_weight;
         let b_norm = level
             .residual_from(
-                |row, _, b| rhs_row(px, pull, prior, row, b),
+                |row, _, b| rhs_row(px, plus, debiased, floor, prior, row, b),
                 Some(&st.x),
                 &mut st.r,
             )
@@ -588,9 +745,6 @@ struct State<'c> {
     /// `W_e` of the east and south edges (lent to the solver's finest level while it solves).
     east: Vec<f32>,
     south: Vec<f32>,
-    /// `W_e d_e` of the east and south edges.
-    pull_east: Vec<f32>,
-    pull_south: Vec<f32>,
     /// The residual.
     r: Vec<f32>,
     /// The constants of each component, when no prior fixes them.
@@ -599,15 +753,21 @@ struct State<'c> {
 }
 
 impl<'c> State<'c> {
-    fn new(problem: &IntegrationProblem, components: &'c Components) -> State<'c> {
+    /// The arrays, the surface from `start` (else from the problem's initial depth, else 0).
+    fn new(
+        problem: &IntegrationProblem,
+        components: &'c Components,
+        start: Option<Vec<f32>>,
+    ) -> State<'c> {
         let n = problem.width * problem.height;
-        let x = match problem.initial {
-            Some(start) => start
+        let x = match (start, problem.initial) {
+            (Some(x), _) => x,
+            (None, Some(start)) => start
                 .par_iter()
                 .zip(problem.mask.par_iter())
                 .map(|(&v, &m)| if m && v.is_finite() { v } else { 0.0 })
                 .collect(),
-            None => par_zeros(n),
+            (None, None) => par_zeros(n),
         };
         let has_prior = problem.prior.is_some_and(|pr| pr.lambda > 0.0);
         State {
@@ -615,8 +775,6 @@ impl<'c> State<'c> {
             plus: [vec![0.5; n], vec![0.5; n]],
             east: par_zeros(n),
             south: par_zeros(n),
-            pull_east: par_zeros(n),
-            pull_south: par_zeros(n),
             r: par_zeros(n),
             null_space: (!has_prior).then_some(components),
             cg_iterations: 0,
@@ -643,83 +801,165 @@ impl Bilateral {
         Ok(())
     }
 
-    /// `W_e` and `W_e d_e` of (B4), or of (B5) when `debiased`, for every east and south edge
-    /// (0 where the edge leaves the mask): `weight[0]`, `pull[0]` east, `weight[1]`, `pull[1]`
-    /// south.
-    fn edges(
-        &self,
-        px: &Pixels,
-        plus: [&[f32]; 2],
-        debiased: bool,
-        weight: [&mut [f32]; 2],
-        pull: [&mut [f32]; 2],
-    ) {
-        let w = px.w;
+    /// `W_e` of (B4), or of (B5) when `debiased`, for every east (`weight[0]`) and south
+    /// (`weight[1]`) edge; 0 where the edge leaves the mask.
+    fn edges(&self, px: &Pixels, plus: [&[f32]; 2], debiased: bool, weight: [&mut [f32]; 2]) {
+        let (w, h) = (px.w, px.h);
         let [we, ws] = weight;
-        let [pe, ps] = pull;
+        let floor = self.min_edge_weight;
         we.par_chunks_mut(w)
             .zip(ws.par_chunks_mut(w))
-            .zip(pe.par_chunks_mut(w).zip(ps.par_chunks_mut(w)))
             .enumerate()
-            .for_each(|(r, ((we, ws), (pe, ps)))| {
-                for c in 0..w {
-                    let i = r * w + c;
-                    for (axis, wo, po) in [(0, &mut we[c], &mut pe[c]), (1, &mut ws[c], &mut ps[c])]
-                    {
-                        (*wo, *po) = match px.mask[i].then(|| px.next(i, axis)).flatten() {
-                            Some(j) => {
-                                let pl = plus[axis];
-                                let floor = self.min_edge_weight;
-                                // (B5) in the last system, (B4) before it.
-                                if debiased {
-                                    px.debiased_edge(i, j, axis, pl[i], pl[j], floor)
-                                } else {
-                                    px.edge(i, j, axis, pl[i], pl[j], floor)
-                                }
-                            }
-                            None => (0.0, 0.0),
-                        };
+            .for_each_init(
+                || vec![0f32; 4 * w],
+                |scratch, (r, (we, ws))| {
+                    let (om, rest) = scratch.split_at_mut(w);
+                    let (om_below, rest) = rest.split_at_mut(w);
+                    let (east_pull, south_pull) = rest.split_at_mut(w);
+                    px.omega_row(r, om);
+                    if r + 1 < h {
+                        px.omega_row(r + 1, om_below);
                     }
-                }
-            });
+                    let (east, south) = ([we, east_pull], [ws, south_pull]);
+                    px.row_edges(plus, debiased, floor, r, om, om_below, east, south);
+                },
+            );
     }
 
-    /// Replaces the forward weights by (B3) of the surface `x`.
-    fn update_weights(&self, px: &Pixels, x: &[f32], plus: &mut [Vec<f32>; 2]) {
+    /// Replaces the forward weights by (B3) of the surface `x` and returns the energy (B2) of
+    /// `x` under them ([`Pixels::energy`]), in one pass.
+    fn reweight(&self, px: &Pixels, x: &[f32], plus: &mut [Vec<f32>; 2]) -> f64 {
         let w = px.w;
         let [pu, pv] = plus;
         pu.par_chunks_mut(w)
             .zip(pv.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(r, (u_row, v_row))| {
-                for c in 0..w {
-                    let i = r * w + c;
-                    if px.mask[i] {
-                        u_row[c] = px.weight_from(self.k, x, i, 0);
-                        v_row[c] = px.weight_from(self.k, x, i, 1);
-                    }
-                }
-            });
+            .map(|(r, (u_row, v_row))| self.reweight_row(px, x, r, u_row, v_row))
+            .sum()
+    }
+
+    /// Row `r` of [`Bilateral::reweight`]: the forward weights of its pixels along the columns
+    /// into `u_row`, along the rows into `v_row`; returns the row's share of the energy.
+    fn reweight_row(
+        &self,
+        px: &Pixels,
+        x: &[f32],
+        r: usize,
+        u_row: &mut [f32],
+        v_row: &mut [f32],
+    ) -> f64 {
+        let (w, lo) = (px.w, r * px.w);
+        let (m, xr) = (&px.mask[lo..lo + w], &x[lo..lo + w]);
+        let above = (r > 0).then(|| (&px.mask[lo - w..lo], &x[lo - w..lo]));
+        let below = (r + 1 < px.h).then(|| (&px.mask[lo + w..lo + 2 * w], &x[lo + w..lo + 2 * w]));
+        let mut e = 0f64;
+        for c in 0..w {
+            if !m[c] {
+                continue;
+            }
+            let i = lo + c;
+            let nz2 = px.nz2(i);
+            let om = px.omega_with(i, nz2) as f64;
+            let xc = xr[c] as f64;
+            // The differences that exist inside the mask: forward and backward, columns then rows.
+            let right = (c + 1 < w && m[c + 1]).then(|| xr[c + 1] as f64 - xc);
+            let left = (c > 0 && m[c - 1]).then(|| xc - xr[c - 1] as f64);
+            let down = below.and_then(|(md, xd)| md[c].then(|| xd[c] as f64 - xc));
+            let up = above.and_then(|(mu, xu)| mu[c].then(|| xc - xu[c] as f64));
+            self.reweight_side(nz2, om, px.p[i], right, left, &mut u_row[c], &mut e);
+            self.reweight_side(nz2, om, px.q[i], down, up, &mut v_row[c], &mut e);
+        }
+        e
+    }
+
+    /// One pixel along one axis: its forward weight (B3) from its `forward` and `backward`
+    /// differences (`None` where missing) into `out`, and its two terms of (B2) (`ω` `om`,
+    /// gradient `g`) added to `e`.
+    #[inline]
+    #[allow(clippy::too_many_arguments)]
+    fn reweight_side(
+        &self,
+        nz2: f32,
+        om: f64,
+        g: f32,
+        forward: Option<f64>,
+        backward: Option<f64>,
+        out: &mut f32,
+        e: &mut f64,
+    ) {
+        let (fw, bw) = (forward.unwrap_or(0.0), backward.unwrap_or(0.0));
+        let wp = forward_weight(self.k, nz2, bw as f32, fw as f32); // (B3)
+        *out = wp;
+        let (g, wp) = (g as f64, wp as f64);
+        if forward.is_some() {
+            *e += om * wp * (fw - g) * (fw - g); // (B2)
+        }
+        if backward.is_some() {
+            *e += om * (1.0 - wp) * (bw - g) * (bw - g); // (B2)
+        }
     }
 }
 
-/// Row `r` of `b` in the normal equations of (B4) (+ the prior): `Σ ± W_e d_e` over the
-/// cell's edges (`pull`: `W_e d_e` of the east and south edges, 0 where there is none).
-fn rhs_row(px: &Pixels, pull: [&[f32]; 2], prior: Option<super::Prior>, r: usize, out: &mut [f64]) {
-    let w = px.w;
-    let [east, south] = pull;
+/// Row `r` of `b` in the normal equations of (B4), or (B5) when `debiased` (+ the prior):
+/// `Σ ± W_e d_e` over the cell's edges.
+fn rhs_row(
+    px: &Pixels,
+    plus: [&[f32]; 2],
+    debiased: bool,
+    floor: f32,
+    prior: Option<super::Prior>,
+    r: usize,
+    out: &mut [f64],
+) {
+    let (w, h) = (px.w, px.h);
+    // ω of rows r − 1, r, r + 1; the edges of row r and the south edges of row r − 1.
+    let mut scratch = vec![0f32; 11 * w];
+    let mut rows = scratch.chunks_mut(w);
+    let mut row = || rows.next().expect("eleven rows");
+    let (om_up, om, om_below) = (row(), row(), row());
+    let (east, east_pull, south, south_pull) = (row(), row(), row(), row());
+    let (up_east, up_east_pull, up, up_pull) = (row(), row(), row(), row());
+    px.omega_row(r, om);
+    if r + 1 < h {
+        px.omega_row(r + 1, om_below);
+    }
+    px.row_edges(
+        plus,
+        debiased,
+        floor,
+        r,
+        om,
+        om_below,
+        [east, east_pull],
+        [south, south_pull],
+    );
+    if r > 0 {
+        px.omega_row(r - 1, om_up);
+        let up_row = [up_east, up_east_pull];
+        px.row_edges(
+            plus,
+            debiased,
+            floor,
+            r - 1,
+            om_up,
+            om,
+            up_row,
+            [up, up_pull],
+        );
+    }
+    let lo = r * w;
     for (c, b) in out.iter_mut().enumerate() {
-        let i = r * w + c;
+        let i = lo + c;
         *b = 0.0;
         if !px.mask[i] {
             continue;
         }
-        let mut s = -(east[i] as f64) - south[i] as f64;
+        let mut s = -(east_pull[c] as f64) - south_pull[c] as f64;
         if c > 0 {
-            s += east[i - 1] as f64;
+            s += east_pull[c - 1] as f64;
         }
         if r > 0 {
-            s += south[i - w] as f64;
+            s += up_pull[c] as f64;
         }
         if let Some(prior) = prior {
             s += prior.lambda as f64 * prior.depth[i] as f64;
@@ -748,14 +988,10 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
         slope_weighting: params.slope_weighting,
     };
     let lambda = problem.prior.map_or(0.0, |pr| pr.lambda as f64);
-    let mut f = vec![0f64; n];
-    let mut plus = [vec![0.5f32; n], vec![0.5f32; n]];
-    let mut energy = f64::INFINITY;
-    let mut reweightings = 0;
-    loop {
-        // The last pass solves (B5) under the converged weights.
-        let last = reweightings >= params.max_iterations;
-        // The normal equations of (B4): A f = b, A = Σ_e W_e (1_j − 1_i)(1_j − 1_i)ᵀ + λ I.
+    // The normal equations of `Σ_e W_e (f_j − f_i − d_e)² + λ Σ_i (f_i − prior_i)²` with
+    // `(W_e, W_e d_e) = edge(i, j, axis)`: A f = b, A = Σ_e W_e (1_j − 1_i)(1_j − 1_i)ᵀ + λ I,
+    // solved from `f`.
+    let solve = |edge: &dyn Fn(usize, usize, usize) -> (f32, f32), f: &mut [f64]| {
         let mut diag = vec![0f64; n];
         let mut edges = Vec::new(); // (i, j, W_e)
         let mut b = vec![0f64; n];
@@ -767,14 +1003,9 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
             if let Some(prior) = problem.prior {
                 b[i] += lambda * prior.depth[i] as f64;
             }
-            for (axis, pl) in plus.iter().enumerate() {
+            for axis in 0..2 {
                 if let Some(j) = px.next(i, axis) {
-                    let floor = params.min_edge_weight;
-                    let (we, wd) = if last && params.debias {
-                        px.debiased_edge(i, j, axis, pl[i], pl[j], floor) // (B5)
-                    } else {
-                        px.edge(i, j, axis, pl[i], pl[j], floor)
-                    };
+                    let (we, wd) = edge(i, j, axis);
                     let (we, wd) = (we as f64, wd as f64);
                     edges.push((i, j, we));
                     diag[i] += we;
@@ -793,19 +1024,51 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
                 out[j] -= we * x[i];
             }
         };
-        jacobi_cg(&apply, &diag, &b, &mut f, px.mask);
-        if reweightings >= params.max_iterations {
-            break;
-        }
-        reweightings += 1;
+        jacobi_cg(&apply, &diag, &b, f, px.mask);
+    };
+    // The weights (B3) of `f`, and the energy (B2) of `f` under them.
+    let reweight = |f: &[f64], plus: &mut [Vec<f32>; 2]| {
         for (axis, pl) in plus.iter_mut().enumerate() {
             for (i, wp) in pl.iter_mut().enumerate() {
                 if px.mask[i] {
-                    *wp = px.weight_from(params.k, &f, i, axis); // (B3)
+                    *wp = px.weight_from(params.k, f, i, axis); // (B3)
                 }
             }
         }
-        let new_energy = px.energy(&f, [&plus[0], &plus[1]]); // (B2)
+        px.energy(f, [&plus[0], &plus[1]]) // (B2)
+    };
+    let mut f = vec![0f64; n];
+    let mut plus = [vec![0.5f32; n], vec![0.5f32; n]];
+    let mut energy = f64::INFINITY;
+    let floor = params.min_edge_weight;
+    if params.poisson_start && params.max_iterations > 0 && px.mask.iter().all(|&m| m) {
+        // On a whole grid the iteration starts from the unit-weight trapezoid system's
+        // solution (`poisson`'s) and its weights.
+        let g = |i: usize, axis: usize| px.gradient(i, axis);
+        solve(&|i, j, axis| (1.0, 0.5 * (g(i, axis) + g(j, axis))), &mut f);
+        energy = reweight(&f, &mut plus);
+    }
+    let mut reweightings = 0;
+    loop {
+        // The last pass solves (B5) under the converged weights.
+        let last = reweightings >= params.max_iterations;
+        let pl = &plus;
+        solve(
+            &|i, j, axis| {
+                let (a, b) = (pl[axis][i], pl[axis][j]);
+                if last && params.debias {
+                    px.debiased_edge(i, j, axis, a, b, floor) // (B5)
+                } else {
+                    px.edge(i, j, axis, a, b, floor) // (B4)
+                }
+            },
+            &mut f,
+        );
+        if last {
+            break;
+        }
+        reweightings += 1;
+        let new_energy = reweight(&f, &mut plus);
         let change = (energy - new_energy).abs() / new_energy.max(f64::MIN_POSITIVE);
         energy = new_energy;
         if change < params.tolerance {

@@ -265,20 +265,27 @@ impl<'a> Level<'a> {
         extra: impl Fn(usize) -> f32 + Sync,
         active: &[bool],
     ) -> Level<'static> {
-        let mut extra_diag: Vec<f32> = par_zeros(w * h);
+        // The extra diagonal is stored only where it is not 0 everywhere (often it is).
+        let any_extra = (0..w * h)
+            .into_par_iter()
+            .any(|i| active[i] && extra(i) != 0.0);
+        let mut extra_diag: Vec<f32> = if any_extra {
+            par_zeros(w * h)
+        } else {
+            Vec::new()
+        };
         let mut inv_diag: Vec<f32> = par_zeros(w * h);
-        extra_diag
+        inv_diag
             .par_chunks_mut(w)
-            .zip(inv_diag.par_chunks_mut(w))
             .enumerate()
-            .for_each(|(r, (row, inv_row))| {
-                for (c, (x, inv)) in row.iter_mut().zip(inv_row.iter_mut()).enumerate() {
+            .for_each(|(r, inv_row)| {
+                for (c, inv) in inv_row.iter_mut().enumerate() {
                     let i = r * w + c;
                     if !active[i] {
                         continue;
                     }
-                    *x = extra(i);
-                    let mut s = east[i] + south[i] + *x;
+                    let x = extra(i);
+                    let mut s = east[i] + south[i] + x;
                     if c > 0 {
                         s += east[i - 1];
                     }
@@ -288,8 +295,18 @@ impl<'a> Level<'a> {
                     *inv = if s > 0.0 { 1.0 / s } else { 0.0 };
                 }
             });
-        if extra_diag.par_iter().all(|&x| x == 0.0) {
-            extra_diag = Vec::new();
+        if any_extra {
+            extra_diag
+                .par_chunks_mut(w)
+                .enumerate()
+                .for_each(|(r, row)| {
+                    for (c, x) in row.iter_mut().enumerate() {
+                        let i = r * w + c;
+                        if active[i] {
+                            *x = extra(i);
+                        }
+                    }
+                });
         }
         Level {
             w,

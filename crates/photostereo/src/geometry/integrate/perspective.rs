@@ -83,12 +83,13 @@ pub fn perspective_surface(
         ));
     }
     let g = log_depth_gradients(width, height, normals, mask, camera, max_slope)?;
-    let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
     let problem = IntegrationProblem {
         weights,
         ..IntegrationProblem::new(width, height, &g.p, &g.q, &g.mask)
     };
     let mut depth = integrator.integrate(&problem, progress)?;
+    // The curl map is made after the solve: not held beside the integrator's work arrays.
+    let (curl, mean_abs_curl) = curl_map(width, height, &g.p, &g.q, &g.mask);
     // Back from f̄ · ln Z to ln Z.
     let inv_scale = 1.0 / log_depth_scale(camera);
     depth.values.par_iter_mut().for_each(|v| {
