@@ -42,6 +42,12 @@ pub struct RunArgs {
     /// Also write the browser viewer (index.html and view/) into the output folder.
     #[arg(long)]
     pub view: bool,
+    /// Also fit a relightable image to the readings, as `rti --basis` does (ptm, ptm-rgb, hsh2,
+    /// hsh3, rbf), and write its files beside the normals (image.ptm or image.rti or basis.npy,
+    /// coefficients.npy, rti.json, relight/), its leave-one-out error in report.json's `rti`;
+    /// the viewer shows it as its RTI layer.
+    #[arg(long, value_parser = crate::rti::parse_basis)]
+    pub rti: Option<photostereo::solve::rti::Basis>,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -99,6 +105,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         obj_any_size: a.obj,
         // The command line owns its process: within a budget, freed maps go back at once.
         return_freed_memory_when_tiled: true,
+        rti: a.rti,
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;
