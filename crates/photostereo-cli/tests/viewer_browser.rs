@@ -743,7 +743,8 @@ fn view_serve_answers_on_localhost_only() {
 /// match the library's CPU relighting of the fit the folder holds
 /// ([`photostereo::io::viewer::rti::relight_rti`]) within 2/255 (mean absolute difference per
 /// channel over the object), plain and with the enhancement modes (diffuse gain on PTM,
-/// unsharp-masked normals with a specular highlight on HSH).
+/// unsharp-masked normals with a specular highlight on HSH). Then the gloss layer
+/// ([`check_gloss_layer`]).
 #[test]
 fn rti_layer_in_the_browser_matches_the_cpu_relighting() {
     use photostereo::io::viewer::rti::{blur_normals, relight_rti, Enhancement, UNSHARP_SIGMA};
@@ -869,5 +870,62 @@ fn rti_layer_in_the_browser_matches_the_cpu_relighting() {
             );
         }
     }
+    check_gloss_layer(tmp.path(), &cap);
     eprintln!("rti browser test: {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+/// The gloss layer of `run --reflectance lobe --view`: specular strength and roughness drawn
+/// with the map colour scale over [0, the map's largest value inside the mask], grey where the
+/// lobe was not fitted, against the output folder's arrays.
+fn check_gloss_layer(tmp: &Path, cap: &Path) {
+    let out = tmp.join("out-gloss");
+    photostereo(&[
+        "run".as_ref(),
+        cap.as_os_str(),
+        "--reflectance".as_ref(),
+        "lobe".as_ref(),
+        "--view".as_ref(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "-q".as_ref(),
+    ]);
+    let f = photostereo::io::viewer::RunFolder::read(&out, None).unwrap();
+    let (strength, roughness) = f.gloss.as_ref().expect("the lobe maps");
+    for (name, map) in [("strength", strength), ("roughness", roughness)] {
+        let top = map
+            .iter()
+            .zip(&f.mask)
+            .filter(|(v, &m)| m && v.is_finite())
+            .fold(0f32, |a, (v, _)| a.max(*v));
+        let fitted = map
+            .iter()
+            .zip(&f.mask)
+            .filter(|(v, &m)| m && v.is_finite() && **v >= 0.0)
+            .count();
+        let inside = f.mask.iter().filter(|&&m| m).count();
+        eprintln!("gloss {name}: {fitted} of {inside} mask pixels fitted");
+        assert!(
+            top > 0.0 && fitted * 10 >= inside,
+            "{name}: {fitted} of {inside} fitted"
+        );
+        let want: Vec<[u8; 3]> = map
+            .iter()
+            .map(|&v| {
+                if v.is_finite() && v >= 0.0 {
+                    colormap(v / top)
+                } else {
+                    [77; 3]
+                }
+            })
+            .collect();
+        let shot = screenshot(
+            tmp,
+            &out.join("index.html"),
+            &format!("plain=1&layer=gloss&gloss={name}"),
+            (f.width, f.height),
+        );
+        let d = mad(&shot, &want, &f.mask);
+        eprintln!("gloss {name}: browser vs arrays, mean |Δ| (1/255): {d:.3?}");
+        assert!(d.iter().all(|&c| c <= 2.0), "gloss {name}: {d:?}");
+    }
 }
