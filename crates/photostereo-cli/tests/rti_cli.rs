@@ -182,7 +182,7 @@ fn jpeg_size(path: &Path) -> (usize, usize) {
         assert_eq!(b[i], 0xFF, "{}: marker expected at {i}", path.display());
         let m = b[i + 1];
         let len = usize::from(b[i + 2]) << 8 | usize::from(b[i + 3]);
-        if matches!(m, 0xC0 | 0xC1 | 0xC2) {
+        if (0xC0..=0xC2).contains(&m) {
             let h = usize::from(b[i + 5]) << 8 | usize::from(b[i + 6]);
             let w = usize::from(b[i + 7]) << 8 | usize::from(b[i + 8]);
             return (w, h);

@@ -326,20 +326,20 @@ fn rti_value(
         let mean: [f64; 6] =
             std::array::from_fn(|j| (0..fc).map(|ch| poly(ch)[j]).sum::<f64>() / fc as f64);
         let at = ptm_normal(mean);
-        for ch in 0..3 {
+        for (ch, o) in out.iter_mut().enumerate() {
             let a = diffuse_gain(poly(ch.min(fc - 1)), at, g);
-            out[ch] = (0..6).map(|j| a[j] * b[j]).sum();
+            *o = a.iter().zip(b).map(|(x, y)| x * y).sum();
         }
     } else {
         for (q, wq) in w.iter().enumerate().take(k) {
-            for c in 0..3 {
-                out[c] += f64::from(v[q]) * wq[c];
+            for (o, x) in out.iter_mut().zip(wq) {
+                *o += f64::from(v[q]) * x;
             }
         }
     }
     if layer.chroma {
-        for c in 0..3 {
-            out[c] *= f64::from(v[k + c]);
+        for (o, c) in out.iter_mut().zip(&v[k..k + 3]) {
+            *o *= f64::from(*c);
         }
     }
     out
