@@ -160,6 +160,18 @@ pub fn main(a: RunArgs) -> Result<()> {
                 s.rejected_invalid + s.rejected_backfacing
             );
         }
+        if let Some(rti) = r.extra.get("rti") {
+            println!(
+                "rti {}: leave-one-out RMSE {:.2} (8-bit); Lambertian reference {:.2}",
+                rti["basis"].as_str().unwrap_or("?"),
+                rti["leave_one_out"]["mean_rmse_8bit"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                rti["lambertian_reference"]["errors"]["mean_rmse_8bit"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+            );
+        }
         let total = r
             .timings_s
             .get("total")
