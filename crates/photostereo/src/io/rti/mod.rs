@@ -99,7 +99,7 @@ pub fn write_rbf_basis(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
 }
 
 /// The name of the file describing a fit's model for the viewer ([`write_model_json`]).
-pub const MODEL_JSON: &str = "rti.json";
+pub use crate::io::viewer::rti::MODEL_JSON;
 
 /// Writes `rti.json`: what the viewer needs besides the coefficients (`coefficients.npy`,
 /// `chroma.npy`, `basis.npy`) to relight the fit under any light: the basis, the frame, the

@@ -34,10 +34,13 @@
 
 use super::relight::{srgb_encode, RelightParams};
 use crate::base::error::{Error, Result};
-use crate::io::rti::MODEL_JSON;
 use crate::solve::rti::{rbf::RbfModel, Basis, MAX_TERMS};
 use rayon::prelude::*;
 use std::path::Path;
+
+/// The file an RTI fit's model is described in, beside its arrays
+/// (`crate::io::rti::write_model_json` writes it).
+pub const MODEL_JSON: &str = "rti.json";
 
 /// The unsharp mask's Gaussian, standard deviation in pixels of the level shown (support
 /// ±3σ).
