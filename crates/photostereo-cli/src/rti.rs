@@ -22,6 +22,11 @@ pub struct RtiArgs {
     /// to be shadows or highlights.
     #[arg(long)]
     pub exclude_unreliable: bool,
+    /// Also write relight's plane images as IIIF Image API 3.0 level-0 static tiles
+    /// (relight/plane_G/info.json and the tiles), to be served at this base URI (e.g.
+    /// https://example.org/iiif/object): each plane's service id is BASE/relight/plane_G.
+    #[arg(long, value_name = "BASE_URI")]
+    pub iiif: Option<String>,
     /// Memory budget (e.g. `4G`, `500M`; powers of 1024), as `run`'s; the coefficients must fit.
     #[arg(long, value_parser = crate::common::parse_memory_limit)]
     pub memory_limit: Option<u64>,
@@ -33,7 +38,7 @@ pub struct RtiArgs {
     pub out: OutputOpts,
 }
 
-fn parse_basis(s: &str) -> Result<Basis, String> {
+pub fn parse_basis(s: &str) -> Result<Basis, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
@@ -53,6 +58,7 @@ pub fn main(a: RtiArgs) -> Result<()> {
         basis: a.basis,
         exclude_unreliable: a.exclude_unreliable,
         memory_limit: a.memory_limit,
+        iiif: a.iiif.clone(),
     };
     let progress = a.out.progress();
     let mut report = rti(&files, &options, &a.output, a.out.force, &progress)?;

@@ -42,6 +42,12 @@ pub struct RunArgs {
     /// Also write the browser viewer (index.html and view/) into the output folder.
     #[arg(long)]
     pub view: bool,
+    /// Also fit a relightable image to the readings, as `rti --basis` does (ptm, ptm-rgb, hsh2,
+    /// hsh3, rbf), and write its files beside the normals (image.ptm or image.rti or basis.npy,
+    /// coefficients.npy, rti.json, relight/), its leave-one-out error in report.json's `rti`;
+    /// the viewer shows it as its RTI layer.
+    #[arg(long, value_parser = crate::rti::parse_basis)]
+    pub rti: Option<photostereo::solve::rti::Basis>,
     /// Output folder.
     #[arg(short, long, default_value = "photostereo-out")]
     pub output: PathBuf,
@@ -99,6 +105,7 @@ pub fn main(a: RunArgs) -> Result<()> {
         obj_any_size: a.obj,
         // The command line owns its process: within a budget, freed maps go back at once.
         return_freed_memory_when_tiled: true,
+        rti: a.rti,
     };
     let progress = a.out.progress();
     let rec = run(&files, &options, &a.output, a.out.force, &progress)?;
@@ -151,6 +158,18 @@ pub fn main(a: RunArgs) -> Result<()> {
                 s.depth.stats.iterations,
                 s.mean_abs_curl,
                 s.rejected_invalid + s.rejected_backfacing
+            );
+        }
+        if let Some(rti) = r.extra.get("rti") {
+            println!(
+                "rti {}: leave-one-out RMSE {:.2} (8-bit); Lambertian reference {:.2}",
+                rti["basis"].as_str().unwrap_or("?"),
+                rti["leave_one_out"]["mean_rmse_8bit"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
+                rti["lambertian_reference"]["errors"]["mean_rmse_8bit"]
+                    .as_f64()
+                    .unwrap_or(f64::NAN),
             );
         }
         let total = r

@@ -170,3 +170,169 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert!(stderr(&o).contains("--memory-limit"), "{}", stderr(&o));
     assert!(!dir.join("w").exists());
 }
+
+/// The width and height of a baseline or progressive JPEG, from its start-of-frame segment
+/// (ITU-T T.81, B.2.2: after the marker, length (2), precision (1), lines (2), samples per line
+/// (2)).
+fn jpeg_size(path: &Path) -> (usize, usize) {
+    let b = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    assert_eq!(&b[..2], &[0xFF, 0xD8], "{}: not a JPEG", path.display());
+    let mut i = 2;
+    while i + 9 < b.len() {
+        assert_eq!(b[i], 0xFF, "{}: marker expected at {i}", path.display());
+        let m = b[i + 1];
+        let len = usize::from(b[i + 2]) << 8 | usize::from(b[i + 3]);
+        if (0xC0..=0xC2).contains(&m) {
+            let h = usize::from(b[i + 5]) << 8 | usize::from(b[i + 6]);
+            let w = usize::from(b[i + 7]) << 8 | usize::from(b[i + 8]);
+            return (w, h);
+        }
+        i += 2 + len;
+    }
+    panic!("{}: no start-of-frame segment", path.display());
+}
+
+/// `rti --iiif BASE`: every plane image of relight's web folder as IIIF Image API 3.0 level-0
+/// static tiles. `info.json` must hold the fields the specification requires of a level-0
+/// service (`@context`, `id`, `type` ImageService3, `protocol`, `profile` level0, `width`,
+/// `height`) with the tiles and sizes it lists, and each tile must be where a client asks for
+/// it (`{region}/{size}/0/default.jpg`, §4) at the size the specification gives: at scale
+/// factor s, the region of tile (col, row) is x = col·512·s, w = min(512·s, W − x) (y and h
+/// alike), delivered at ⌈w / s⌉ × ⌈h / s⌉ (§5.6: a tile's size is the region's divided by s,
+/// rounded up).
+#[test]
+fn iiif_level0_tiles_follow_the_image_api() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    let o = photostereo(
+        &[
+            "synth", "sphere", "--rig", "dome-12", "--size", "700x560", "-o", "cap", "--quiet",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = photostereo(
+        &[
+            "rti",
+            "cap",
+            "--basis",
+            "hsh2",
+            "--iiif",
+            "https://example.org/iiif/sphere/",
+            "-o",
+            "out",
+            "--quiet",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let web = dir.join("out/relight");
+    let nplanes = report(&web.join("info.json"))["nplanes"].as_u64().unwrap() as usize;
+    assert_eq!(nplanes, 12);
+    for g in 0..nplanes.div_ceil(3) {
+        let root = web.join(format!("plane_{g}"));
+        let info = report(&root.join("info.json"));
+        assert_eq!(info["@context"], "http://iiif.io/api/image/3/context.json");
+        assert_eq!(
+            info["id"],
+            format!("https://example.org/iiif/sphere/relight/plane_{g}")
+        );
+        assert_eq!(info["type"], "ImageService3");
+        assert_eq!(info["protocol"], "http://iiif.io/api/image");
+        assert_eq!(info["profile"], "level0");
+        let (w, h) = (700usize, 560usize);
+        assert_eq!(info["width"], w);
+        assert_eq!(info["height"], h);
+        let tiles = info["tiles"].as_array().unwrap();
+        assert_eq!(tiles.len(), 1);
+        let t = tiles[0]["width"].as_u64().unwrap() as usize;
+        assert_eq!(tiles[0]["height"].as_u64(), Some(t as u64));
+        let scales: Vec<usize> = tiles[0]["scaleFactors"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_u64().unwrap() as usize)
+            .collect();
+        // 700 × 560 in tiles of 512: scale 1 (2 × 2 tiles) and 2 (one tile, 350 × 280).
+        assert_eq!((t, scales.as_slice()), (512, &[1usize, 2][..]));
+        let mut n = 0;
+        for &s in &scales {
+            let span = t * s;
+            for y in (0..h).step_by(span) {
+                for x in (0..w).step_by(span) {
+                    let (rw, rh) = (span.min(w - x), span.min(h - y));
+                    let (tw, th) = (rw.div_ceil(s), rh.div_ceil(s));
+                    let p = root.join(format!("{x},{y},{rw},{rh}/{tw},{th}/0/default.jpg"));
+                    assert_eq!(jpeg_size(&p), (tw, th), "{}", p.display());
+                    n += 1;
+                }
+            }
+        }
+        assert_eq!(n, 4 + 1);
+        // `sizes`: each level's whole image, listed smallest first, at full/W,H/.
+        let sizes: Vec<(u64, u64)> = info["sizes"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| (v["width"].as_u64().unwrap(), v["height"].as_u64().unwrap()))
+            .collect();
+        assert_eq!(sizes, vec![(350, 280), (700, 560)]);
+        for (sw, sh) in sizes {
+            let p = root.join(format!("full/{sw},{sh}/0/default.jpg"));
+            assert_eq!(jpeg_size(&p), (sw as usize, sh as usize));
+        }
+    }
+    // A base that is not a URI is refused, naming the flag, and leaves nothing.
+    let o = photostereo(
+        &[
+            "rti", "cap", "--basis", "hsh2", "--iiif", "tiles", "-o", "bad", "--quiet",
+        ],
+        dir,
+    );
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("iiif"), "{}", stderr(&o));
+    assert!(!dir.join("bad").exists());
+}
+
+/// `run --rti BASIS`: the RTI files beside the normals and the fit's leave-one-out figure in
+/// report.json's `rti`, the same figure `rti` gives for the same capture and basis.
+#[test]
+fn run_rti_writes_the_fit_beside_the_normals() {
+    let tmp = tempfile::tempdir().unwrap();
+    let dir = tmp.path();
+    synth(dir, "dome-30", "cap");
+    let o = photostereo(
+        &["run", "cap", "--rti", "hsh3", "-o", "run", "--quiet"],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "normals.npy",
+        "image.rti",
+        "coefficients.npy",
+        "rti.json",
+        "relight/info.json",
+    ] {
+        assert!(dir.join("run").join(f).is_file(), "{f}");
+    }
+    let r = report(&dir.join("run/report.json"));
+    let loo = r["rti"]["leave_one_out"]["mean_rmse_8bit"]
+        .as_f64()
+        .unwrap();
+    let o = photostereo(
+        &["rti", "cap", "--basis", "hsh3", "-o", "alone", "--quiet"],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let alone = report(&dir.join("alone/report.json"))["leave_one_out"]["mean_rmse_8bit"]
+        .as_f64()
+        .unwrap();
+    assert!(
+        loo > 0.0 && (loo - alone).abs() <= 1e-9 * alone,
+        "{loo} vs {alone}"
+    );
+    assert_eq!(r["rti"]["basis"], "hsh3");
+    assert!(r["rti"]["lambertian_reference"]["errors"]["mean_rmse_8bit"]
+        .as_f64()
+        .is_some());
+}

@@ -737,3 +737,195 @@ fn view_serve_answers_on_localhost_only() {
         std::panic::resume_unwind(e);
     }
 }
+
+/// The RTI layer: a synthetic Blinn–Phong sphere (160 × 160) under a 30-light dome, `run --rti BASIS --view` for
+/// PTM, HSH order 3 and RBF; a screenshot of the layer with the light set through the URL must
+/// match the library's CPU relighting of the fit the folder holds
+/// ([`photostereo::io::viewer::rti::relight_rti`]) within 2/255 (mean absolute difference per
+/// channel over the object), plain and with the enhancement modes (diffuse gain on PTM,
+/// unsharp-masked normals with a specular highlight on HSH). Then the gloss layer
+/// ([`check_gloss_layer`]).
+#[test]
+fn rti_layer_in_the_browser_matches_the_cpu_relighting() {
+    use photostereo::io::viewer::rti::{blur_normals, relight_rti, Enhancement, UNSHARP_SIGMA};
+    let Some(_) = chromium() else { return };
+    let t0 = Instant::now();
+    let tmp = tempfile::tempdir().unwrap();
+    let cap = tmp.path().join("sphere");
+    photostereo(&[
+        "synth".as_ref(),
+        "sphere".as_ref(),
+        "--rig".as_ref(),
+        "dome-30".as_ref(),
+        "--size".as_ref(),
+        "160".as_ref(),
+        "-o".as_ref(),
+        cap.as_os_str(),
+        "-q".as_ref(),
+    ]);
+    let cases: [(&str, [f32; 3], Enhancement, f32); 5] = [
+        ("ptm", [0.5, 0.3, 0.81], Enhancement::default(), 0.0),
+        (
+            "ptm",
+            [-0.4, 0.2, 0.89],
+            Enhancement {
+                diffuse_gain: 3.0,
+                unsharp: 0.0,
+            },
+            0.0,
+        ),
+        ("hsh3", [-0.6, -0.3, 0.74], Enhancement::default(), 0.0),
+        (
+            "hsh3",
+            [0.3, 0.6, 0.74],
+            Enhancement {
+                diffuse_gain: 1.0,
+                unsharp: 2.0,
+            },
+            0.4,
+        ),
+        ("rbf", [0.2, -0.5, 0.84], Enhancement::default(), 0.0),
+    ];
+    let mut done: Vec<&str> = Vec::new();
+    for (basis, light, e, specular) in cases {
+        let out = tmp.path().join(format!("out-{basis}"));
+        if !done.contains(&basis) {
+            photostereo(&[
+                "run".as_ref(),
+                cap.as_os_str(),
+                "--rti".as_ref(),
+                basis.as_ref(),
+                "--view".as_ref(),
+                "-o".as_ref(),
+                out.as_os_str(),
+                "-q".as_ref(),
+            ]);
+            done.push(basis);
+        }
+        let f = photostereo::io::viewer::RunFolder::read(&out, None).unwrap();
+        let layer = f.rti.as_ref().expect("run --rti wrote rti.json");
+        assert_eq!(layer.basis.name(), basis);
+        let albedo: Vec<[f32; 3]> = (0..f.width * f.height)
+            .map(|i| {
+                let c = f.albedo_channels;
+                let a = &f.albedo[i * c..i * c + c];
+                let v = if c >= 3 {
+                    [a[0], a[1], a[2]]
+                } else {
+                    [a[0]; 3]
+                };
+                v.map(|x| if x.is_finite() { x.max(0.0) } else { 0.0 })
+            })
+            .collect();
+        let blurred = blur_normals(f.width, f.height, &f.normals, UNSHARP_SIGMA);
+        let p = RelightParams {
+            light,
+            specular,
+            shininess: 30.0,
+            white: albedo_white(&f.albedo, f.albedo_channels, &f.mask),
+            ..Default::default()
+        };
+        let frag = format!(
+            "plain=1&layer=rti&light={},{},{}&specular={}&shininess={}&dgain={}&unsharp={}",
+            light[0], light[1], light[2], specular, p.shininess, e.diffuse_gain, e.unsharp
+        );
+        let shot = screenshot(
+            tmp.path(),
+            &out.join("index.html"),
+            &frag,
+            (f.width, f.height),
+        );
+        let want = relight_rti(layer, &f.normals, &blurred, &albedo, &p, &e);
+        let d = mad(&shot, &want, &f.mask);
+        eprintln!(
+            "rti {basis} {e:?} specular {specular}: browser vs CPU, mean |Δ| (1/255): {d:.3?}"
+        );
+        for c in d {
+            assert!(
+                c <= 2.0,
+                "rti {basis}: mean absolute difference {d:?} > 2/255"
+            );
+        }
+        let inside = f.mask.iter().filter(|&&m| m).count();
+        let lit = want
+            .iter()
+            .zip(&f.mask)
+            .filter(|(s, &m)| m && s[0] > 20)
+            .count();
+        assert!(lit > inside / 4, "rti {basis}: the object is dark");
+        // The enhancement changes the picture (it is not silently off).
+        if e != Enhancement::default() || specular > 0.0 {
+            let plain = relight_rti(
+                layer,
+                &f.normals,
+                &blurred,
+                &albedo,
+                &RelightParams { specular: 0.0, ..p },
+                &Enhancement::default(),
+            );
+            let moved = mad(&plain, &want, &f.mask);
+            assert!(
+                moved.iter().any(|&v| v > 2.0),
+                "rti {basis}: enhancement changes the image by only {moved:?}"
+            );
+        }
+    }
+    check_gloss_layer(tmp.path(), &cap);
+    eprintln!("rti browser test: {:.1} s", t0.elapsed().as_secs_f64());
+}
+
+/// The gloss layer of `run --reflectance lobe --view`: specular strength and roughness drawn
+/// with the map colour scale over [0, the map's largest value inside the mask], grey where the
+/// lobe was not fitted, against the output folder's arrays.
+fn check_gloss_layer(tmp: &Path, cap: &Path) {
+    let out = tmp.join("out-gloss");
+    photostereo(&[
+        "run".as_ref(),
+        cap.as_os_str(),
+        "--reflectance".as_ref(),
+        "lobe".as_ref(),
+        "--view".as_ref(),
+        "-o".as_ref(),
+        out.as_os_str(),
+        "-q".as_ref(),
+    ]);
+    let f = photostereo::io::viewer::RunFolder::read(&out, None).unwrap();
+    let (strength, roughness) = f.gloss.as_ref().expect("the lobe maps");
+    for (name, map) in [("strength", strength), ("roughness", roughness)] {
+        let top = map
+            .iter()
+            .zip(&f.mask)
+            .filter(|(v, &m)| m && v.is_finite())
+            .fold(0f32, |a, (v, _)| a.max(*v));
+        let fitted = map
+            .iter()
+            .zip(&f.mask)
+            .filter(|(v, &m)| m && v.is_finite() && **v >= 0.0)
+            .count();
+        let inside = f.mask.iter().filter(|&&m| m).count();
+        eprintln!("gloss {name}: {fitted} of {inside} mask pixels fitted");
+        assert!(
+            top > 0.0 && fitted * 10 >= inside,
+            "{name}: {fitted} of {inside} fitted"
+        );
+        let want: Vec<[u8; 3]> = map
+            .iter()
+            .map(|&v| {
+                if v.is_finite() && v >= 0.0 {
+                    colormap(v / top)
+                } else {
+                    [77; 3]
+                }
+            })
+            .collect();
+        let shot = screenshot(
+            tmp,
+            &out.join("index.html"),
+            &format!("plain=1&layer=gloss&gloss={name}"),
+            (f.width, f.height),
+        );
+        let d = mad(&shot, &want, &f.mask);
+        eprintln!("gloss {name}: browser vs arrays, mean |Δ| (1/255): {d:.3?}");
+        assert!(d.iter().all(|&c| c <= 2.0), "gloss {name}: {d:?}");
+    }
+}

@@ -999,6 +999,7 @@ fn run<'py>(
         obj_any_size: false,
         // The interpreter's allocator settings stay its own.
         return_freed_memory_when_tiled: false,
+        rti: None,
     };
     let rec = run_detached(
         py,
@@ -1048,6 +1049,7 @@ fn rti<'py>(
         basis,
         exclude_unreliable,
         memory_limit,
+        iiif: None,
     };
     let report = run_detached(
         py,

@@ -190,6 +190,7 @@ pub fn compare(
                     light_subset: options.light_subset.clone(),
                     obj_any_size: false,
                     return_freed_memory_when_tiled: false,
+                    rti: None,
                 };
                 write_reconstruction(rec, &dir, &run_options)?;
                 write_json(&dir.join("report.json"), &rec.report)?;

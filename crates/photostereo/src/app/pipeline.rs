@@ -101,6 +101,9 @@ pub struct RunOptions {
     pub obj_any_size: bool,
     /// See [`crate::io::layouts::LoadOptions::return_freed_memory_when_tiled`].
     pub return_freed_memory_when_tiled: bool,
+    /// Also fit this RTI basis to the readings and write its files beside the normals
+    /// ([`crate::app::rti::write_fit`]), its figures in `report.json`'s `rti`.
+    pub rti: Option<crate::solve::rti::Basis>,
 }
 
 /// Above this many vertices `mesh.obj` is skipped unless asked for.
@@ -260,6 +263,13 @@ pub fn run(
         })
         .transpose()?;
     let mut rec = reconstruct_with_truth(&capture, &options.params, truth.as_deref(), progress)?;
+    // `rti`: the relightable image from the same readings, while they are loaded.
+    let rti = options
+        .rti
+        .map(|basis| {
+            crate::app::rti::fit_beside_run(&capture, basis, options.params.memory_limit, &rec)
+        })
+        .transpose()?;
     drop(capture);
     rec.report
         .notes
@@ -300,6 +310,12 @@ pub fn run(
         }
     }
     write_reconstruction(&rec, folder.path(), options)?;
+    if let Some((fitted, mut entry)) = rti {
+        let (file, web) = crate::app::rti::write_fit(folder.path(), &fitted)?;
+        entry["file"] = file;
+        entry["web"] = web;
+        rec.report.extra.insert("rti".into(), entry);
+    }
     rec.report.time("write", t);
     rec.report.time("total", start);
     if let (Some(serde_json::Value::Object(m)), Some(peak)) = (

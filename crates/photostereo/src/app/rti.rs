@@ -26,6 +26,10 @@ pub struct RtiOptions {
     pub exclude_unreliable: bool,
     /// Memory budget in bytes (`None`: half the memory available), as `run`'s.
     pub memory_limit: Option<u64>,
+    /// Also write each plane image of relight's web folder as IIIF Image API 3.0 level-0
+    /// static tiles, `relight/plane_G/` (`info.json` and the tiles), served at this base URI
+    /// (`id` = `BASE/relight/plane_G`).
+    pub iiif: Option<String>,
 }
 
 /// The folder of relight's web format (info.json and the coefficient planes) in the output.
@@ -78,21 +82,12 @@ pub fn rti(
     // The files are written from the fit alone.
     drop((capture, rec));
     let t = Instant::now();
-    let image = folder.file(image_name(options.basis));
-    let maps = match options.basis {
-        Basis::PtmLrgb | Basis::PtmRgb => json!(crate::io::rti::ptm::write_ptm(&image, &fitted)?),
-        Basis::Hsh2 | Basis::Hsh3 => json!(crate::io::rti::hsh::write_hsh(&image, &fitted)?),
-        Basis::Rbf => crate::io::rti::write_rbf_basis(&image, &fitted)?,
-    };
-    crate::io::rti::write_float_coefficients(folder.path(), &fitted)?;
-    let web = crate::io::rti::relight::write_relight(&folder.file(WEB_FOLDER), &fitted)?;
-    report["file"] = json!({ "name": image_name(options.basis), "terms": maps });
-    report["web"] = json!({
-        "folder": WEB_FOLDER,
-        "type": web["type"],
-        "colorspace": web["colorspace"],
-        "nplanes": web["nplanes"],
-    });
+    let (file, mut web) = write_fit(folder.path(), &fitted)?;
+    if let Some(base) = &options.iiif {
+        web["iiif"] = write_iiif(folder.path(), &web, base)?;
+    }
+    report["file"] = file;
+    report["web"] = web;
     report["timings_s"] = json!({
         "reference": reference_s,
         "fit": fit_s,
@@ -102,6 +97,81 @@ pub fn rti(
     write_json(&folder.file("report.json"), &report)?;
     folder.commit()?;
     Ok(report)
+}
+
+/// Writes a fit's files into the folder `dir`: the viewer file ([`image_name`]), the float
+/// coefficients, `rti.json` and relight's web folder; returns the report's `file` and `web`
+/// entries.
+pub fn write_fit(dir: &Path, fitted: &RtiFit) -> Result<(Value, Value)> {
+    let name = image_name(fitted.basis);
+    let image = dir.join(name);
+    let maps = match fitted.basis {
+        Basis::PtmLrgb | Basis::PtmRgb => json!(crate::io::rti::ptm::write_ptm(&image, fitted)?),
+        Basis::Hsh2 | Basis::Hsh3 => json!(crate::io::rti::hsh::write_hsh(&image, fitted)?),
+        Basis::Rbf => crate::io::rti::write_rbf_basis(&image, fitted)?,
+    };
+    crate::io::rti::write_float_coefficients(dir, fitted)?;
+    crate::io::rti::write_model_json(&dir.join(crate::io::rti::MODEL_JSON), fitted)?;
+    let web = crate::io::rti::relight::write_relight(&dir.join(WEB_FOLDER), fitted)?;
+    Ok((
+        json!({ "name": name, "terms": maps }),
+        json!({
+            "folder": WEB_FOLDER,
+            "type": web["type"],
+            "colorspace": web["colorspace"],
+            "nplanes": web["nplanes"],
+        }),
+    ))
+}
+
+/// Writes IIIF level-0 tiles of each plane image of the web folder in `dir` (`web` as
+/// [`write_fit`] returns it) with service URIs under `base`; returns the services' ids.
+fn write_iiif(dir: &Path, web: &Value, base: &str) -> Result<Value> {
+    let base = base.trim_end_matches('/');
+    if !(base.starts_with("http://") || base.starts_with("https://")) {
+        return Err(Error::parameter(
+            "iiif",
+            format!("'{base}': expected the http:// or https:// URI the tiles will be served at"),
+        ));
+    }
+    let planes = web["nplanes"].as_u64().unwrap_or(0) as usize;
+    let folder = dir.join(WEB_FOLDER);
+    let mut ids = Vec::new();
+    for g in 0..planes.div_ceil(3) {
+        let id = format!("{base}/{WEB_FOLDER}/plane_{g}");
+        crate::io::rti::tiles::write_iiif_of(
+            &folder.join(format!("plane_{g}.png")),
+            &folder.join(format!("plane_{g}")),
+            &id,
+        )?;
+        ids.push(id);
+    }
+    Ok(json!(ids))
+}
+
+/// The fit `run --rti` makes beside the normals: `basis` over every reading of `capture`
+/// (within the budget rules of [`check_capture`]), with its leave-one-out error and the
+/// Lambertian relighting of the run's normals and albedo; returns the fit and its report
+/// entry (`report.json`'s `rti`).
+pub fn fit_beside_run(
+    capture: &Capture,
+    basis: Basis,
+    memory_limit: Option<u64>,
+    rec: &Reconstruction,
+) -> Result<(RtiFit, Value)> {
+    let options = RtiOptions {
+        basis,
+        exclude_unreliable: false,
+        memory_limit,
+        iiif: None,
+    };
+    check_capture(capture, &options)?;
+    let t = Instant::now();
+    let fitted = fit(capture, basis, None)?;
+    let lambert = lambert_errors(capture, &rec.normals, &rec.albedo, fitted.gain, None)?;
+    let mut entry = report(capture, &fitted, &lambert, rec, &options);
+    entry["timings_s"] = json!({ "fit": t.elapsed().as_secs_f64() });
+    Ok((fitted, entry))
 }
 
 /// Refuses what the fit cannot serve: near lights, and coefficients beyond the memory budget

@@ -98,6 +98,33 @@ pub fn write_rbf_basis(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
     Ok(serde_json::json!({ "sigma": model.sigma, "shape": [1 + fit.basis.terms(), n, c] }))
 }
 
+/// The name of the file describing a fit's model for the viewer ([`write_model_json`]).
+pub use crate::io::viewer::rti::MODEL_JSON;
+
+/// Writes `rti.json`: what the viewer needs besides the coefficients (`coefficients.npy`,
+/// `chroma.npy`, `basis.npy`) to relight the fit under any light: the basis, the frame, the
+/// channels, the display gain, and for RBF the kernel width σ and the light directions (unit,
+/// camera frame: x right, y up, z toward the camera) its model interpolates over.
+pub fn write_model_json(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
+    let mut v = serde_json::json!({
+        "format": "photostereo-rti 1",
+        "basis": fit.basis.name(),
+        "width": fit.width,
+        "height": fit.height,
+        "channels": fit.channels,
+        "fitted_channels": fit.fitted_channels,
+        "terms": fit.basis.terms(),
+        "display_gain": fit.gain,
+    });
+    if let Some(m) = &fit.rbf {
+        v["rbf"] = serde_json::json!({ "sigma": m.sigma, "lights": m.lights });
+    }
+    let text = serde_json::to_string_pretty(&v)
+        .map_err(|e| crate::base::error::Error::invalid(format!("{MODEL_JSON}: {e}")))?;
+    write_file(path, &[text.as_bytes()])?;
+    Ok(v)
+}
+
 /// Writes `bytes` to `path` through a buffer, naming the file on failure.
 pub(crate) fn write_file(path: &Path, parts: &[&[u8]]) -> Result<()> {
     let io = |e| crate::base::error::Error::io(path, e);

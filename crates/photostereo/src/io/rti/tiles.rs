@@ -173,6 +173,22 @@ pub fn write_iiif(
     Ok(info)
 }
 
+/// Writes the IIIF level-0 tiles ([`write_iiif`], tiles of [`IIIF_TILE`]) of the 8-bit image
+/// file `image` into `dir`, with the service URI `id`; returns `info.json`.
+pub fn write_iiif_of(image: &Path, dir: &Path, id: &str) -> Result<Value> {
+    let img = crate::io::imageio::read_image(image)?;
+    if img.channels != 3 || img.bit_depth != 8 {
+        return Err(Error::file(image, "expected an 8-bit RGB image"));
+    }
+    // Samples are bytes / 255: back to the bytes exactly.
+    let rgb: Vec<u8> = img
+        .data
+        .iter()
+        .map(|&v| (v * 255.0).round() as u8)
+        .collect();
+    write_iiif(dir, id, (img.width, img.height), &rgb, IIIF_TILE)
+}
+
 /// Writes an RGB JPEG (creating its folder).
 fn write_jpeg(path: &Path, w: usize, h: usize, rgb: &[u8]) -> Result<()> {
     if let Some(parent) = path.parent() {

@@ -38,6 +38,11 @@ pub struct RunFolder {
     pub error_deg: Option<Vec<f32>>,
     /// Where the ground truth came from.
     pub ground_truth: Option<PathBuf>,
+    /// The RTI fit written beside the maps (`rti.json`, by `run --rti` or `rti`).
+    pub rti: Option<super::rti::RtiLayer>,
+    /// `specular_strength.npy` and `roughness.npy` (`run --reflectance lobe|auto`), both or
+    /// neither.
+    pub gloss: Option<(Vec<f32>, Vec<f32>)>,
     /// `report.json`, when present and valid.
     pub report: Option<serde_json::Value>,
     /// Remarks for the user (maps skipped and why).
@@ -224,6 +229,20 @@ impl RunFolder {
         let fewer_than_three =
             read_bool_png(&dir.join("fewer_than_three.png"), width, height, &mut notes);
 
+        let rti = super::rti::RtiLayer::read(dir, width, height)?;
+        let gloss = match (
+            read_map(dir, "specular_strength.npy", width, height)?,
+            read_map(dir, "roughness.npy", width, height)?,
+        ) {
+            (Some(s), Some(r)) => Some((s, r)),
+            (None, None) => None,
+            _ => {
+                notes.push(
+                    "only one of specular_strength.npy and roughness.npy: no gloss layer".into(),
+                );
+                None
+            }
+        };
         let report: Option<serde_json::Value> = std::fs::read_to_string(dir.join("report.json"))
             .ok()
             .and_then(|t| serde_json::from_str(&t).ok());
@@ -260,6 +279,8 @@ impl RunFolder {
             fewer_than_three,
             error_deg,
             ground_truth: ground_truth_used,
+            rti,
+            gloss,
             report,
             notes,
         })

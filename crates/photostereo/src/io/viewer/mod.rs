@@ -20,6 +20,7 @@ pub mod openlime;
 pub mod page;
 pub mod pyramid;
 pub mod relight;
+pub mod rti;
 
 pub use folder::RunFolder;
 pub use relight::{albedo_white, relight, RelightParams};
@@ -75,11 +76,16 @@ struct Written {
     mesh: Option<mesh::MeshInfo>,
     files: usize,
     bytes: u64,
+    /// Per RTI plane, its least value and span ([`pyramid::Level::rti_ranges`]).
+    rti_ranges: Vec<(f32, f32)>,
 }
 
 /// The manifest's layers, in the page's order.
 fn layers_of(f: &RunFolder, mesh: bool) -> Vec<&'static str> {
     let mut v = vec!["relight", "normals"];
+    if f.rti.is_some() {
+        v.push("rti");
+    }
     if f.has_albedo {
         v.push("albedo");
     }
@@ -95,6 +101,9 @@ fn layers_of(f: &RunFolder, mesh: bool) -> Vec<&'static str> {
     }
     if f.error_deg.is_some() {
         v.push("error");
+    }
+    if f.gloss.is_some() {
+        v.push("gloss");
     }
     if mesh {
         v.push("mesh");
@@ -221,6 +230,7 @@ impl MapScales {
 fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Written> {
     let tiles_dir = staging.join("tiles");
     let mut level = pyramid::Level::base(f, scales.depth_range);
+    let rti_ranges = level.rti_ranges.clone();
     let mut groups = vec!['n', 'a', 'q'];
     if level.depth_rgb.is_some() {
         groups.push('d');
@@ -230,6 +240,13 @@ fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Wri
     }
     if level.status.is_some() {
         groups.push('s');
+    }
+    if level.rti.is_some() {
+        groups.push('c');
+        groups.push('u');
+    }
+    if level.gloss.is_some() {
+        groups.push('g');
     }
     let (mut files, mut bytes) = (0usize, 0u64);
     let mut levels = Vec::new();
@@ -260,6 +277,7 @@ fn write_staged(f: &RunFolder, staging: &Path, scales: &MapScales) -> Result<Wri
         mesh,
         files,
         bytes,
+        rti_ranges,
     })
 }
 
@@ -324,7 +342,39 @@ fn manifest(
             "light": relight::DEFAULT_LIGHT,
             "shininess": RelightParams::default().shininess,
         },
+        "rti": f.rti.as_ref().map(|l| rti_manifest(l, &written.rti_ranges)),
+        "gloss": f.gloss.as_ref().map(|(s, r)| {
+            let top = |v: &[f32]| {
+                finite_max(v.iter().zip(&f.mask).filter(|(_, &m)| m).map(|(x, _)| *x))
+                    .filter(|&m| m > 0.0)
+                    .unwrap_or(1.0)
+            };
+            json!({ "strength_max": top(s), "roughness_max": top(r) })
+        }),
         "notes": notes,
+    })
+}
+
+/// What the page needs to relight an RTI fit: the basis, the planes' layout and code ranges,
+/// and for RBF its model (σ, lights, mean and components as `basis.npy` holds them).
+fn rti_manifest(l: &rti::RtiLayer, ranges: &[(f32, f32)]) -> Value {
+    json!({
+        "basis": l.basis.name(),
+        "terms": l.basis.terms(),
+        "fitted_channels": l.fitted_channels,
+        "coefficient_planes": l.coefficient_planes,
+        "chroma": l.chroma,
+        "planes": l.planes(),
+        "lo": ranges.iter().map(|r| r.0).collect::<Vec<_>>(),
+        "span": ranges.iter().map(|r| r.1).collect::<Vec<_>>(),
+        "rbf": l.rbf.as_ref().map(|m| json!({
+            "sigma": m.sigma,
+            "lights": m.lights,
+            "channels": m.channels,
+            "mean": m.mean,
+            "planes": m.planes,
+            "min_weight": crate::solve::rti::rbf::MIN_WEIGHT,
+        })),
     })
 }
 

@@ -15,10 +15,17 @@
 //! - `s`: light statuses, 2 bits per light (0 used, 1 shadow, 2 highlight, 3 rejected), four
 //!   lights per byte: plane p (lights 4p..4p+3, light 4p+j in bits 2j..2j+1) is `tw·th` bytes,
 //!   planes one after the other.
+//! - `c`: the RTI fit's planes ([`super::rti::RtiLayer`]), P per pixel, each as u16,
+//!   (v − lo_q) / span_q · 65535 with the plane's range over the frame ([`Level::rti_ranges`]),
+//!   packed four planes a texel: layer L (planes 4L..4L+3, zero past P) is `tw·th` texels of
+//!   4 × u16, layers one after the other.
+//! - `u`: the normals blurred for the unsharp mask ([`super::rti::blur_normals`] of the level's
+//!   normals), as `n`.
+//! - `g`: 2 × f32 per pixel: specular strength and roughness (−1 where missing).
 //!
 //! Reduced levels: normals are the normalised sum of the inside children, albedo and shaded depth
 //! their mean, the unusable count and residual their maximum, the error its mean, flags their
-//! union, and statuses those of the first inside child (row-major).
+//! union, statuses those of the first inside child (row-major), RTI planes and gloss their mean.
 
 use super::folder::RunFolder;
 use crate::base::error::{Error, Result};
@@ -48,6 +55,41 @@ pub struct Level {
     /// Packed statuses: `planes` planes of `width·height` bytes.
     pub status: Option<Vec<u8>>,
     pub planes: usize,
+    /// RTI planes, `[pixel][plane]`, `rti_planes` per pixel.
+    pub rti: Option<Vec<f32>>,
+    pub rti_planes: usize,
+    /// Per RTI plane, the least value and the span of its u16 code.
+    pub rti_ranges: Vec<(f32, f32)>,
+    /// Blurred normals (with the RTI layer).
+    pub blurred: Option<Vec<[f32; 3]>>,
+    /// (specular strength, roughness).
+    pub gloss: Option<Vec<[f32; 2]>>,
+}
+
+/// Per plane of `values` (`planes` per pixel), over the pixels `inside` marks: the least value
+/// and the span (1 when the plane is constant).
+fn plane_ranges(values: &[f32], planes: usize, inside: impl Fn(usize) -> bool) -> Vec<(f32, f32)> {
+    let mut r = vec![(f32::INFINITY, f32::NEG_INFINITY); planes];
+    for (i, px) in values.chunks_exact(planes).enumerate() {
+        if inside(i) {
+            for (e, &v) in r.iter_mut().zip(px) {
+                if v.is_finite() {
+                    *e = (e.0.min(v), e.1.max(v));
+                }
+            }
+        }
+    }
+    r.into_iter()
+        .map(|(lo, hi)| {
+            if lo < hi {
+                (lo, hi - lo)
+            } else if lo.is_finite() {
+                (lo, 1.0)
+            } else {
+                (0.0, 1.0)
+            }
+        })
+        .collect()
 }
 
 /// The size of the next level of a pyramid: both sides halved, rounded up (a pixel of the
@@ -218,6 +260,26 @@ impl Level {
             }
             None => (None, 0),
         };
+        let rti_planes = f.rti.as_ref().map_or(0, |l| l.planes());
+        let rti = f.rti.as_ref().map(|l| l.values.clone());
+        let rti_ranges = rti
+            .as_ref()
+            .map_or(Vec::new(), |v| plane_ranges(v, rti_planes, |i| f.mask[i]));
+        let blurred = f
+            .rti
+            .as_ref()
+            .map(|_| super::rti::blur_normals(w, h, &f.normals, super::rti::UNSHARP_SIGMA));
+        let gloss = f.gloss.as_ref().map(|(s, r)| {
+            (0..hw)
+                .map(|i| {
+                    if f.mask[i] {
+                        [s[i], r[i]]
+                    } else {
+                        [f32::NAN; 2]
+                    }
+                })
+                .collect()
+        });
         Level {
             width: w,
             height: h,
@@ -228,7 +290,34 @@ impl Level {
             r,
             status,
             planes,
+            rti,
+            rti_planes,
+            rti_ranges,
+            blurred,
+            gloss,
         }
+    }
+
+    /// The mean over the inside children `v[..k]` of each pixel of the next level of a
+    /// per-pixel vector field of `per` values (NaN values left out; NaN when none).
+    fn reduce_mean(values: &[f32], per: usize, kids: &[([usize; 4], usize)]) -> Vec<f32> {
+        let mut out = vec![f32::NAN; kids.len() * per];
+        out.par_chunks_mut(per).zip(kids).for_each(|(o, (v, k))| {
+            for (q, x) in o.iter_mut().enumerate() {
+                let (mut s, mut n) = (0f32, 0usize);
+                for &i in &v[..*k] {
+                    let y = values[i * per + q];
+                    if y.is_finite() {
+                        s += y;
+                        n += 1;
+                    }
+                }
+                if n > 0 {
+                    *x = s / n as f32;
+                }
+            }
+        });
+        out
     }
 
     /// The next level: both sides halved (rounded up).
@@ -320,6 +409,37 @@ impl Level {
                 out
             })
             .collect();
+        let kids: Vec<([usize; 4], usize)> = if self.rti.is_some() || self.gloss.is_some() {
+            (0..w2 * h2).map(|j| children(j / w2, j % w2)).collect()
+        } else {
+            Vec::new()
+        };
+        let rti = self
+            .rti
+            .as_ref()
+            .map(|v| Self::reduce_mean(v, self.rti_planes, &kids));
+        let gloss = self.gloss.as_ref().map(|g| {
+            let flat: Vec<f32> = g.iter().flatten().copied().collect();
+            Self::reduce_mean(&flat, 2, &kids)
+                .chunks_exact(2)
+                .map(|p| [p[0], p[1]])
+                .collect()
+        });
+        let normals: Vec<[f32; 3]> = px.iter().map(|x| x.n).collect();
+        let blurred = self.blurred.as_ref().map(|_| {
+            let inside: Vec<[f32; 3]> = normals
+                .iter()
+                .zip(&px)
+                .map(|(n, x)| {
+                    if x.q[1] & FLAG_INSIDE != 0 {
+                        *n
+                    } else {
+                        [0.0; 3]
+                    }
+                })
+                .collect();
+            super::rti::blur_normals(w2, h2, &inside, super::rti::UNSHARP_SIGMA)
+        });
         let status = self.status.as_ref().map(|s| {
             let (hw, hw2) = (w * h, w2 * h2);
             let mut out = vec![0u8; self.planes * hw2];
@@ -335,7 +455,7 @@ impl Level {
         Level {
             width: w2,
             height: h2,
-            normals: px.iter().map(|x| x.n).collect(),
+            normals,
             albedo: px.iter().map(|x| x.a).collect(),
             depth_rgb: self
                 .depth_rgb
@@ -345,6 +465,11 @@ impl Level {
             r: self.r.as_ref().map(|_| px.iter().map(|x| x.r).collect()),
             status,
             planes: self.planes,
+            rti,
+            rti_planes: self.rti_planes,
+            rti_ranges: self.rti_ranges.clone(),
+            blurred,
+            gloss,
         }
     }
 
@@ -371,10 +496,15 @@ impl Level {
         let pixels = move || (0..th).flat_map(move |y| (0..tw).map(move |x| idx(y, x)));
         let mut out = Vec::new();
         match group {
-            'n' => {
+            'n' | 'u' => {
+                let normals = if group == 'n' {
+                    &self.normals
+                } else {
+                    self.blurred.as_ref()?
+                };
                 out.reserve(tw * th * 6);
                 for i in pixels() {
-                    let n = self.normals[i];
+                    let n = normals[i];
                     let inside = self.q[i][1] & FLAG_INSIDE != 0;
                     for v in n {
                         let code = if inside {
@@ -410,6 +540,34 @@ impl Level {
                 let r = self.r.as_ref()?;
                 for i in pixels() {
                     for v in r[i] {
+                        let v = if v.is_finite() { v } else { -1.0 };
+                        out.extend_from_slice(&v.to_le_bytes());
+                    }
+                }
+            }
+            'c' => {
+                let v = self.rti.as_ref()?;
+                let p = self.rti_planes;
+                for layer in 0..p.div_ceil(4) {
+                    for i in pixels() {
+                        for q in 4 * layer..4 * layer + 4 {
+                            let code = if q < p && v[i * p + q].is_finite() {
+                                let (lo, span) = self.rti_ranges[q];
+                                ((v[i * p + q] - lo) / span * 65535.0)
+                                    .round()
+                                    .clamp(0.0, 65535.0) as u16
+                            } else {
+                                0
+                            };
+                            out.extend_from_slice(&code.to_le_bytes());
+                        }
+                    }
+                }
+            }
+            'g' => {
+                let g = self.gloss.as_ref()?;
+                for i in pixels() {
+                    for v in g[i] {
                         let v = if v.is_finite() { v } else { -1.0 };
                         out.extend_from_slice(&v.to_le_bytes());
                     }

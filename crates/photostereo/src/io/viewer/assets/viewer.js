@@ -20,6 +20,8 @@
     count: { label: 'unusable lights', groups: ['q'] },
     status: { label: 'light status', groups: ['q', 's'] },
     error: { label: 'error', groups: ['q', 'r'] },
+    rti: { label: 'RTI', groups: ['n', 'a', 'c', 'u'] },
+    gloss: { label: 'gloss', groups: ['q', 'g'] },
     mesh: { label: '3D', groups: [] },
   };
   const STATUS_NAMES = ['used', 'shadow', 'highlight', 'rejected'];
@@ -36,6 +38,9 @@
     shininess: M.defaults.shininess,
     ambient: 0,
     srgb: true,
+    dgain: 1,
+    unsharp: 0,
+    gloss: 'strength',
     k: 1,
     probe: null,
     plain: false,
@@ -69,6 +74,8 @@
         case 'exposure': case 'specular': case 'shininess': case 'ambient':
           if (Number.isFinite(+val)) S[key] = +val; break;
         case 'srgb': S.srgb = val !== '0'; break;
+        case 'dgain': case 'unsharp': if (Number.isFinite(+val)) S[key] = +val; break;
+        case 'gloss': S.gloss = val === 'roughness' ? 'roughness' : 'strength'; break;
         case 'k': if (Number.isInteger(+val)) S.k = Math.min(Math.max(+val, 1), Math.max(NL, 1)); break;
         case 'probe': if ((v = nums(val, 2))) S.probe = v.map(Math.round); break;
         case 'plain': S.plain = val !== '0'; break;
@@ -82,6 +89,8 @@
     S.specular = Math.min(Math.max(S.specular, 0), 10);
     S.shininess = Math.min(Math.max(S.shininess, 1), 10000);
     S.ambient = Math.min(Math.max(S.ambient, 0), 1);
+    S.dgain = Math.min(Math.max(S.dgain, 0), 20);
+    S.unsharp = Math.min(Math.max(S.unsharp, 0), 20);
   }
   const r4 = (x) => +x.toFixed(4);
   let hashTimer = 0;
@@ -94,6 +103,9 @@
       if (S.shininess !== M.defaults.shininess) p.push('shininess=' + r4(S.shininess));
       if (S.ambient) p.push('ambient=' + r4(S.ambient));
       if (!S.srgb) p.push('srgb=0');
+      if (S.dgain !== 1) p.push('dgain=' + r4(S.dgain));
+      if (S.unsharp) p.push('unsharp=' + r4(S.unsharp));
+      if (S.layer === 'gloss') p.push('gloss=' + S.gloss);
       if (S.layer === 'status') p.push('k=' + S.k);
       if (S.probe) p.push('probe=' + S.probe.join(','));
       if (S.plain) p.push('plain=1');
@@ -173,9 +185,14 @@
     q: [gl.RG8UI, gl.RG_INTEGER, gl.UNSIGNED_BYTE, 2, Uint8Array],
     r: [gl.RG32F, gl.RG, gl.FLOAT, 8, Float32Array],
     s: [gl.R8UI, gl.RED_INTEGER, gl.UNSIGNED_BYTE, 1, Uint8Array],
+    c: [gl.RGBA16UI, gl.RGBA_INTEGER, gl.UNSIGNED_SHORT, 8, Uint16Array],
+    u: [gl.RGB16UI, gl.RGB_INTEGER, gl.UNSIGNED_SHORT, 6, Uint16Array],
+    g: [gl.RG32F, gl.RG, gl.FLOAT, 8, Float32Array],
   };
-  const UNITS = { n: 0, a: 1, d: 2, q: 3, r: 4, s: 5 };
-  const SAMPLERS = { n: 'uN', a: 'uA', d: 'uD', q: 'uQ', r: 'uR', s: 'uS' };
+  const UNITS = { n: 0, a: 1, d: 2, q: 3, r: 4, s: 5, c: 6, u: 7, g: 8 };
+  const SAMPLERS = { n: 'uN', a: 'uA', d: 'uD', q: 'uQ', r: 'uR', s: 'uS', c: 'uC', u: 'uU', g: 'uG' };
+  // The RTI planes' texture holds its layers of four planes one under the other.
+  const RTI_LAYERS = M.rti ? Math.ceil(M.rti.planes / 4) : 1;
 
   // ---------------------------------------------------------------- loading tiles
   window.PSV = window.PSV || {};
@@ -242,7 +259,7 @@
         gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE);
         gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE);
         if (e.g === 's') { e.plane = -1; gl.texStorage2D(gl.TEXTURE_2D, 1, F[0], w, h); }
-        else gl.texImage2D(gl.TEXTURE_2D, 0, F[0], w, h, 0, F[1], F[2], e.data);
+        else gl.texImage2D(gl.TEXTURE_2D, 0, F[0], w, e.g === 'c' ? h * RTI_LAYERS : h, 0, F[1], F[2], e.data);
         // Keep the CPU copy only where the page reads it again (statuses, level 0 for the probe).
         if (e.g !== 's' && e.l !== 0) e.data = null;
         e.state = 'ready';
@@ -331,11 +348,82 @@
     gl.uniform1f(u.uAmbient, S.ambient);
     gl.uniform1i(u.uSrgb, S.srgb ? 1 : 0);
   }
+  // ---------------------------------------------------------------- RTI (viewer/rti.rs)
+  // The basis functions of PTM and HSH at the unit light l (solve/rti/mod.rs, Basis::eval).
+  function basisEval(name, l) {
+    if (name === 'ptm' || name === 'ptm-rgb') return [l[0] * l[0], l[1] * l[1], l[0] * l[1], l[0], l[1], 1];
+    const ct = Math.min(Math.max(l[2], 0), 1), phi = Math.atan2(l[1], l[0]);
+    const s = Math.sqrt(Math.max(ct - ct * ct, 0)), PI = Math.PI, k = Math.sqrt(30 / PI);
+    const b = [1 / Math.sqrt(2 * PI), Math.sqrt(6 / PI) * Math.cos(phi) * s,
+      Math.sqrt(3 / (2 * PI)) * (2 * ct - 1), Math.sqrt(6 / PI) * Math.sin(phi) * s];
+    if (name === 'hsh3') {
+      b.push(k * Math.cos(2 * phi) * (ct * ct - ct), k * Math.cos(phi) * (2 * ct - 1) * s,
+        Math.sqrt(5 / (2 * PI)) * (6 * ct * ct - 6 * ct + 1), k * Math.sin(phi) * (2 * ct - 1) * s,
+        k * Math.sin(2 * phi) * (ct * ct - ct));
+    }
+    return b;
+  }
+  // relight's RBF: normalised Gaussian weights of l over the lights, those not above
+  // min_weight dropped and the rest renormalised; the nearest light alone when all underflow.
+  function rbfWeights(R, l) {
+    const L = R.lights, r = 1 / (R.sigma * R.sigma);
+    const d2 = L.map((li) => (li[0] - l[0]) ** 2 + (li[1] - l[1]) ** 2 + (li[2] - l[2]) ** 2);
+    let w = d2.map((d) => Math.exp(-r * d));
+    const total = w.reduce((a, b) => a + b, 0);
+    if (!(total > 0) || !Number.isFinite(total)) {
+      let best = 0;
+      d2.forEach((d, i) => { if (d < d2[best]) best = i; });
+      return w.map((_, i) => (i === best ? 1 : 0));
+    }
+    w = w.map((x) => { const y = x / total; return y > R.min_weight ? y : 0; });
+    const kept = w.reduce((a, b) => a + b, 0);
+    return w.map((x) => x / kept);
+  }
+  // The planes' weights under l: w0 (3) and w (K × 3).
+  function rtiWeights(l) {
+    const R = M.rti, K = R.coefficient_planes, w = new Float32Array(27 * 3), w0 = [0, 0, 0];
+    if (R.rbf) {
+      const m = R.rbf, c = m.channels, n = m.lights.length, d = n * c, wt = rbfWeights(m, l);
+      for (let i = 0; i < n; i++) {
+        if (!(wt[i] > 0)) continue;
+        for (let ch = 0; ch < 3; ch++) {
+          const cc = Math.min(ch, c - 1);
+          w0[ch] += wt[i] * m.mean[i * c + cc];
+          for (let j = 0; j < K; j++) w[j * 3 + ch] += wt[i] * m.planes[j * d + i * c + cc];
+        }
+      }
+      return { w0, w };
+    }
+    const b = basisEval(R.basis, l), T = R.terms;
+    for (let q = 0; q < K; q++) {
+      const ch = Math.floor(q / T), j = q % T;
+      for (let c = 0; c < 3; c++) w[q * 3 + c] = R.fitted_channels === 1 || c === ch ? b[j] : 0;
+    }
+    return { w0, w };
+  }
+  function rtiUniforms(u) {
+    const R = M.rti, l = norm3(S.light), { w0, w } = rtiWeights(l);
+    gl.uniform1i(u.uPlanes, R.coefficient_planes);
+    gl.uniform1i(u.uChroma, R.chroma ? 1 : 0);
+    const lo = new Float32Array(32), span = new Float32Array(32);
+    lo.set(R.lo); span.set(R.span);
+    gl.uniform1fv(u['uLo[0]'], lo);
+    gl.uniform1fv(u['uSpan[0]'], span);
+    gl.uniform3fv(u['uW[0]'], w);
+    gl.uniform3fv(u.uW0, w0);
+    const ptm = R.basis === 'ptm' || R.basis === 'ptm-rgb';
+    gl.uniform1i(u.uPtm, ptm ? 1 : 0);
+    gl.uniform1i(u.uFc, R.fitted_channels);
+    gl.uniform1fv(u['uB[0]'], new Float32Array(basisEval('ptm', l)));
+    gl.uniform1f(u.uDGain, ptm ? S.dgain : 1);
+    gl.uniform1f(u.uSharp, S.unsharp);
+  }
   function layerMax() {
     switch (S.layer) {
       case 'unreliable': return M.residual ? M.residual.max : 1;
       case 'count': return Math.max(NL, 1);
       case 'error': return M.error ? M.error.max_deg : 45;
+      case 'gloss': return M.gloss ? (S.gloss === 'roughness' ? M.gloss.roughness_max : M.gloss.strength_max) : 1;
       default: return 1;
     }
   }
@@ -361,6 +449,8 @@
     gl.uniform1f(u.uAlbedoMax, M.albedo.max);
     gl.uniform1f(u.uMax, layerMax());
     gl.uniform3f(u.uBg, 0, 0, 0);
+    if (S.layer === 'rti') rtiUniforms(u);
+    if (S.layer === 'gloss') gl.uniform1i(u.uGloss, S.gloss === 'roughness' ? 1 : 0);
     const plane = (S.k - 1) >> 2;
     gl.uniform1i(u.uShift, 2 * ((S.k - 1) & 3));
     const groups = LAYER_INFO[S.layer].groups;
@@ -648,6 +738,9 @@
       shininess: S.shininess,
       ambient: S.ambient,
       srgb: S.srgb,
+      dgain: S.dgain,
+      unsharp: S.unsharp,
+      gloss: S.gloss,
       k: S.k,
       level: status.level,
       zoom: view.zoom,
@@ -713,7 +806,16 @@
   }
   function syncUi() {
     for (const b of $('layers').children) b.classList.toggle('on', b.dataset.layer === S.layer);
-    const lightLayers = ['relight', 'mesh', 'albedo'];
+    const lightLayers = ['relight', 'mesh', 'albedo', 'rti'];
+    $('rti-section').hidden = !M.rti;
+    if (M.rti) {
+      const ptm = M.rti.basis === 'ptm' || M.rti.basis === 'ptm-rgb';
+      $('dgain').disabled = !ptm;
+      $('dgain').value = S.dgain; $('dgain-v').textContent = ptm ? S.dgain.toFixed(1) : 'PTM only';
+      $('unsharp').value = S.unsharp; $('unsharp-v').textContent = S.unsharp.toFixed(1);
+    }
+    $('gloss-section').hidden = !M.gloss;
+    if (M.gloss) $('gloss-roughness').checked = S.gloss === 'roughness';
     $('light-section').style.opacity = lightLayers.includes(S.layer) ? 1 : 0.55;
     $('exposure').value = S.exposure; $('exposure-v').textContent = S.exposure.toFixed(1) + ' EV';
     $('specular').value = S.specular; $('specular-v').textContent = S.specular.toFixed(2);
@@ -762,6 +864,9 @@
     slider('shininess', (v) => { S.shininess = Math.max(1, Math.round(Math.pow(1000, v))); });
     slider('ambient', (v) => { S.ambient = v; });
     slider('k', (v) => { S.k = v; });
+    slider('dgain', (v) => { S.dgain = v; });
+    slider('unsharp', (v) => { S.unsharp = v; });
+    $('gloss-roughness').addEventListener('change', (e) => { S.gloss = e.target.checked ? 'roughness' : 'strength'; syncUi(); });
     $('srgb').addEventListener('change', (e) => { S.srgb = e.target.checked; syncUi(); });
     $('preset-default').onclick = () => { S.light = M.defaults.light.slice(); syncUi(); };
     $('preset-top').onclick = () => { S.light = [0, 0, 1]; syncUi(); };
@@ -903,6 +1008,13 @@
         el.appendChild(bar(cmapCss, 0, M.error.max_deg, '°'));
         el.appendChild(note('angular error against ' + (M.error.ground_truth || 'ground truth') + '; grey: no ground truth'));
         break;
+      case 'rti':
+        el.appendChild(note('the ' + M.rti.basis + ' fit (' + M.rti.planes + ' planes) relit under the light, times 2^exposure; specular and shininess add a white highlight from the normals, diffuse gain (PTM) scales its curvature, unsharp sharpens the normals\' shading'));
+        break;
+      case 'gloss':
+        el.appendChild(bar(cmapCss, 0, layerMax(), ''));
+        el.appendChild(note((S.gloss === 'roughness' ? 'specular lobe roughness' : 'specular strength') + ' (grey: not fitted)'));
+        break;
       case 'mesh':
         el.appendChild(note('mesh from depth, every ' + M.mesh.stride + ' px (' + M.mesh.vertices + ' vertices), lit like the relight layer; the light is fixed to the object'));
         break;
@@ -917,7 +1029,7 @@
     const rect = canvas.getBoundingClientRect();
     const x = e.clientX - rect.left, y = e.clientY - rect.top;
     const pan = e.shiftKey || e.button !== 0;
-    const mode = S.layer === 'mesh' ? (pan ? 'mesh-pan' : 'orbit') : (S.layer === 'relight' && !pan ? 'light' : 'pan');
+    const mode = S.layer === 'mesh' ? (pan ? 'mesh-pan' : 'orbit') : ((S.layer === 'relight' || S.layer === 'rti') && !pan ? 'light' : 'pan');
     drag = { x, y, x0: x, y0: y, mode, moved: false };
   });
   canvas.addEventListener('pointermove', (e) => {
