@@ -23,14 +23,33 @@
 //!
 //! A pixel is fitted where the recursion attributed a highlight to one of its lights and at
 //! least [`MIN_LIGHTS`] lights are out of shadow, from the recursion's normal (a
-//! Levenberg–Marquardt descent, `descend`). The lobe is significant where it lowers the χ² of
-//! the best Lambertian fit over the same lights by more than the χ²₁ quantile at the detector's
-//! confidence (one more parameter, s). With [`Reflectance::Auto`] a significant fit's normal
-//! replaces the recursion's; with [`Reflectance::Lobe`] every fit with a lobe (s > 0) does;
-//! elsewhere the recursion's choice of lights stands. The fit's own χ² test (χ² at most the
-//! quantile of N_fit − 4 degrees of freedom, N_fit − 5 with its own m) is reported, not used:
-//! on real captures the lobe, like the Lambertian model over the lights the recursion keeps,
-//! rarely explains the readings to the noise level, while its normal is the better one.
+//! Levenberg–Marquardt descent, `descend`). Whether the lobe is evidence of a highlight is
+//! decided by tests, all at the detector's confidence:
+//!
+//! - *significant*: the Lambertian fit over the lit readings (USED and HIGHLIGHT) fails its χ²
+//!   test (χ² above the quantile of N − 3 degrees of freedom for the measured noise), and the
+//!   lobe's lowering of that χ² passes the F-test of nested fits, F = (Δχ²/Δp) / (χ²_lobe /
+//!   (N − p)) against the F(Δp, N − p) quantile (p = 4 unknowns, 5 with the pixel's own m;
+//!   Δp = p − 3). The ratio does not depend on the noise level, so that a noise model that is
+//!   off by a factor does not make every lobe significant;
+//! - *physical*: the fit's normal faces the camera and every lit light (a surface reflects
+//!   neither diffusely nor specularly a light behind it);
+//! - *specular*: the lobe about the half vectors fits better than the same lobe about the light
+//!   directions (shading that falls faster than n · l — a non-linear camera response, sheen —
+//!   fits that one as well or better);
+//! - *determined*: the fit's normal has a standard error (its covariance scaled by χ²_lobe /
+//!   (N − p)) at most the Lambertian normal's (scaled by χ²_L / (N − 3)); a lobe that trades
+//!   off against the diffuse term leaves the normal loose.
+//!
+//! [`Reflectance::Auto`] decides per capture first, over the pixels sampled for m: the capture
+//! has lobes when more of them are significant than the binomial quantile of the F-test's
+//! false-alarm rate (what Lambertian readings would give), and more of those are specular and
+//! determined than the binomial quantile of a coin toss; then each pixel that passes all four
+//! tests takes the fit's normal. [`Reflectance::Lobe`] takes every physical fit with a lobe
+//! (s > 0). Elsewhere the recursion's choice of lights stands. The fit's own χ² test (χ² at
+//! most the quantile of N − p degrees of freedom) is reported, not used: on real captures the
+//! lobe, like the Lambertian model over the lights the recursion keeps, rarely explains the
+//! readings to the noise level, while its normal is the better one.
 //!
 //! Light ring and four-light rigs leave fewer than [`MIN_LIGHTS`] lights: nothing is fitted
 //! there. Cost: a few Gauss–Newton passes over the pixel's lights per fitted pixel; memory two
@@ -106,8 +125,25 @@ pub struct GlossSummary {
     pub exponent: Option<f64>,
     /// Its roughness √(2/m).
     pub roughness: Option<f64>,
+    /// The capture's evidence: candidate pixels sampled (a highlight attributed,
+    /// [`MIN_LIGHTS`] lights out of shadow) ...
+    pub sample_pixels: usize,
+    /// ... of them, those whose lobe is significant ...
+    pub sample_significant: usize,
+    /// ... and the most that Lambertian readings would give at the detector's confidence
+    /// (binomial quantile at the test's false-alarm rate) ...
+    pub sample_null_bound: usize,
+    /// ... of the significant, those whose lobe about the half vectors fits better than the
+    /// same lobe about the light directions, with a normal determined at least as well as the
+    /// Lambertian one ...
+    pub sample_specular: usize,
+    /// ... and the most that a coin toss would give (binomial quantile, p = ½). `auto` models
+    /// the capture's lobes only when both counts exceed their bounds.
+    pub sample_specular_bound: usize,
     /// Pixels fitted: a highlight attributed and [`MIN_LIGHTS`] lights out of shadow.
     pub fitted_pixels: usize,
+    /// Of those, the pixels whose Lambertian fit over the lit readings fails its χ² test.
+    pub lambert_rejected_pixels: usize,
     /// Of those, the pixels where the lobe is significant.
     pub significant_pixels: usize,
     /// Of those, the pixels whose lobe fit passes the χ² test.
@@ -145,6 +181,9 @@ struct Lights<'a> {
     noise: &'a NoiseModel,
     /// χ² quantiles at the detector's confidence, by degrees of freedom.
     q: Vec<f64>,
+    /// F quantiles at the detector's confidence: `f[j][d]` for j + 1 extra parameters and d
+    /// degrees of freedom of the lobe fit's residual.
+    f: [Vec<f64>; 2],
 }
 
 /// One pixel's fit.
@@ -155,9 +194,15 @@ struct PixelFit {
     strength: f64,
     exponent: f64,
     own_exponent: bool,
-    /// The fit has a lobe (s > 0).
+    /// The fit has a lobe (s > 0) and its normal faces the camera and the lit lights.
     lobe: bool,
+    /// The Lambertian fit's χ² over the lit readings exceeds its quantile.
+    lambert_rejected: bool,
+    /// The lobe's lowering of that χ² passes the F-test.
     significant: bool,
+    /// The lobe about the half vectors fits better than the same lobe about the lights, and
+    /// the fit's normal is determined at least as well as the Lambertian one.
+    specular: bool,
     passes: bool,
 }
 
@@ -225,17 +270,43 @@ impl Lights<'_> {
         let own_exponent = exponent != m;
         let (_, rho, strength) = fit_at(d, normal, exponent);
         let lambert = diffuse_residual(d);
-        let dof = count.saturating_sub(4 + own_exponent as usize);
-
+        // Unknowns: the normal's two angles, ρ and s, and the pixel's own m where it has one;
+        // the Lambertian fit has three (the scaled normal).
+        let params = 4 + own_exponent as usize;
+        let dof = count.saturating_sub(params);
+        // A surface reflects only the lights in front of it, diffusely or specularly: the fit's
+        // normal must face the camera and every light the recursion found lit.
+        let physical =
+            normal[2] > 0.0 && (0..d.v.len()).all(|k| !d.used[k] || dot(d.v[k], normal) > 0.0);
+        let lobe = strength > 0.0 && physical;
+        // The same lobe about the light direction instead of the half vector: shading that
+        // falls off faster than n · l (a non-linear camera response, sheen) fits it as well or
+        // better, a highlight does not.
+        let about_light = PixelData { h: self.dirs, ..*d };
+        let specular = lobe && e < descend(&about_light, start, exponent).0;
+        // The better-determined normal: the lobe fit's where its standard error (the
+        // covariance of the fit, scaled by its residual per degree of freedom) is at most the
+        // Lambertian fit's; a lobe that trades off against the diffuse term leaves the normal
+        // loose.
+        let determined = dof > 0
+            && count > 3
+            && lobe_normal_variance(d, normal, exponent, rho, strength) * e / dof as f64
+                <= lambert_normal_variance(d) * lambert / (count - 3) as f64;
         PixelFit {
             normal,
             rho,
             strength,
             exponent,
             own_exponent,
-            lobe: strength > 0.0,
-            significant: strength > 0.0 && lambert - e > q1,
+            lobe,
+            lambert_rejected: lambert > self.q[count.saturating_sub(3)],
+            significant: lobe && lambert > self.q[count.saturating_sub(3)] && dof > 0 && {
+                let extra = params - 3;
+                let f = ((lambert - e) / extra as f64) / (e / dof as f64).max(1e-300);
+                f > self.f[extra - 1][dof]
+            },
             passes: dof > 0 && e <= self.q[dof],
+            specular: specular && determined,
         }
     }
 }
@@ -264,13 +335,20 @@ pub fn model_highlights(
         half,
         noise,
         q: quantiles(confidence, n),
+        f: [1, 2].map(|extra| f_quantiles(confidence, extra, n)),
     };
     let mut summary = GlossSummary {
         reflectance,
         chosen: "lambert",
         exponent: None,
         roughness: None,
+        sample_pixels: 0,
+        sample_significant: 0,
+        sample_null_bound: 0,
+        sample_specular: 0,
+        sample_specular_bound: 0,
         fitted_pixels: 0,
+        lambert_rejected_pixels: 0,
         significant_pixels: 0,
         passing_pixels: 0,
         refined_pixels: 0,
@@ -284,16 +362,28 @@ pub fn model_highlights(
     if reflectance == Reflectance::Lambert || n < MIN_LIGHTS {
         return Ok((summary, maps));
     }
-    let Some(m) = capture_sharpness(capture, light_status, est, &lights)? else {
+    let Some(evidence) = capture_sharpness(capture, light_status, est, &lights)? else {
         return Ok((summary, maps));
     };
+    let m = evidence.exponent;
     summary.exponent = Some(m);
     summary.roughness = Some((2.0 / m).sqrt());
-    // (fitted, significant, passing, refined, own exponent)
-    let mut counts = [0usize; 5];
+    summary.sample_pixels = evidence.sampled;
+    summary.sample_significant = evidence.significant;
+    summary.sample_null_bound = binomial_quantile(evidence.sampled, 1.0 - confidence, confidence);
+    summary.sample_specular = evidence.specular;
+    summary.sample_specular_bound = binomial_quantile(evidence.significant, 0.5, confidence);
+    if reflectance == Reflectance::Auto
+        && (evidence.significant <= summary.sample_null_bound
+            || evidence.specular <= summary.sample_specular_bound)
+    {
+        return Ok((summary, maps));
+    }
+    // (fitted, significant, passing, refined, own exponent, Lambert rejected)
+    let mut counts = [0usize; 6];
     capture.for_each_tile(|off, tile| {
         let tn = tile.n_pixels();
-        let sums: Vec<[usize; 5]> = est.normals[off..off + tn]
+        let sums: Vec<[usize; 6]> = est.normals[off..off + tn]
             .par_chunks_mut(CHUNK)
             .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
             .zip(maps.strength[off..off + tn].par_chunks_mut(CHUNK))
@@ -302,7 +392,7 @@ pub fn model_highlights(
             .map_init(
                 || Scratch::new(n),
                 |scratch, (chunk, (((normals, albedo), strength), roughness))| {
-                    let mut counts = [0usize; 5];
+                    let mut counts = [0usize; 6];
                     for (dp, normal) in normals.iter_mut().enumerate() {
                         let lp = chunk * CHUNK + dp;
                         let p = off + lp;
@@ -319,8 +409,9 @@ pub fn model_highlights(
                         counts[0] += 1;
                         counts[1] += fit.significant as usize;
                         counts[2] += fit.passes as usize;
+                        counts[5] += fit.lambert_rejected as usize;
                         let take = match reflectance {
-                            Reflectance::Auto => fit.significant,
+                            Reflectance::Auto => fit.significant && fit.specular,
                             _ => fit.lobe,
                         };
                         if !take {
@@ -353,8 +444,9 @@ pub fn model_highlights(
         }
         Ok(())
     })?;
-    let [fitted, significant, passing, refined, own] = counts;
+    let [fitted, significant, passing, refined, own, rejected] = counts;
     summary.fitted_pixels = fitted;
+    summary.lambert_rejected_pixels = rejected;
     summary.significant_pixels = significant;
     summary.passing_pixels = passing;
     summary.refined_pixels = refined;
@@ -366,15 +458,26 @@ pub fn model_highlights(
     Ok((summary, maps))
 }
 
+/// The capture's lobe sharpness and the evidence for its lobes (see [`capture_sharpness`]).
+struct Evidence {
+    exponent: f64,
+    sampled: usize,
+    significant: usize,
+    /// Of the significant, those whose lobe about the half vectors beats the lobe about the
+    /// lights.
+    specular: usize,
+}
+
 /// The capture's lobe sharpness: over at most [`SAMPLE_PIXELS`] candidate pixels (a highlight
 /// attributed, [`MIN_LIGHTS`] lights out of shadow), the exponent of [`LOBE_EXPONENTS`] whose
-/// fits from the pixels' current normals have the least total χ². `None` without candidates.
+/// fits from the pixels' current normals have the least total χ²; and how many of those pixels
+/// have a significant lobe at it. `None` without candidates.
 fn capture_sharpness(
     capture: &Capture,
     light_status: &[u8],
     est: &Estimate,
     lights: &Lights,
-) -> Result<Option<f64>> {
+) -> Result<Option<Evidence>> {
     let n = capture.n_lights();
     let candidates: Vec<usize> = (0..capture.n_pixels())
         .filter(|&p| {
@@ -417,7 +520,58 @@ fn capture_sharpness(
     let best = (0..totals.len())
         .min_by(|&a, &b| totals[a].total_cmp(&totals[b]))
         .expect("exponents");
-    Ok(Some(LOBE_EXPONENTS[best]))
+    let exponent = LOBE_EXPONENTS[best];
+    let (mut significant, mut specular) = (0, 0);
+    capture.for_ids_by_tile(&ids, |sub, view| {
+        for &p in sub {
+            let st = &light_status[p * n..(p + 1) * n];
+            let count = scratch.load(lights, view.pixel_samples(p), capture.channels, st);
+            let start = start_of(est.normals[p]).expect("a candidate has a normal");
+            let fit = lights.fit(&scratch.data(lights), count, start, exponent);
+            significant += fit.significant as usize;
+            specular += (fit.significant && fit.specular) as usize;
+        }
+        Ok(())
+    })?;
+    Ok(Some(Evidence {
+        exponent,
+        sampled: ids.len(),
+        significant,
+        specular,
+    }))
+}
+
+/// The upper `confidence` quantile of the binomial distribution of `trials` tries with
+/// success probability `p`: the least k with P(X ≤ k) ≥ confidence (pmf summed in logs).
+fn binomial_quantile(trials: usize, p: f64, confidence: f64) -> usize {
+    use crate::base::stats::ln_gamma;
+    let nf = trials as f64;
+    let mut cdf = 0.0;
+    for k in 0..=trials {
+        let kf = k as f64;
+        let ln_pmf = ln_gamma(nf + 1.0) - ln_gamma(kf + 1.0) - ln_gamma(nf - kf + 1.0)
+            + kf * p.ln()
+            + (nf - kf) * (1.0 - p).ln();
+        cdf += ln_pmf.exp();
+        if cdf >= confidence {
+            return k;
+        }
+    }
+    trials
+}
+
+/// F quantiles at `confidence` with `extra` numerator degrees of freedom, for 0..=n denominator
+/// degrees of freedom (infinite for none: no test).
+fn f_quantiles(confidence: f64, extra: usize, n: usize) -> Vec<f64> {
+    (0..=n)
+        .map(|d| {
+            if d == 0 {
+                f64::INFINITY
+            } else {
+                crate::base::stats::f_quantile(confidence, extra, d)
+            }
+        })
+        .collect()
 }
 
 /// Iterations of [`descend`] at most.
@@ -488,6 +642,51 @@ fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
     (e, n)
 }
 
+/// The variance (rad², per unit residual variance) of the lobe fit's normal at `n`: the sum of
+/// the tangent-angle entries of (JᵀJ)⁻¹ over (angles, ρ, s). Infinite where JᵀJ is singular.
+fn lobe_normal_variance(d: &PixelData, n: [f64; 3], m: f64, rho: f64, s: f64) -> f64 {
+    use nalgebra::{Matrix4, Vector4};
+    let (t1, t2) = basis(n);
+    let mut jtj = Matrix4::<f64>::zeros();
+    for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+        let vn = dot(d.v[k], n);
+        let lobe = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
+        let (a, lit) = if vn > 0.0 { (vn, 1.0) } else { (0.0, 0.0) };
+        let j = Vector4::new(
+            rho * lit * dot(d.v[k], t1) + s * lobe * m * dot(d.h[k], t1),
+            rho * lit * dot(d.v[k], t2) + s * lobe * m * dot(d.h[k], t2),
+            a,
+            lobe,
+        );
+        jtj += j * j.transpose();
+    }
+    jtj.try_inverse()
+        .map_or(f64::INFINITY, |c| (c[(0, 0)] + c[(1, 1)]).max(0.0))
+}
+
+/// The variance (rad², per unit residual variance) of the Lambertian fit's normal: with
+/// b = (VᵀV)⁻¹Vᵀg over the lit lights, the part of (VᵀV)⁻¹ across b, over |b|².
+fn lambert_normal_variance(d: &PixelData) -> f64 {
+    use nalgebra::{Matrix3, Vector3};
+    let mut vtv = Matrix3::<f64>::zeros();
+    let mut vtg = Vector3::<f64>::zeros();
+    for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+        let v = Vector3::from(d.v[k]);
+        vtv += v * v.transpose();
+        vtg += v * d.g[k];
+    }
+    let Some(c) = vtv.try_inverse() else {
+        return f64::INFINITY;
+    };
+    let b = c * vtg;
+    let r2 = b.norm_squared();
+    if r2 <= 0.0 {
+        return f64::INFINITY;
+    }
+    let u = b / r2.sqrt();
+    ((c.trace() - (u.transpose() * c * u)[(0, 0)]) / r2).max(0.0)
+}
+
 fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
@@ -503,5 +702,19 @@ fn unit(a: [f64; 3]) -> [f64; 3] {
         [a[0] / r, a[1] / r, a[2] / r]
     } else {
         [0.0, 0.0, 1.0]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn binomial_quantiles_match_exact_sums() {
+        // Exact cumulative sums of C(n, k) p^k (1 − p)^(n − k), computed independently.
+        assert_eq!(binomial_quantile(400, 0.01, 0.99), 9);
+        assert_eq!(binomial_quantile(10, 0.5, 0.5), 5);
+        assert_eq!(binomial_quantile(50, 0.05, 0.95), 5);
+        assert_eq!(binomial_quantile(0, 0.01, 0.99), 0);
     }
 }
