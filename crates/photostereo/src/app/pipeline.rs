@@ -284,7 +284,9 @@ pub fn run(
     }
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();
+        progress.begin("evaluating", 1);
         rec.evaluate(truth)?;
+        progress.end();
         rec.report.param("ground_truth", path.display().to_string());
         rec.report.time("evaluate", t);
     }
@@ -299,7 +301,9 @@ pub fn run(
             ));
         }
     }
+    progress.begin("writing", 1);
     write_reconstruction(&rec, folder.path(), options)?;
+    progress.end();
     rec.report.time("write", t);
     rec.report.time("total", start);
     if let (Some(serde_json::Value::Object(m)), Some(peak)) = (

@@ -28,12 +28,13 @@ pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
 /// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
-/// shadow bits and the attribution's keys (about 39 measured).
+/// shadow bits and the attribution's keys.
 pub const MASK_BYTES_PER_PIXEL: u64 = 44;
-/// Bytes per mask pixel and light held for the whole capture: the light statuses (the
-/// current ones, and while the recursion integrates the pixels' own decisions where they
-/// differ; about 1.9 measured).
-pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// Bits per mask pixel and light held for the whole capture: the light statuses, as 2-bit
+/// codes (`base::codes2`) — the current ones and, during the recursion's consensus, the
+/// pixels' own decisions and the filtered ones beside them — and the byte-per-light arrays
+/// of the detector's result and of the method's result before it is packed.
+pub const MASK_BITS_PER_PIXEL_LIGHT: u64 = 16;
 /// Bytes per mask pixel of the ground truth when a run is scored (`--gt`): one normal, held at
 /// the mask pixels only.
 pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
@@ -143,9 +144,9 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
+        + (s.pixels as u64 * MASK_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + s.pixels as u64
             * (MASK_BYTES_PER_PIXEL
-                + MASK_BYTES_PER_PIXEL_LIGHT * n
                 + if s.ground_truth {
                     TRUTH_BYTES_PER_MASK_PIXEL
                 } else {
