@@ -27,14 +27,18 @@ pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// planes).
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
-/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
-/// shadow bits and the attribution's keys.
-pub const MASK_BYTES_PER_PIXEL: u64 = 44;
-/// Bits per mask pixel and light held for the whole capture: the light statuses, as 2-bit
-/// codes (`base::codes2`) — the current ones and, during the recursion's consensus, the
-/// pixels' own decisions and the filtered ones beside them — and the byte-per-light arrays
-/// of the detector's result and of the method's result before it is packed.
-pub const MASK_BITS_PER_PIXEL_LIGHT: u64 = 16;
+/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags
+/// (one byte each), its fingerprints of earlier usable sets, its shadow bits and the
+/// attribution's keys, the mask pixels' frame indices. Set with [`FRAME_BYTES_PER_PIXEL`] on
+/// the measured peak of a full-frame capture (where the two cannot be told apart: the
+/// recursion's integration, its largest stage, holds all of these beside the integrator's
+/// work arrays), with a margin of about 10%.
+pub const MASK_BYTES_PER_PIXEL: u64 = 64;
+/// Bits per mask pixel and light: the light statuses as 2-bit codes (`base::codes2`), three
+/// sets of them during the recursion's consensus (the current ones, the pixels' own
+/// decisions, the filtered ones). The detector's result and the method's result hold one
+/// byte a light while no integration runs.
+pub const MASK_BITS_PER_PIXEL_LIGHT: u64 = 6;
 /// Bytes per mask pixel of the ground truth when a run is scored (`--gt`): one normal, held at
 /// the mask pixels only.
 pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
