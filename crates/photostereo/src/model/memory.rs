@@ -29,11 +29,12 @@ pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
 /// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags
 /// (one byte each), its fingerprints of earlier usable sets, its shadow bits and the
-/// attribution's keys, the mask pixels' frame indices. Set with [`FRAME_BYTES_PER_PIXEL`] on
-/// the measured peak of a full-frame capture (where the two cannot be told apart: the
-/// recursion's integration, its largest stage, holds all of these beside the integrator's
-/// work arrays), with a margin of about 10%.
-pub const MASK_BYTES_PER_PIXEL: u64 = 64;
+/// attribution's keys, the mask pixels' frame indices, the trust and flags held per mask
+/// pixel during the final integration. Set on the measured peak of a full-frame capture (the
+/// final integration, its largest stage; there frame and mask pixels cannot be told apart, and
+/// the integrator's arrays beyond [`FRAME_BYTES_PER_PIXEL`] are counted here), with a margin
+/// of about 10%.
+pub const MASK_BYTES_PER_PIXEL: u64 = 78;
 /// Bits per mask pixel and light: the light statuses as 2-bit codes (`base::codes2`), three
 /// sets of them during the recursion's consensus (the current ones, the pixels' own
 /// decisions, the filtered ones). The detector's result and the method's result hold one
