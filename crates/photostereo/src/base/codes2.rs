@@ -81,7 +81,7 @@ impl Codes2 {
     /// Packs `codes` (`rows × width`, row-major, one code a byte, each 0–3). Panics on a code
     /// above 3 or a length that is not a whole number of rows (programming errors).
     pub fn from_codes(codes: &[u8], width: usize) -> Codes2 {
-        let rows = if width == 0 { 0 } else { codes.len() / width };
+        let rows = codes.len().checked_div(width).unwrap_or(0);
         assert_eq!(rows * width, codes.len(), "whole rows of codes");
         assert!(codes.iter().all(|&v| v < 4), "2-bit codes");
         let stride = row_bytes(width);
