@@ -294,7 +294,9 @@ pub fn run(
     }
     if let (Some(truth), Some(path)) = (&truth, &options.ground_truth) {
         let t = Instant::now();
+        progress.begin("evaluating", 1);
         rec.evaluate(truth)?;
+        progress.end();
         rec.report.param("ground_truth", path.display().to_string());
         rec.report.time("evaluate", t);
     }
@@ -309,6 +311,7 @@ pub fn run(
             ));
         }
     }
+    progress.begin("writing", 1);
     write_reconstruction(&rec, folder.path(), options)?;
     if let Some((fitted, mut entry)) = rti {
         let (file, web) = crate::app::rti::write_fit(folder.path(), &fitted)?;
@@ -316,6 +319,7 @@ pub fn run(
         entry["web"] = web;
         rec.report.extra.insert("rti".into(), entry);
     }
+    progress.end();
     rec.report.time("write", t);
     rec.report.time("total", start);
     if let (Some(serde_json::Value::Object(m)), Some(peak)) = (

@@ -2,6 +2,7 @@
 //! generator, distribution functions. Names nothing above it.
 
 pub mod cholesky;
+pub mod codes2;
 pub mod error;
 pub mod machine;
 pub mod number;

@@ -324,6 +324,13 @@ pub fn reconstruct_with_truth(
     if let Some(d) = &detection {
         record_detection(capture, &estimate, d, &mut report)?;
     }
+    // The statuses packed (2 bits a light) before the final integration: the byte-per-light
+    // array is not held beside the integrator's work arrays.
+    let statuses_decided = estimate.light_status.is_some() || detection.is_some();
+    let packed_status = estimate
+        .light_status
+        .take()
+        .map(|s| crate::base::codes2::Codes2::from_codes(&s, capture.n_lights()));
     // The recursive method's trust map is moved out of its diagnostics, not copied.
     // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
@@ -356,13 +363,12 @@ pub fn reconstruct_with_truth(
     drop(std::mem::take(&mut estimate.normals));
     let albedo = capture.scatter(&estimate.albedo, capture.channels, 0.0);
     drop(std::mem::take(&mut estimate.albedo));
-    let statuses_decided = estimate.light_status.is_some() || detection.is_some();
-    let light_status = crate::method::statusmap::StatusMap::new(
+    let light_status = crate::method::statusmap::StatusMap::packed(
         capture.width,
         capture.height,
         capture.n_lights(),
         capture.pixels.clone(),
-        estimate.light_status.take(),
+        packed_status,
     );
     crate::method::indicators::record(capture, &light_status, statuses_decided, &mut report);
     let recursive = diagnostics.map(|d| recursive_maps(d, &mut report));

@@ -27,6 +27,7 @@
 //! Pixels left with fewer than three usable lights (the paper's Fig. 13) are recorded and
 //! completed by [`Fallback`].
 
+use crate::base::codes2::{get_in, pack_into, unpack_into, Codes2};
 use crate::base::error::{Error, Result};
 use crate::base::progress::{Progress, Silent};
 use crate::geometry::integrate::{
@@ -40,7 +41,9 @@ use crate::solve::detect::{
 };
 use crate::solve::estimate::Estimator;
 use crate::solve::gloss::{GlossMaps, GlossSummary, Reflectance};
-use crate::solve::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
+use crate::solve::lambert::{
+    channel_mean, status, write_normal_albedo_with, Estimate, Statuses, CHUNK,
+};
 use crate::solve::metrics::angular_error_deg;
 use rayon::prelude::*;
 use serde::Serialize;
@@ -321,7 +324,10 @@ pub fn recursive(
     let detect_seconds = detect_start.elapsed().as_secs_f64();
     // The detector's statuses start the recursion: moved, not copied (the result's statuses
     // are the estimate's; the detection keeps its residuals and flags).
-    let light_status = std::mem::take(&mut detection.light_status);
+    let light_status = Codes2::from_codes(
+        &std::mem::take(&mut detection.light_status),
+        capture.n_lights(),
+    );
     let setting = Setting {
         capture,
         params,
@@ -329,6 +335,7 @@ pub fn recursive(
         integration,
         detection: &detection,
         attributor,
+        progress,
     };
     let mut state = Recursion::start(&setting, light_status)?;
     // The truth at the mask pixels: borrowed when given per mask pixel, gathered otherwise.
@@ -336,7 +343,6 @@ pub fn recursive(
     let truth_masked = truth
         .map(|t| crate::solve::metrics::truth_at_pixels(t, w, h, &capture.pixels))
         .transpose()?;
-    progress.begin("recursive", params.max_iterations as u64);
     let mut stop = StopRule::new(params, fingerprint(&state.light_status));
     let mut records = Vec::new();
     let (mut converged, mut stop_reason) = (false, String::new());
@@ -349,7 +355,6 @@ pub fn recursive(
             .map(|t| mean_error(&state.est.normals, t));
         record.seconds = start.elapsed().as_secs_f64();
         on_iteration(&record);
-        progress.advance(1);
         let change = record.changed_share;
         records.push(record);
         if let Some((done, reason)) =
@@ -360,8 +365,9 @@ pub fn recursive(
             break;
         }
     }
-    progress.end();
+    progress.begin("recursive: final estimate", 1);
     let (estimate, diagnostics) = state.finish(&setting, records, converged, stop_reason)?;
+    progress.end();
     Ok(RecursiveResult {
         estimate,
         detection,
@@ -402,6 +408,8 @@ struct Setting<'a> {
     detection: &'a Detection,
     /// The attribution of faults to lights (none with three lights).
     attributor: Option<Attributor<'a>>,
+    /// Where the iterations' steps are reported.
+    progress: &'a dyn Progress,
 }
 
 impl Setting<'_> {
@@ -421,14 +429,26 @@ impl Setting<'_> {
     fn key_bytes(&self) -> usize {
         self.n_lights().div_ceil(8)
     }
+
+    /// Reports the start of step `what` of iteration `iteration` (`units` of work), as the
+    /// stage `recursive I/M: what` (M the iteration limit), ending the step before it (the
+    /// surface is an iteration's first step).
+    fn step(&self, iteration: usize, what: &str, units: u64) {
+        if what != "surface" {
+            self.progress.end();
+        }
+        let max = self.params.max_iterations;
+        self.progress
+            .begin(&format!("recursive {iteration}/{max}: {what}"), units);
+    }
 }
 
 /// The recursion's state between iterations, per mask pixel: the usable lights and the
 /// estimate made from them, the test's verdict on them, and what the hysteresis and the
 /// oscillation rule remember of earlier iterations.
 struct Recursion {
-    /// The usable lights, `n` statuses per pixel.
-    light_status: Vec<u8>,
+    /// The usable lights, `n` statuses per pixel (a row of 2-bit codes).
+    light_status: Codes2,
     est: Estimate,
     /// Whether each pixel's usable lights pass the test (initially: the pixels outside E).
     consistent: Vec<bool>,
@@ -503,8 +523,8 @@ impl ShadowBits {
 
 /// The usable-light decisions of an iteration, per mask pixel.
 struct Decisions {
-    /// `n` statuses per pixel.
-    status: Vec<u8>,
+    /// `n` statuses per pixel (a row of 2-bit codes).
+    status: Codes2,
     /// The usable lights pass the χ² test.
     consistent: Vec<bool>,
     /// Fewer than three usable lights.
@@ -515,7 +535,9 @@ struct Decisions {
 
 /// The decisions of a run of pixels, as slices of [`Decisions`].
 struct DecisionChunk<'d> {
+    /// The packed status rows, `stride` bytes a pixel.
     status: &'d mut [u8],
+    stride: usize,
     consistent: &'d mut [bool],
     few: &'d mut [bool],
     highlight: &'d mut [bool],
@@ -523,7 +545,10 @@ struct DecisionChunk<'d> {
 
 /// One pixel's decision, written in place.
 struct PixelDecision<'d> {
+    /// The statuses of its `n` lights, one a byte (packed into the decisions by the caller).
     status: &'d mut [u8],
+    /// Room for the statuses an earlier decision gave it (`n` bytes).
+    previous: &'d mut [u8],
     consistent: &'d mut bool,
     few: &'d mut bool,
     highlight: &'d mut bool,
@@ -533,7 +558,7 @@ impl Decisions {
     /// Every light usable, nothing flagged, for `np` pixels of `n` lights.
     fn new(np: usize, n: usize) -> Self {
         Decisions {
-            status: vec![status::USED; np * n],
+            status: Codes2::filled(np, n, status::USED),
             consistent: vec![false; np],
             few: vec![false; np],
             highlight: vec![false; np],
@@ -545,37 +570,63 @@ impl Decisions {
         &mut self,
         range: std::ops::Range<usize>,
         per: usize,
-        n: usize,
     ) -> impl IndexedParallelIterator<Item = DecisionChunk<'_>> {
-        self.status[range.start * n..range.end * n]
-            .par_chunks_mut(per * n)
+        let stride = self.status.stride();
+        self.status
+            .par_rows_mut(range.clone(), per)
             .zip(self.consistent[range.clone()].par_chunks_mut(per))
             .zip(self.few[range.clone()].par_chunks_mut(per))
             .zip(self.highlight[range].par_chunks_mut(per))
-            .map(|(((status, consistent), few), highlight)| DecisionChunk {
-                status,
-                consistent,
-                few,
-                highlight,
-            })
+            .map(
+                move |(((status, consistent), few), highlight)| DecisionChunk {
+                    status,
+                    stride,
+                    consistent,
+                    few,
+                    highlight,
+                },
+            )
     }
 }
 
 impl DecisionChunk<'_> {
-    /// The decision of the chunk's pixel `dp`.
-    fn pixel(&mut self, dp: usize, n: usize) -> PixelDecision<'_> {
+    /// The decision of the chunk's pixel `dp`, its statuses unpacked into `row` (`n` bytes);
+    /// [`DecisionChunk::store`] packs them back.
+    fn pixel<'r>(
+        &'r mut self,
+        dp: usize,
+        row: &'r mut [u8],
+        previous: &'r mut [u8],
+    ) -> PixelDecision<'r> {
+        unpack_into(self.packed(dp), row);
         PixelDecision {
-            status: &mut self.status[dp * n..(dp + 1) * n],
+            status: row,
+            previous,
             consistent: &mut self.consistent[dp],
             few: &mut self.few[dp],
             highlight: &mut self.highlight[dp],
         }
     }
+
+    /// The packed statuses of the chunk's pixel `dp`.
+    fn packed(&self, dp: usize) -> &[u8] {
+        &self.status[dp * self.stride..(dp + 1) * self.stride]
+    }
+
+    /// The packed statuses of the chunk's pixel `dp`, to write.
+    fn packed_mut(&mut self, dp: usize) -> &mut [u8] {
+        &mut self.status[dp * self.stride..(dp + 1) * self.stride]
+    }
+
+    /// Packs `row` (one status a byte) into the chunk's pixel `dp`.
+    fn store(&mut self, dp: usize, row: &[u8]) {
+        pack_into(row, self.packed_mut(dp));
+    }
 }
 
 impl Recursion {
     /// The state after step 1: every pixel estimated from the lights the detector kept.
-    fn start(setting: &Setting, light_status: Vec<u8>) -> Result<Self> {
+    fn start(setting: &Setting, light_status: Codes2) -> Result<Self> {
         let capture = setting.capture;
         let np = setting.n_pixels();
         let noise = &setting.detection.noise;
@@ -608,15 +659,20 @@ impl Recursion {
         // The last iteration's shadow maps are replaced below: not kept beside the new ones.
         drop(self.last_maps.take());
         // 2. The surface, and 3. its shadows.
+        setting.step(iteration, "surface", 1);
         let (surface, shading) = self.integrate_surface(setting)?;
+        setting.step(iteration, "shadows", 1);
         let maps = shadows_of(setting, &surface, &shading)?;
         drop(shading);
         // 4–5. The usable lights: each pixel's own decisions, the neighbourhood's consensus,
         // and the oscillation rule.
+        setting.step(iteration, "usable lights", np as u64);
         let (own, keys) = self.decide_usable_lights(setting, iteration, &maps)?;
+        setting.step(iteration, "consensus", 1);
         let (mut new, own_status) = self.consensus(setting, iteration, own, keys)?;
         self.hold_oscillating(iteration, n, &mut new);
         // 6. The re-estimate, and the completion of the pixels left with fewer than three.
+        setting.step(iteration, "re-estimate", 1);
         let changed: Vec<bool> = (0..np)
             .into_par_iter()
             .map(|p| usable_differs(&new.status, &self.light_status, p, n))
@@ -642,6 +698,7 @@ impl Recursion {
         };
         self.last_maps = Some(maps);
         self.last_depth = surface.depth.values;
+        setting.progress.end();
         Ok(record)
     }
 
@@ -748,7 +805,7 @@ impl Recursion {
         // `off` is the tile's first mask pixel, `tile` its view (local indices).
         capture.for_each_tile(|off, tile| {
             let tn = tile.n_pixels();
-            own.par_chunks(off..off + tn, CHUNK, n)
+            own.par_chunks(off..off + tn, CHUNK)
                 .zip(
                     keys[off * key_bytes..(off + tn) * key_bytes].par_chunks_mut(CHUNK * key_bytes),
                 )
@@ -756,9 +813,9 @@ impl Recursion {
                 .for_each_init(
                     || {
                         let scratch = setting.attributor.as_ref().map(|a| a.scratch());
-                        (vec![0f64; n], scratch)
+                        (vec![0f64; n], scratch, vec![0u8; n], vec![0u8; n])
                     },
-                    |(grey, scratch), (chunk, (mut decisions, keys))| {
+                    |(grey, scratch, row, previous), (chunk, (mut decisions, keys))| {
                         for dp in 0..decisions.consistent.len() {
                             let lp = chunk * CHUNK + dp;
                             channel_mean(tile.pixel_samples(lp), c, grey);
@@ -768,11 +825,13 @@ impl Recursion {
                                 grey,
                                 shadow: &shadow,
                             };
-                            let d = decisions.pixel(dp, n);
+                            let d = decisions.pixel(dp, row, previous);
                             self.decide_pixel(setting, iteration, &pixel, key, scratch.as_mut(), d);
+                            decisions.store(dp, row);
                         }
                     },
                 );
+            setting.progress.advance(tn as u64);
             Ok(())
         })?;
         Ok((own, keys))
@@ -868,11 +927,13 @@ impl Recursion {
         let key_bytes = setting.key_bytes();
         let near_lights = setting.near_lights();
         let own = &self.own;
-        let previous = if iteration > 1 {
-            own.status.at(p, &self.light_status, n)
+        if iteration > 1 {
+            unpack_into(own.status.at(p, &self.light_status), d.previous);
         } else {
-            &[]
-        };
+            // (In the first iteration the current statuses are the detector's.)
+            self.light_status.unpack_row(p, d.previous);
+        }
+        let previous = &d.previous[..n];
         if iteration > 1
             && own.consistent[p]
             && !own.few[p]
@@ -884,8 +945,7 @@ impl Recursion {
             *d.highlight = self.highlight[p];
             return true;
         }
-        // (In the first iteration the current statuses are the detector's.)
-        let detected = &self.light_status[p * n..(p + 1) * n];
+        let detected = previous;
         if iteration == 1
             && !near_lights
             && setting.detection.unreliable[p]
@@ -960,7 +1020,7 @@ impl Recursion {
         iteration: usize,
         own: Decisions,
         keys: Vec<u8>,
-    ) -> Result<(Decisions, Vec<u8>)> {
+    ) -> Result<(Decisions, Codes2)> {
         let (capture, params) = (setting.capture, setting.params);
         let (n, np) = (setting.n_lights(), setting.n_pixels());
         let radius = params.consensus_radius;
@@ -972,7 +1032,7 @@ impl Recursion {
             let seeds: Vec<bool> = (0..np)
                 .into_par_iter()
                 .map(|p| {
-                    self.own.status.at(p, &self.light_status, n) != &own.status[p * n..(p + 1) * n]
+                    self.own.status.at(p, &self.light_status) != own.status.row(p)
                         || self.own.consistent[p] != own.consistent[p]
                         || self.own.few[p] != own.few[p]
                 })
@@ -1006,7 +1066,7 @@ impl Recursion {
         }
         let min_kept = ((setting.detection_params.min_kept_share * n as f64).ceil() as usize)
             .clamp(3, n.max(3));
-        let (mut status, _) = crate::solve::consensus::majority_filter_where(
+        let (mut status, _) = crate::solve::consensus::majority_filter_codes(
             capture,
             &own_status,
             radius,
@@ -1018,7 +1078,7 @@ impl Recursion {
             .filter(|&p| redone(p) && usable_differs(&status, &own_status, p, n))
             .collect();
         for p in (0..np).filter(|&p| !redone(p)) {
-            status[p * n..(p + 1) * n].copy_from_slice(&self.light_status[p * n..(p + 1) * n]);
+            status.row_mut(p).copy_from_slice(self.light_status.row(p));
             consistent[p] = self.consistent[p];
             few[p] = self.few[p];
         }
@@ -1043,26 +1103,25 @@ impl Recursion {
         let np = self.oscillating.len();
         let (current, consistent) = (&self.light_status, &self.consistent);
         let (few, highlight) = (&self.few, &self.highlight);
-        new.par_chunks(0..np, 1, n)
+        new.par_chunks(0..np, 1)
             .zip(self.oscillating.par_iter_mut())
             .zip(self.earlier_print.par_iter_mut())
             .enumerate()
             .for_each(|(p, ((mut chunk, stuck), print))| {
-                let d = chunk.pixel(0, n);
-                let current = &current[p * n..(p + 1) * n];
-                if !usable_sets_differ(d.status, current) {
+                let current = current.row(p);
+                if !usable_sets_differ(chunk.packed(0), current, n) {
                     return;
                 }
-                if *stuck || usable_print(d.status) == *print {
+                if *stuck || usable_print(chunk.packed(0), n) == *print {
                     *stuck = true;
-                    d.status.copy_from_slice(current);
-                    *d.consistent = consistent[p];
-                    *d.few = few[p];
-                    *d.highlight = highlight[p];
+                    chunk.packed_mut(0).copy_from_slice(current);
+                    chunk.consistent[0] = consistent[p];
+                    chunk.few[0] = few[p];
+                    chunk.highlight[0] = highlight[p];
                 } else if iteration > 1 {
                     // (The detector's initial sets are not the recursion's decisions: a pixel
                     // that returns to one is settling, not oscillating.)
-                    *print = usable_print(current);
+                    *print = usable_print(current, n);
                 }
             });
     }
@@ -1075,14 +1134,14 @@ impl Recursion {
         &mut self,
         setting: &Setting,
         new: Decisions,
-        own_status: Vec<u8>,
+        own_status: Codes2,
         changed: Vec<bool>,
     ) -> Result<()> {
         let capture = setting.capture;
-        let (n, np) = (setting.n_lights(), setting.n_pixels());
+        let np = setting.n_pixels();
         // The last statuses have served: replaced before the re-estimate, not kept beside it.
         self.light_status = new.status;
-        self.own.status = OwnStatuses::of(&own_status, &self.light_status, n);
+        self.own.status = OwnStatuses::of(&own_status, &self.light_status);
         drop(own_status);
         if setting.near_lights() {
             self.est = crate::solve::tiled::solve_statuses(capture, &self.light_status)?;
@@ -1182,7 +1241,7 @@ impl Recursion {
             gloss,
         };
         let mut est = self.est;
-        est.light_status = Some(self.light_status);
+        est.light_status = Some(self.light_status.unpack());
         Ok((est, diagnostics))
     }
 }
@@ -1195,25 +1254,30 @@ fn settle_moved(
     capture: &Capture,
     att: &Attributor,
     moved: &[usize],
-    own_status: &[u8],
+    own_status: &Codes2,
     filtered: &mut Decisions,
 ) -> Result<()> {
     let (n, c) = (capture.n_lights(), capture.channels);
     let mut scratch = att.scratch();
     let mut grey = vec![0f64; n];
+    let mut s = vec![0u8; n];
     capture.for_ids_by_tile(moved, |sub, view| {
         for &p in sub {
             channel_mean(view.pixel_samples(p), c, &mut grey);
             let pix = capture.pixels[p] as usize;
-            let s = &mut filtered.status[p * n..(p + 1) * n];
-            let (stat, count) = att.settle_at(pix, &grey, s, &mut scratch);
+            filtered.status.unpack_row(p, &mut s);
+            let (stat, count) = att.settle_at(pix, &grey, &mut s, &mut scratch);
             if count > 3 && stat <= att.threshold(count) {
                 filtered.consistent[p] = true;
                 filtered.few[p] = false;
+                filtered.status.pack_row(p, &s);
             } else {
                 // The neighbours' set does not fit this pixel's readings: the pixel's own
                 // decisions stand (the test disposes).
-                s.copy_from_slice(&own_status[p * n..(p + 1) * n]);
+                filtered
+                    .status
+                    .row_mut(p)
+                    .copy_from_slice(own_status.row(p));
             }
         }
         Ok(())
@@ -1255,7 +1319,7 @@ pub struct SurfacePrior {
 /// highlights and shadows do not count as the readings' scatter.
 fn usable_scatter(
     capture: &Capture,
-    light_status: &[u8],
+    light_status: &Codes2,
     skip: &[bool],
     noise: &NoiseModel,
 ) -> Result<f64> {
@@ -1288,7 +1352,7 @@ fn usable_scatter(
             for (k, g) in grey.iter_mut().enumerate() {
                 *g /= noise.light_factor.get(k).copied().unwrap_or(1.0);
             }
-            let used = |k: usize| light_status[p * n + k] == status::USED;
+            let used = |k: usize| light_status.get(p, k) == status::USED;
             let count = (0..n).filter(|&k| used(k)).count();
             if count < 4 {
                 continue;
@@ -1346,7 +1410,7 @@ impl SurfacePrior {
     pub fn apply(
         &self,
         capture: &Capture,
-        light_status: &[u8],
+        light_status: &(impl Statuses + ?Sized),
         skip: &[bool],
         depth: &[f32],
         est: &mut Estimate,
@@ -1376,9 +1440,7 @@ impl SurfacePrior {
                             }
                             let samples = tile.pixel_samples(lp);
                             channel_mean(samples, c, grey);
-                            for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
-                                *u = st == status::USED;
-                            }
+                            light_status.used_into(p, used);
                             let i = capture.pixels[p] as usize;
                             let surface = normal_from_depth_at(i, w, h, depth, &capture.mask);
                             let Some(m) = self.solve(&dirs, factors, grey, used, surface) else {
@@ -1474,33 +1536,39 @@ impl SurfacePrior {
 
 /// A status array of `n` lights per mask pixel held as its difference from another (the
 /// pixels' own decisions against the statuses after the consensus, which differ at a few
-/// pixels): the pixels where they differ and their statuses there.
+/// pixels): the pixels where they differ and their statuses there, as packed rows.
 #[derive(Default)]
 struct OwnStatuses {
     /// Mask pixels where the statuses differ, ascending.
     ids: Vec<u32>,
-    /// Their statuses, `n` per pixel of `ids`.
+    /// Their packed status rows, `stride` bytes per pixel of `ids`.
     codes: Vec<u8>,
+    stride: usize,
 }
 
 impl OwnStatuses {
-    /// `own` held as its difference from `base` (both `n` statuses per mask pixel).
-    fn of(own: &[u8], base: &[u8], n: usize) -> OwnStatuses {
-        let mut held = OwnStatuses::default();
-        for (p, (o, b)) in own.chunks_exact(n).zip(base.chunks_exact(n)).enumerate() {
-            if o != b {
+    /// `own` held as its difference from `base` (both a row of `n` codes per mask pixel).
+    fn of(own: &Codes2, base: &Codes2) -> OwnStatuses {
+        let stride = own.stride();
+        let mut held = OwnStatuses {
+            stride,
+            ..OwnStatuses::default()
+        };
+        for p in 0..own.rows() {
+            if !own.rows_equal(p, base, p) {
                 held.ids.push(p as u32);
-                held.codes.extend_from_slice(o);
+                held.codes.extend_from_slice(own.row(p));
             }
         }
         held
     }
 
-    /// Mask pixel `p`'s statuses, `base` (the array this was made against) where they agree.
-    fn at<'a>(&'a self, p: usize, base: &'a [u8], n: usize) -> &'a [u8] {
+    /// Mask pixel `p`'s packed statuses, `base`'s (the array this was made against) where
+    /// they agree.
+    fn at<'a>(&'a self, p: usize, base: &'a Codes2) -> &'a [u8] {
         match self.ids.binary_search(&(p as u32)) {
-            Ok(j) => &self.codes[j * n..(j + 1) * n],
-            Err(_) => &base[p * n..(p + 1) * n],
+            Ok(j) => &self.codes[j * self.stride..(j + 1) * self.stride],
+            Err(_) => base.row(p),
         }
     }
 }
@@ -1510,7 +1578,7 @@ impl OwnStatuses {
 /// samples from a sampled view when the capture is tiled.
 fn resolve_at(
     capture: &Capture,
-    statuses: &[u8],
+    statuses: &Codes2,
     ids: &[usize],
     est: &mut Estimate,
     factors: &[f64],
@@ -1523,15 +1591,13 @@ fn resolve_at(
 
 /// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights
 /// per pixel (labels of removed lights aside).
-fn usable_differs(a: &[u8], b: &[u8], p: usize, n: usize) -> bool {
-    usable_sets_differ(&a[p * n..(p + 1) * n], &b[p * n..(p + 1) * n])
+fn usable_differs(a: &Codes2, b: &Codes2, p: usize, n: usize) -> bool {
+    usable_sets_differ(a.row(p), b.row(p), n)
 }
 
-/// Whether two status rows of one pixel differ in their usable-light sets.
-fn usable_sets_differ(a: &[u8], b: &[u8]) -> bool {
-    a.iter()
-        .zip(b)
-        .any(|(x, y)| (*x == status::USED) != (*y == status::USED))
+/// Whether two packed status rows of `n` lights differ in their usable-light sets.
+fn usable_sets_differ(a: &[u8], b: &[u8], n: usize) -> bool {
+    (0..n).any(|k| (get_in(a, k) == status::USED) != (get_in(b, k) == status::USED))
 }
 
 /// When the recursion stops, and why: the usable-light sets settled (the share of pixels that
@@ -1619,26 +1685,36 @@ pub const STALL_ITERATIONS: usize = 10;
 /// A fingerprint of per-pixel light statuses (usable or not), for cycle detection.
 /// A 32-bit fingerprint (FNV-1a) of one pixel's usable-light set (its statuses `row`); never
 /// 0 for a set, so that 0 can stand for none.
-fn usable_print(row: &[u8]) -> u32 {
+fn usable_print(row: &[u8], n: usize) -> u32 {
     let mut h = 0x811c_9dc5u32;
-    for chunk in row.chunks(8) {
+    for start in (0..n).step_by(8) {
         let mut bits = 0u8;
-        for (i, &s) in chunk.iter().enumerate() {
-            bits |= u8::from(s == status::USED) << i;
+        for (i, k) in (start..(start + 8).min(n)).enumerate() {
+            bits |= u8::from(get_in(row, k) == status::USED) << i;
         }
         h = (h ^ u32::from(bits)).wrapping_mul(0x0100_0193);
     }
     h.max(1)
 }
 
-fn fingerprint(light_status: &[u8]) -> u64 {
+/// The usable flags of every (pixel, light) in pixel-major order, hashed 64 at a time.
+fn fingerprint(light_status: &Codes2) -> u64 {
     use std::hash::{Hash, Hasher};
     let mut h = std::collections::hash_map::DefaultHasher::new();
-    for chunk in light_status.chunks(64) {
-        let mut bits = 0u64;
-        for (i, &s) in chunk.iter().enumerate() {
-            bits |= u64::from(s == status::USED) << i;
+    let n = light_status.width();
+    let (mut bits, mut i) = (0u64, 0usize);
+    for p in 0..light_status.rows() {
+        let row = light_status.row(p);
+        for k in 0..n {
+            bits |= u64::from(get_in(row, k) == status::USED) << i;
+            i += 1;
+            if i == 64 {
+                bits.hash(&mut h);
+                (bits, i) = (0, 0);
+            }
         }
+    }
+    if i > 0 {
         bits.hash(&mut h);
     }
     h.finish()
@@ -1742,7 +1818,7 @@ fn fill_from_neighbours(
     capture: &Capture,
     few_ids: &[usize],
     est: &mut Estimate,
-    light_status: &[u8],
+    light_status: &Codes2,
     few: &[bool],
     reliable: &[bool],
     surface_normal: &dyn Fn(usize) -> [f32; 3],
@@ -1786,7 +1862,7 @@ fn fill_from_neighbours(
                 &mut samples,
             );
             used.clear();
-            used.extend((0..n).filter(|&k| light_status[p * n + k] == status::USED));
+            used.extend((0..n).filter(|&k| light_status.get(p, k) == status::USED));
             channel_mean(samples_of.pixel_samples(p), c, &mut grey);
             dirs.copy_from_slice(lights.at(pix));
             let two = if used.len() == 2 && rho.is_finite() && !lights.is_near() {
@@ -1898,15 +1974,16 @@ fn exact_dark_as_shadow(status_row: &mut [u8], grey: &[f64], dark: f64) -> usize
 /// tr((Σ_all v vᵀ)⁻¹) / tr((Σ_used v vᵀ)⁻¹), v the pixel's scaled light vectors at the current
 /// surface (0.5 for a four-light square), in place of 1 or the weight of unreliable pixels.
 /// Pixels `few` (completed from two lights or the surface) keep theirs.
-fn exact_trust(capture: &Capture, light_status: &[u8], few: &[bool], trust: &mut [f32]) {
+fn exact_trust(capture: &Capture, light_status: &Codes2, few: &[bool], trust: &mut [f32]) {
     let n = capture.n_lights();
     let mut lights = capture.pixel_lights();
+    let mut st = vec![0u8; n];
     for (p, t) in trust.iter_mut().enumerate() {
-        let st = &light_status[p * n..(p + 1) * n];
+        light_status.unpack_row(p, &mut st);
         if few[p] || *t == 0.0 || st.iter().filter(|&&x| x == status::USED).count() != 3 {
             continue;
         }
-        if let Some(r) = relative_precision(lights.at(capture.pixels[p] as usize), st) {
+        if let Some(r) = relative_precision(lights.at(capture.pixels[p] as usize), &st) {
             *t = r as f32;
         }
     }
@@ -2088,16 +2165,19 @@ mod own_status_tests {
         for p in (0..np).filter(|p| p % 7 == 3 || p % 11 == 0) {
             own[p * n + p % n] = (own[p * n + p % n] + 1) % 4;
         }
-        let held = OwnStatuses::of(&own, &base, n);
+        let (own_codes, base_codes) = (Codes2::from_codes(&own, n), Codes2::from_codes(&base, n));
+        let held = OwnStatuses::of(&own_codes, &base_codes);
         assert_eq!(
             held.ids.len(),
             (0..np).filter(|p| p % 7 == 3 || p % 11 == 0).count()
         );
+        let mut row = vec![0u8; n];
         for p in 0..np {
-            assert_eq!(held.at(p, &base, n), &own[p * n..(p + 1) * n], "pixel {p}");
+            unpack_into(held.at(p, &base_codes), &mut row);
+            assert_eq!(row, &own[p * n..(p + 1) * n], "pixel {p}");
         }
         // Equal arrays: nothing held.
-        assert!(OwnStatuses::of(&base, &base, n).ids.is_empty());
+        assert!(OwnStatuses::of(&base_codes, &base_codes).ids.is_empty());
     }
 
     /// A usable set's fingerprint ignores why a light was dropped, tells the sets of 20 lights
@@ -2106,7 +2186,7 @@ mod own_status_tests {
     fn usable_prints_follow_the_usable_sets() {
         let n = 20;
         let set = |dropped: &[usize], label: u8| -> Vec<u8> {
-            (0..n)
+            let codes: Vec<u8> = (0..n)
                 .map(|k| {
                     if dropped.contains(&k) {
                         label
@@ -2114,11 +2194,12 @@ mod own_status_tests {
                         status::USED
                     }
                 })
-                .collect()
+                .collect();
+            Codes2::from_codes(&codes, n).row(0).to_vec()
         };
         assert_eq!(
-            usable_print(&set(&[2, 7], status::SHADOW)),
-            usable_print(&set(&[2, 7], status::HIGHLIGHT))
+            usable_print(&set(&[2, 7], status::SHADOW), n),
+            usable_print(&set(&[2, 7], status::HIGHLIGHT), n)
         );
         // Every set with one, two or three lights dropped: distinct prints.
         let mut dropped_sets: Vec<Vec<usize>> = Vec::new();
@@ -2133,9 +2214,9 @@ mod own_status_tests {
         }
         let prints: std::collections::HashSet<u32> = dropped_sets
             .iter()
-            .map(|d| usable_print(&set(d, status::REJECTED)))
+            .map(|d| usable_print(&set(d, status::REJECTED), n))
             .collect();
         assert_eq!(prints.len(), dropped_sets.len());
-        assert!(!prints.contains(&0) && !prints.contains(&usable_print(&set(&[], 0))));
+        assert!(!prints.contains(&0) && !prints.contains(&usable_print(&set(&[], 0), n)));
     }
 }

@@ -1,8 +1,9 @@
 //! A reconstruction's light statuses ([`crate::solve::lambert::status`]) over the frame, held per mask
-//! pixel: `N` bytes per mask pixel instead of `N` per frame pixel, with full-frame planes made
-//! on demand (one light at a time when written). Outside the mask every light reads
-//! [`status::OUTSIDE`].
+//! pixel as 2-bit codes: `⌈N / 4⌉` bytes per mask pixel instead of `N` per frame pixel, with
+//! full-frame planes made on demand (one light at a time when written). Outside the mask every
+//! light reads [`status::OUTSIDE`].
 
+use crate::base::codes2::Codes2;
 use crate::solve::lambert::status;
 
 /// [`StatusMap::count_map`]'s value outside the mask.
@@ -16,14 +17,16 @@ pub struct StatusMap {
     pub lights: usize,
     /// Flat row-major frame index of each mask pixel, ascending.
     pixels: Vec<u32>,
-    /// `codes[p * lights + k]`; `None`: every light used at every mask pixel (`l2`).
-    codes: Option<Vec<u8>>,
+    /// Row `p`, code `k`: light `k` at mask pixel `p`; `None`: every light used at every mask
+    /// pixel (`l2`).
+    codes: Option<Codes2>,
 }
 
 impl StatusMap {
     /// The statuses `codes` (`pixels.len() * lights`, pixel-major) of the mask pixels `pixels`
     /// (flat frame indices) of a `width × height` frame; `None` when every light was used.
-    /// Panics when the lengths disagree (a programming error, not input).
+    /// Panics when the lengths disagree or a code is not a status (programming errors, not
+    /// input).
     pub fn new(
         width: usize,
         height: usize,
@@ -33,6 +36,26 @@ impl StatusMap {
     ) -> StatusMap {
         if let Some(c) = &codes {
             assert_eq!(c.len(), pixels.len() * lights, "statuses per mask pixel");
+        }
+        let codes = codes.map(|c| Codes2::from_codes(&c, lights));
+        StatusMap::packed(width, height, lights, pixels, codes)
+    }
+
+    /// [`StatusMap::new`] from statuses already packed (one row of `lights` codes per mask
+    /// pixel).
+    pub fn packed(
+        width: usize,
+        height: usize,
+        lights: usize,
+        pixels: Vec<u32>,
+        codes: Option<Codes2>,
+    ) -> StatusMap {
+        if let Some(c) = &codes {
+            assert_eq!(
+                (c.rows(), c.width()),
+                (pixels.len(), lights),
+                "statuses per mask pixel"
+            );
         }
         StatusMap {
             width,
@@ -68,9 +91,7 @@ impl StatusMap {
     /// Light `k`'s status at mask pixel `p` (index into [`StatusMap::pixels`]).
     #[inline]
     pub fn code(&self, p: usize, k: usize) -> u8 {
-        self.codes
-            .as_ref()
-            .map_or(status::USED, |c| c[p * self.lights + k])
+        self.codes.as_ref().map_or(status::USED, |c| c.get(p, k))
     }
 
     /// Light `k`'s status at frame pixel `i` (flat row-major index): [`status::OUTSIDE`]
@@ -174,6 +195,11 @@ mod tests {
         }
         assert_eq!(map.to_full(), dense);
         assert_eq!(StatusMap::from_frame(w, h, n, pixels.clone(), &dense), map);
+        let packed = Codes2::from_codes(&codes, n);
+        assert_eq!(
+            StatusMap::packed(w, h, n, pixels.clone(), Some(packed)),
+            map
+        );
         for k in 0..n {
             for i in 0..w * h {
                 assert_eq!(map.get(k, i), dense[k * w * h + i]);

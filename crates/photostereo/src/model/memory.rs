@@ -27,13 +27,19 @@ pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// planes).
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
 /// Bytes per mask pixel held for the whole capture, whatever the light count: the estimate
-/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags, its
-/// shadow bits and the attribution's keys (about 39 measured).
-pub const MASK_BYTES_PER_PIXEL: u64 = 44;
-/// Bytes per mask pixel and light held for the whole capture: the light statuses (the
-/// current ones, and while the recursion integrates the pixels' own decisions where they
-/// differ; about 1.9 measured).
-pub const MASK_BYTES_PER_PIXEL_LIGHT: u64 = 2;
+/// (normal, albedo), the detector's residual and flags, the recursion's per-pixel flags
+/// (one byte each), its fingerprints of earlier usable sets, its shadow bits and the
+/// attribution's keys, the mask pixels' frame indices, the trust and flags held per mask
+/// pixel during the final integration. Set on the measured peak of a full-frame capture (the
+/// final integration, its largest stage; there frame and mask pixels cannot be told apart, and
+/// the integrator's arrays beyond [`FRAME_BYTES_PER_PIXEL`] are counted here), with a margin
+/// of about 10%.
+pub const MASK_BYTES_PER_PIXEL: u64 = 78;
+/// Bits per mask pixel and light: the light statuses as 2-bit codes (`base::codes2`), three
+/// sets of them during the recursion's consensus (the current ones, the pixels' own
+/// decisions, the filtered ones). The detector's result and the method's result hold one
+/// byte a light while no integration runs.
+pub const MASK_BITS_PER_PIXEL_LIGHT: u64 = 6;
 /// Bytes per mask pixel of the ground truth when a run is scored (`--gt`): one normal, held at
 /// the mask pixels only.
 pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
@@ -143,9 +149,9 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
+        + (s.pixels as u64 * MASK_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + s.pixels as u64
             * (MASK_BYTES_PER_PIXEL
-                + MASK_BYTES_PER_PIXEL_LIGHT * n
                 + if s.ground_truth {
                     TRUTH_BYTES_PER_MASK_PIXEL
                 } else {

@@ -10,8 +10,9 @@
 //! Statuses are per mask pixel and light (`n_pixels * n_lights`, the layout of
 //! [`crate::solve::detect::Detection::light_status`]).
 
+use crate::base::codes2::{pack_into, Codes2};
 use crate::model::capture::Capture;
-use crate::solve::lambert::{status, CHUNK};
+use crate::solve::lambert::{status, Statuses, CHUNK};
 use rayon::prelude::*;
 
 /// The majority filter of the removals of each light over the (2·`radius` + 1)² neighbourhood
@@ -39,79 +40,140 @@ pub fn majority_filter_where(
     only: Option<&[bool]>,
 ) -> (Vec<u8>, usize) {
     let n = capture.n_lights();
-    let np = capture.n_pixels();
-    let (w, h) = (capture.width, capture.height);
-    debug_assert_eq!(light_status.len(), np * n);
-    // The mask pixels of each row (no frame-sized index: 4 bytes a frame pixel).
-    let mask_rows = MaskRows::new(capture);
+    debug_assert_eq!(light_status.len(), capture.n_pixels() * n);
     let mut out = light_status.to_vec();
-    let changed: usize = out
-        .par_chunks_mut(CHUNK * n)
-        .enumerate()
-        .map_init(
-            || {
-                (
-                    vec![[0u32; 4]; n],
-                    Vec::with_capacity((2 * radius + 1).pow(2)),
-                )
-            },
-            |(votes, neighbours), (chunk, rows)| {
-                let mut changed = 0;
-                for (dp, row) in rows.chunks_mut(n).enumerate() {
-                    let p = chunk * CHUNK + dp;
-                    if only.is_some_and(|o| !o[p]) {
-                        continue;
-                    }
-                    let pix = capture.pixels[p] as usize;
-                    let (r, c) = (pix / w, pix % w);
-                    neighbours.clear();
-                    for rr in r.saturating_sub(radius)..(r + radius + 1).min(h) {
-                        neighbours.extend(mask_rows.between(
-                            rr,
-                            c.saturating_sub(radius),
-                            (c + radius).min(w - 1),
-                        ));
-                    }
-                    let total = neighbours.len() as u32;
-                    for v in votes.iter_mut() {
-                        *v = [0; 4];
-                    }
-                    for &q in neighbours.iter() {
-                        let st = &light_status[q * n..(q + 1) * n];
-                        for (v, &s) in votes.iter_mut().zip(st) {
-                            if s != status::USED && (s as usize) < 4 {
-                                v[s as usize] += 1;
+    let filter = Filter {
+        capture,
+        radius,
+        min_kept,
+        only,
+    };
+    let changed = filter.run(light_status, &mut out, n, |row, o| o.copy_from_slice(row));
+    (out, changed)
+}
+
+/// [`majority_filter_where`] on statuses held as 2-bit codes (one row a mask pixel): the same
+/// statuses, packed.
+pub fn majority_filter_codes(
+    capture: &Capture,
+    light_status: &Codes2,
+    radius: usize,
+    min_kept: usize,
+    only: Option<&[bool]>,
+) -> (Codes2, usize) {
+    debug_assert_eq!(light_status.rows(), capture.n_pixels());
+    let mut out = light_status.clone();
+    let stride = out.stride();
+    let filter = Filter {
+        capture,
+        radius,
+        min_kept,
+        only,
+    };
+    let changed = filter.run(light_status, out.as_bytes_mut(), stride, pack_into);
+    (out, changed)
+}
+
+/// The majority filter's settings.
+struct Filter<'a> {
+    capture: &'a Capture,
+    radius: usize,
+    min_kept: usize,
+    only: Option<&'a [bool]>,
+}
+
+impl Filter<'_> {
+    /// Filters `light_status` into `out` (`stride` bytes a mask pixel, each pixel's statuses
+    /// written by `write` from one byte a status; pixels not filtered are left as they are).
+    /// Returns the number of pixels whose usable set changed.
+    fn run(
+        &self,
+        light_status: &(impl Statuses + ?Sized),
+        out: &mut [u8],
+        stride: usize,
+        write: impl Fn(&[u8], &mut [u8]) + Sync,
+    ) -> usize {
+        let (capture, radius, min_kept, only) =
+            (self.capture, self.radius, self.min_kept, self.only);
+        let n = capture.n_lights();
+        let (w, h) = (capture.width, capture.height);
+        if n == 0 || stride == 0 {
+            return 0;
+        }
+        // The mask pixels of each row (no frame-sized index: 4 bytes a frame pixel).
+        let mask_rows = MaskRows::new(capture);
+        out.par_chunks_mut(CHUNK * stride)
+            .enumerate()
+            .map_init(
+                || {
+                    (
+                        vec![[0u32; 4]; n],
+                        Vec::with_capacity((2 * radius + 1).pow(2)),
+                        vec![0u8; n],
+                        vec![0u8; n],
+                        vec![0u8; n],
+                    )
+                },
+                |(votes, neighbours, st, own, row), (chunk, rows)| {
+                    let mut changed = 0;
+                    for (dp, out_row) in rows.chunks_mut(stride).enumerate() {
+                        let p = chunk * CHUNK + dp;
+                        if only.is_some_and(|o| !o[p]) {
+                            continue;
+                        }
+                        let pix = capture.pixels[p] as usize;
+                        let (r, c) = (pix / w, pix % w);
+                        neighbours.clear();
+                        for rr in r.saturating_sub(radius)..(r + radius + 1).min(h) {
+                            neighbours.extend(mask_rows.between(
+                                rr,
+                                c.saturating_sub(radius),
+                                (c + radius).min(w - 1),
+                            ));
+                        }
+                        let total = neighbours.len() as u32;
+                        for v in votes.iter_mut() {
+                            *v = [0; 4];
+                        }
+                        for &q in neighbours.iter() {
+                            light_status.row_into(q, st);
+                            for (v, &s) in votes.iter_mut().zip(st.iter()) {
+                                if s != status::USED && (s as usize) < 4 {
+                                    v[s as usize] += 1;
+                                }
+                            }
+                        }
+                        light_status.row_into(p, own);
+                        let mut kept = 0;
+                        let mut differs = false;
+                        for k in 0..n {
+                            let removals = votes[k][1] + votes[k][2] + votes[k][3];
+                            let removed = 2 * removals > total;
+                            row[k] = if !removed {
+                                status::USED
+                            } else if own[k] != status::USED {
+                                own[k]
+                            } else {
+                                // The label most removing neighbours gave.
+                                (1..4u8).max_by_key(|&s| votes[k][s as usize]).unwrap()
+                            };
+                            kept += usize::from(!removed);
+                            differs |= (row[k] == status::USED) != (own[k] == status::USED);
+                        }
+                        if kept < min_kept {
+                            write(own, out_row);
+                        } else {
+                            write(row, out_row);
+                            if differs {
+                                changed += 1;
                             }
                         }
                     }
-                    let own = &light_status[p * n..(p + 1) * n];
-                    let mut kept = 0;
-                    let mut differs = false;
-                    for k in 0..n {
-                        let removals = votes[k][1] + votes[k][2] + votes[k][3];
-                        let removed = 2 * removals > total;
-                        row[k] = if !removed {
-                            status::USED
-                        } else if own[k] != status::USED {
-                            own[k]
-                        } else {
-                            // The label most removing neighbours gave.
-                            (1..4u8).max_by_key(|&s| votes[k][s as usize]).unwrap()
-                        };
-                        kept += usize::from(!removed);
-                        differs |= (row[k] == status::USED) != (own[k] == status::USED);
-                    }
-                    if kept < min_kept {
-                        row.copy_from_slice(own);
-                    } else if differs {
-                        changed += 1;
-                    }
-                }
-                changed
-            },
-        )
-        .sum();
-    (out, changed)
+                    changed
+                },
+            )
+            .sum()
+    }
 }
 
 /// The mask pixels of each frame row, found from [`Capture::pixels`] (ascending): `h + 1`

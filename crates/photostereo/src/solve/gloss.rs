@@ -58,7 +58,9 @@
 use crate::base::error::Result;
 use crate::model::capture::Capture;
 use crate::solve::detect::NoiseModel;
-use crate::solve::lambert::{channel_mean, status, write_normal_albedo_with, Estimate, CHUNK};
+use crate::solve::lambert::{
+    channel_mean, status, write_normal_albedo_with, Estimate, Statuses, CHUNK,
+};
 use crate::solve::near_lobe::{basis, diffuse_residual, fit_at, quantiles, PixelData};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -318,7 +320,7 @@ impl Lights<'_> {
 /// [`Reflectance::Lambert`].
 pub fn model_highlights(
     capture: &Capture,
-    light_status: &[u8],
+    light_status: &(impl Statuses + ?Sized),
     est: &mut Estimate,
     noise: &NoiseModel,
     confidence: f64,
@@ -390,14 +392,14 @@ pub fn model_highlights(
             .zip(maps.roughness[off..off + tn].par_chunks_mut(CHUNK))
             .enumerate()
             .map_init(
-                || Scratch::new(n),
-                |scratch, (chunk, (((normals, albedo), strength), roughness))| {
+                || (Scratch::new(n), vec![0u8; n]),
+                |(scratch, st), (chunk, (((normals, albedo), strength), roughness))| {
                     let mut counts = [0usize; 6];
                     for (dp, normal) in normals.iter_mut().enumerate() {
                         let lp = chunk * CHUNK + dp;
                         let p = off + lp;
                         let samples = tile.pixel_samples(lp);
-                        let st = &light_status[p * n..(p + 1) * n];
+                        light_status.row_into(p, st);
                         let count = scratch.load(&lights, samples, c, st);
                         let Some(start) = start_of(*normal) else {
                             continue;
@@ -474,14 +476,15 @@ struct Evidence {
 /// have a significant lobe at it. `None` without candidates.
 fn capture_sharpness(
     capture: &Capture,
-    light_status: &[u8],
+    light_status: &(impl Statuses + ?Sized),
     est: &Estimate,
     lights: &Lights,
 ) -> Result<Option<Evidence>> {
     let n = capture.n_lights();
+    let mut st = vec![0u8; n];
     let candidates: Vec<usize> = (0..capture.n_pixels())
         .filter(|&p| {
-            let st = &light_status[p * n..(p + 1) * n];
+            light_status.row_into(p, &mut st);
             st.contains(&status::HIGHLIGHT)
                 && st
                     .iter()
@@ -503,8 +506,8 @@ fn capture_sharpness(
     let mut scratch = Scratch::new(n);
     capture.for_ids_by_tile(&ids, |sub, view| {
         for &p in sub {
-            let st = &light_status[p * n..(p + 1) * n];
-            scratch.load(lights, view.pixel_samples(p), capture.channels, st);
+            light_status.row_into(p, &mut st);
+            scratch.load(lights, view.pixel_samples(p), capture.channels, &st);
             let d = scratch.data(lights);
             let start = start_of(est.normals[p]).expect("a candidate has a normal");
             let row: Vec<f64> = LOBE_EXPONENTS

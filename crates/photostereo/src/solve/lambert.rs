@@ -8,6 +8,7 @@
 //! camera frame (x right, y up, z toward the camera); albedo is per channel, in the units of the
 //! intensity-normalised images (full scale = 1).
 
+use crate::base::codes2::Codes2;
 use crate::base::progress::Progress;
 use crate::model::capture::Capture;
 use nalgebra::{Matrix3, Vector3};
@@ -38,6 +39,60 @@ pub mod status {
     pub const REJECTED: u8 = 3;
     /// Outside the mask.
     pub const OUTSIDE: u8 = 255;
+}
+
+/// Per-light statuses of every mask pixel, read a pixel at a time: one byte a status
+/// (`n_pixels * n_lights`, pixel-major) or 2-bit codes ([`Codes2`], one row a pixel), which
+/// hold the four statuses of a mask pixel in a quarter of the bytes.
+pub trait Statuses: Sync {
+    /// Pixel `p`'s statuses of its `row.len()` lights into `row`, one a byte.
+    fn row_into(&self, p: usize, row: &mut [u8]);
+
+    /// Pixel `p`'s usable-light flags (true = [`status::USED`]) of its `used.len()` lights.
+    fn used_into(&self, p: usize, used: &mut [bool]);
+}
+
+impl Statuses for [u8] {
+    #[inline]
+    fn row_into(&self, p: usize, row: &mut [u8]) {
+        let n = row.len();
+        row.copy_from_slice(&self[p * n..(p + 1) * n]);
+    }
+
+    #[inline]
+    fn used_into(&self, p: usize, used: &mut [bool]) {
+        let n = used.len();
+        for (u, &st) in used.iter_mut().zip(&self[p * n..(p + 1) * n]) {
+            *u = st == status::USED;
+        }
+    }
+}
+
+impl Statuses for Vec<u8> {
+    #[inline]
+    fn row_into(&self, p: usize, row: &mut [u8]) {
+        self.as_slice().row_into(p, row)
+    }
+
+    #[inline]
+    fn used_into(&self, p: usize, used: &mut [bool]) {
+        self.as_slice().used_into(p, used)
+    }
+}
+
+impl Statuses for Codes2 {
+    #[inline]
+    fn row_into(&self, p: usize, row: &mut [u8]) {
+        self.unpack_row(p, row)
+    }
+
+    #[inline]
+    fn used_into(&self, p: usize, used: &mut [bool]) {
+        let packed = self.row(p);
+        for (k, u) in used.iter_mut().enumerate() {
+            *u = crate::base::codes2::get_in(packed, k) == status::USED;
+        }
+    }
 }
 
 /// Pixels per parallel work item.
@@ -106,7 +161,7 @@ pub fn solve_subsets(
 /// fit with weights 1 / c_k² (the albedo fit keeps equal weights).
 pub fn resolve_subsets_at(
     capture: &Capture,
-    light_status: &[u8],
+    light_status: &(impl Statuses + ?Sized),
     ids: &[usize],
     est: &mut Estimate,
     factors: &[f64],
@@ -143,9 +198,7 @@ pub fn resolve_subsets_at(
                             *g /= f;
                         }
                     }
-                    for (u, &st) in used.iter_mut().zip(&light_status[p * n..(p + 1) * n]) {
-                        *u = st == status::USED;
-                    }
+                    light_status.used_into(p, used);
                     if let Some(m) = cache.solve(used, grey) {
                         let out_a = &mut albedo[j * c..(j + 1) * c];
                         write_normal_albedo(
@@ -454,6 +507,23 @@ impl<'a> SubsetCache<'a> {
 /// Usable-light flags (true = [`status::USED`]) from per-light statuses.
 pub fn usable(light_status: &[u8]) -> Vec<bool> {
     light_status.iter().map(|&s| s == status::USED).collect()
+}
+
+/// Usable-light flags of the mask pixels `range` (`range.len() * n` flags) from statuses of
+/// `n` lights per pixel.
+pub fn usable_of(
+    light_status: &(impl Statuses + ?Sized),
+    range: std::ops::Range<usize>,
+    n: usize,
+) -> Vec<bool> {
+    let mut flags = vec![false; range.len() * n];
+    if n > 0 {
+        flags
+            .par_chunks_mut(n)
+            .zip(range)
+            .for_each(|(used, p)| light_status.used_into(p, used));
+    }
+    flags
 }
 
 /// What a method's "shadow" labels mean, measured against its own Lambertian fit: of the

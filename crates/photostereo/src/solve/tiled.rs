@@ -129,18 +129,17 @@ pub fn solve_tiles(
 
 /// [`solve_subsets`] over the lights each pixel's status (`n_pixels * n_lights`, values of
 /// [`crate::solve::lambert::status`]) marks USED, tile by tile: the usable flags are made per tile.
-pub fn solve_statuses(capture: &Capture, light_status: &[u8]) -> Result<Estimate> {
-    if !capture.is_tiled() {
-        return Ok(solve_subsets(
-            capture,
-            Some(&crate::solve::lambert::usable(light_status)),
-            &Silent,
-        ));
-    }
+pub fn solve_statuses(
+    capture: &Capture,
+    light_status: &(impl crate::solve::lambert::Statuses + ?Sized),
+) -> Result<Estimate> {
     let n = capture.n_lights();
+    if !capture.is_tiled() {
+        let flags = crate::solve::lambert::usable_of(light_status, 0..capture.n_pixels(), n);
+        return Ok(solve_subsets(capture, Some(&flags), &Silent));
+    }
     estimate_tiles(capture, &Silent, |off, tile| {
-        let flags =
-            crate::solve::lambert::usable(&light_status[off * n..(off + tile.n_pixels()) * n]);
+        let flags = crate::solve::lambert::usable_of(light_status, off..off + tile.n_pixels(), n);
         Ok(solve_subsets(tile, Some(&flags), &Silent))
     })
 }
