@@ -29,6 +29,7 @@ from __future__ import annotations
 import atexit
 import os
 import pathlib
+import textwrap
 from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Sequence, Union
 
 import numpy as np
@@ -317,6 +318,9 @@ def load_capture(
     camera: Any = None,
     memory_limit: Union[int, str, None] = None,
     num_threads: Optional[int] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
 ) -> Capture:
     """Reads a capture from files, in every layout the command line reads.
 
@@ -336,7 +340,7 @@ def load_capture(
         The memory budget (bytes, or ``"4G"``; default half of the memory available).
     num_threads : int, optional
         Cap on the decoding threads (None: all cores).
-
+%(capture_options)s
     Returns
     -------
     Capture
@@ -351,6 +355,9 @@ def load_capture(
             distance,
             _camera(camera),
             memory_limit,
+            response,
+            _path(ambient),
+            ignore_exposure,
         )
     )
 
@@ -457,6 +464,9 @@ def run(
     camera: Any = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
     **overrides: "Unpack[ParamValues]",
 ) -> Dict[str, Any]:
     """The command line's ``run``: reads the capture at ``path`` (any layout, as
@@ -465,8 +475,9 @@ def run(
 
     Parameters
     ----------
-    path, lights, intensities, mask, distance, camera
-        As for :func:`load_capture`.
+    path, lights, intensities, mask, distance, camera, response, ambient, ignore_exposure
+        As for :func:`load_capture` (report.json's ``photometry`` says per image what was
+        done to make it linear).
     output : path
         The output folder; an existing one is refused unless ``force`` (and only a folder
         photostereo's ``run`` wrote, or an empty one, is replaced).
@@ -509,6 +520,9 @@ def run(
         progress,
         distance,
         _camera(camera),
+        response,
+        _path(ambient),
+        ignore_exposure,
     )
 
 
@@ -525,6 +539,9 @@ def rti(
     force: bool = False,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
     layout, as :func:`load_capture`; distant lights) and writes the output folder ``output``
@@ -542,6 +559,8 @@ def rti(
         Memory budget in bytes (default: half the memory available), as ``run``'s.
     force : bool
         Replace an existing ``rti`` output folder.
+    response, ambient, ignore_exposure
+        As for :func:`load_capture`.
 
     Returns
     -------
@@ -566,6 +585,9 @@ def rti(
         force,
         num_threads,
         progress,
+        response,
+        _path(ambient),
+        ignore_exposure,
     )
 
 
@@ -730,6 +752,22 @@ def read_image(path: PathLike) -> np.ndarray:
     """An image file (PNG 8/16-bit, TIFF, EXR, JPEG) as (H, W, C) float32, integers scaled to
     [0, 1]."""
     return _native.read_image(os.fspath(path))
+
+
+def _capture_options_doc() -> str:
+    """numpydoc entries for the capture-reading keywords, from the library's one definition
+    of their names and meanings (``_native.capture_options()``)."""
+    kinds = {"MODE": "str, optional", "IMAGE": "path, optional", "": "bool, default False"}
+    out = []
+    for o in _native.capture_options():
+        out.append(f"    {o['name']} : {kinds[o['value']]}")
+        out.extend(textwrap.wrap(o["doc"], 92, initial_indent=" " * 8, subsequent_indent=" " * 8))
+    return "\n".join(out) + "\n"
+
+
+load_capture.__doc__ = (load_capture.__doc__ or "").replace(
+    "%(capture_options)s\n", _capture_options_doc()
+)
 
 
 def read_normals(path: PathLike) -> np.ndarray:

@@ -20,10 +20,10 @@
 pub mod estimate;
 pub mod meta;
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param_set, Error, Result};
 use crate::model::image::Image;
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// How encoded values map to linear light.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,8 +137,9 @@ impl std::str::FromStr for ResponseChoice {
     fn from_str(s: &str) -> Result<Self> {
         let bad = || {
             Error::invalid(format!(
-                "response '{s}': expected linear, srgb, gamma:G (G a number from 0.2 to 5, \
-                 e.g. gamma:2.2) or auto"
+                "{}: expected linear, srgb, gamma:G (G a number from 0.2 to 5, e.g. gamma:2.2) \
+                 or auto",
+                param_set("response", s)
             ))
         };
         Ok(match s.trim().to_ascii_lowercase().as_str() {
@@ -196,6 +197,86 @@ pub struct Photometry {
     /// Leave the images' exposures (EXIF time, ISO, aperture) out: use the readings as they
     /// are even when the exposures differ.
     pub ignore_exposure: bool,
+}
+
+/// One capture-reading option as both front ends take it (command-line flag `--NAME`, Python
+/// keyword `NAME=`): its name, the placeholder of its value and its meaning, defined once here.
+#[derive(Clone, Copy, Debug)]
+pub struct CaptureOption {
+    /// The library's name (`ignore_exposure`; the flag is `--ignore-exposure`).
+    pub name: &'static str,
+    /// The value's placeholder (`MODE`, `IMAGE`; empty for a switch).
+    pub value: &'static str,
+    /// What it does (one paragraph, plain text).
+    pub doc: &'static str,
+}
+
+/// The meaning of `response`.
+pub const RESPONSE_DOC: &str = "How the images' values map to light: linear, srgb, gamma:G \
+    (linear = value^G) or auto (estimated from the capture: under the right response the \
+    readings of a matte surface lie in a 3-D subspace). Default: each file's own (sRGB for JPEG \
+    and for PNG/TIFF that say so, a PNG's gAMA, an ICC profile; linear for RAW, 16-bit and float \
+    data without colour metadata; 8-bit data without any is read as linear and checked).";
+/// The meaning of `ambient`.
+pub const AMBIENT_DOC: &str = "A frame taken with every controlled light off, subtracted from \
+    every image in linear light; replaces the capture folder's ambient.* file.";
+/// The meaning of `ignore_exposure`.
+pub const IGNORE_EXPOSURE_DOC: &str = "Use the readings as they are when the images' exposures \
+    (EXIF time, ISO, aperture) differ, instead of dividing each by its exposure.";
+
+/// The capture-reading options of [`Photometry`], in the order the front ends list them.
+pub const CAPTURE_OPTIONS: &[CaptureOption] = &[
+    CaptureOption {
+        name: "response",
+        value: "MODE",
+        doc: RESPONSE_DOC,
+    },
+    CaptureOption {
+        name: "ambient",
+        value: "IMAGE",
+        doc: AMBIENT_DOC,
+    },
+    CaptureOption {
+        name: "ignore_exposure",
+        value: "",
+        doc: IGNORE_EXPOSURE_DOC,
+    },
+];
+
+impl Photometry {
+    /// The choices as a front end receives them: `response` spelt as `--response` takes it,
+    /// `ambient` an image file that must exist. Errors name the option
+    /// ([`crate::base::error::param_set`]).
+    pub fn from_options(
+        response: Option<&str>,
+        ambient: Option<&Path>,
+        ignore_exposure: bool,
+    ) -> Result<Self> {
+        let response = response.map(str::parse::<ResponseChoice>).transpose()?;
+        if let Some(a) = ambient {
+            if !a.is_file() {
+                return Err(Error::invalid(format!(
+                    "{}: no such image file (expected a frame taken with every controlled \
+                     light off)",
+                    param_set("ambient", &a.display().to_string())
+                )));
+            }
+        }
+        Ok(Photometry {
+            response,
+            ambient: ambient.map(Path::to_path_buf),
+            ignore_exposure,
+        })
+    }
+
+    /// These choices over a layout's own (`layout`: its `ambient.*` file stays unless this
+    /// gives one).
+    pub fn over(self, layout: &Photometry) -> Photometry {
+        Photometry {
+            ambient: self.ambient.or_else(|| layout.ambient.clone()),
+            ..self
+        }
+    }
 }
 
 /// A camera's exposure settings, as EXIF records them.
