@@ -749,8 +749,9 @@ def synth(
 
 
 def read_image(path: PathLike) -> np.ndarray:
-    """An image file (PNG 8/16-bit, TIFF, EXR, JPEG) as (H, W, C) float32, integers scaled to
-    [0, 1]."""
+    """An image file (PNG 8/16-bit, TIFF, EXR, JPEG, camera RAW) as (H, W, C) float32, integers
+    scaled to [0, 1]; the file's encoded values (a camera RAW's are linear: black level
+    subtracted, white level at 1, one pixel per 2x2 Bayer block, no white balance)."""
     return _native.read_image(os.fspath(path))
 
 

@@ -355,8 +355,13 @@ impl CaptureFiles {
     }
 }
 
-/// The image extensions a capture folder's images are found by.
-const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "exr", "jpg", "jpeg"];
+/// The image extensions a capture folder's images are found by (lower case; compared without
+/// case): PNG, TIFF, OpenEXR, JPEG and camera RAW (DNG and the TIFF-based vendor formats of
+/// [`crate::io::raw`]; RAF and CR3 are found to be refused with advice).
+const IMAGE_EXTENSIONS: [&str; 15] = [
+    "png", "tif", "tiff", "exr", "jpg", "jpeg", "dng", "cr2", "nef", "arw", "pef", "orf", "rw2",
+    "raf", "cr3",
+];
 
 /// The capture of an RTI tool's light file (`.lp` or `.dome`) whose images lie in `dir`
 /// (a `.dome` names none), with `intensities` replacing the file's own.
@@ -414,7 +419,7 @@ pub(crate) fn ambient_frame(dir: &Path) -> Result<Option<PathBuf>> {
 }
 
 /// The images of a capture folder: the names listed in `filenames.txt` (one per line, blank
-/// lines skipped) when it exists, else every PNG, JPEG, TIFF or OpenEXR file of the folder but
+/// lines skipped) when it exists, else every PNG, JPEG, TIFF, OpenEXR or camera RAW file of the folder but
 /// the mask, the ground truth and the ambient frame (`mask*`, `Normal_gt*`, `ambient.*`),
 /// sorted by name.
 pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {

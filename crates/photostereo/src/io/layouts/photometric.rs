@@ -37,7 +37,9 @@ fn meta_of(path: &Path) -> Result<ImageMeta> {
         .read_to_end(&mut head)
         .map_err(|e| Error::io(path, e))?;
     let bytes = match crate::io::imageio::sniff(&head) {
-        Some(crate::io::imageio::Format::Tiff) => crate::io::limits::read_file(path)?,
+        Some(crate::io::imageio::Format::Tiff | crate::io::imageio::Format::Raw) => {
+            crate::io::limits::read_file(path)?
+        }
         _ => head,
     };
     read_meta(&bytes).map_err(|m| Error::file(path, m))
