@@ -320,6 +320,8 @@ def load_capture(
     num_threads: Optional[int] = None,
     response: Optional[str] = None,
     ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
 ) -> Capture:
     """Reads a capture from files, in every layout the command line reads.
@@ -357,6 +359,8 @@ def load_capture(
             memory_limit,
             response,
             _path(ambient),
+            _path(dark),
+            _path(flat),
             ignore_exposure,
         )
     )
@@ -466,6 +470,8 @@ def run(
     progress: Optional[ProgressCallback] = None,
     response: Optional[str] = None,
     ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
     **overrides: "Unpack[ParamValues]",
 ) -> Dict[str, Any]:
@@ -475,7 +481,9 @@ def run(
 
     Parameters
     ----------
-    path, lights, intensities, mask, distance, camera, response, ambient, ignore_exposure
+    path, lights, intensities, mask, distance, camera
+        As for :func:`load_capture`.
+    response, ambient, dark, flat, ignore_exposure
         As for :func:`load_capture` (report.json's ``photometry`` says per image what was
         done to make it linear).
     output : path
@@ -522,6 +530,8 @@ def run(
         _camera(camera),
         response,
         _path(ambient),
+        _path(dark),
+        _path(flat),
         ignore_exposure,
     )
 
@@ -541,6 +551,8 @@ def rti(
     progress: Optional[ProgressCallback] = None,
     response: Optional[str] = None,
     ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
@@ -559,7 +571,7 @@ def rti(
         Memory budget in bytes (default: half the memory available), as ``run``'s.
     force : bool
         Replace an existing ``rti`` output folder.
-    response, ambient, ignore_exposure
+    response, ambient, dark, flat, ignore_exposure
         As for :func:`load_capture`.
 
     Returns
@@ -587,6 +599,8 @@ def rti(
         progress,
         response,
         _path(ambient),
+        _path(dark),
+        _path(flat),
         ignore_exposure,
     )
 

@@ -123,6 +123,8 @@ def load_capture(
     memory_limit: Union[int, str, None] = None,
     response: Optional[str] = None,
     ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
     ignore_exposure: bool = False,
 ) -> NativeCapture:
     """A DiLiGenT folder, a near-light folder, an .lp file, a list file (with lights) or image
@@ -141,6 +143,8 @@ def capture_from_stack(
     memory_limit: Union[int, str, None] = None,
     response: Optional[str] = None,
     ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
     ignore_exposure: bool = False,
 ) -> NativeCapture:
     """images: (N, H, W) or (N, H, W, C) uint8, uint16, float32 or float64, any strides;
@@ -189,6 +193,8 @@ def run(
     camera: Union[str, np.ndarray, None] = None,
     response: Optional[str] = None,
     ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
     ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``run``; returns report.json's content."""
@@ -207,6 +213,8 @@ def rti(
     progress: Optional[Progress] = None,
     response: Optional[str] = None,
     ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
     ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``rti``; returns report.json's content."""
@@ -258,7 +266,7 @@ def synth(
     """Renders a built-in scene into a capture folder; returns the folder."""
 
 def capture_options() -> List[Dict[str, str]]:
-    """The capture-reading keywords (response, ambient, ignore_exposure): name, value
+    """The capture-reading keywords (response, ambient, dark, flat, ignore_exposure): name, value
     placeholder, meaning."""
 
 def read_image(path: str) -> np.ndarray:

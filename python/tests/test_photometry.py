@@ -133,6 +133,8 @@ def test_rti_takes_the_keywords(captures, tmp_path):
         (dict(response="gamma:9"), ["response=gamma:9", "expected linear, srgb, gamma:G"]),
         (dict(response="log"), ["response=log", "auto"]),
         (dict(ambient="nowhere.png"), ["ambient=nowhere.png", "no such image file"]),
+        (dict(dark="nowhere.png"), ["dark=nowhere.png", "no such image file"]),
+        (dict(flat="nowhere.png"), ["flat=nowhere.png", "no such image file"]),
     ],
 )
 def test_bad_keywords_are_named(captures, kwargs, words, tmp_path):

@@ -1,10 +1,10 @@
 //! The capture-loading flags of `run` that make the images linear: `--response`, `--ambient`,
-//! `--ignore-exposure` (the library's [`Photometry`]; names and meanings from its
+//! `--dark`, `--flat`, `--ignore-exposure` (the library's [`Photometry`]; names and meanings from its
 //! [`photometry::CAPTURE_OPTIONS`]).
 
 use clap::Args;
 use photostereo::io::layouts::CaptureFiles;
-use photostereo::io::photometry::{self, Photometry, ResponseChoice};
+use photostereo::io::photometry::{self, Frames, Photometry, ResponseChoice};
 use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone)]
@@ -13,6 +13,10 @@ pub struct PhotometryArgs {
     pub response: Option<ResponseChoice>,
     #[arg(long, help = photometry::AMBIENT_DOC)]
     pub ambient: Option<PathBuf>,
+    #[arg(long, help = photometry::DARK_DOC)]
+    pub dark: Option<PathBuf>,
+    #[arg(long, help = photometry::FLAT_DOC)]
+    pub flat: Option<PathBuf>,
     #[arg(long, help = photometry::IGNORE_EXPOSURE_DOC)]
     pub ignore_exposure: bool,
 }
@@ -23,10 +27,15 @@ fn parse_response(s: &str) -> Result<ResponseChoice, String> {
 }
 
 impl PhotometryArgs {
-    /// Sets the capture's photometry from the flags; the folder's own ambient frame stays
-    /// unless --ambient replaces it.
+    /// Sets the capture's photometry from the flags; the folder's own ambient, dark and flat
+    /// frames stay unless a flag replaces them.
     pub fn apply(&self, files: &mut CaptureFiles) -> anyhow::Result<()> {
-        let given = Photometry::from_options(None, self.ambient.as_deref(), self.ignore_exposure)?;
+        let frames = Frames {
+            ambient: self.ambient.as_deref(),
+            dark: self.dark.as_deref(),
+            flat: self.flat.as_deref(),
+        };
+        let given = Photometry::from_options(None, frames, self.ignore_exposure)?;
         files.photometry = Photometry {
             response: self.response,
             ..given

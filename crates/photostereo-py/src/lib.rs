@@ -14,7 +14,7 @@ use photostereo::app::pipeline::{LightSubset, RunOptions};
 use photostereo::base::error::ParamRef;
 use photostereo::base::progress::Progress;
 use photostereo::io::layouts::{CaptureFiles, LoadOptions};
-use photostereo::io::photometry::Photometry;
+use photostereo::io::photometry::{Frames, Photometry};
 use photostereo::method::engine::{Method, Params, Reconstruction};
 use photostereo::method::params::{parameter, Value, PARAMETERS};
 use photostereo::model::capture::{Capture, Stack, StackOptions};
@@ -26,7 +26,7 @@ use pyo3::create_exception;
 use pyo3::exceptions::{PyKeyboardInterrupt, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::{PyBool, PyBytes, PyDict, PyFloat, PyInt, PyList, PyString, PyTuple};
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{mpsc, Arc, Mutex};
 use std::time::Duration;
@@ -760,7 +760,7 @@ fn _capture_from_state(py: Python<'_>, state: &[u8]) -> PyResult<NativeCapture> 
 #[pyfunction]
 #[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None,
     distance=None, camera=None, memory_limit=None, response=None, ambient=None,
-    ignore_exposure=false))]
+    dark=None, flat=None, ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn load_capture(
     py: Python<'_>,
@@ -774,13 +774,20 @@ fn load_capture(
     memory_limit: Option<&Bound<'_, PyAny>>,
     response: Option<String>,
     ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
     ignore_exposure: bool,
 ) -> PyResult<NativeCapture> {
     let num_threads = threads(num_threads)?;
     let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
     let budget = memory_limit_of(memory_limit)?;
-    let given = photometry_of(response.as_deref(), ambient.as_deref(), ignore_exposure)?;
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let capture = run_detached(py, num_threads, None, OnCancel::Raise, move |progress| {
         let mut files = CaptureFiles::from_inputs_with(
             &inputs,
@@ -802,14 +809,14 @@ fn load_capture(
     })
 }
 
-/// The capture-reading keywords `response=`, `ambient=`, `ignore_exposure=` (the library's
-/// `Photometry`), checked before any file is read.
+/// The capture-reading keywords `response=`, `ambient=`, `dark=`, `flat=`,
+/// `ignore_exposure=` (the library's `Photometry`), checked before any file is read.
 fn photometry_of(
     response: Option<&str>,
-    ambient: Option<&Path>,
+    frames: Frames<'_>,
     ignore_exposure: bool,
 ) -> PyResult<Photometry> {
-    Photometry::from_options(response, ambient, ignore_exposure).map_err(py_err)
+    Photometry::from_options(response, frames, ignore_exposure).map_err(py_err)
 }
 
 /// The capture-reading keywords with their placeholders and meanings (the library's
@@ -996,7 +1003,8 @@ fn reconstruct<'py>(
 #[pyfunction]
 #[pyo3(signature = (inputs, output, params, lights=None, intensities=None, mask=None, gt=None,
     error_map=false, light_subset=None, force=false, num_threads=None, progress=None,
-    distance=None, camera=None, response=None, ambient=None, ignore_exposure=false))]
+    distance=None, camera=None, response=None, ambient=None, dark=None, flat=None,
+    ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
@@ -1016,10 +1024,17 @@ fn run<'py>(
     camera: Option<&Bound<'py, PyAny>>,
     response: Option<String>,
     ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
     ignore_exposure: bool,
 ) -> PyResult<Py<PyAny>> {
     let params = params_from(params)?;
-    let given = photometry_of(response.as_deref(), ambient.as_deref(), ignore_exposure)?;
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
     let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
@@ -1063,7 +1078,7 @@ fn run<'py>(
 #[pyfunction]
 #[pyo3(signature = (inputs, output, basis, lights=None, intensities=None, mask=None,
     exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None,
-    response=None, ambient=None, ignore_exposure=false))]
+    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn rti<'py>(
     py: Python<'py>,
@@ -1080,9 +1095,16 @@ fn rti<'py>(
     progress: Option<&Bound<'py, PyAny>>,
     response: Option<String>,
     ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
     ignore_exposure: bool,
 ) -> PyResult<Py<PyAny>> {
-    let given = photometry_of(response.as_deref(), ambient.as_deref(), ignore_exposure)?;
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let basis = basis
         .parse::<photostereo::solve::rti::Basis>()
         .map_err(py_err)?;

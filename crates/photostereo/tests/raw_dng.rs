@@ -76,7 +76,9 @@ fn bad_dngs_are_errors() {
     let cut = &good[..good.len() - 40];
     assert!(decode_image(cut).is_err());
     // A four-colour mosaic (red, green, green, cyan).
-    let cmy = dng::mosaic(8, 6, &rgb, [0, 1, 1, 3], [0; 4], 4095).bytes();
+    let mut four = dng::mosaic(8, 6, &rgb, [0, 1, 1, 2], [0; 4], 4095);
+    four.cfa = [0, 1, 1, 3];
+    let cmy = four.bytes();
     let e = decode_image(&cmy).unwrap_err();
     assert!(e.contains("mosaic") || e.contains("unsupported"), "{e}");
     // A forged size: 2^20 × 6 samples in a file of a few hundred bytes.

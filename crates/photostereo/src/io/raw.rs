@@ -59,10 +59,11 @@ struct Tiff<'a> {
     vendor_magic: bool,
 }
 
-/// One directory entry: its tag, count and first value (or the offset of its values).
+/// One directory entry: its tag, type, count and first value (or the offset of its values).
 #[derive(Clone, Copy, Debug)]
 struct Entry {
     tag: u16,
+    kind: u16,
     count: u32,
     value: u32,
 }
@@ -127,7 +128,12 @@ impl<'a> Tiff<'a> {
                 } else {
                     self.u32_at(e + 8)?
                 };
-                Some(Entry { tag, count, value })
+                Some(Entry {
+                    tag,
+                    kind,
+                    count,
+                    value,
+                })
             })
             .collect()
     }
@@ -161,7 +167,8 @@ impl<'a> Tiff<'a> {
             seen.push(at);
             todo.push(self.next_ifd(at));
             for e in self.entries(at) {
-                if e.tag == TAG_SUB_IFDS || e.tag == TAG_EXIF_IFD {
+                // Sub-images, EXIF, GPS and interoperability directories.
+                if matches!(e.tag, TAG_SUB_IFDS | TAG_EXIF_IFD | 34853 | 40965) {
                     todo.extend(self.offsets(&e));
                 }
             }
@@ -183,6 +190,19 @@ fn check_declared(bytes: &[u8]) -> Result<(), String> {
     let t = Tiff::new(bytes).ok_or("corrupt RAW file: no TIFF header")?;
     for at in t.all_ifds() {
         let entries = t.entries(at);
+        // Every entry's values lie in the file: the decoder allocates what a count declares.
+        for e in &entries {
+            let size = [0u64, 1, 1, 2, 4, 8, 1, 1, 2, 4, 8, 4, 8, 4]
+                .get(e.kind as usize)
+                .copied()
+                .unwrap_or(8);
+            if (e.count as u64).saturating_mul(size) > bytes.len() as u64 {
+                return Err(format!(
+                    "corrupt RAW file: tag {} declares {} values, more than the file holds",
+                    e.tag, e.count
+                ));
+            }
+        }
         let get = |tag: u16| entries.iter().find(|e| e.tag == tag);
         let (Some(w), Some(h)) = (get(256), get(257)) else {
             continue;

@@ -1,5 +1,5 @@
 //! From a file's numbers to light: every image of a capture is made linear in the light that
-//! reached the sensor before anything else reads it. Four steps, in this order, per image:
+//! reached the sensor before anything else reads it. These steps, in this order, per image:
 //!
 //! 1. **Response**: the encoded value `e` in [0, 1] becomes linear through the image's response
 //!    ([`Response`]): what the file declares ([`meta`]: a PNG's sRGB or gAMA chunk, an ICC
@@ -7,11 +7,17 @@
 //!    linear), what [`Photometry::response`] imposes, or what the capture itself shows
 //!    ([`estimate`]: only under the right response do the readings of a Lambertian surface lie
 //!    in a 3-D subspace).
-//! 2. **Exposure**: each image is divided by its exposure (time × ISO / f-number², from EXIF)
+//! 2. **Dark and flat** (when given): the dark frame (the sensor's own offset, the lens
+//!    capped at the images' settings) is subtracted, then the image is divided by the flat
+//!    field (a uniform target under the capture's optics, itself less the dark frame),
+//!    normalised to its mean inside the mask per channel: a reading is `flat × light + dark`,
+//!    so the dark goes first.
+//! 3. **Exposure**: each image is divided by its exposure (time × ISO / f-number², from EXIF)
 //!    relative to the capture's median, so that a camera's auto-exposure does not read as a
 //!    change of light.
-//! 3. **Ambient**: a frame taken with every controlled light off, made linear and exposure
-//!    corrected the same way, is subtracted: what remains is what each light added.
+//! 4. **Ambient**: a frame taken with every controlled light off, made linear, dark and flat
+//!    corrected and exposure corrected the same way, is subtracted: what remains is what each
+//!    light added.
 //!
 //! [`Photometry`] holds the choices (its JSON form is what the command line's `--response`,
 //! `--ambient` and `--ignore-exposure` set), [`PhotometryReport`] what was done to each image
@@ -194,6 +200,14 @@ pub struct Photometry {
     /// A frame with the controlled lights off, subtracted from every image in linear light;
     /// a capture folder's `ambient.*` file when not given.
     pub ambient: Option<PathBuf>,
+    /// A dark frame subtracted first (see the module's steps); a capture folder's `dark.*`
+    /// file when not given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dark: Option<PathBuf>,
+    /// A flat field every image is divided by; a capture folder's `flat.*` file when not
+    /// given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flat: Option<PathBuf>,
     /// Leave the images' exposures (EXIF time, ISO, aperture) out: use the readings as they
     /// are even when the exposures differ.
     pub ignore_exposure: bool,
@@ -220,6 +234,15 @@ pub const RESPONSE_DOC: &str = "How the images' values map to light: linear, srg
 /// The meaning of `ambient`.
 pub const AMBIENT_DOC: &str = "A frame taken with every controlled light off, subtracted from \
     every image in linear light; replaces the capture folder's ambient.* file.";
+/// The meaning of `dark`.
+pub const DARK_DOC: &str = "A dark frame (the lens capped, at the images' exposure settings): \
+    the sensor's own offset, subtracted from every image (and from the flat and ambient frames) \
+    in linear light before anything else; replaces the capture folder's dark.* file.";
+/// The meaning of `flat`.
+pub const FLAT_DOC: &str = "A flat field (a uniform white target under the capture's optics: a \
+    lens's or a dome's vignetting): every image is divided by it, less the dark frame and \
+    normalised to its mean inside the mask per channel; replaces the capture folder's flat.* \
+    file.";
 /// The meaning of `ignore_exposure`.
 pub const IGNORE_EXPOSURE_DOC: &str = "Use the readings as they are when the images' exposures \
     (EXIF time, ISO, aperture) differ, instead of dividing each by its exposure.";
@@ -237,6 +260,16 @@ pub const CAPTURE_OPTIONS: &[CaptureOption] = &[
         doc: AMBIENT_DOC,
     },
     CaptureOption {
+        name: "dark",
+        value: "IMAGE",
+        doc: DARK_DOC,
+    },
+    CaptureOption {
+        name: "flat",
+        value: "IMAGE",
+        doc: FLAT_DOC,
+    },
+    CaptureOption {
         name: "ignore_exposure",
         value: "",
         doc: IGNORE_EXPOSURE_DOC,
@@ -249,22 +282,31 @@ impl Photometry {
     /// ([`crate::base::error::param_set`]).
     pub fn from_options(
         response: Option<&str>,
-        ambient: Option<&Path>,
+        frames: Frames<'_>,
         ignore_exposure: bool,
     ) -> Result<Self> {
         let response = response.map(str::parse::<ResponseChoice>).transpose()?;
-        if let Some(a) = ambient {
-            if !a.is_file() {
+        for (name, file, what) in [
+            (
+                "ambient",
+                frames.ambient,
+                "a frame taken with every controlled light off",
+            ),
+            ("dark", frames.dark, "a frame taken with the lens capped"),
+            ("flat", frames.flat, "a frame of a uniform white target"),
+        ] {
+            if let Some(f) = file.filter(|f| !f.is_file()) {
                 return Err(Error::invalid(format!(
-                    "{}: no such image file (expected a frame taken with every controlled \
-                     light off)",
-                    param_set("ambient", &a.display().to_string())
+                    "{}: no such image file (expected {what})",
+                    param_set(name, &f.display().to_string())
                 )));
             }
         }
         Ok(Photometry {
             response,
-            ambient: ambient.map(Path::to_path_buf),
+            ambient: frames.ambient.map(Path::to_path_buf),
+            dark: frames.dark.map(Path::to_path_buf),
+            flat: frames.flat.map(Path::to_path_buf),
             ignore_exposure,
         })
     }
@@ -274,9 +316,19 @@ impl Photometry {
     pub fn over(self, layout: &Photometry) -> Photometry {
         Photometry {
             ambient: self.ambient.or_else(|| layout.ambient.clone()),
+            dark: self.dark.or_else(|| layout.dark.clone()),
+            flat: self.flat.or_else(|| layout.flat.clone()),
             ..self
         }
     }
+}
+
+/// The calibration frames a front end was given (each an image file).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Frames<'a> {
+    pub ambient: Option<&'a Path>,
+    pub dark: Option<&'a Path>,
+    pub flat: Option<&'a Path>,
 }
 
 /// A camera's exposure settings, as EXIF records them.
@@ -337,6 +389,12 @@ pub struct PhotometryReport {
     /// The ambient frame subtracted, when one was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ambient_file: Option<String>,
+    /// The dark frame subtracted from every image, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dark_file: Option<String>,
+    /// The flat field every image was divided by, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flat_file: Option<String>,
     /// The response estimated from the capture, when it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub response_estimate: Option<estimate::ResponseEstimate>,
@@ -355,6 +413,10 @@ pub struct Linearisation {
     pub exposure_factors: Vec<f64>,
     /// The ambient frame, linear and exposure corrected (full frame, the images' channels).
     pub ambient: Option<Image>,
+    /// The dark frame, linear (full frame, the images' channels).
+    pub dark: Option<Image>,
+    /// The reciprocal of the normalised flat field, per sample (full frame × channels).
+    pub flat_gain: Option<Vec<f32>>,
 }
 
 impl Linearisation {
@@ -363,6 +425,26 @@ impl Linearisation {
         self.responses.iter().all(|r| *r == Response::Linear)
             && self.exposure_factors.iter().all(|f| *f == 1.0)
             && self.ambient.is_none()
+            && self.dark.is_none()
+            && self.flat_gain.is_none()
+    }
+
+    /// Subtracts the dark frame and divides by the flat field (linear values).
+    pub fn dark_and_flat(&self, img: &mut Image) {
+        if let Some(d) = self
+            .dark
+            .as_ref()
+            .filter(|d| d.data.len() == img.data.len())
+        {
+            img.data.iter_mut().zip(&d.data).for_each(|(v, d)| *v -= d);
+        }
+        if let Some(g) = self
+            .flat_gain
+            .as_ref()
+            .filter(|g| g.len() == img.data.len())
+        {
+            img.data.iter_mut().zip(g).for_each(|(v, g)| *v *= g);
+        }
     }
 
     /// Makes image `k` linear, exposure corrected and free of ambient light.
@@ -370,6 +452,7 @@ impl Linearisation {
         if let Some(r) = self.responses.get(k) {
             r.linearise(img);
         }
+        self.dark_and_flat(img);
         let f = self.exposure_factors.get(k).copied().unwrap_or(1.0);
         if f != 1.0 {
             let s = (1.0 / f) as f32;
