@@ -12,6 +12,6 @@ fi
 # maturin's build hook runs `maturin` from PATH.
 export PATH="$(cd "$venv/bin" && pwd):$PATH"
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check \
-    "maturin>=1.5,<2" numpy pytest hypothesis "dask[distributed]"
+    "maturin>=1.5,<2" numpy pytest hypothesis "dask[distributed]" rawpy pidng
 "$venv/bin/python" -m pip install --quiet --disable-pip-version-check --no-build-isolation .
 "$venv/bin/python" -m pytest python/tests

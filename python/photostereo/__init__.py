@@ -29,6 +29,7 @@ from __future__ import annotations
 import atexit
 import os
 import pathlib
+import textwrap
 from typing import TYPE_CHECKING, Any, Callable, Dict, Optional, Sequence, Union
 
 import numpy as np
@@ -317,6 +318,11 @@ def load_capture(
     camera: Any = None,
     memory_limit: Union[int, str, None] = None,
     num_threads: Optional[int] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
 ) -> Capture:
     """Reads a capture from files, in every layout the command line reads.
 
@@ -336,7 +342,7 @@ def load_capture(
         The memory budget (bytes, or ``"4G"``; default half of the memory available).
     num_threads : int, optional
         Cap on the decoding threads (None: all cores).
-
+%(capture_options)s
     Returns
     -------
     Capture
@@ -351,6 +357,11 @@ def load_capture(
             distance,
             _camera(camera),
             memory_limit,
+            response,
+            _path(ambient),
+            _path(dark),
+            _path(flat),
+            ignore_exposure,
         )
     )
 
@@ -457,6 +468,11 @@ def run(
     camera: Any = None,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
     **overrides: "Unpack[ParamValues]",
 ) -> Dict[str, Any]:
     """The command line's ``run``: reads the capture at ``path`` (any layout, as
@@ -467,6 +483,9 @@ def run(
     ----------
     path, lights, intensities, mask, distance, camera
         As for :func:`load_capture`.
+    response, ambient, dark, flat, ignore_exposure
+        As for :func:`load_capture` (report.json's ``photometry`` says per image what was
+        done to make it linear).
     output : path
         The output folder; an existing one is refused unless ``force`` (and only a folder
         photostereo's ``run`` wrote, or an empty one, is replaced).
@@ -509,6 +528,11 @@ def run(
         progress,
         distance,
         _camera(camera),
+        response,
+        _path(ambient),
+        _path(dark),
+        _path(flat),
+        ignore_exposure,
     )
 
 
@@ -525,6 +549,11 @@ def rti(
     force: bool = False,
     num_threads: Optional[int] = None,
     progress: Optional[ProgressCallback] = None,
+    response: Optional[str] = None,
+    ambient: Optional[PathLike] = None,
+    dark: Optional[PathLike] = None,
+    flat: Optional[PathLike] = None,
+    ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
     layout, as :func:`load_capture`; distant lights) and writes the output folder ``output``
@@ -542,6 +571,8 @@ def rti(
         Memory budget in bytes (default: half the memory available), as ``run``'s.
     force : bool
         Replace an existing ``rti`` output folder.
+    response, ambient, dark, flat, ignore_exposure
+        As for :func:`load_capture`.
 
     Returns
     -------
@@ -566,6 +597,11 @@ def rti(
         force,
         num_threads,
         progress,
+        response,
+        _path(ambient),
+        _path(dark),
+        _path(flat),
+        ignore_exposure,
     )
 
 
@@ -727,9 +763,26 @@ def synth(
 
 
 def read_image(path: PathLike) -> np.ndarray:
-    """An image file (PNG 8/16-bit, TIFF, EXR, JPEG) as (H, W, C) float32, integers scaled to
-    [0, 1]."""
+    """An image file (PNG 8/16-bit, TIFF, EXR, JPEG, camera RAW) as (H, W, C) float32, integers
+    scaled to [0, 1]; the file's encoded values (a camera RAW's are linear: black level
+    subtracted, white level at 1, one pixel per 2x2 Bayer block, no white balance)."""
     return _native.read_image(os.fspath(path))
+
+
+def _capture_options_doc() -> str:
+    """numpydoc entries for the capture-reading keywords, from the library's one definition
+    of their names and meanings (``_native.capture_options()``)."""
+    kinds = {"MODE": "str, optional", "IMAGE": "path, optional", "": "bool, default False"}
+    out = []
+    for o in _native.capture_options():
+        out.append(f"    {o['name']} : {kinds[o['value']]}")
+        out.extend(textwrap.wrap(o["doc"], 92, initial_indent=" " * 8, subsequent_indent=" " * 8))
+    return "\n".join(out) + "\n"
+
+
+load_capture.__doc__ = (load_capture.__doc__ or "").replace(
+    "%(capture_options)s\n", _capture_options_doc()
+)
 
 
 def read_normals(path: PathLike) -> np.ndarray:

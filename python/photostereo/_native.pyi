@@ -121,6 +121,11 @@ def load_capture(
     distance: Optional[float] = None,
     camera: Union[str, np.ndarray, None] = None,
     memory_limit: Union[int, str, None] = None,
+    response: Optional[str] = None,
+    ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
+    ignore_exposure: bool = False,
 ) -> NativeCapture:
     """A DiLiGenT folder, a near-light folder, an .lp file, a list file (with lights) or image
     files (with lights), within the memory budget."""
@@ -136,6 +141,11 @@ def capture_from_stack(
     light_axes: Optional[np.ndarray] = None,
     light_anisotropy: Optional[np.ndarray] = None,
     memory_limit: Union[int, str, None] = None,
+    response: Optional[str] = None,
+    ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
+    ignore_exposure: bool = False,
 ) -> NativeCapture:
     """images: (N, H, W) or (N, H, W, C) uint8, uint16, float32 or float64, any strides;
     lights (N, 3) float64; intensities (N,) or (N, C) float64; mask (H, W) bool. Held to the
@@ -181,6 +191,11 @@ def run(
     progress: Optional[Progress] = None,
     distance: Optional[float] = None,
     camera: Union[str, np.ndarray, None] = None,
+    response: Optional[str] = None,
+    ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
+    ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``run``; returns report.json's content."""
 
@@ -196,6 +211,11 @@ def rti(
     force: bool = False,
     num_threads: Optional[int] = None,
     progress: Optional[Progress] = None,
+    response: Optional[str] = None,
+    ambient: Optional[str] = None,
+    dark: Optional[str] = None,
+    flat: Optional[str] = None,
+    ignore_exposure: bool = False,
 ) -> Dict[str, Any]:
     """The command line's ``rti``; returns report.json's content."""
 
@@ -244,6 +264,10 @@ def synth(
     force: bool,
 ) -> str:
     """Renders a built-in scene into a capture folder; returns the folder."""
+
+def capture_options() -> List[Dict[str, str]]:
+    """The capture-reading keywords (response, ambient, dark, flat, ignore_exposure): name, value
+    placeholder, meaning."""
 
 def read_image(path: str) -> np.ndarray:
     """(H, W, C) float32, integers scaled to [0, 1]."""

@@ -1,55 +1,67 @@
 //! The capture-loading flags of `run` that make the images linear: `--response`, `--ambient`,
-//! `--ignore-exposure` (the library's [`Photometry`]).
+//! `--dark`, `--flat`, `--ignore-exposure` (the library's [`Photometry`]; names and meanings from its
+//! [`photometry::CAPTURE_OPTIONS`]).
 
 use clap::Args;
 use photostereo::io::layouts::CaptureFiles;
-use photostereo::io::photometry::{Photometry, ResponseChoice};
+use photostereo::io::photometry::{self, Frames, Photometry, ResponseChoice};
 use std::path::PathBuf;
 
 #[derive(Args, Debug, Clone)]
 pub struct PhotometryArgs {
-    /// How the images' values map to light: linear, srgb, gamma:G (linear = value^G) or auto
-    /// (estimated from the capture: under the right response the readings of a matte surface
-    /// lie in a 3-D subspace). Default: each file's own (sRGB for JPEG and for PNG/TIFF that
-    /// say so, a PNG's gAMA, an ICC profile; linear for 16-bit and float data without colour
-    /// metadata; 8-bit data without any is read as linear and checked).
-    #[arg(long, value_parser = parse_response)]
+    #[arg(long, value_parser = parse_response, help = photometry::RESPONSE_DOC)]
     pub response: Option<ResponseChoice>,
-    /// A frame with every controlled light off, subtracted from every image in linear light;
-    /// replaces the capture folder's ambient.* file.
-    #[arg(long)]
+    #[arg(long, help = photometry::AMBIENT_DOC)]
     pub ambient: Option<PathBuf>,
-    /// Use the readings as they are when the images' exposures (EXIF time, ISO, aperture)
-    /// differ, instead of dividing each by its exposure.
-    #[arg(long)]
+    #[arg(long, help = photometry::DARK_DOC)]
+    pub dark: Option<PathBuf>,
+    #[arg(long, help = photometry::FLAT_DOC)]
+    pub flat: Option<PathBuf>,
+    #[arg(long, help = photometry::IGNORE_EXPOSURE_DOC)]
     pub ignore_exposure: bool,
 }
 
 fn parse_response(s: &str) -> Result<ResponseChoice, String> {
-    s.parse().map_err(|e: photostereo::Error| e.to_string())
+    s.parse()
+        .map_err(|e: photostereo::Error| e.spelled(&crate::params::spell))
 }
 
 impl PhotometryArgs {
-    /// Sets the capture's photometry from the flags; the folder's own ambient frame stays
-    /// unless --ambient replaces it.
+    /// Sets the capture's photometry from the flags; the folder's own ambient, dark and flat
+    /// frames stay unless a flag replaces them.
     pub fn apply(&self, files: &mut CaptureFiles) -> anyhow::Result<()> {
-        if let Some(a) = &self.ambient {
-            if !a.is_file() {
-                anyhow::bail!(
-                    "--ambient {}: no such image file (expected a frame taken with every \
-                     controlled light off)",
-                    a.display()
-                );
-            }
-        }
+        let frames = Frames {
+            ambient: self.ambient.as_deref(),
+            dark: self.dark.as_deref(),
+            flat: self.flat.as_deref(),
+        };
+        let given = Photometry::from_options(None, frames, self.ignore_exposure)?;
         files.photometry = Photometry {
             response: self.response,
-            ambient: self
-                .ambient
-                .clone()
-                .or_else(|| files.photometry.ambient.clone()),
-            ignore_exposure: self.ignore_exposure,
-        };
+            ..given
+        }
+        .over(&files.photometry);
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use clap::CommandFactory;
+
+    /// Every capture-reading option of the library is a flag of `run`, with the library's
+    /// meaning.
+    #[test]
+    fn the_flags_are_the_librarys_options() {
+        let cmd = crate::Cli::command();
+        let run = cmd.find_subcommand("run").unwrap();
+        for o in photostereo::io::photometry::CAPTURE_OPTIONS {
+            let long = o.name.replace('_', "-");
+            let arg = run
+                .get_arguments()
+                .find(|a| a.get_long() == Some(long.as_str()))
+                .unwrap_or_else(|| panic!("run has no --{long}"));
+            assert_eq!(arg.get_help().unwrap().to_string(), o.doc);
+        }
     }
 }

@@ -89,6 +89,8 @@ pub fn main(a: RunArgs) -> Result<()> {
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
     inputs.extend(files.photometry.ambient.as_deref());
+    inputs.extend(files.photometry.dark.as_deref());
+    inputs.extend(files.photometry.flat.as_deref());
     inputs.extend(a.gt.as_deref());
     photostereo::io::export::check_output(
         &a.output,

@@ -14,6 +14,7 @@ use photostereo::app::pipeline::{LightSubset, RunOptions};
 use photostereo::base::error::ParamRef;
 use photostereo::base::progress::Progress;
 use photostereo::io::layouts::{CaptureFiles, LoadOptions};
+use photostereo::io::photometry::{Frames, Photometry};
 use photostereo::method::engine::{Method, Params, Reconstruction};
 use photostereo::method::params::{parameter, Value, PARAMETERS};
 use photostereo::model::capture::{Capture, Stack, StackOptions};
@@ -758,7 +759,8 @@ fn _capture_from_state(py: Python<'_>, state: &[u8]) -> PyResult<NativeCapture> 
 /// Reads a capture from files, in every layout `run` reads (see the package's `load_capture`).
 #[pyfunction]
 #[pyo3(signature = (inputs, lights=None, intensities=None, mask=None, num_threads=None,
-    distance=None, camera=None, memory_limit=None))]
+    distance=None, camera=None, memory_limit=None, response=None, ambient=None,
+    dark=None, flat=None, ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn load_capture(
     py: Python<'_>,
@@ -770,13 +772,24 @@ fn load_capture(
     distance: Option<&Bound<'_, PyAny>>,
     camera: Option<&Bound<'_, PyAny>>,
     memory_limit: Option<&Bound<'_, PyAny>>,
+    response: Option<String>,
+    ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
+    ignore_exposure: bool,
 ) -> PyResult<NativeCapture> {
     let num_threads = threads(num_threads)?;
     let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
     let budget = memory_limit_of(memory_limit)?;
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let capture = run_detached(py, num_threads, None, OnCancel::Raise, move |progress| {
-        let files = CaptureFiles::from_inputs_with(
+        let mut files = CaptureFiles::from_inputs_with(
             &inputs,
             lights.as_deref(),
             intensities.as_deref(),
@@ -784,6 +797,7 @@ fn load_capture(
             distance,
             camera,
         )?;
+        files.photometry = given.over(&files.photometry);
         let options = LoadOptions {
             budget,
             ..LoadOptions::default()
@@ -793,6 +807,32 @@ fn load_capture(
     Ok(NativeCapture {
         inner: Arc::new(capture),
     })
+}
+
+/// The capture-reading keywords `response=`, `ambient=`, `dark=`, `flat=`,
+/// `ignore_exposure=` (the library's `Photometry`), checked before any file is read.
+fn photometry_of(
+    response: Option<&str>,
+    frames: Frames<'_>,
+    ignore_exposure: bool,
+) -> PyResult<Photometry> {
+    Photometry::from_options(response, frames, ignore_exposure).map_err(py_err)
+}
+
+/// The capture-reading keywords with their placeholders and meanings (the library's
+/// `CAPTURE_OPTIONS`), for the package's docstrings.
+#[pyfunction]
+fn capture_options(py: Python<'_>) -> PyResult<Vec<Bound<'_, PyDict>>> {
+    photostereo::io::photometry::CAPTURE_OPTIONS
+        .iter()
+        .map(|o| {
+            let d = PyDict::new(py);
+            d.set_item("name", o.name)?;
+            d.set_item("value", o.value)?;
+            d.set_item("doc", o.doc)?;
+            Ok(d)
+        })
+        .collect()
 }
 
 /// The lights of an array capture, from the keywords (see `LightArrays`).
@@ -963,7 +1003,8 @@ fn reconstruct<'py>(
 #[pyfunction]
 #[pyo3(signature = (inputs, output, params, lights=None, intensities=None, mask=None, gt=None,
     error_map=false, light_subset=None, force=false, num_threads=None, progress=None,
-    distance=None, camera=None))]
+    distance=None, camera=None, response=None, ambient=None, dark=None, flat=None,
+    ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
@@ -981,8 +1022,19 @@ fn run<'py>(
     progress: Option<&Bound<'py, PyAny>>,
     distance: Option<&Bound<'py, PyAny>>,
     camera: Option<&Bound<'py, PyAny>>,
+    response: Option<String>,
+    ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
+    ignore_exposure: bool,
 ) -> PyResult<Py<PyAny>> {
     let params = params_from(params)?;
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let (num_threads, progress) = (threads(num_threads)?, callback(progress)?);
     let distance = distance_of(distance)?;
     let camera = camera_from(camera)?;
@@ -1007,7 +1059,7 @@ fn run<'py>(
         progress,
         OnCancel::CleanUpFirst,
         move |p| {
-            let files = CaptureFiles::from_inputs_with(
+            let mut files = CaptureFiles::from_inputs_with(
                 &inputs,
                 lights.as_deref(),
                 intensities.as_deref(),
@@ -1015,6 +1067,7 @@ fn run<'py>(
                 distance,
                 camera,
             )?;
+            files.photometry = given.over(&files.photometry);
             photostereo::app::pipeline::run(&files, &options, &output, force, p)
         },
     )?;
@@ -1025,7 +1078,8 @@ fn run<'py>(
 /// report.json's content.
 #[pyfunction]
 #[pyo3(signature = (inputs, output, basis, lights=None, intensities=None, mask=None,
-    exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None))]
+    exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None,
+    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false))]
 #[allow(clippy::too_many_arguments)]
 fn rti<'py>(
     py: Python<'py>,
@@ -1040,7 +1094,18 @@ fn rti<'py>(
     force: bool,
     num_threads: Option<&Bound<'py, PyAny>>,
     progress: Option<&Bound<'py, PyAny>>,
+    response: Option<String>,
+    ambient: Option<PathBuf>,
+    dark: Option<PathBuf>,
+    flat: Option<PathBuf>,
+    ignore_exposure: bool,
 ) -> PyResult<Py<PyAny>> {
+    let frames = Frames {
+        ambient: ambient.as_deref(),
+        dark: dark.as_deref(),
+        flat: flat.as_deref(),
+    };
+    let given = photometry_of(response.as_deref(), frames, ignore_exposure)?;
     let basis = basis
         .parse::<photostereo::solve::rti::Basis>()
         .map_err(py_err)?;
@@ -1057,12 +1122,13 @@ fn rti<'py>(
         progress,
         OnCancel::CleanUpFirst,
         move |p| {
-            let files = CaptureFiles::from_inputs(
+            let mut files = CaptureFiles::from_inputs(
                 &inputs,
                 lights.as_deref(),
                 intensities.as_deref(),
                 mask.as_deref(),
             )?;
+            files.photometry = given.over(&files.photometry);
             photostereo::app::rti::rti(&files, &options, &output, force, p)
         },
     )?;
@@ -1473,6 +1539,7 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(render_scene, m)?)?;
     m.add_function(wrap_pyfunction!(synth, m)?)?;
     m.add_function(wrap_pyfunction!(read_image, m)?)?;
+    m.add_function(wrap_pyfunction!(capture_options, m)?)?;
     m.add_function(wrap_pyfunction!(read_normals, m)?)?;
     m.add_function(wrap_pyfunction!(abandon_pending_outputs, m)?)?;
     Ok(())

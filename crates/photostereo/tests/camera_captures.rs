@@ -314,6 +314,7 @@ fn photometry_options_have_a_json_form() {
         response: Some(ResponseChoice::Fixed(Response::Gamma(2.2))),
         ambient: Some(PathBuf::from("dark.jpg")),
         ignore_exposure: true,
+        ..Photometry::default()
     };
     let json = serde_json::to_string(&p).unwrap();
     assert_eq!(

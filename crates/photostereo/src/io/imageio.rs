@@ -18,11 +18,17 @@ pub enum Format {
     Tiff,
     Exr,
     Jpeg,
+    /// Camera RAW ([`crate::io::raw`]): DNG and the TIFF-based vendor formats.
+    Raw,
 }
 
-/// Identifies the format from the file's first bytes.
+/// Identifies the format from the file's first bytes (a camera RAW file by its first image
+/// directory, [`crate::io::raw::is_raw`]: from a file's first 8 bytes only, a TIFF-based RAW
+/// reads as TIFF).
 pub fn sniff(bytes: &[u8]) -> Option<Format> {
-    if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
+    if crate::io::raw::is_raw(bytes) {
+        Some(Format::Raw)
+    } else if bytes.starts_with(b"\x89PNG\r\n\x1a\n") {
         Some(Format::Png)
     } else if bytes.starts_with(b"II*\0")
         || bytes.starts_with(b"MM\0*")
@@ -60,7 +66,10 @@ pub fn decode_image(bytes: &[u8]) -> Result<Image, String> {
         }),
         Some(Format::Exr) => decode_exr(bytes),
         Some(Format::Jpeg) => crate::io::jpeg::decode_jpeg(bytes),
-        None => Err("unsupported image format (expected PNG, JPEG, TIFF or OpenEXR)".into()),
+        Some(Format::Raw) => crate::io::raw::decode_raw(bytes),
+        None => {
+            Err("unsupported image format (expected PNG, JPEG, TIFF, OpenEXR or camera RAW)".into())
+        }
     }
 }
 

@@ -15,6 +15,7 @@ pub mod limits;
 pub mod maps;
 pub mod matfile;
 pub mod photometry;
+pub mod raw;
 pub mod rti;
 pub mod shadow_figure;
 pub mod surface;

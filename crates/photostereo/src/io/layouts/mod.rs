@@ -272,10 +272,7 @@ impl CaptureFiles {
             lights,
             mask: mask.exists().then_some(mask),
             notes: Vec::new(),
-            photometry: crate::io::photometry::Photometry {
-                ambient: ambient_frame(dir)?,
-                ..Default::default()
-            },
+            photometry: folder_frames(dir)?,
         };
         files.note_renormalised();
         Ok(files)
@@ -355,8 +352,13 @@ impl CaptureFiles {
     }
 }
 
-/// The image extensions a capture folder's images are found by.
-const IMAGE_EXTENSIONS: [&str; 6] = ["png", "tif", "tiff", "exr", "jpg", "jpeg"];
+/// The image extensions a capture folder's images are found by (lower case; compared without
+/// case): PNG, TIFF, OpenEXR, JPEG and camera RAW (DNG and the TIFF-based vendor formats of
+/// [`crate::io::raw`]; RAF and CR3 are found to be refused with advice).
+const IMAGE_EXTENSIONS: [&str; 15] = [
+    "png", "tif", "tiff", "exr", "jpg", "jpeg", "dng", "cr2", "nef", "arw", "pef", "orf", "rw2",
+    "raf", "cr3",
+];
 
 /// The capture of an RTI tool's light file (`.lp` or `.dome`) whose images lie in `dir`
 /// (a `.dome` names none), with `intensities` replacing the file's own.
@@ -391,12 +393,22 @@ fn rti_capture(
     }
 }
 
-/// A capture folder's ambient frame (`ambient.png`, `ambient.jpg`, …: the scene with every
-/// controlled light off), if it has one; two are refused.
-pub(crate) fn ambient_frame(dir: &Path) -> Result<Option<PathBuf>> {
+/// A capture folder's calibration frames: `ambient.*` (the scene with every controlled light
+/// off), `dark.*` (the lens capped) and `flat.*` (a uniform white target), each when present.
+pub(crate) fn folder_frames(dir: &Path) -> Result<crate::io::photometry::Photometry> {
+    Ok(crate::io::photometry::Photometry {
+        ambient: named_frame(dir, "ambient")?,
+        dark: named_frame(dir, "dark")?,
+        flat: named_frame(dir, "flat")?,
+        ..Default::default()
+    })
+}
+
+/// A capture folder's frame `STEM.png`, `STEM.jpg`, … if it has one; two are refused.
+fn named_frame(dir: &Path, stem: &str) -> Result<Option<PathBuf>> {
     let found: Vec<PathBuf> = IMAGE_EXTENSIONS
         .iter()
-        .map(|e| dir.join(format!("ambient.{e}")))
+        .map(|e| dir.join(format!("{stem}.{e}")))
         .filter(|p| p.is_file())
         .collect();
     match found.as_slice() {
@@ -405,7 +417,7 @@ pub(crate) fn ambient_frame(dir: &Path) -> Result<Option<PathBuf>> {
         [a, b, ..] => Err(Error::file(
             dir,
             format!(
-                "two ambient frames, {} and {}: keep one",
+                "two {stem} frames, {} and {}: keep one",
                 a.display(),
                 b.display()
             ),
@@ -414,8 +426,9 @@ pub(crate) fn ambient_frame(dir: &Path) -> Result<Option<PathBuf>> {
 }
 
 /// The images of a capture folder: the names listed in `filenames.txt` (one per line, blank
-/// lines skipped) when it exists, else every PNG, JPEG, TIFF or OpenEXR file of the folder but
-/// the mask, the ground truth and the ambient frame (`mask*`, `Normal_gt*`, `ambient.*`),
+/// lines skipped) when it exists, else every PNG, JPEG, TIFF, OpenEXR or camera RAW file of the folder but
+/// the mask, the ground truth and the calibration frames (`mask*`, `Normal_gt*`, `ambient.*`,
+/// `dark.*`, `flat.*`),
 /// sorted by name.
 pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
     let names = dir.join("filenames.txt");
@@ -440,6 +453,8 @@ pub(crate) fn folder_images(dir: &Path) -> Result<Vec<PathBuf>> {
             IMAGE_EXTENSIONS.contains(&ext.as_str())
                 && !name.starts_with("mask")
                 && !name.starts_with("ambient.")
+                && !name.starts_with("dark.")
+                && !name.starts_with("flat.")
                 && !name.starts_with("Normal_gt")
         })
         .collect();

@@ -534,10 +534,7 @@ pub fn near_capture_files_with(
             layout.camera.cx,
             layout.camera.cy
         )],
-        photometry: crate::io::photometry::Photometry {
-            ambient: super::ambient_frame(dir)?,
-            ..Default::default()
-        },
+        photometry: super::folder_frames(dir)?,
     })
 }
 

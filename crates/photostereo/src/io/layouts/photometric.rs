@@ -37,7 +37,9 @@ fn meta_of(path: &Path) -> Result<ImageMeta> {
         .read_to_end(&mut head)
         .map_err(|e| Error::io(path, e))?;
     let bytes = match crate::io::imageio::sniff(&head) {
-        Some(crate::io::imageio::Format::Tiff) => crate::io::limits::read_file(path)?,
+        Some(crate::io::imageio::Format::Tiff | crate::io::imageio::Format::Raw) => {
+            crate::io::limits::read_file(path)?
+        }
         _ => head,
     };
     read_meta(&bytes).map_err(|m| Error::file(path, m))
@@ -108,21 +110,35 @@ impl CaptureFiles {
                 (None, _) => {}
             }
         }
-        if let (Some(img), Some(path)) = (&mut ambient, &p.ambient) {
-            // The ambient frame goes through the images' response (the first image's when
-            // each keeps its own), then its exposure.
-            let r = match p.response {
-                Some(ResponseChoice::Fixed(r)) => r,
-                Some(ResponseChoice::Auto) => responses[0].0,
-                None => ambient_meta
-                    .as_ref()
-                    .map_or(responses[0].0, |m| m.default_response().0),
-            };
-            r.linearise(img);
+        // A calibration frame goes through the images' response (the first image's when
+        // each keeps its own, unless the frame declares its own).
+        let frame_response = |meta: Option<&ImageMeta>| match p.response {
+            Some(ResponseChoice::Fixed(r)) => r,
+            Some(ResponseChoice::Auto) => responses[0].0,
+            None => meta.map_or(responses[0].0, |m| m.default_response().0),
+        };
+        let linear_frame = |path: &Path| -> Result<Image> {
+            let mut img = read_image_checked(path, self, channels)?;
+            frame_response(Some(&meta_of(path)?)).linearise(&mut img);
+            img.bit_depth = 32;
+            Ok(img)
+        };
+        let mut steps = Linearisation {
+            dark: p.dark.as_deref().map(linear_frame).transpose()?,
+            ..Linearisation::default()
+        };
+        if let Some(path) = p.flat.as_deref() {
+            let mut flat = linear_frame(path)?;
+            steps.dark_and_flat(&mut flat);
+            steps.flat_gain = Some(flat_gain(&flat, mask, path)?);
+        }
+        if let Some(img) = &mut ambient {
+            // The ambient frame: linear, less the dark, through the flat, then its exposure.
+            frame_response(ambient_meta.as_ref()).linearise(img);
+            steps.dark_and_flat(img);
             let s = (1.0 / ambient_factor) as f32;
             img.data.iter_mut().for_each(|v| *v *= s);
             img.bit_depth = 32;
-            let _ = path;
         }
         let records = self
             .images
@@ -145,10 +161,13 @@ impl CaptureFiles {
                 responses: responses.iter().map(|r| r.0).collect(),
                 exposure_factors: factors,
                 ambient,
+                ..steps
             },
             report: PhotometryReport {
                 images: records,
                 ambient_file: p.ambient.as_ref().map(|a| a.display().to_string()),
+                dark_file: p.dark.as_ref().map(|a| a.display().to_string()),
+                flat_file: p.flat.as_ref().map(|a| a.display().to_string()),
                 response_estimate: estimate,
                 offset_check: None,
             },
@@ -288,6 +307,49 @@ impl CaptureFiles {
             bit_depth: planes.iter().map(|p| p.1).max().unwrap_or(8),
         })
     }
+}
+
+/// The per-sample reciprocal of a flat field (linear, less the dark frame) normalised to its
+/// mean inside the mask, per channel. A flat that reads under 5% of its mean at a mask pixel
+/// does not light the object: refused, naming the pixel.
+fn flat_gain(flat: &Image, mask: &[bool], path: &Path) -> Result<Vec<f32>> {
+    let c = flat.channels;
+    let inside = |i: usize| mask.get(i).copied().unwrap_or(true);
+    let mut means = vec![0.0f64; c];
+    let mut count = 0usize;
+    let pixels = flat.data.chunks_exact(c).enumerate();
+    for (_, px) in pixels.filter(|(i, _)| inside(*i)) {
+        means.iter_mut().zip(px).for_each(|(m, v)| *m += *v as f64);
+        count += 1;
+    }
+    if count == 0 || means.iter().any(|m| *m <= 0.0) {
+        return Err(Error::file(
+            path,
+            "the flat field is dark inside the mask (expected a frame of a uniform white target)",
+        ));
+    }
+    means.iter_mut().for_each(|m| *m /= count as f64);
+    let mut gain = Vec::with_capacity(flat.data.len());
+    for (i, px) in flat.data.chunks_exact(c).enumerate() {
+        for (v, m) in px.iter().zip(&means) {
+            let rel = *v as f64 / m;
+            if rel < 0.05 && inside(i) {
+                return Err(Error::file(
+                    path,
+                    format!(
+                        "the flat field reads {:.1}% of its mean at pixel (x {}, y {}) inside \
+                         the mask: a flat must light the whole object (expected a frame of a \
+                         uniform white target under the capture's optics)",
+                        100.0 * rel,
+                        i % flat.width,
+                        i / flat.width
+                    ),
+                ));
+            }
+            gain.push(if rel > 0.05 { (1.0 / rel) as f32 } else { 1.0 });
+        }
+    }
+    Ok(gain)
 }
 
 /// Reads an image (encoded values) and checks its size and channels against the capture's

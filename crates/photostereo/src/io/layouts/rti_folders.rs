@@ -326,10 +326,7 @@ pub fn dome_capture_files(dome: &Path, dir: &Path) -> Result<CaptureFiles> {
         lights: d.lights,
         mask: None,
         notes,
-        photometry: crate::io::photometry::Photometry {
-            ambient: super::ambient_frame(dir)?,
-            ..Default::default()
-        },
+        photometry: super::folder_frames(dir)?,
     })
 }
 

@@ -52,7 +52,20 @@ pub fn read_meta(bytes: &[u8]) -> Result<ImageMeta, String> {
             exposure: Exposure::default(),
             orientation: 1,
         }),
-        None => Err("unsupported image format (expected PNG, JPEG, TIFF or OpenEXR)".into()),
+        Some(Format::Raw) => {
+            let (exposure, orientation, _) = exif_facts(bytes);
+            Ok(ImageMeta {
+                format: Format::Raw,
+                bit_depth: 16,
+                decoder: crate::io::raw::describe(bytes),
+                declared: Some((Response::Linear, "camera RAW (sensor readings)".into())),
+                exposure,
+                orientation,
+            })
+        }
+        None => {
+            Err("unsupported image format (expected PNG, JPEG, TIFF, OpenEXR or camera RAW)".into())
+        }
     }
 }
 

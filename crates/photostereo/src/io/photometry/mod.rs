@@ -1,5 +1,5 @@
 //! From a file's numbers to light: every image of a capture is made linear in the light that
-//! reached the sensor before anything else reads it. Four steps, in this order, per image:
+//! reached the sensor before anything else reads it. These steps, in this order, per image:
 //!
 //! 1. **Response**: the encoded value `e` in [0, 1] becomes linear through the image's response
 //!    ([`Response`]): what the file declares ([`meta`]: a PNG's sRGB or gAMA chunk, an ICC
@@ -7,11 +7,17 @@
 //!    linear), what [`Photometry::response`] imposes, or what the capture itself shows
 //!    ([`estimate`]: only under the right response do the readings of a Lambertian surface lie
 //!    in a 3-D subspace).
-//! 2. **Exposure**: each image is divided by its exposure (time × ISO / f-number², from EXIF)
+//! 2. **Dark and flat** (when given): the dark frame (the sensor's own offset, the lens
+//!    capped at the images' settings) is subtracted, then the image is divided by the flat
+//!    field (a uniform target under the capture's optics, itself less the dark frame),
+//!    normalised to its mean inside the mask per channel: a reading is `flat × light + dark`,
+//!    so the dark goes first.
+//! 3. **Exposure**: each image is divided by its exposure (time × ISO / f-number², from EXIF)
 //!    relative to the capture's median, so that a camera's auto-exposure does not read as a
 //!    change of light.
-//! 3. **Ambient**: a frame taken with every controlled light off, made linear and exposure
-//!    corrected the same way, is subtracted: what remains is what each light added.
+//! 4. **Ambient**: a frame taken with every controlled light off, made linear, dark and flat
+//!    corrected and exposure corrected the same way, is subtracted: what remains is what each
+//!    light added.
 //!
 //! [`Photometry`] holds the choices (its JSON form is what the command line's `--response`,
 //! `--ambient` and `--ignore-exposure` set), [`PhotometryReport`] what was done to each image
@@ -20,10 +26,10 @@
 pub mod estimate;
 pub mod meta;
 
-use crate::base::error::{Error, Result};
+use crate::base::error::{param_set, Error, Result};
 use crate::model::image::Image;
 use serde::{Deserialize, Serialize};
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 /// How encoded values map to linear light.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -137,8 +143,9 @@ impl std::str::FromStr for ResponseChoice {
     fn from_str(s: &str) -> Result<Self> {
         let bad = || {
             Error::invalid(format!(
-                "response '{s}': expected linear, srgb, gamma:G (G a number from 0.2 to 5, \
-                 e.g. gamma:2.2) or auto"
+                "{}: expected linear, srgb, gamma:G (G a number from 0.2 to 5, e.g. gamma:2.2) \
+                 or auto",
+                param_set("response", s)
             ))
         };
         Ok(match s.trim().to_ascii_lowercase().as_str() {
@@ -193,9 +200,135 @@ pub struct Photometry {
     /// A frame with the controlled lights off, subtracted from every image in linear light;
     /// a capture folder's `ambient.*` file when not given.
     pub ambient: Option<PathBuf>,
+    /// A dark frame subtracted first (see the module's steps); a capture folder's `dark.*`
+    /// file when not given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dark: Option<PathBuf>,
+    /// A flat field every image is divided by; a capture folder's `flat.*` file when not
+    /// given.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flat: Option<PathBuf>,
     /// Leave the images' exposures (EXIF time, ISO, aperture) out: use the readings as they
     /// are even when the exposures differ.
     pub ignore_exposure: bool,
+}
+
+/// One capture-reading option as both front ends take it (command-line flag `--NAME`, Python
+/// keyword `NAME=`): its name, the placeholder of its value and its meaning, defined once here.
+#[derive(Clone, Copy, Debug)]
+pub struct CaptureOption {
+    /// The library's name (`ignore_exposure`; the flag is `--ignore-exposure`).
+    pub name: &'static str,
+    /// The value's placeholder (`MODE`, `IMAGE`; empty for a switch).
+    pub value: &'static str,
+    /// What it does (one paragraph, plain text).
+    pub doc: &'static str,
+}
+
+/// The meaning of `response`.
+pub const RESPONSE_DOC: &str = "How the images' values map to light: linear, srgb, gamma:G \
+    (linear = value^G) or auto (estimated from the capture: under the right response the \
+    readings of a matte surface lie in a 3-D subspace). Default: each file's own (sRGB for JPEG \
+    and for PNG/TIFF that say so, a PNG's gAMA, an ICC profile; linear for RAW, 16-bit and float \
+    data without colour metadata; 8-bit data without any is read as linear and checked).";
+/// The meaning of `ambient`.
+pub const AMBIENT_DOC: &str = "A frame taken with every controlled light off, subtracted from \
+    every image in linear light; replaces the capture folder's ambient.* file.";
+/// The meaning of `dark`.
+pub const DARK_DOC: &str = "A dark frame (the lens capped, at the images' exposure settings): \
+    the sensor's own offset, subtracted from every image (and from the flat and ambient frames) \
+    in linear light before anything else; replaces the capture folder's dark.* file.";
+/// The meaning of `flat`.
+pub const FLAT_DOC: &str = "A flat field (a uniform white target under the capture's optics: a \
+    lens's or a dome's vignetting): every image is divided by it, less the dark frame and \
+    normalised to its mean inside the mask per channel; replaces the capture folder's flat.* \
+    file.";
+/// The meaning of `ignore_exposure`.
+pub const IGNORE_EXPOSURE_DOC: &str = "Use the readings as they are when the images' exposures \
+    (EXIF time, ISO, aperture) differ, instead of dividing each by its exposure.";
+
+/// The capture-reading options of [`Photometry`], in the order the front ends list them.
+pub const CAPTURE_OPTIONS: &[CaptureOption] = &[
+    CaptureOption {
+        name: "response",
+        value: "MODE",
+        doc: RESPONSE_DOC,
+    },
+    CaptureOption {
+        name: "ambient",
+        value: "IMAGE",
+        doc: AMBIENT_DOC,
+    },
+    CaptureOption {
+        name: "dark",
+        value: "IMAGE",
+        doc: DARK_DOC,
+    },
+    CaptureOption {
+        name: "flat",
+        value: "IMAGE",
+        doc: FLAT_DOC,
+    },
+    CaptureOption {
+        name: "ignore_exposure",
+        value: "",
+        doc: IGNORE_EXPOSURE_DOC,
+    },
+];
+
+impl Photometry {
+    /// The choices as a front end receives them: `response` spelt as `--response` takes it,
+    /// `ambient` an image file that must exist. Errors name the option
+    /// ([`crate::base::error::param_set`]).
+    pub fn from_options(
+        response: Option<&str>,
+        frames: Frames<'_>,
+        ignore_exposure: bool,
+    ) -> Result<Self> {
+        let response = response.map(str::parse::<ResponseChoice>).transpose()?;
+        for (name, file, what) in [
+            (
+                "ambient",
+                frames.ambient,
+                "a frame taken with every controlled light off",
+            ),
+            ("dark", frames.dark, "a frame taken with the lens capped"),
+            ("flat", frames.flat, "a frame of a uniform white target"),
+        ] {
+            if let Some(f) = file.filter(|f| !f.is_file()) {
+                return Err(Error::invalid(format!(
+                    "{}: no such image file (expected {what})",
+                    param_set(name, &f.display().to_string())
+                )));
+            }
+        }
+        Ok(Photometry {
+            response,
+            ambient: frames.ambient.map(Path::to_path_buf),
+            dark: frames.dark.map(Path::to_path_buf),
+            flat: frames.flat.map(Path::to_path_buf),
+            ignore_exposure,
+        })
+    }
+
+    /// These choices over a layout's own (`layout`: its `ambient.*` file stays unless this
+    /// gives one).
+    pub fn over(self, layout: &Photometry) -> Photometry {
+        Photometry {
+            ambient: self.ambient.or_else(|| layout.ambient.clone()),
+            dark: self.dark.or_else(|| layout.dark.clone()),
+            flat: self.flat.or_else(|| layout.flat.clone()),
+            ..self
+        }
+    }
+}
+
+/// The calibration frames a front end was given (each an image file).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Frames<'a> {
+    pub ambient: Option<&'a Path>,
+    pub dark: Option<&'a Path>,
+    pub flat: Option<&'a Path>,
 }
 
 /// A camera's exposure settings, as EXIF records them.
@@ -256,6 +389,12 @@ pub struct PhotometryReport {
     /// The ambient frame subtracted, when one was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub ambient_file: Option<String>,
+    /// The dark frame subtracted from every image, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dark_file: Option<String>,
+    /// The flat field every image was divided by, when one was.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub flat_file: Option<String>,
     /// The response estimated from the capture, when it was.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub response_estimate: Option<estimate::ResponseEstimate>,
@@ -274,6 +413,10 @@ pub struct Linearisation {
     pub exposure_factors: Vec<f64>,
     /// The ambient frame, linear and exposure corrected (full frame, the images' channels).
     pub ambient: Option<Image>,
+    /// The dark frame, linear (full frame, the images' channels).
+    pub dark: Option<Image>,
+    /// The reciprocal of the normalised flat field, per sample (full frame × channels).
+    pub flat_gain: Option<Vec<f32>>,
 }
 
 impl Linearisation {
@@ -282,6 +425,26 @@ impl Linearisation {
         self.responses.iter().all(|r| *r == Response::Linear)
             && self.exposure_factors.iter().all(|f| *f == 1.0)
             && self.ambient.is_none()
+            && self.dark.is_none()
+            && self.flat_gain.is_none()
+    }
+
+    /// Subtracts the dark frame and divides by the flat field (linear values).
+    pub fn dark_and_flat(&self, img: &mut Image) {
+        if let Some(d) = self
+            .dark
+            .as_ref()
+            .filter(|d| d.data.len() == img.data.len())
+        {
+            img.data.iter_mut().zip(&d.data).for_each(|(v, d)| *v -= d);
+        }
+        if let Some(g) = self
+            .flat_gain
+            .as_ref()
+            .filter(|g| g.len() == img.data.len())
+        {
+            img.data.iter_mut().zip(g).for_each(|(v, g)| *v *= g);
+        }
     }
 
     /// Makes image `k` linear, exposure corrected and free of ambient light.
@@ -289,6 +452,7 @@ impl Linearisation {
         if let Some(r) = self.responses.get(k) {
             r.linearise(img);
         }
+        self.dark_and_flat(img);
         let f = self.exposure_factors.get(k).copied().unwrap_or(1.0);
         if f != 1.0 {
             let s = (1.0 / f) as f32;
