@@ -527,8 +527,8 @@ fn capture_sharpness(
     let (mut significant, mut specular) = (0, 0);
     capture.for_ids_by_tile(&ids, |sub, view| {
         for &p in sub {
-            let st = &light_status[p * n..(p + 1) * n];
-            let count = scratch.load(lights, view.pixel_samples(p), capture.channels, st);
+            light_status.row_into(p, &mut st);
+            let count = scratch.load(lights, view.pixel_samples(p), capture.channels, &st);
             let start = start_of(est.normals[p]).expect("a candidate has a normal");
             let fit = lights.fit(&scratch.data(lights), count, start, exponent);
             significant += fit.significant as usize;
