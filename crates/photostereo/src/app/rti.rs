@@ -150,7 +150,7 @@ fn write_iiif(dir: &Path, web: &Value, base: &str) -> Result<Value> {
 }
 
 /// The fit `run --rti` makes beside the normals: `basis` over every reading of `capture`
-/// (within the budget rules of [`check_capture`]), with its leave-one-out error and the
+/// (within the budget rules of `check_capture`), with its leave-one-out error and the
 /// Lambertian relighting of the run's normals and albedo; returns the fit and its report
 /// entry (`report.json`'s `rti`).
 pub fn fit_beside_run(

@@ -30,7 +30,7 @@
 //!   Lambertian shading of the run's albedo, ρ / white · (max(0, n' · l) − max(0, n · l)).
 //!
 //! The displayed value is encode(clamp(2^exposure · (rti + specular + unsharp), 0, 1)), encode
-//! the sRGB transfer function or the identity, as the relight layer's ([`super::relight`]).
+//! the sRGB transfer function or the identity, as the relight layer's (`io::viewer::relight`).
 
 use super::relight::{srgb_encode, RelightParams};
 use crate::base::error::{Error, Result};
