@@ -194,6 +194,16 @@ fn pack_status(n: usize, hw: usize, status: &[u8]) -> (Vec<u8>, usize) {
     (out, planes)
 }
 
+/// One pixel of a reduced level (see `Level::reduce_pixel`).
+struct Px {
+    n: [f32; 3],
+    a: [f32; 3],
+    d: [u8; 3],
+    q: [u8; 2],
+    r: [f32; 2],
+    first: usize,
+}
+
 impl Level {
     /// Level 0 from an output folder.
     pub fn base(f: &RunFolder, depth_range: Option<(f32, f32)>) -> Level {
@@ -320,6 +330,69 @@ impl Level {
         out
     }
 
+    /// One pixel of the next level from its children inside the mask (indices into this
+    /// level, at most four): normals summed and renormalised, albedo and depth colours
+    /// averaged, quality the worst, flags united, residual the largest and error the mean.
+    fn reduce_pixel(&self, v: &[usize]) -> Px {
+        let mut out = Px {
+            n: [0.0; 3],
+            a: [0.0; 3],
+            d: [0; 3],
+            q: [0; 2],
+            r: [f32::NAN; 2],
+            first: usize::MAX,
+        };
+        if v.is_empty() {
+            return out;
+        }
+        let (mut n, mut a, mut d) = ([0f32; 3], [0f32; 3], [0f32; 3]);
+        let (mut res, mut err, mut nerr) = (f32::NAN, 0f32, 0usize);
+        let mut q = [0u8, 0u8];
+        for &i in v {
+            for c in 0..3 {
+                n[c] += self.normals[i][c];
+                a[c] += self.albedo[i][c];
+                if let Some(dr) = &self.depth_rgb {
+                    d[c] += dr[i][c] as f32;
+                }
+            }
+            q[0] = q[0].max(self.q[i][0]);
+            q[1] |= self.q[i][1];
+            if let Some(r) = &self.r {
+                if r[i][0].is_finite() {
+                    res = if res.is_finite() {
+                        res.max(r[i][0])
+                    } else {
+                        r[i][0]
+                    };
+                }
+                if r[i][1].is_finite() {
+                    err += r[i][1];
+                    nerr += 1;
+                }
+            }
+        }
+        let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        out.n = if len > 1e-6 {
+            n.map(|x| x / len)
+        } else {
+            [0.0, 0.0, 1.0]
+        };
+        out.a = a.map(|x| x / v.len() as f32);
+        out.d = d.map(|x| (x / v.len() as f32).round() as u8);
+        out.q = q;
+        out.r = [
+            res,
+            if nerr > 0 {
+                err / nerr as f32
+            } else {
+                f32::NAN
+            },
+        ];
+        out.first = v[0];
+        out
+    }
+
     /// The next level: both sides halved (rounded up).
     pub fn reduce(&self) -> Level {
         let (w, h) = (self.width, self.height);
@@ -338,75 +411,11 @@ impl Level {
             }
             (v, k)
         };
-        struct Px {
-            n: [f32; 3],
-            a: [f32; 3],
-            d: [u8; 3],
-            q: [u8; 2],
-            r: [f32; 2],
-            first: usize,
-        }
         let px: Vec<Px> = (0..w2 * h2)
             .into_par_iter()
             .map(|j| {
                 let (v, k) = children(j / w2, j % w2);
-                let mut out = Px {
-                    n: [0.0; 3],
-                    a: [0.0; 3],
-                    d: [0; 3],
-                    q: [0; 2],
-                    r: [f32::NAN; 2],
-                    first: usize::MAX,
-                };
-                if k == 0 {
-                    return out;
-                }
-                let (mut n, mut a, mut d) = ([0f32; 3], [0f32; 3], [0f32; 3]);
-                let (mut res, mut err, mut nerr) = (f32::NAN, 0f32, 0usize);
-                let mut q = [0u8, 0u8];
-                for &i in &v[..k] {
-                    for c in 0..3 {
-                        n[c] += self.normals[i][c];
-                        a[c] += self.albedo[i][c];
-                        if let Some(dr) = &self.depth_rgb {
-                            d[c] += dr[i][c] as f32;
-                        }
-                    }
-                    q[0] = q[0].max(self.q[i][0]);
-                    q[1] |= self.q[i][1];
-                    if let Some(r) = &self.r {
-                        if r[i][0].is_finite() {
-                            res = if res.is_finite() {
-                                res.max(r[i][0])
-                            } else {
-                                r[i][0]
-                            };
-                        }
-                        if r[i][1].is_finite() {
-                            err += r[i][1];
-                            nerr += 1;
-                        }
-                    }
-                }
-                let len = (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
-                out.n = if len > 1e-6 {
-                    n.map(|x| x / len)
-                } else {
-                    [0.0, 0.0, 1.0]
-                };
-                out.a = a.map(|x| x / k as f32);
-                out.d = d.map(|x| (x / k as f32).round() as u8);
-                out.q = q;
-                out.r = [
-                    res,
-                    if nerr > 0 {
-                        err / nerr as f32
-                    } else {
-                        f32::NAN
-                    },
-                ];
-                out.first = v[0];
-                out
+                self.reduce_pixel(&v[..k])
             })
             .collect();
         let kids: Vec<([usize; 4], usize)> = if self.rti.is_some() || self.gloss.is_some() {
