@@ -87,15 +87,19 @@ pub fn chi2_cdf(x: f64, dof: usize) -> f64 {
 pub fn chi2_quantile(p: f64, dof: usize) -> f64 {
     assert!(p > 0.0 && p < 1.0 && dof > 0, "chi2_quantile domain");
     let k = dof as f64;
-    // Bracket, then bisect on the monotone CDF (60 halvings: full f64 precision).
+    quantile_of(|x| chi2_cdf(x, dof), p, k + 10.0 * (2.0 * k).sqrt() + 50.0)
+}
+
+/// The x ≥ 0 with `cdf(x)` = p of a monotone CDF on [0, ∞): bracketed from `hi` (doubled until
+/// it holds p), then bisected to full f64 precision.
+fn quantile_of(cdf: impl Fn(f64) -> f64, p: f64, mut hi: f64) -> f64 {
     let mut lo = 0.0;
-    let mut hi = k + 10.0 * (2.0 * k).sqrt() + 50.0;
-    while chi2_cdf(hi, dof) < p {
+    while cdf(hi) < p {
         hi *= 2.0;
     }
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
-        if chi2_cdf(mid, dof) < p {
+        if cdf(mid) < p {
             lo = mid;
         } else {
             hi = mid;
@@ -160,25 +164,10 @@ pub fn f_cdf(f: f64, d1: usize, d2: usize) -> f64 {
 }
 
 /// Quantile of the F distribution with (`d1`, `d2`) degrees of freedom: the f with
-/// CDF(f) = p, for 0 < p < 1 (bisection on the monotone CDF).
+/// CDF(f) = p, for 0 < p < 1.
 pub fn f_quantile(p: f64, d1: usize, d2: usize) -> f64 {
     assert!(p > 0.0 && p < 1.0 && d1 > 0 && d2 > 0, "f_quantile domain");
-    let (mut lo, mut hi) = (0.0, 10.0);
-    while f_cdf(hi, d1, d2) < p {
-        hi *= 2.0;
-    }
-    for _ in 0..200 {
-        let mid = 0.5 * (lo + hi);
-        if f_cdf(mid, d1, d2) < p {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-        if hi - lo < 1e-12 * hi.max(1.0) {
-            break;
-        }
-    }
-    0.5 * (lo + hi)
+    quantile_of(|f| f_cdf(f, d1, d2), p, 10.0)
 }
 
 #[cfg(test)]

@@ -63,6 +63,13 @@ pub fn srgb_encode(v: f32) -> f32 {
     }
 }
 
+/// A linear value in [0, 1] (clamped) as a display byte, sRGB-encoded when `srgb`.
+pub fn display_byte(v: f32, srgb: bool) -> u8 {
+    let v = v.clamp(0.0, 1.0);
+    let e = if srgb { srgb_encode(v) } else { v };
+    (e * 255.0).round() as u8
+}
+
 /// The 99.5th percentile of the finite albedo samples inside the mask (1 when there are none or
 /// it is not positive). `albedo` is `H·W·channels`, `mask` `H·W`.
 pub fn albedo_white(albedo: &[f32], channels: usize, mask: &[bool]) -> f32 {
@@ -135,11 +142,7 @@ pub fn relight(
                 [a[0]; 3]
             };
             let rho = rho.map(|v| if v.is_finite() { v.max(0.0) } else { 0.0 });
-            relight_pixel(n, rho, p).map(|v| {
-                let v = v.clamp(0.0, 1.0);
-                let e = if p.srgb { srgb_encode(v) } else { v };
-                (e * 255.0).round() as u8
-            })
+            relight_pixel(n, rho, p).map(|v| display_byte(v, p.srgb))
         })
         .collect()
 }

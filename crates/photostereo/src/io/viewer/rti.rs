@@ -32,7 +32,7 @@
 //! The displayed value is encode(clamp(2^exposure · (rti + specular + unsharp), 0, 1)), encode
 //! the sRGB transfer function or the identity, as the relight layer's (`io::viewer::relight`).
 
-use super::relight::{srgb_encode, RelightParams};
+use super::relight::{display_byte, RelightParams};
 use crate::base::error::{Error, Result};
 use crate::solve::rti::{rbf::RbfModel, Basis, MAX_TERMS};
 use rayon::prelude::*;
@@ -393,9 +393,7 @@ pub fn relight_rti(
             };
             std::array::from_fn(|c| {
                 let lin = gain * (rti[c] as f32 + p.specular * s + albedo[i][c] / p.white * sharp);
-                let v = lin.clamp(0.0, 1.0);
-                let enc = if p.srgb { srgb_encode(v) } else { v };
-                (enc * 255.0).round() as u8
+                display_byte(lin, p.srgb)
             })
         })
         .collect()
