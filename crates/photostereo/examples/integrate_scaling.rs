@@ -1,6 +1,6 @@
 //! Prints `poisson`'s CG iteration counts (to 1e-6 relative residual) and wall times on full
 //! grids and on an irregular mask, from 256² to 4096² (`--method bilateral` for that
-//! integrator: its CG iterations over all reweightings). For peak memory run one size under
+//! integrator: its CG iterations over all reweightings; `--full` for the full grids only). For peak memory run one size under
 //! `/usr/bin/time -v`:
 //!
 //! ```text
@@ -72,6 +72,7 @@ fn main() {
         .position(|a| a == "--method")
         .map(|k| args[k + 1].parse::<IntegratorKind>().expect("a method"))
         .unwrap_or(IntegratorKind::Poisson);
+    let full_only = args.iter().any(|a| a == "--full");
     let sizes: Vec<usize> = args.iter().filter_map(|a| a.parse().ok()).collect();
     let sizes = if sizes.is_empty() {
         vec![256, 512, 1024, 2048, 4096]
@@ -89,7 +90,7 @@ fn main() {
             ("full", vec![true; n * n]),
             ("irregular", irregular_mask(n)),
         ] {
-            if label == "irregular" && n > 2048 {
+            if label == "irregular" && (n > 2048 || full_only) {
                 continue;
             }
             let problem = IntegrationProblem::new(n, n, &p, &q, &mask);

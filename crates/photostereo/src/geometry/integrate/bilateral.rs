@@ -91,8 +91,9 @@ pub struct Bilateral {
     pub debias: bool,
     /// On a mask that covers the whole grid, start the reweighting from the unit-weight surface
     /// the DCT solves directly (`poisson`'s) and its weights (B3), in place of a first solve
-    /// under ½ weights: a smooth surface then settles after one reweighted solve. False starts
-    /// from ½ weights everywhere (the published method).
+    /// under ½ weights; the energy (B2) under those weights against that under ½ weights is the
+    /// first change, so that a smooth surface (where they barely differ) goes straight to the
+    /// last system. False starts from ½ weights everywhere (the published method).
     pub poisson_start: bool,
 }
 
@@ -592,9 +593,10 @@ impl Bilateral {
     ///
     /// With `poisson_start`, on a mask that covers the whole grid, the iteration starts from the
     /// unit-weight solution that the DCT gives directly (`poisson`'s surface, the first
-    /// reweighted system's solution up to its `ω`): its weights (B3) replace the first solve.
-    /// On a smooth surface the reweighted solves then barely move it, and the energy settles
-    /// after one.
+    /// reweighted system's solution up to its `ω`): its weights (B3) replace the first solve,
+    /// and the energy (B2) of that surface under them against under ½ weights is the first
+    /// change. On a smooth surface the two barely differ (both sides' residuals are about
+    /// `±f″/2`, so the weights hardly matter), and the last system follows at once.
     fn solve(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
         let (w, h) = (problem.width, problem.height);
         let (p, q, filled) = fill_unreliable(problem, self.fill_below);
@@ -621,15 +623,21 @@ impl Bilateral {
         let mut energy = f64::INFINITY;
         let mut reweightings = 0;
         progress.begin("integrate", self.max_iterations as u64 + 1);
+        let mut settled = false;
         if from_dct {
-            energy = self.reweight(&px, &state.x, &mut state.plus); // (B3), (B2)
+            // The DCT's surface stands for the first solve (under ½ weights): the energy (B2)
+            // under its weights (B3) against that under ½ weights is the first change.
+            let half;
+            (energy, half) = self.reweight(&px, &state.x, &mut state.plus); // (B3), (B2)
+            let change = (energy - half).abs() / energy.max(f64::MIN_POSITIVE);
+            settled = change < self.tolerance;
         }
-        while reweightings < self.max_iterations {
+        while !settled && reweightings < self.max_iterations {
             self.solve_reweighted(&px, problem, &mut state, false);
             progress.advance(1);
             reweightings += 1;
             // (B3) from the new surface, and the energy (B2) under the new weights.
-            let new_energy = self.reweight(&px, &state.x, &mut state.plus);
+            let (new_energy, _) = self.reweight(&px, &state.x, &mut state.plus);
             let change = (energy - new_energy).abs() / new_energy.max(f64::MIN_POSITIVE);
             energy = new_energy;
             if change < self.tolerance {
@@ -827,76 +835,125 @@ impl Bilateral {
     }
 
     /// Replaces the forward weights by (B3) of the surface `x` and returns the energy (B2) of
-    /// `x` under them ([`Pixels::energy`]), in one pass.
-    fn reweight(&self, px: &Pixels, x: &[f32], plus: &mut [Vec<f32>; 2]) -> f64 {
+    /// `x` under the new weights and under the weights it replaced, in one pass.
+    fn reweight(&self, px: &Pixels, x: &[f32], plus: &mut [Vec<f32>; 2]) -> (f64, f64) {
         let w = px.w;
         let [pu, pv] = plus;
         pu.par_chunks_mut(w)
             .zip(pv.par_chunks_mut(w))
             .enumerate()
-            .map(|(r, (u_row, v_row))| self.reweight_row(px, x, r, u_row, v_row))
-            .sum()
+            .map_init(
+                || vec![0f32; 6 * w],
+                |scratch, (r, (u_row, v_row))| self.reweight_row(px, x, r, [u_row, v_row], scratch),
+            )
+            .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
     }
 
     /// Row `r` of [`Bilateral::reweight`]: the forward weights of its pixels along the columns
-    /// into `u_row`, along the rows into `v_row`; returns the row's share of the energy.
+    /// into `rows[0]`, along the rows into `rows[1]` (pixels outside the mask keep theirs);
+    /// returns the row's share of the energy under the new and the old weights. `scratch`
+    /// holds six rows. The differences are those of the f32 surface (as the solver keeps it),
+    /// 0 where they leave the mask, with a presence factor (1 or 0) that drops their terms
+    /// from (B2): every pass is free of branches.
     fn reweight_row(
         &self,
         px: &Pixels,
         x: &[f32],
         r: usize,
-        u_row: &mut [f32],
-        v_row: &mut [f32],
-    ) -> f64 {
+        rows: [&mut [f32]; 2],
+        scratch: &mut [f32],
+    ) -> (f64, f64) {
         let (w, lo) = (px.w, r * px.w);
         let (m, xr) = (&px.mask[lo..lo + w], &x[lo..lo + w]);
-        let above = (r > 0).then(|| (&px.mask[lo - w..lo], &x[lo - w..lo]));
-        let below = (r + 1 < px.h).then(|| (&px.mask[lo + w..lo + 2 * w], &x[lo + w..lo + 2 * w]));
-        let mut e = 0f64;
+        let mut parts = scratch.chunks_mut(w);
+        let mut part = || parts.next().expect("six rows");
+        let (nz2, om, ahead, behind, ahead_in, behind_in) =
+            (part(), part(), part(), part(), part(), part());
+        let (p, q) = (&px.p[lo..lo + w], &px.q[lo..lo + w]);
         for c in 0..w {
-            if !m[c] {
-                continue;
-            }
-            let i = lo + c;
-            let nz2 = px.nz2(i);
-            let om = px.omega_with(i, nz2) as f64;
-            let xc = xr[c] as f64;
-            // The differences that exist inside the mask: forward and backward, columns then rows.
-            let right = (c + 1 < w && m[c + 1]).then(|| xr[c + 1] as f64 - xc);
-            let left = (c > 0 && m[c - 1]).then(|| xc - xr[c - 1] as f64);
-            let down = below.and_then(|(md, xd)| md[c].then(|| xd[c] as f64 - xc));
-            let up = above.and_then(|(mu, xu)| mu[c].then(|| xc - xu[c] as f64));
-            self.reweight_side(nz2, om, px.p[i], right, left, &mut u_row[c], &mut e);
-            self.reweight_side(nz2, om, px.q[i], down, up, &mut v_row[c], &mut e);
+            nz2[c] = if px.slope_weighting {
+                slope_weight(p[c], q[c])
+            } else {
+                1.0
+            };
         }
-        e
+        match px.weights {
+            Some(ws) => {
+                for ((o, &s), &t) in om.iter_mut().zip(&*nz2).zip(&ws[lo..lo + w]) {
+                    *o = t.max(1e-3) * s; // (B1)
+                }
+            }
+            None => om.copy_from_slice(nz2),
+        }
+        // Along the columns: the east difference of each pixel, and its west one.
+        ahead_in[w - 1] = 0.0;
+        ahead[w - 1] = 0.0;
+        for c in 0..w - 1 {
+            let both = m[c] & m[c + 1];
+            ahead_in[c] = if both { 1.0 } else { 0.0 };
+            ahead[c] = if both { xr[c + 1] - xr[c] } else { 0.0 };
+        }
+        behind[0] = 0.0;
+        behind_in[0] = 0.0;
+        behind[1..].copy_from_slice(&ahead[..w - 1]);
+        behind_in[1..].copy_from_slice(&ahead_in[..w - 1]);
+        let [u_row, v_row] = rows;
+        let (mut new, mut old) =
+            self.reweight_pass(m, nz2, om, p, [ahead, behind], [ahead_in, behind_in], u_row);
+        // Along the rows: the south difference, and the north one.
+        let vertical = |out: &mut [f32], inside: &mut [f32], other: Option<usize>, down: bool| {
+            let Some(o) = other else {
+                out.fill(0.0);
+                inside.fill(0.0);
+                return;
+            };
+            let (xo, mo) = (&x[o..o + w], &px.mask[o..o + w]);
+            for c in 0..w {
+                let both = m[c] & mo[c];
+                inside[c] = if both { 1.0 } else { 0.0 };
+                let d = if down { xo[c] - xr[c] } else { xr[c] - xo[c] };
+                out[c] = if both { d } else { 0.0 };
+            }
+        };
+        vertical(ahead, ahead_in, (r + 1 < px.h).then_some(lo + w), true);
+        vertical(behind, behind_in, (r > 0).then(|| lo - w), false);
+        let (a, b) =
+            self.reweight_pass(m, nz2, om, q, [ahead, behind], [ahead_in, behind_in], v_row);
+        new += a;
+        old += b;
+        (new, old)
     }
 
-    /// One pixel along one axis: its forward weight (B3) from its `forward` and `backward`
-    /// differences (`None` where missing) into `out`, and its two terms of (B2) (`ω` `om`,
-    /// gradient `g`) added to `e`.
-    #[inline]
+    /// One axis of [`Bilateral::reweight_row`]: from the forward and backward differences
+    /// `diff` (0 where missing, `inside` 1 where present), the forward weights (B3) into `out`
+    /// (on the mask `m`), and the energy (B2) of the row along the axis under the new weights
+    /// and under those `out` held.
     #[allow(clippy::too_many_arguments)]
-    fn reweight_side(
+    fn reweight_pass(
         &self,
-        nz2: f32,
-        om: f64,
-        g: f32,
-        forward: Option<f64>,
-        backward: Option<f64>,
-        out: &mut f32,
-        e: &mut f64,
-    ) {
-        let (fw, bw) = (forward.unwrap_or(0.0), backward.unwrap_or(0.0));
-        let wp = forward_weight(self.k, nz2, bw as f32, fw as f32); // (B3)
-        *out = wp;
-        let (g, wp) = (g as f64, wp as f64);
-        if forward.is_some() {
-            *e += om * wp * (fw - g) * (fw - g); // (B2)
+        m: &[bool],
+        nz2: &[f32],
+        om: &[f32],
+        g: &[f32],
+        diff: [&[f32]; 2],
+        inside: [&[f32]; 2],
+        out: &mut [f32],
+    ) -> (f64, f64) {
+        let [ahead, behind] = diff;
+        let [ahead_in, behind_in] = inside;
+        let (mut new, mut old) = (0f64, 0f64);
+        for c in 0..out.len() {
+            let (f, b) = (ahead[c], behind[c]);
+            let wp = forward_weight(self.k, nz2[c], b, f); // (B3)
+            let (df, db) = (f - g[c], b - g[c]);
+            let (ef, eb) = (ahead_in[c] * df * df, behind_in[c] * db * db);
+            let was = out[c];
+            let inside = if m[c] { 1.0 } else { 0.0 };
+            new += (inside * om[c] * (wp * ef + (1.0 - wp) * eb)) as f64; // (B2)
+            old += (inside * om[c] * (was * ef + (1.0 - was) * eb)) as f64;
+            out[c] = if m[c] { wp } else { was };
         }
-        if backward.is_some() {
-            *e += om * (1.0 - wp) * (bw - g) * (bw - g); // (B2)
-        }
+        (new, old)
     }
 }
 
@@ -1041,14 +1098,17 @@ pub fn bilateral_reference(params: &Bilateral, problem: &IntegrationProblem) -> 
     let mut plus = [vec![0.5f32; n], vec![0.5f32; n]];
     let mut energy = f64::INFINITY;
     let floor = params.min_edge_weight;
+    let mut settled = false;
     if params.poisson_start && params.max_iterations > 0 && px.mask.iter().all(|&m| m) {
         // On a whole grid the iteration starts from the unit-weight trapezoid system's
         // solution (`poisson`'s) and its weights.
         let g = |i: usize, axis: usize| px.gradient(i, axis);
         solve(&|i, j, axis| (1.0, 0.5 * (g(i, axis) + g(j, axis))), &mut f);
+        let half = px.energy(&f, [&plus[0], &plus[1]]); // (B2) under ½ weights
         energy = reweight(&f, &mut plus);
+        settled = (energy - half).abs() / energy.max(f64::MIN_POSITIVE) < params.tolerance;
     }
-    let mut reweightings = 0;
+    let mut reweightings = if settled { params.max_iterations } else { 0 };
     loop {
         // The last pass solves (B5) under the converged weights.
         let last = reweightings >= params.max_iterations;
