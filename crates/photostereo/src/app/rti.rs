@@ -143,7 +143,7 @@ pub fn rti(
 
 /// Writes a fit's files into the folder `dir`, beside its float coefficients (written as the
 /// fit made them): the viewer file ([`image_name`]), `rti.json` and relight's web folder, with
-/// `iiif` (a base URI, [`iiif_base`]) the IIIF tiles of its plane images; returns the report's
+/// `iiif` (an http(s) base URI without a trailing `/`) the IIIF tiles of its plane images; returns the report's
 /// `file` and `web` entries.
 pub fn write_fit(dir: &Path, fitted: &StoredFit, iiif: Option<&str>) -> Result<(Value, Value)> {
     let meta = fitted.meta();
