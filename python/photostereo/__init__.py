@@ -473,6 +473,7 @@ def run(
     dark: Optional[PathLike] = None,
     flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
+    rti: Optional[str] = None,
     **overrides: "Unpack[ParamValues]",
 ) -> Dict[str, Any]:
     """The command line's ``run``: reads the capture at ``path`` (any layout, as
@@ -498,6 +499,10 @@ def run(
         Also write error_map.png (needs ``gt``).
     light_subset : str, optional
         ``"square"``, ``"square:SLANT"`` or 1-based indices such as ``"1,5,9,13"``.
+    rti : str, optional
+        Also fit this relightable-image basis (as :func:`rti`'s ``basis``) to the same readings
+        and write its files into ``output`` (the command line's ``run --rti``); its figures are
+        ``report["rti"]``.
 
     Returns
     -------
@@ -533,6 +538,7 @@ def run(
         _path(dark),
         _path(flat),
         ignore_exposure,
+        rti,
     )
 
 
@@ -554,6 +560,7 @@ def rti(
     dark: Optional[PathLike] = None,
     flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
+    iiif: Optional[str] = None,
 ) -> Dict[str, Any]:
     """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
     layout, as :func:`load_capture`; distant lights) and writes the output folder ``output``
@@ -573,6 +580,10 @@ def rti(
         Replace an existing ``rti`` output folder.
     response, ambient, dark, flat, ignore_exposure
         As for :func:`load_capture`.
+    iiif : str, optional
+        Also write each plane image of ``relight/`` as IIIF Image API 3.0 level-0 static
+        tiles, ``relight/plane_G/``, served at this ``http://`` or ``https://`` base URI (the
+        command line's ``rti --iiif BASE_URI``).
 
     Returns
     -------
@@ -602,6 +613,7 @@ def rti(
         _path(dark),
         _path(flat),
         ignore_exposure,
+        iiif,
     )
 
 

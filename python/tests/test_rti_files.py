@@ -160,3 +160,41 @@ def test_python_rti_writes_what_the_command_line_writes(cli, capture, tmp_path, 
     with pytest.raises(photostereo.PhotostereoError, match="basis"):
         photostereo.rti(folder, tmp_path / "bad", basis="rbf9")
     assert not (tmp_path / "bad").exists()
+
+
+def test_python_iiif_and_run_rti_write_what_the_command_line_writes(cli, capture, tmp_path):
+    import photostereo
+
+    folder, _ = capture
+    base = "https://example.org/obj"
+    report = photostereo.rti(folder, tmp_path / "py", basis="hsh2", iiif=base + "/")
+    subprocess.run([cli, "rti", str(folder), "--basis", "hsh2", "--iiif", base, "-o",
+                    str(tmp_path / "cli"), "--quiet"], check=True)
+    # hsh2: 4 terms × 3 channels = 12 planes in 4 RGB images, each with its IIIF service.
+    ids = [f"{base}/relight/plane_{g}" for g in range(4)]
+    assert report["web"]["iiif"] == ids
+    for g, id_ in enumerate(ids):
+        py_dir = tmp_path / "py" / "relight" / f"plane_{g}"
+        info = json.loads((py_dir / "info.json").read_text())
+        assert info["id"] == id_ and info["profile"] == "level0"
+        cli_dir = tmp_path / "cli" / "relight" / f"plane_{g}"
+        py_files = sorted(p.relative_to(py_dir) for p in py_dir.rglob("*") if p.is_file())
+        cli_files = sorted(p.relative_to(cli_dir) for p in cli_dir.rglob("*") if p.is_file())
+        assert py_files == cli_files and len(py_files) >= 2
+        for f in py_files:
+            assert (py_dir / f).read_bytes() == (cli_dir / f).read_bytes(), f
+    with pytest.raises(photostereo.PhotostereoError, match="iiif"):
+        photostereo.rti(folder, tmp_path / "bad", basis="hsh2", iiif="ftp://example.org")
+    assert not (tmp_path / "bad").exists()
+
+    # run(..., rti=) is the command line's run --rti: the same fit beside the normals.
+    run = photostereo.run(folder, tmp_path / "run_py", rti="hsh3")
+    subprocess.run([cli, "run", str(folder), "--rti", "hsh3", "-o", str(tmp_path / "run_cli"),
+                    "--quiet"], check=True)
+    assert run["rti"]["basis"] == "hsh3" and run["rti"]["file"]["name"] == "image.rti"
+    for name in ["image.rti", "coefficients.npy", "relight/info.json", "relight/plane_8.png"]:
+        assert ((tmp_path / "run_py" / name).read_bytes()
+                == (tmp_path / "run_cli" / name).read_bytes()), name
+    coeffs, _ = read_hsh(tmp_path / "run_py" / "image.rti")
+    floats = np.load(tmp_path / "run_py" / "coefficients.npy")
+    assert coeffs.shape[3] == 9 and floats.shape[3] == 9

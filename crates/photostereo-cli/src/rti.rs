@@ -27,7 +27,9 @@ pub struct RtiArgs {
     /// https://example.org/iiif/object): each plane's service id is BASE/relight/plane_G.
     #[arg(long, value_name = "BASE_URI")]
     pub iiif: Option<String>,
-    /// Memory budget (e.g. `4G`, `500M`; powers of 1024), as `run`'s; the coefficients must fit.
+    /// Memory budget (e.g. `4G`, `500M`; powers of 1024), as `run`'s: the fit writes its
+    /// coefficients to coefficients.npy as it makes them, and what it holds beside the run's
+    /// stages is part of the plan (report.json `memory`).
     #[arg(long, value_parser = crate::common::parse_memory_limit)]
     pub memory_limit: Option<u64>,
     /// Output folder: image.ptm, image.rti or basis.npy, coefficients.npy (chroma.npy for ptm),

@@ -1004,7 +1004,7 @@ fn reconstruct<'py>(
 #[pyo3(signature = (inputs, output, params, lights=None, intensities=None, mask=None, gt=None,
     error_map=false, light_subset=None, force=false, num_threads=None, progress=None,
     distance=None, camera=None, response=None, ambient=None, dark=None, flat=None,
-    ignore_exposure=false))]
+    ignore_exposure=false, rti=None))]
 #[allow(clippy::too_many_arguments)]
 fn run<'py>(
     py: Python<'py>,
@@ -1027,8 +1027,13 @@ fn run<'py>(
     dark: Option<PathBuf>,
     flat: Option<PathBuf>,
     ignore_exposure: bool,
+    rti: Option<String>,
 ) -> PyResult<Py<PyAny>> {
     let params = params_from(params)?;
+    let rti = rti
+        .map(|b| b.parse::<photostereo::solve::rti::Basis>())
+        .transpose()
+        .map_err(py_err)?;
     let frames = Frames {
         ambient: ambient.as_deref(),
         dark: dark.as_deref(),
@@ -1051,7 +1056,7 @@ fn run<'py>(
         obj_any_size: false,
         // The interpreter's allocator settings stay its own.
         return_freed_memory_when_tiled: false,
-        rti: None,
+        rti,
     };
     let rec = run_detached(
         py,
@@ -1079,7 +1084,7 @@ fn run<'py>(
 #[pyfunction]
 #[pyo3(signature = (inputs, output, basis, lights=None, intensities=None, mask=None,
     exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None,
-    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false))]
+    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false, iiif=None))]
 #[allow(clippy::too_many_arguments)]
 fn rti<'py>(
     py: Python<'py>,
@@ -1099,6 +1104,7 @@ fn rti<'py>(
     dark: Option<PathBuf>,
     flat: Option<PathBuf>,
     ignore_exposure: bool,
+    iiif: Option<String>,
 ) -> PyResult<Py<PyAny>> {
     let frames = Frames {
         ambient: ambient.as_deref(),
@@ -1114,7 +1120,7 @@ fn rti<'py>(
         basis,
         exclude_unreliable,
         memory_limit,
-        iiif: None,
+        iiif,
     };
     let report = run_detached(
         py,

@@ -905,3 +905,82 @@ fn iiif_level0_tiles_are_where_a_client_asks_for_them() {
         assert!(dir.join(format!("full/{sw},{sh}/0/default.jpg")).is_file());
     }
 }
+
+/// The bytes of every file under `dir`, by relative path.
+fn tree(dir: &std::path::Path) -> std::collections::BTreeMap<String, Vec<u8>> {
+    let mut out = std::collections::BTreeMap::new();
+    let mut stack = vec![dir.to_path_buf()];
+    while let Some(d) = stack.pop() {
+        for e in std::fs::read_dir(&d).unwrap() {
+            let p = e.unwrap().path();
+            if p.is_dir() {
+                stack.push(p);
+            } else {
+                let name = p.strip_prefix(dir).unwrap().display().to_string();
+                out.insert(name, std::fs::read(&p).unwrap());
+            }
+        }
+    }
+    out
+}
+
+#[test]
+fn files_streamed_from_the_coefficient_files_equal_those_of_a_fit_held_whole() {
+    use photostereo::io::rti::{
+        hsh::write_hsh, ptm::write_ptm, relight::write_relight, write_float_coefficients,
+        CoefficientFiles,
+    };
+    let dirs = lights(30);
+    let (w, h) = (9, 7);
+    // A mask with gaps within rows and whole rows out: the files' runs and holes.
+    let mask = ndarray::Array2::from_shape_fn((h, w), |(y, x)| y != 2 && (x + 2 * y) % 5 != 0);
+    let mut a = Array4::<f32>::zeros((dirs.len(), h, w, 3));
+    for (k, l) in dirs.iter().enumerate() {
+        for p in 0..w * h {
+            for ch in 0..3 {
+                a[[k, p / w, p % w, ch]] = glossy(p, k, ch, *l) as f32;
+            }
+        }
+    }
+    let lights = Lights::new(&dirs).unwrap();
+    let cap = Capture::from_stack(Stack::F32(a.view()), lights, Some(mask.view())).unwrap();
+    let root = std::env::temp_dir().join(format!("photostereo-rti-stream-{}", std::process::id()));
+    for basis in Basis::ALL {
+        let (whole, streamed) = (root.join("whole"), root.join("streamed"));
+        for d in [&whole, &streamed] {
+            let _ = std::fs::remove_dir_all(d);
+            std::fs::create_dir_all(d).unwrap();
+        }
+        let f = fit(&cap, basis, None).unwrap();
+        write_float_coefficients(&whole, &f).unwrap();
+        let mut files = CoefficientFiles::create(&streamed, basis, (w, h, 3), &cap.pixels).unwrap();
+        let meta = photostereo::solve::rti::fit_into(&cap, basis, None, &mut files).unwrap();
+        assert_eq!(meta.ranges, f.coefficient_ranges());
+        // Bands of 2 rows: the bottom-up PTM rows and the plane images cross band edges.
+        let stored = files.finish(meta).with_band_rows(2);
+        match basis {
+            Basis::PtmLrgb | Basis::PtmRgb => {
+                write_ptm(&whole.join("image.ptm"), &f).unwrap();
+                write_ptm(&streamed.join("image.ptm"), &stored).unwrap();
+            }
+            Basis::Hsh2 | Basis::Hsh3 => {
+                write_hsh(&whole.join("image.rti"), &f).unwrap();
+                write_hsh(&streamed.join("image.rti"), &stored).unwrap();
+            }
+            Basis::Rbf => {}
+        }
+        write_relight(&whole.join("relight"), &f).unwrap();
+        write_relight(&streamed.join("relight"), &stored).unwrap();
+        let (a, b) = (tree(&whole), tree(&streamed));
+        assert!(
+            a.contains_key("coefficients.npy") && a.len() > 5,
+            "{:?}",
+            a.keys()
+        );
+        assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+        for (name, bytes) in &a {
+            assert!(bytes == &b[name], "{}: {name} differs", basis.name());
+        }
+    }
+    std::fs::remove_dir_all(&root).unwrap();
+}

@@ -200,6 +200,21 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
     Ok(())
 }
 
+/// What `run --rti` holds beside the run's stages ([`crate::app::rti::memory_beside`]);
+/// nothing without it.
+fn rti_beside(files: &CaptureFiles, options: &RunOptions) -> Result<crate::model::memory::Beside> {
+    let Some(basis) = options.rti else {
+        return Ok(Default::default());
+    };
+    let channels = crate::io::imageio::probe(&files.images[0])?.channels;
+    Ok(crate::app::rti::memory_beside(
+        basis,
+        files.images.len(),
+        channels,
+        false,
+    ))
+}
+
 /// The whole `run`: load, reconstruct, evaluate, report, and write `output` atomically.
 pub fn run(
     files: &CaptureFiles,
@@ -230,6 +245,7 @@ pub fn run(
         spill_dir: Some(folder.path().to_path_buf()),
         return_freed_memory_when_tiled: options.return_freed_memory_when_tiled,
         ground_truth: truth.is_some(),
+        beside: rti_beside(files, options)?,
         ..Default::default()
     };
     let (mut capture, photometry) = files.load_measured(progress, &load_options)?;
@@ -266,9 +282,7 @@ pub fn run(
     // `rti`: the relightable image from the same readings, while they are loaded.
     let rti = options
         .rti
-        .map(|basis| {
-            crate::app::rti::fit_beside_run(&capture, basis, options.params.memory_limit, &rec)
-        })
+        .map(|basis| crate::app::rti::fit_beside_run(&capture, basis, &rec, folder.path()))
         .transpose()?;
     drop(capture);
     rec.report
@@ -314,7 +328,7 @@ pub fn run(
     progress.begin("writing", 1);
     write_reconstruction(&rec, folder.path(), options)?;
     if let Some((fitted, mut entry)) = rti {
-        let (file, web) = crate::app::rti::write_fit(folder.path(), &fitted)?;
+        let (file, web) = crate::app::rti::write_fit(folder.path(), &fitted, None)?;
         entry["file"] = file;
         entry["web"] = web;
         rec.report.extra.insert("rti".into(), entry);

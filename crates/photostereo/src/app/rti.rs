@@ -3,15 +3,22 @@
 //! relighting of photostereo's own normals and albedo, and write the viewer file, relight's web
 //! folder for OpenLIME, the float coefficients and `report.json` into an output folder
 //! atomically.
+//!
+//! Memory: the fit goes block by block into `coefficients.npy` (and `chroma.npy`) as it is made,
+//! and every other file is written from them by row bands ([`crate::io::rti`]); what the fit and
+//! the writing hold beside the run's stages ([`memory_beside`]) is part of the capture's memory
+//! plan, so the budget rules are `run`'s.
 
 use crate::base::error::{Error, Result};
 use crate::base::progress::Progress;
 use crate::io::export::{write_json, OutputFolder, OutputKind};
 use crate::io::layouts::{CaptureFiles, LoadOptions};
+use crate::io::rti::{CoefficientFiles, FitSource, StoredFit};
 use crate::method::engine::{reconstruct, Method, Params, Reconstruction};
 use crate::model::capture::Capture;
+use crate::model::memory::Beside;
 use crate::solve::lambert::status;
-use crate::solve::rti::{fit, lambert_errors, Basis, RelightErrors, RtiFit};
+use crate::solve::rti::{fit_into, lambert_errors, Basis, RelightErrors, RtiFit};
 use serde_json::{json, Value};
 use std::path::Path;
 use std::time::Instant;
@@ -44,6 +51,25 @@ pub fn image_name(basis: Basis) -> &'static str {
     }
 }
 
+/// What an RTI fit and the writing of its files hold beside the run's stages
+/// ([`crate::model::memory::Beside`]), for a capture of `lights` images: per mask pixel the
+/// fit's copy of the mask pixels' frame indices (4 bytes) and, with `exclude_unreliable`, one
+/// flag a light; per frame pixel one 8-bit RGB plane image of relight's folder and its tile
+/// pyramid (3 + 1 bytes); and fixed buffers: the fit's blocks and the writers' row bands
+/// (64 MiB), and for RBF the PCA's sample of pixels (12 bytes a reading).
+pub fn memory_beside(basis: Basis, lights: usize, channels: usize, exclude: bool) -> Beside {
+    let pca = if basis == Basis::Rbf {
+        (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64
+    } else {
+        0
+    };
+    Beside {
+        per_frame_pixel: 4,
+        per_mask_pixel: 4 + if exclude { lights as u64 } else { 0 },
+        fixed: (64 << 20) + pca,
+    }
+}
+
 /// The whole `rti` command: returns the report it wrote to `output/report.json`.
 pub fn rti(
     files: &CaptureFiles,
@@ -53,10 +79,18 @@ pub fn rti(
     progress: &dyn Progress,
 ) -> Result<Value> {
     let start = Instant::now();
+    let iiif = options.iiif.as_deref().map(iiif_base).transpose()?;
     let folder = OutputFolder::create(output, force, OutputKind::Rti)?;
+    let channels = crate::io::imageio::probe(&files.images[0])?.channels;
     let load = LoadOptions {
         budget: options.memory_limit,
         spill_dir: Some(folder.path().to_path_buf()),
+        beside: memory_beside(
+            options.basis,
+            files.images.len(),
+            channels,
+            options.exclude_unreliable,
+        ),
         ..Default::default()
     };
     let capture = files.load_with(progress, &load)?;
@@ -68,24 +102,25 @@ pub fn rti(
         .then(|| unused_readings(&capture, &rec));
     let reference_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
-    let fitted = fit(&capture, options.basis, exclude.as_deref())?;
+    let size = (capture.width, capture.height, capture.channels);
+    let mut store = CoefficientFiles::create(folder.path(), options.basis, size, &capture.pixels)?;
+    let meta = fit_into(&capture, options.basis, exclude.as_deref(), &mut store)?;
+    let fitted = store.finish(meta);
     let lambert = lambert_errors(
         &capture,
         &rec.normals,
         &rec.albedo,
-        fitted.gain,
+        fitted.meta().gain,
         exclude.as_deref(),
     )?;
     drop(exclude);
     let fit_s = t.elapsed().as_secs_f64();
-    let mut report = report(&capture, &fitted, &lambert, &rec, options);
-    // The files are written from the fit alone.
+    let mut report = report(&capture, fitted.meta(), &lambert, &rec, options);
+    let plan = capture.memory.clone();
+    // The files are written from the fit's float files alone.
     drop((capture, rec));
     let t = Instant::now();
-    let (file, mut web) = write_fit(folder.path(), &fitted)?;
-    if let Some(base) = &options.iiif {
-        web["iiif"] = write_iiif(folder.path(), &web, base)?;
-    }
+    let (file, web) = write_fit(folder.path(), &fitted, iiif.as_deref())?;
     report["file"] = file;
     report["web"] = web;
     report["timings_s"] = json!({
@@ -94,39 +129,52 @@ pub fn rti(
         "write": t.elapsed().as_secs_f64(),
         "total": start.elapsed().as_secs_f64(),
     });
+    report["memory"] = json!(plan);
+    if let (Some(m), Some(peak)) = (
+        report["memory"].as_object_mut(),
+        crate::base::machine::peak_rss(),
+    ) {
+        m.insert("peak_rss".into(), peak.into());
+    }
     write_json(&folder.file("report.json"), &report)?;
     folder.commit()?;
     Ok(report)
 }
 
-/// Writes a fit's files into the folder `dir`: the viewer file ([`image_name`]), the float
-/// coefficients, `rti.json` and relight's web folder; returns the report's `file` and `web`
-/// entries.
-pub fn write_fit(dir: &Path, fitted: &RtiFit) -> Result<(Value, Value)> {
-    let name = image_name(fitted.basis);
+/// Writes a fit's files into the folder `dir`, beside its float coefficients (written as the
+/// fit made them): the viewer file ([`image_name`]), `rti.json` and relight's web folder, with
+/// `iiif` (an http(s) base URI without a trailing `/`) the IIIF tiles of its plane images; returns the report's
+/// `file` and `web` entries.
+pub fn write_fit(dir: &Path, fitted: &StoredFit, iiif: Option<&str>) -> Result<(Value, Value)> {
+    let meta = fitted.meta();
+    let name = image_name(meta.basis);
     let image = dir.join(name);
-    let maps = match fitted.basis {
+    let maps = match meta.basis {
         Basis::PtmLrgb | Basis::PtmRgb => json!(crate::io::rti::ptm::write_ptm(&image, fitted)?),
         Basis::Hsh2 | Basis::Hsh3 => json!(crate::io::rti::hsh::write_hsh(&image, fitted)?),
-        Basis::Rbf => crate::io::rti::write_rbf_basis(&image, fitted)?,
+        Basis::Rbf => crate::io::rti::write_rbf_basis(&image, meta)?,
     };
-    crate::io::rti::write_float_coefficients(dir, fitted)?;
-    crate::io::rti::write_model_json(&dir.join(crate::io::rti::MODEL_JSON), fitted)?;
-    let web = crate::io::rti::relight::write_relight(&dir.join(WEB_FOLDER), fitted)?;
-    Ok((
-        json!({ "name": name, "terms": maps }),
-        json!({
-            "folder": WEB_FOLDER,
-            "type": web["type"],
-            "colorspace": web["colorspace"],
-            "nplanes": web["nplanes"],
-        }),
-    ))
+    crate::io::rti::write_model_json(&dir.join(crate::io::rti::MODEL_JSON), meta)?;
+    let served = iiif.map(|base| format!("{base}/{WEB_FOLDER}"));
+    let (web, ids) = crate::io::rti::relight::write_relight_with(
+        &dir.join(WEB_FOLDER),
+        fitted,
+        served.as_deref(),
+    )?;
+    let mut entry = json!({
+        "folder": WEB_FOLDER,
+        "type": web["type"],
+        "colorspace": web["colorspace"],
+        "nplanes": web["nplanes"],
+    });
+    if iiif.is_some() {
+        entry["iiif"] = json!(ids);
+    }
+    Ok((json!({ "name": name, "terms": maps }), entry))
 }
 
-/// Writes IIIF level-0 tiles of each plane image of the web folder in `dir` (`web` as
-/// [`write_fit`] returns it) with service URIs under `base`; returns the services' ids.
-fn write_iiif(dir: &Path, web: &Value, base: &str) -> Result<Value> {
+/// The base URI of `--iiif` without a trailing `/`; refused unless http:// or https://.
+fn iiif_base(base: &str) -> Result<String> {
     let base = base.trim_end_matches('/');
     if !(base.starts_with("http://") || base.starts_with("https://")) {
         return Err(Error::parameter(
@@ -134,49 +182,39 @@ fn write_iiif(dir: &Path, web: &Value, base: &str) -> Result<Value> {
             format!("'{base}': expected the http:// or https:// URI the tiles will be served at"),
         ));
     }
-    let planes = web["nplanes"].as_u64().unwrap_or(0) as usize;
-    let folder = dir.join(WEB_FOLDER);
-    let mut ids = Vec::new();
-    for g in 0..planes.div_ceil(3) {
-        let id = format!("{base}/{WEB_FOLDER}/plane_{g}");
-        crate::io::rti::tiles::write_iiif_of(
-            &folder.join(format!("plane_{g}.png")),
-            &folder.join(format!("plane_{g}")),
-            &id,
-        )?;
-        ids.push(id);
-    }
-    Ok(json!(ids))
+    Ok(base.to_string())
 }
 
 /// The fit `run --rti` makes beside the normals: `basis` over every reading of `capture`
-/// (within the budget rules of `check_capture`), with its leave-one-out error and the
-/// Lambertian relighting of the run's normals and albedo; returns the fit and its report
-/// entry (`report.json`'s `rti`).
+/// (loaded with [`memory_beside`] in its plan), its coefficients into the float files of the
+/// output folder `dir`, with its leave-one-out error and the Lambertian relighting of the
+/// run's normals and albedo; returns the fit and its report entry (`report.json`'s `rti`).
 pub fn fit_beside_run(
     capture: &Capture,
     basis: Basis,
-    memory_limit: Option<u64>,
     rec: &Reconstruction,
-) -> Result<(RtiFit, Value)> {
+    dir: &Path,
+) -> Result<(StoredFit, Value)> {
     let options = RtiOptions {
         basis,
         exclude_unreliable: false,
-        memory_limit,
+        memory_limit: None,
         iiif: None,
     };
     check_capture(capture, &options)?;
     let t = Instant::now();
-    let fitted = fit(capture, basis, None)?;
-    let lambert = lambert_errors(capture, &rec.normals, &rec.albedo, fitted.gain, None)?;
-    let mut entry = report(capture, &fitted, &lambert, rec, &options);
+    let size = (capture.width, capture.height, capture.channels);
+    let mut store = CoefficientFiles::create(dir, basis, size, &capture.pixels)?;
+    let meta = fit_into(capture, basis, None, &mut store)?;
+    let fitted = store.finish(meta);
+    let gain = fitted.meta().gain;
+    let lambert = lambert_errors(capture, &rec.normals, &rec.albedo, gain, None)?;
+    let mut entry = report(capture, fitted.meta(), &lambert, rec, &options);
     entry["timings_s"] = json!({ "fit": t.elapsed().as_secs_f64() });
     Ok((fitted, entry))
 }
 
-/// Refuses what the fit cannot serve: near lights, and coefficients beyond the memory budget
-/// (per mask pixel [`RtiFit::bytes_per_pixel`]; per frame pixel, while writing, the
-/// coefficients of up to three planes as f32 and as bytes, 15 · T + 3 bytes).
+/// Refuses what the fit cannot serve: near lights, and rbf with a per-pixel light mask.
 fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
     if options.basis == Basis::Rbf && options.exclude_unreliable {
         return Err(Error::parameter(
@@ -191,28 +229,6 @@ fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
             "rti: this capture has near lights (light_positions.txt); RTI bases (PTM, HSH) \
              model the reflectance under distant lights, whose direction is the same at every \
              pixel, and photostereo does not fit them with per-pixel directions",
-        ));
-    }
-    let per_pixel = RtiFit::bytes_per_pixel(options.basis, capture.channels);
-    // Writing holds the frame's coefficients as floats and as bytes once more.
-    let frame = (capture.width * capture.height) as u64;
-    let need =
-        per_pixel * capture.n_pixels() as u64 + frame * (15 * options.basis.terms() as u64 + 3);
-    let budget = options
-        .memory_limit
-        .unwrap_or_else(crate::model::memory::default_budget);
-    if need > budget {
-        return Err(Error::parameter(
-            "memory_limit",
-            format!(
-                "{}: the {} coefficients of {} mask pixels need {} ({per_pixel} bytes a mask \
-                 pixel, and {} a frame pixel while writing); RTI fits are held whole in memory",
-                crate::model::memory::size_flag(budget),
-                options.basis.name(),
-                capture.n_pixels(),
-                crate::model::memory::size_flag(need),
-                15 * options.basis.terms() + 3
-            ),
         ));
     }
     Ok(())

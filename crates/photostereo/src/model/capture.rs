@@ -566,6 +566,7 @@ impl Capture {
             },
             threads: 0,
             ground_truth: false,
+            beside: Default::default(),
         };
         if size.pixels == 0 {
             return Err(Error::invalid(

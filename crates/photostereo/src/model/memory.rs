@@ -79,6 +79,26 @@ impl Layout {
     }
 }
 
+/// What a command holds beside the run's stages while the capture is loaded (`run --rti`'s
+/// relightable-image fit and its writing; the `rti` command's): counted in the full-frame
+/// stages, so that the budget holds them too.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Beside {
+    /// Bytes per frame pixel.
+    pub per_frame_pixel: u64,
+    /// Bytes per mask pixel.
+    pub per_mask_pixel: u64,
+    /// Bytes whatever the size (buffers of fixed size).
+    pub fixed: u64,
+}
+
+impl Beside {
+    /// Bytes for a capture of `frame` pixels with `mask` mask pixels.
+    pub fn bytes(&self, frame: u64, mask: u64) -> u64 {
+        self.per_frame_pixel * frame + self.per_mask_pixel * mask + self.fixed
+    }
+}
+
 /// The sizes a plan is made from.
 #[derive(Clone, Copy, Debug)]
 pub struct CaptureSize {
@@ -94,6 +114,8 @@ pub struct CaptureSize {
     pub threads: usize,
     /// Whether ground-truth normals are held for scoring the run.
     pub ground_truth: bool,
+    /// What is held beside the run's stages.
+    pub beside: Beside,
 }
 
 impl CaptureSize {
@@ -124,8 +146,12 @@ pub struct MemoryPlan {
     pub tiles: usize,
     /// Bytes of the spill file (0 when none).
     pub spill_bytes: u64,
-    /// The full-frame stages' estimate, bytes.
+    /// The full-frame stages' estimate, bytes (with what is held beside them).
     pub full_frame_bytes: u64,
+    /// Of which held beside the run's stages ([`Beside`]; 0 when nothing is), bytes.
+    pub beside_bytes: u64,
+    /// What [`MemoryPlan::beside_bytes`] is made of, per pixel.
+    pub beside: Beside,
     /// The smallest budget that works for this capture.
     pub minimum_budget: u64,
 }
@@ -144,7 +170,7 @@ pub fn size_flag(bytes: u64) -> String {
     }
 }
 
-/// The full-frame stages' bytes (see the constants).
+/// The full-frame stages' bytes (see the constants), with what is held beside them.
 pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
     s.frame() * FRAME_BYTES_PER_PIXEL
@@ -158,6 +184,7 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
                     0
                 })
         + FIXED_BYTES
+        + s.beside.bytes(s.frame(), s.pixels as u64)
 }
 
 /// Bytes of one tile of `pixels` mask pixels in use.
@@ -264,6 +291,8 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         tiles,
         spill_bytes: if layout == Layout::Spill { stored } else { 0 },
         full_frame_bytes: full,
+        beside_bytes: s.beside.bytes(s.frame(), s.pixels as u64),
+        beside: s.beside,
         minimum_budget: minimum,
     };
     Ok((layout, plan))
@@ -283,6 +312,7 @@ mod tests {
             sample_type: SampleType::U16,
             threads: 2,
             ground_truth: false,
+            beside: Beside::default(),
         }
     }
 

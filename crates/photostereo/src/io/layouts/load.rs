@@ -64,6 +64,7 @@ impl CaptureFiles {
             },
             threads: rayon::current_num_threads(),
             ground_truth: options.ground_truth,
+            beside: options.beside,
         };
         // Without `memory_limit` the budget is the machine's: a refusal names the images and
         // the memory available, as the readers' own checks do.
@@ -450,6 +451,9 @@ pub struct LoadOptions {
     /// Ground-truth normals will be held (per mask pixel) to score the run: the plan counts
     /// them.
     pub ground_truth: bool,
+    /// What the command holds beside the run's stages (`run --rti`, `rti`): the plan counts
+    /// it.
+    pub beside: crate::model::memory::Beside,
 }
 
 /// Filling the tiles of a sample store from a capture's image files: the store's sample type,

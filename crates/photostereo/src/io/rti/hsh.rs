@@ -13,27 +13,39 @@
 //! Units: a viewer shows Σ_j c_j H_j(l) × 255 per band, so the coefficients are in display
 //! units (1 = full scale). The basis H_j is [`crate::solve::rti::Basis::eval`]'s.
 
-use super::{frame_coefficients, term_ranges, write_file, TermMap};
+use super::{for_each_band, FitSource, TermMap};
 use crate::base::error::{Error, Result};
-use crate::solve::rti::{Basis, RtiFit};
+use crate::solve::rti::Basis;
+use std::io::Write;
 use std::path::Path;
 
-/// Writes `fit` (an HSH basis) to `path`; returns the per-term scale and bias it used.
-pub fn write_hsh(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
-    if !matches!(fit.basis, Basis::Hsh2 | Basis::Hsh3) {
+/// Writes `fit` (an HSH basis) to `path`, row band by row band; returns the per-term scale and
+/// bias it used.
+pub fn write_hsh(path: &Path, fit: &dyn FitSource) -> Result<Vec<TermMap>> {
+    let meta = fit.meta();
+    if !matches!(meta.basis, Basis::Hsh2 | Basis::Hsh3) {
         return Err(Error::invalid(format!(
             "an .rti file of hemispherical harmonics holds an HSH basis, not {}",
-            fit.basis.name()
+            meta.basis.name()
         )));
     }
     let (w, h, t, fc) = (
-        fit.width,
-        fit.height,
-        fit.basis.terms(),
-        fit.fitted_channels,
+        meta.width,
+        meta.height,
+        meta.basis.terms(),
+        meta.fitted_channels,
     );
-    let values = frame_coefficients(fit, 1.0);
-    let maps: Vec<TermMap> = term_ranges(&values, t)
+    // The ranges over the frame: the mask's coefficients and the zeros outside.
+    let mut ranges = vec![(0.0f64, 0.0f64); t];
+    for_each_band(fit, false, |_, band| {
+        for (i, &v) in band.coefficients.iter().enumerate() {
+            let e = &mut ranges[i % t];
+            e.0 = e.0.min(f64::from(v));
+            e.1 = e.1.max(f64::from(v));
+        }
+        Ok(())
+    })?;
+    let maps: Vec<TermMap> = ranges
         .into_iter()
         .map(|(lo, hi)| TermMap {
             scale: (hi - lo).max(1e-9),
@@ -47,18 +59,25 @@ pub fn write_hsh(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
     for m in &maps {
         head.extend_from_slice(&(m.bias as f32).to_le_bytes());
     }
-    let mut body = Vec::with_capacity(w * h * 3 * t);
-    for i in 0..w * h {
-        for band in 0..3 {
-            let src = band.min(fc - 1);
-            for (j, m) in maps.iter().enumerate() {
-                let v = f64::from(values[(i * fc + src) * t + j]);
-                // The map stored is the float32 one a reader applies.
-                let (scale, bias) = (f64::from(m.scale as f32), f64::from(m.bias as f32));
-                body.push(((v - bias) / scale * 255.0).round().clamp(0.0, 255.0) as u8);
+    let io = |e| Error::io(path, e);
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    out.write_all(&head).map_err(io)?;
+    let mut body = Vec::new();
+    for_each_band(fit, false, |_, band| {
+        body.clear();
+        for i in 0..band.inside.len() {
+            for band_c in 0..3 {
+                let src = band_c.min(fc - 1);
+                for (j, m) in maps.iter().enumerate() {
+                    let v = f64::from(band.coefficients[(i * fc + src) * t + j]);
+                    // The map stored is the float32 one a reader applies.
+                    let (scale, bias) = (f64::from(m.scale as f32), f64::from(m.bias as f32));
+                    body.push(((v - bias) / scale * 255.0).round().clamp(0.0, 255.0) as u8);
+                }
             }
         }
-    }
-    write_file(path, &[&head, &body])?;
+        out.write_all(&body).map_err(io)
+    })?;
+    out.flush().map_err(io)?;
     Ok(maps)
 }

@@ -21,19 +21,22 @@
 //! that costs at most one unit of the polynomial's coefficient, about a quantisation step for a
 //! term whose range spans 254 units.
 
-use super::{term_ranges, write_file, TermMap};
-use crate::base::error::Result;
+use super::{for_each_band, Band, FitSource, TermMap};
+use crate::base::error::{Error, Result};
 use crate::solve::rti::{Basis, RtiFit};
+use std::io::Write;
 use std::path::Path;
 
-/// Writes `fit` (a PTM basis) to `path`; returns the per-term scale and bias it used.
-pub fn write_ptm(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
-    let (w, h) = (fit.width, fit.height);
-    let lrgb = match fit.basis {
+/// Writes `fit` (a PTM basis) to `path`, row band by row band; returns the per-term scale and
+/// bias it used.
+pub fn write_ptm(path: &Path, fit: &dyn FitSource) -> Result<Vec<TermMap>> {
+    let meta = fit.meta();
+    let (w, h) = (meta.width, meta.height);
+    let lrgb = match meta.basis {
         Basis::PtmLrgb => true,
         Basis::PtmRgb => false,
         other => {
-            return Err(crate::base::error::Error::invalid(format!(
+            return Err(Error::invalid(format!(
                 "a .ptm file holds a PTM basis, not {}",
                 other.name()
             )))
@@ -41,14 +44,69 @@ pub fn write_ptm(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
     };
     // Per frame pixel: the six coefficients per plane (one plane for LRGB, three for RGB).
     let planes = if lrgb { 1 } else { 3 };
-    let mut values = vec![0f32; w * h * planes * 6];
-    let mut rgb = vec![0u8; if lrgb { w * h * 3 } else { 0 }];
-    for (p, &i) in fit.pixels.iter().enumerate() {
-        let i = i as usize;
-        let fc = fit.fitted_channels;
-        let c = &fit.coefficients[p * fc * 6..(p + 1) * fc * 6];
+    let (mut values, mut rgb) = (Vec::new(), Vec::new());
+    let mut ranges = vec![(0.0f64, 0.0f64); 6];
+    for_each_band(fit, false, |_, band| {
+        ptm_values(meta, band, &mut values, &mut rgb);
+        for (i, &v) in values.iter().enumerate() {
+            let e = &mut ranges[i % 6];
+            e.0 = e.0.min(f64::from(v));
+            e.1 = e.1.max(f64::from(v));
+        }
+        Ok(())
+    })?;
+    let maps = ptm_maps(&ranges);
+    let io = |e| Error::io(path, e);
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
+    out.write_all(ptm_header(lrgb, w, h, &maps).as_bytes())
+        .map_err(io)?;
+    let mut body = Vec::new();
+    for plane in 0..planes {
+        for_each_band(fit, true, |rows, band| {
+            ptm_values(meta, band, &mut values, &mut rgb);
+            body.clear();
+            for row in (0..rows.len()).rev() {
+                for col in 0..w {
+                    let i = row * w + col;
+                    for (j, m) in maps.iter().enumerate() {
+                        let v = f64::from(values[(i * planes + plane) * 6 + j]);
+                        body.push((v / m.scale + m.bias).round().clamp(0.0, 255.0) as u8);
+                    }
+                }
+            }
+            out.write_all(&body).map_err(io)
+        })?;
+    }
+    if lrgb {
+        for_each_band(fit, true, |rows, band| {
+            ptm_values(meta, band, &mut values, &mut rgb);
+            for row in (0..rows.len()).rev() {
+                out.write_all(&rgb[row * w * 3..(row + 1) * w * 3])
+                    .map_err(io)?;
+            }
+            Ok(())
+        })?;
+    }
+    out.flush().map_err(io)?;
+    Ok(maps)
+}
+
+/// The values a band's pixels store, on the 8-bit scale (`[pixel][plane][term]`), and for
+/// LRGB their chroma bytes (`[pixel][3]`): L = 255 · m · Y and 255 · χ_c / m (module
+/// documentation); zero outside the mask.
+fn ptm_values(fit: &RtiFit, band: &Band, values: &mut Vec<f32>, rgb: &mut Vec<u8>) {
+    let lrgb = fit.basis.luminance();
+    let planes = if lrgb { 1 } else { 3 };
+    let n = band.inside.len();
+    values.clear();
+    values.resize(n * planes * 6, 0.0);
+    rgb.clear();
+    rgb.resize(if lrgb { n * 3 } else { 0 }, 0);
+    let fc = fit.fitted_channels;
+    for i in 0..n {
+        let c = &band.coefficients[i * fc * 6..(i + 1) * fc * 6];
         if lrgb {
-            let chroma = &fit.chroma[p * 3..p * 3 + 3];
+            let chroma = &band.chroma[i * 3..i * 3 + 3];
             let m = chroma.iter().fold(0f32, |a, &b| a.max(b));
             let m = if m > 0.0 { m } else { 1.0 };
             for j in 0..6 {
@@ -66,35 +124,14 @@ pub fn write_ptm(path: &Path, fit: &RtiFit) -> Result<Vec<TermMap>> {
             }
         }
     }
-    let maps = ptm_maps(&values);
-    let header = ptm_header(lrgb, w, h, &maps);
-    let mut body = Vec::with_capacity(w * h * (planes * 6 + if lrgb { 3 } else { 0 }));
-    for plane in 0..planes {
-        for row in (0..h).rev() {
-            for col in 0..w {
-                let i = row * w + col;
-                for (j, m) in maps.iter().enumerate() {
-                    let v = f64::from(values[(i * planes + plane) * 6 + j]);
-                    body.push((v / m.scale + m.bias).round().clamp(0.0, 255.0) as u8);
-                }
-            }
-        }
-    }
-    if lrgb {
-        for row in (0..h).rev() {
-            body.extend_from_slice(&rgb[row * w * 3..(row + 1) * w * 3]);
-        }
-    }
-    write_file(path, &[header.as_bytes(), &body])?;
-    Ok(maps)
 }
 
-/// Per term: scale = range / 254 over the values and 0, bias = the integer byte of 0, so that
-/// every value's byte a / scale + bias lies in [−0.5, 254.5].
-fn ptm_maps(values: &[f32]) -> Vec<TermMap> {
-    term_ranges(values, 6)
-        .into_iter()
-        .map(|(lo, hi)| {
+/// Per term: scale = range / 254 over the values and 0 (`ranges`), bias = the integer byte of
+/// 0, so that every value's byte a / scale + bias lies in [−0.5, 254.5].
+fn ptm_maps(ranges: &[(f64, f64)]) -> Vec<TermMap> {
+    ranges
+        .iter()
+        .map(|&(lo, hi)| {
             let scale = ((hi - lo) / 254.0).max(1e-6);
             TermMap {
                 scale,

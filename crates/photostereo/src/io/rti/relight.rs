@@ -24,7 +24,7 @@
 //! Pixels outside the mask are written as black: zero coefficients, and for RBF the
 //! coefficients of a black pixel, −E μ.
 
-use super::{term_ranges, TermMap};
+use super::{for_each_band, FitSource, TermMap};
 use crate::base::error::{Error, Result};
 use crate::io::imageio::write_png8;
 use crate::solve::rti::{rbf, Basis, RtiFit};
@@ -37,12 +37,36 @@ const PTM_ORDER: [usize; 6] = [5, 3, 4, 0, 2, 1];
 
 /// Writes `fit` as relight's web format into the folder `dir` (created; files in it are
 /// replaced); returns the `info.json` it wrote.
-pub fn write_relight(dir: &Path, fit: &RtiFit) -> Result<Value> {
+pub fn write_relight(dir: &Path, fit: &dyn FitSource) -> Result<Value> {
+    write_relight_with(dir, fit, None).map(|(info, _)| info)
+}
+
+/// [`write_relight`], and with `iiif` (the URI the folder `dir` is served at) each plane
+/// image's IIIF level-0 tiles as well, in `plane_G/` with the id `IIIF/plane_G`
+/// ([`super::tiles::write_iiif`]); returns `info.json` and the IIIF ids.
+pub fn write_relight_with(
+    dir: &Path,
+    fit: &dyn FitSource,
+    iiif: Option<&str>,
+) -> Result<(Value, Vec<String>)> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let planes = Planes::new(fit);
-    let (values, outside) = planes.values(fit);
+    let meta = fit.meta();
+    let planes = Planes::new(fit)?;
+    let outside = planes.outside(meta);
     let n = planes.count;
-    let ranges = term_ranges(&values, n);
+    let mut row = vec![0f32; n];
+    // The ranges of the mask pixels' plane values, widened to hold 0 and the outside value.
+    let mut ranges = vec![(0.0f64, 0.0f64); n];
+    for_each_band(fit, false, |_, band| {
+        for i in (0..band.inside.len()).filter(|&i| band.inside[i]) {
+            planes.pixel(meta, band, i, &mut row);
+            for (e, &v) in ranges.iter_mut().zip(&row) {
+                e.0 = e.0.min(f64::from(v));
+                e.1 = e.1.max(f64::from(v));
+            }
+        }
+        Ok(())
+    })?;
     let maps: Vec<TermMap> = (0..n)
         .map(|q| {
             if planes.fixed_base && q < 3 {
@@ -60,27 +84,27 @@ pub fn write_relight(dir: &Path, fit: &RtiFit) -> Result<Value> {
             }
         })
         .collect();
-    let (w, h) = (fit.width, fit.height);
+    let (w, h) = (meta.width, meta.height);
     let mut frame = vec![0u8; w * h * 3];
+    let mut ids = Vec::new();
     for g in 0..n.div_ceil(3) {
-        frame.fill(0);
-        for px in frame.chunks_exact_mut(3) {
-            for (k, b) in px.iter_mut().enumerate() {
-                let q = 3 * g + k;
-                if q < n {
-                    *b = quantise(outside[q], &maps[q]);
+        for_each_band(fit, false, |rows, band| {
+            let out = &mut frame[rows.start * w * 3..rows.end * w * 3];
+            for (i, px) in out.chunks_exact_mut(3).enumerate() {
+                if band.inside[i] {
+                    planes.pixel(meta, band, i, &mut row);
+                }
+                for (k, b) in px.iter_mut().enumerate() {
+                    let q = 3 * g + k;
+                    *b = match (q < n, band.inside[i]) {
+                        (false, _) => 0,
+                        (true, true) => quantise(f64::from(row[q]), &maps[q]),
+                        (true, false) => quantise(outside[q], &maps[q]),
+                    };
                 }
             }
-        }
-        for (p, &i) in fit.pixels.iter().enumerate() {
-            let px = &mut frame[i as usize * 3..i as usize * 3 + 3];
-            for (k, b) in px.iter_mut().enumerate() {
-                let q = 3 * g + k;
-                if q < n {
-                    *b = quantise(f64::from(values[p * n + q]), &maps[q]);
-                }
-            }
-        }
+            Ok(())
+        })?;
         write_png8(&dir.join(format!("plane_{g}.png")), w, h, 3, &frame)?;
         super::tiles::write_deep_zoom(
             &dir.join(format!("plane_{g}.dzi")),
@@ -89,12 +113,18 @@ pub fn write_relight(dir: &Path, fit: &RtiFit) -> Result<Value> {
             super::tiles::DZI_TILE,
             super::tiles::DZI_OVERLAP,
         )?;
+        if let Some(base) = iiif {
+            let id = format!("{base}/plane_{g}");
+            let tiles = dir.join(format!("plane_{g}"));
+            super::tiles::write_iiif(&tiles, &id, (w, h), &frame, super::tiles::IIIF_TILE)?;
+            ids.push(id);
+        }
     }
-    let info = planes.info(fit, &maps);
+    let info = planes.info(meta, &maps);
     let text = serde_json::to_string_pretty(&info)
         .map_err(|e| Error::invalid(format!("info.json: {e}")))?;
     super::write_file(&dir.join("info.json"), &[text.as_bytes()])?;
-    Ok(info)
+    Ok((info, ids))
 }
 
 /// The byte of `v` under `m`: round(255 (v / scale + bias)), clamped.
@@ -113,67 +143,75 @@ struct Planes {
 }
 
 impl Planes {
-    fn new(fit: &RtiFit) -> Planes {
-        let lrgb = fit.basis.luminance();
-        let count = match fit.basis {
+    /// The planes of `fit`; for `lrgb` a pass over its chroma finds the chroma's greatest
+    /// value.
+    fn new(fit: &dyn FitSource) -> Result<Planes> {
+        let meta = fit.meta();
+        let lrgb = meta.basis.luminance();
+        let count = match meta.basis {
             Basis::PtmLrgb => 9,
-            Basis::Rbf => fit.basis.terms(),
-            _ => 3 * fit.basis.terms(),
+            Basis::Rbf => meta.basis.terms(),
+            _ => 3 * meta.basis.terms(),
         };
-        let chroma_scale = if lrgb {
-            fit.chroma.iter().fold(1.0f64, |m, &c| m.max(f64::from(c)))
-        } else {
-            1.0
-        };
-        Planes {
+        let mut chroma_scale = 1.0f64;
+        if lrgb {
+            // Outside the mask the chroma is 0, below the scale's start.
+            for_each_band(fit, false, |_, band| {
+                chroma_scale = band
+                    .chroma
+                    .iter()
+                    .fold(chroma_scale, |m, &c| m.max(f64::from(c)));
+                Ok(())
+            })?;
+        }
+        Ok(Planes {
             count,
             fixed_base: lrgb,
             chroma_scale,
+        })
+    }
+
+    /// The plane values of pixel `i` of `band` (in the mask) into `row`.
+    fn pixel(&self, fit: &RtiFit, band: &super::Band, i: usize, row: &mut [f32]) {
+        let (n, t, fc) = (self.count, fit.basis.terms(), fit.fitted_channels);
+        let coef = &band.coefficients[i * fc * t..(i + 1) * fc * t];
+        match fit.basis {
+            Basis::PtmLrgb => {
+                for (v, &c) in row.iter_mut().zip(&band.chroma[i * 3..i * 3 + 3]) {
+                    *v = (f64::from(c) / self.chroma_scale) as f32;
+                }
+                for (j, &o) in PTM_ORDER.iter().enumerate() {
+                    row[3 + j] = (f64::from(coef[o]) * self.chroma_scale) as f32;
+                }
+            }
+            Basis::PtmRgb => {
+                for (j, &o) in PTM_ORDER.iter().enumerate() {
+                    for c in 0..3 {
+                        row[3 * j + c] = coef[c.min(fc - 1) * t + o];
+                    }
+                }
+            }
+            Basis::Hsh2 | Basis::Hsh3 => {
+                for j in 0..t {
+                    for c in 0..3 {
+                        row[3 * j + c] = coef[c.min(fc - 1) * t + j];
+                    }
+                }
+            }
+            Basis::Rbf => row[..n].copy_from_slice(coef),
         }
     }
 
-    /// Per mask pixel the plane values (`[pixel][plane]`), and the values written outside the
-    /// mask.
-    fn values(&self, fit: &RtiFit) -> (Vec<f32>, Vec<f64>) {
-        let (n, t, fc) = (self.count, fit.basis.terms(), fit.fitted_channels);
-        let np = fit.pixels.len();
-        let mut out = vec![0f32; np * n];
-        for (p, row) in out.chunks_exact_mut(n).enumerate() {
-            let coef = &fit.coefficients[p * fc * t..(p + 1) * fc * t];
-            match fit.basis {
-                Basis::PtmLrgb => {
-                    for (v, &c) in row.iter_mut().zip(&fit.chroma[p * 3..p * 3 + 3]) {
-                        *v = (f64::from(c) / self.chroma_scale) as f32;
-                    }
-                    for (j, &o) in PTM_ORDER.iter().enumerate() {
-                        row[3 + j] = (f64::from(coef[o]) * self.chroma_scale) as f32;
-                    }
-                }
-                Basis::PtmRgb => {
-                    for (j, &o) in PTM_ORDER.iter().enumerate() {
-                        for c in 0..3 {
-                            row[3 * j + c] = coef[c.min(fc - 1) * t + o];
-                        }
-                    }
-                }
-                Basis::Hsh2 | Basis::Hsh3 => {
-                    for j in 0..t {
-                        for c in 0..3 {
-                            row[3 * j + c] = coef[c.min(fc - 1) * t + j];
-                        }
-                    }
-                }
-                Basis::Rbf => row.copy_from_slice(coef),
-            }
-        }
-        let mut outside = vec![0.0; n];
+    /// The values written outside the mask: 0, and for RBF those of a black pixel.
+    fn outside(&self, fit: &RtiFit) -> Vec<f64> {
+        let mut outside = vec![0.0; self.count];
         if let Some(m) = &fit.rbf {
             let d = m.mean.len();
             for (j, o) in outside.iter_mut().enumerate() {
                 *o = -(0..d).map(|r| m.planes[j * d + r] * m.mean[r]).sum::<f64>();
             }
         }
-        (out, outside)
+        outside
     }
 
     /// The `info.json` object.

@@ -21,6 +21,7 @@ use crate::base::error::{Error, Result};
 use crate::io::imageio::write_png8;
 use crate::io::viewer::pyramid::halve_u8;
 use serde_json::{json, Value};
+use std::borrow::Cow;
 use std::path::Path;
 
 /// Deep Zoom's tile side by default (256 with a one-pixel overlap on each side).
@@ -34,20 +35,21 @@ const JPEG_QUALITY: u8 = 90;
 
 /// The levels of an image from full size down (each [`halve_u8`] of the previous) until
 /// `done(width, height)`.
+/// The full-size level is the caller's image, not a copy.
 fn levels(
     w: usize,
     h: usize,
     rgb: &[u8],
     done: impl Fn(usize, usize) -> bool,
-) -> Vec<(usize, usize, Vec<u8>)> {
-    let mut out = vec![(w, h, rgb.to_vec())];
+) -> Vec<(usize, usize, Cow<'_, [u8]>)> {
+    let mut out = vec![(w, h, Cow::Borrowed(rgb))];
     loop {
         let (lw, lh, last) = out.last().expect("one level");
         if done(*lw, *lh) {
             return out;
         }
-        let next = halve_u8(*lw, *lh, 3, last);
-        out.push(next);
+        let (nw, nh, next) = halve_u8(*lw, *lh, 3, last);
+        out.push((nw, nh, Cow::Owned(next)));
     }
 }
 

@@ -272,6 +272,10 @@ pub struct RtiFit {
     pub fell_back_to_all_lights: u64,
     /// RBF: the model the coefficients weight; `None` for the other bases.
     pub rbf: Option<rbf::RbfModel>,
+    /// Per term, the least and greatest coefficient over the mask pixels and fitted channels
+    /// (measured as the fit made them, so also known when the coefficients went to a
+    /// [`CoefficientSink`]).
+    pub ranges: Vec<(f32, f32)>,
 }
 
 impl RtiFit {
@@ -311,14 +315,7 @@ impl RtiFit {
 
     /// Per term, the least and greatest coefficient over the mask pixels and fitted channels.
     pub fn coefficient_ranges(&self) -> Vec<(f32, f32)> {
-        let t = self.basis.terms();
-        let mut r = vec![(f32::INFINITY, f32::NEG_INFINITY); t];
-        for (i, &c) in self.coefficients.iter().enumerate() {
-            let e = &mut r[i % t];
-            e.0 = e.0.min(c);
-            e.1 = e.1.max(c);
-        }
-        r
+        self.ranges.clone()
     }
 
     /// Bytes the fit holds per mask pixel (coefficients and chroma).
@@ -437,10 +434,65 @@ struct Scratch {
     errors: RelightErrors,
 }
 
-/// Fits `basis` to every mask pixel of `capture` and measures its leave-one-out error.
-/// `exclude`, when given, flags per mask pixel and light (`[pixel][light]`, the capture's
-/// mask-pixel order) the readings to leave out of the pixel's fit and error.
+/// Where a fit puts its coefficients as it makes them, a block of consecutive mask pixels at a
+/// time in ascending order: so that a capture's fit need not be held whole (the `rti` command
+/// writes them to `coefficients.npy` as they come).
+pub trait CoefficientSink {
+    /// The mask pixels `start..start + n`: `coefficients` `[pixel][fitted channel][term]`
+    /// (display units) and for PTM LRGB `chroma` `[pixel][3]` (empty for the other bases).
+    fn put(&mut self, start: usize, coefficients: &[f32], chroma: &[f32]) -> Result<()>;
+}
+
+/// A sink that keeps every coefficient ([`fit`]).
+#[derive(Default)]
+struct Collect {
+    coefficients: Vec<f32>,
+    chroma: Vec<f32>,
+}
+
+impl CoefficientSink for Collect {
+    fn put(&mut self, _start: usize, coefficients: &[f32], chroma: &[f32]) -> Result<()> {
+        self.coefficients.extend_from_slice(coefficients);
+        self.chroma.extend_from_slice(chroma);
+        Ok(())
+    }
+}
+
+/// Mask pixels fitted per block: the coefficients held at a time by [`fit_into`], whatever
+/// the capture's layout (at most 4 · (3 · 9 + 3) · 65 536 bytes, 7.9 MB).
+pub const BLOCK_PIXELS: usize = 65_536;
+
+/// Widens `ranges` (per term) to hold `values` (`[..][term]`).
+pub(crate) fn widen_ranges(ranges: &mut [(f32, f32)], values: &[f32]) {
+    let t = ranges.len();
+    for (i, &c) in values.iter().enumerate() {
+        let e = &mut ranges[i % t];
+        e.0 = e.0.min(c);
+        e.1 = e.1.max(c);
+    }
+}
+
+/// Fits `basis` to every mask pixel of `capture` and measures its leave-one-out error, the
+/// coefficients held whole in the result ([`fit_into`] with a sink that keeps them).
 pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<RtiFit> {
+    let mut kept = Collect::default();
+    let mut f = fit_into(capture, basis, exclude, &mut kept)?;
+    f.coefficients = kept.coefficients;
+    f.chroma = kept.chroma;
+    Ok(f)
+}
+
+/// Fits `basis` to every mask pixel of `capture`, block by block ([`BLOCK_PIXELS`]) into
+/// `sink`, and measures its leave-one-out error; the result holds no coefficients (its
+/// `coefficients` and `chroma` are empty, its `ranges` measured). `exclude`, when given, flags
+/// per mask pixel and light (`[pixel][light]`, the capture's mask-pixel order) the readings to
+/// leave out of the pixel's fit and error.
+pub fn fit_into(
+    capture: &Capture,
+    basis: Basis,
+    exclude: Option<&[bool]>,
+    sink: &mut dyn CoefficientSink,
+) -> Result<RtiFit> {
     if basis == Basis::Rbf {
         if exclude.is_some() {
             return Err(Error::parameter(
@@ -450,7 +502,7 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<
             ));
         }
         check_distant(capture)?;
-        return rbf::fit(capture);
+        return rbf::fit_into(capture, sink);
     }
     let (np, n, c, t) = (
         capture.n_pixels(),
@@ -471,34 +523,34 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<
     let gain = display_gain(capture)?;
     let fc = if basis.luminance() { 1 } else { c };
     let per_pixel = fc * t;
-    let mut coefficients = vec![0f32; np * per_pixel];
-    let mut chroma = if basis.luminance() {
-        vec![1f32; np * 3]
-    } else {
-        Vec::new()
-    };
     let mut loo = RelightErrors::new(n);
     let (mut excluded, mut fell_back) = (0u64, 0u64);
+    let mut ranges = vec![(f32::INFINITY, f32::NEG_INFINITY); t];
+    let (mut coefficients, mut chroma) = (Vec::new(), Vec::new());
     capture.for_each_tile(|start, view| {
         let count = view.n_pixels().min(np - start);
-        let out = &mut coefficients[start * per_pixel..(start + count) * per_pixel];
-        let chroma_out = if basis.luminance() {
-            &mut chroma[start * 3..(start + count) * 3]
-        } else {
-            &mut chroma[..]
-        };
-        let job = TileJob {
-            view,
-            start,
-            basis,
-            design: &design,
-            gain,
-            exclude,
-        };
-        let (errors, ex, fb) = job.run(out, chroma_out);
-        loo = std::mem::take(&mut loo).merge(errors);
-        excluded += ex;
-        fell_back += fb;
+        for first in (0..count).step_by(BLOCK_PIXELS) {
+            let len = BLOCK_PIXELS.min(count - first);
+            coefficients.clear();
+            coefficients.resize(len * per_pixel, 0f32);
+            chroma.clear();
+            chroma.resize(if basis.luminance() { len * 3 } else { 0 }, 1f32);
+            let job = TileJob {
+                view,
+                start,
+                first,
+                basis,
+                design: &design,
+                gain,
+                exclude,
+            };
+            let (errors, ex, fb) = job.run(&mut coefficients, &mut chroma);
+            loo = std::mem::take(&mut loo).merge(errors);
+            excluded += ex;
+            fell_back += fb;
+            widen_ranges(&mut ranges, &coefficients);
+            sink.put(start + first, &coefficients, &chroma)?;
+        }
         Ok(())
     })?;
     Ok(RtiFit {
@@ -508,13 +560,14 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<
         channels: c,
         pixels: capture.pixels.clone(),
         fitted_channels: fc,
-        coefficients,
-        chroma,
+        coefficients: Vec::new(),
+        chroma: Vec::new(),
         gain,
         loo,
         excluded_readings: excluded,
         fell_back_to_all_lights: fell_back,
         rbf: None,
+        ranges,
     })
 }
 
@@ -539,10 +592,13 @@ struct PixelData<'a> {
     kept: &'a dyn Fn(usize) -> bool,
 }
 
-/// The fits of one tile's pixels.
+/// The fits of one block of a tile's pixels.
 struct TileJob<'a> {
     view: &'a Capture,
+    /// The tile's first mask pixel.
     start: usize,
+    /// The block's first pixel within the tile.
+    first: usize,
     basis: Basis,
     design: &'a Design,
     gain: f64,
@@ -553,7 +609,7 @@ struct TileJob<'a> {
 const CHUNK: usize = 256;
 
 impl TileJob<'_> {
-    /// Fits the tile's pixels into `out` (and `chroma` for LRGB); returns the LOO sums, the
+    /// Fits the block's pixels into `out` (and `chroma` for LRGB); returns the LOO sums, the
     /// readings excluded and the pixels that fell back to every light.
     fn run(&self, out: &mut [f32], chroma: &mut [f32]) -> (RelightErrors, u64, u64) {
         let (n, t) = (self.view.n_lights(), self.design.t);
@@ -585,7 +641,7 @@ impl TileJob<'_> {
                 },
                 |(mut s, mut ex, mut fb), (i, (coeffs, chroma))| {
                     for (j, cp) in coeffs.chunks_mut(per_pixel).enumerate() {
-                        let local = i * CHUNK + j;
+                        let local = self.first + i * CHUNK + j;
                         let ch = if chroma.is_empty() {
                             None
                         } else {

@@ -24,7 +24,7 @@
 //! The PCA uses up to [`PCA_PIXELS`] evenly spaced mask pixels (as relight samples its
 //! pixels); the covariance is D × D in f64, `8 · D²` bytes.
 
-use super::{display_gain, RelightErrors, RtiFit, MAX_TERMS};
+use super::{display_gain, CoefficientSink, RelightErrors, RtiFit, BLOCK_PIXELS, MAX_TERMS};
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
 use nalgebra::{DMatrix, SymmetricEigen};
@@ -250,6 +250,11 @@ fn loo_predictor(model: &RbfModel, cov: &DMatrix<f64>, k: usize) -> (Vec<f64>, V
 /// Fits the RBF basis to every mask pixel of `capture` and measures its leave-one-out error
 /// (module documentation). The result's coefficients are `[pixel][plane]` (one fitted channel).
 pub fn fit(capture: &Capture) -> Result<RtiFit> {
+    super::fit(capture, super::Basis::Rbf, None)
+}
+
+/// [`fit`], the coefficients put into `sink` block by block ([`super::fit_into`]).
+pub(super) fn fit_into(capture: &Capture, sink: &mut dyn CoefficientSink) -> Result<RtiFit> {
     let (np, n, c) = (capture.n_pixels(), capture.n_lights(), capture.channels);
     let d = n * c;
     if n < 2 || d - c < PLANES {
@@ -280,24 +285,74 @@ pub fn fit(capture: &Capture) -> Result<RtiFit> {
         .map(|k| loo_predictor(&model, &cov, k))
         .collect();
     drop(cov);
-    let mut coefficients = vec![0f32; np * PLANES];
     let mut loo = RelightErrors::new(n);
+    let mut ranges = vec![(f32::INFINITY, f32::NEG_INFINITY); PLANES];
+    let mut coefficients = Vec::new();
     capture.for_each_tile(|start, view| {
         let count = view.n_pixels().min(np - start);
-        let out = &mut coefficients[start * PLANES..(start + count) * PLANES];
-        let e = out
-            .par_chunks_mut(PLANES * 256)
+        for first in (0..count).step_by(BLOCK_PIXELS) {
+            let len = BLOCK_PIXELS.min(count - first);
+            coefficients.clear();
+            coefficients.resize(len * PLANES, 0f32);
+            let block = Block {
+                view,
+                first,
+                gain,
+                model: &model,
+                predictors: &predictors,
+            };
+            loo = std::mem::take(&mut loo).merge(block.run(&mut coefficients));
+            super::widen_ranges(&mut ranges, &coefficients);
+            sink.put(start + first, &coefficients, &[])?;
+        }
+        Ok(())
+    })?;
+    Ok(RtiFit {
+        basis: super::Basis::Rbf,
+        width: capture.width,
+        height: capture.height,
+        channels: c,
+        pixels: capture.pixels.clone(),
+        fitted_channels: 1,
+        coefficients: Vec::new(),
+        chroma: Vec::new(),
+        gain,
+        loo,
+        excluded_readings: 0,
+        fell_back_to_all_lights: 0,
+        rbf: Some(model),
+        ranges,
+    })
+}
+
+/// One block of a tile's pixels: their projections and leave-one-out errors.
+struct Block<'a> {
+    view: &'a Capture,
+    /// The block's first pixel within the tile.
+    first: usize,
+    gain: f64,
+    model: &'a RbfModel,
+    /// Per light, the leave-one-out predictor ([`loo_predictor`]).
+    predictors: &'a [(Vec<f64>, Vec<f64>)],
+}
+
+impl Block<'_> {
+    /// Projects the block's pixels into `out` (`[pixel][plane]`); returns their LOO sums.
+    fn run(&self, out: &mut [f32]) -> RelightErrors {
+        let (n, c) = (self.view.n_lights(), self.view.channels);
+        let d = n * c;
+        out.par_chunks_mut(PLANES * 256)
             .enumerate()
             .fold(
                 || (RelightErrors::new(n), vec![0.0; d]),
                 |(mut e, mut x), (i, chunk)| {
                     for (j, coef) in chunk.chunks_mut(PLANES).enumerate() {
-                        let s = view.pixel_samples(i * 256 + j);
+                        let s = self.view.pixel_samples(self.first + i * 256 + j);
                         for (xr, &v) in x.iter_mut().zip(s) {
-                            *xr = f64::from(v) * gain;
+                            *xr = f64::from(v) * self.gain;
                         }
-                        project(&model, &x, coef);
-                        for (k, (a, wts)) in predictors.iter().enumerate() {
+                        project(self.model, &x, coef);
+                        for (k, (a, wts)) in self.predictors.iter().enumerate() {
                             for ch in 0..c {
                                 let row = &wts[ch * d..(ch + 1) * d];
                                 let pred =
@@ -310,25 +365,8 @@ pub fn fit(capture: &Capture) -> Result<RtiFit> {
                 },
             )
             .map(|(e, _)| e)
-            .reduce(|| RelightErrors::new(n), RelightErrors::merge);
-        loo = std::mem::take(&mut loo).merge(e);
-        Ok(())
-    })?;
-    Ok(RtiFit {
-        basis: super::Basis::Rbf,
-        width: capture.width,
-        height: capture.height,
-        channels: c,
-        pixels: capture.pixels.clone(),
-        fitted_channels: 1,
-        coefficients,
-        chroma: Vec::new(),
-        gain,
-        loo,
-        excluded_readings: 0,
-        fell_back_to_all_lights: 0,
-        rbf: Some(model),
-    })
+            .reduce(|| RelightErrors::new(n), RelightErrors::merge)
+    }
 }
 
 /// The coefficients c_j = e_j · (x − μ) of one pixel's readings `x` (display units).
