@@ -659,7 +659,7 @@ fn brightness_slope(gains: &[f64], s: &Samples, lights: &LightInfo) -> Option<Sl
         return None;
     }
     let all: Vec<usize> = (0..n).collect();
-    let h = (n + ELEMENTAL + 1) / 2;
+    let h = (n + ELEMENTAL).div_ceil(2);
     let coef = reg.lts(h).or_else(|| reg.fit(&all).map(|f| f.0))?;
     let r = reg.group_residuals(&coef);
     let mut abs: Vec<f64> = r.iter().map(|v| v.abs()).collect();
