@@ -23,7 +23,7 @@
 //! robust: each row's `b_r` is fitted with every reading relative to its light's gain (so that
 //! the gains scale with the lights), each gain is the median ratio of readings to model over
 //! the rows, and the regression is fitted by least trimmed squares over images and then by
-//! least squares on the images consistent with it ([`brightness_slope`]): a minority of images
+//! least squares on the images consistent with it (a per-image 99% test): a minority of images
 //! whose given intensity or exposure is wrong is found, left out and named.
 //!
 //! *The shading* (the basis `"shading"`, when the brightness does not decide). A candidate is
