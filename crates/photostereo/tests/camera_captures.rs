@@ -411,7 +411,15 @@ fn diligent_objects_as_cameras_write_them() {
             "{name} original: l2 {:.2}° recursive {:.2}°",
             base[0], base[1]
         );
+        // PHOTOSTEREO_KINDS=a,b measures only those kinds.
+        let wanted = std::env::var("PHOTOSTEREO_KINDS").ok();
         for (kind, spec, response) in kinds() {
+            if wanted
+                .as_deref()
+                .is_some_and(|w| !w.split(',').any(|x| x == kind))
+            {
+                continue;
+            }
             let mut files = camera(&original, &root.path().join(format!("{name}-{kind}")), spec);
             files.photometry.response = response;
             let (e, notes) = diligent_errors(&files, &truth);
@@ -586,7 +594,7 @@ fn response_estimates_on_real_captures() {
             let err = truth.as_ref().map(|t| l2_error(&files, t).0);
             println!(
                 "{name} {kind}: chose {} ({} {:.3} ± {:.3}; shading {:.2} ± {:.2}; sRGB slope \
-                 {:?}; {} rows); l2 {}",
+                 {:?}; {} rows; images left out {:?}); l2 {}",
                 e.chosen,
                 e.basis,
                 e.gamma,
@@ -595,6 +603,7 @@ fn response_estimates_on_real_captures() {
                 e.gamma_shading_std,
                 e.srgb_slope,
                 e.rows,
+                e.images_left_out,
                 match (err, base) {
                     (Some(a), Some(b)) => format!("{a:.2}° ({:+.2} vs the original)", a - b),
                     _ => "-".into(),

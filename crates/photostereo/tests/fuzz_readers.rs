@@ -714,11 +714,7 @@ fn raw_seeds() -> Vec<Vec<u8>> {
         .collect()
 }
 
-/// Open: rawler allocates what a forged strip or tile size declares (up to 4 GiB from a
-/// mutated seed of a few hundred bytes) before the directory checks of `io::raw` cover those
-/// tags; `cargo test --release -p photostereo --test fuzz_readers -- --ignored fuzz_raw`.
 #[test]
-#[ignore = "open: rawler allocates forged strip sizes (see the comment)"]
 fn fuzz_raw() {
     fuzz("raw", raw_seeds(), byte_mutations, |b| {
         let meta = photostereo::io::photometry::meta::read_meta(b).is_ok();

@@ -66,6 +66,8 @@ struct Entry {
     kind: u16,
     count: u32,
     value: u32,
+    /// Where the entry's value field lies in the file.
+    at: usize,
 }
 
 impl<'a> Tiff<'a> {
@@ -133,6 +135,7 @@ impl<'a> Tiff<'a> {
                     kind,
                     count,
                     value,
+                    at: e + 8,
                 })
             })
             .collect()
@@ -152,6 +155,36 @@ impl<'a> Tiff<'a> {
         }
         (0..n)
             .filter_map(|i| self.u32_at(e.value as usize + 4 * i).map(|v| v as usize))
+            .collect()
+    }
+
+    /// The unsigned integer values (SHORT, LONG or IFD) of an entry, read where they lie: in
+    /// the entry when they fit its four bytes, at its offset otherwise; `None` for other types
+    /// or values past the file's end.
+    fn integers(&self, e: &Entry) -> Option<Vec<u64>> {
+        let size = match e.kind {
+            3 => 2,
+            4 | 13 => 4,
+            _ => return None,
+        };
+        let n = e.count as usize;
+        let start = if n * size <= 4 {
+            e.at
+        } else {
+            e.value as usize
+        };
+        if start.checked_add(n.checked_mul(size)?)? > self.bytes.len() {
+            return None;
+        }
+        (0..n)
+            .map(|i| {
+                let at = start + i * size;
+                if size == 2 {
+                    self.u16_at(at).map(u64::from)
+                } else {
+                    self.u32_at(at).map(u64::from)
+                }
+            })
             .collect()
     }
 
@@ -192,32 +225,40 @@ fn check_declared(bytes: &[u8]) -> Result<(), String> {
         let entries = t.entries(at);
         // Every entry's values lie in the file: the decoder allocates what a count declares.
         for e in &entries {
-            let size = [0u64, 1, 1, 2, 4, 8, 1, 1, 2, 4, 8, 4, 8, 4]
+            // Unknown types count as 1 byte a value (the decoder reads them as bytes).
+            let size = [1u64, 1, 1, 2, 4, 8, 1, 1, 2, 4, 8, 4, 8, 4]
                 .get(e.kind as usize)
                 .copied()
                 .unwrap_or(8);
-            if (e.count as u64).saturating_mul(size) > bytes.len() as u64 {
+            let total = (e.count as u64).saturating_mul(size);
+            let end = if total <= 4 {
+                0
+            } else {
+                total.saturating_add(e.value as u64)
+            };
+            if total > bytes.len() as u64 || end > bytes.len() as u64 {
                 return Err(format!(
-                    "corrupt RAW file: tag {} declares {} values, more than the file holds",
+                    "corrupt RAW file: tag {} declares {} values, beyond what the file holds",
                     e.tag, e.count
                 ));
             }
         }
+        check_segments(&t, &entries)?;
         let get = |tag: u16| entries.iter().find(|e| e.tag == tag);
-        let (Some(w), Some(h)) = (get(256), get(257)) else {
+        // Each value read as the decoder reads it: the first of the entry's values, wherever
+        // they lie.
+        let first = |tag: u16| get(tag).map(|e| t.integers(e).and_then(|v| v.first().copied()));
+        let (Some(w), Some(h)) = (first(256), first(257)) else {
             continue;
         };
-        let spp = get(277).map_or(1, |e| e.value.max(1)) as u64;
-        let bits = get(258).map_or(16, |e| {
-            if e.count > 2 {
-                t.u16_at(e.value as usize).unwrap_or(16) as u32
-            } else {
-                e.value
-            }
-        }) as u64;
+        let (Some(w), Some(h)) = (w, h) else {
+            return Err("corrupt RAW file: an image's width or height is unreadable".into());
+        };
+        let spp = first(277).flatten().unwrap_or(1).max(1);
+        let bits = first(258).flatten().unwrap_or(16);
         let declared = DeclaredImage {
-            width: w.value as u64,
-            height: h.value as u64,
+            width: w,
+            height: h,
             channels: spp,
             bytes_per_sample: 2,
             kept_channels: 3,
@@ -229,6 +270,55 @@ fn check_declared(bytes: &[u8]) -> Result<(), String> {
             .saturating_mul(bits.clamp(1, 32))
             .div_ceil(8);
         declared.check(stored, bytes.len() as u64, MAX_TIFF_RATIO)?;
+    }
+    Ok(())
+}
+
+/// Checks a directory's strips or tiles: every one of `StripOffsets`/`StripByteCounts` (tags
+/// 273/279) and `TileOffsets`/`TileByteCounts` (324/325) lies inside the file (the decoder
+/// allocates what a byte count declares), and a tile (`TileWidth` × `TileLength`, 322/323) or
+/// strip (`RowsPerStrip`, 278, rows of the image's width) declares no more decoded samples
+/// than the limits and the file allow.
+fn check_segments(t: &Tiff, entries: &[Entry]) -> Result<(), String> {
+    let len = t.bytes.len() as u64;
+    let get = |tag: u16| entries.iter().find(|e| e.tag == tag);
+    let values = |tag: u16, name: &str| -> Result<Vec<u64>, String> {
+        match get(tag) {
+            None => Ok(Vec::new()),
+            Some(e) => t.integers(e).ok_or_else(|| {
+                format!("corrupt RAW file: its {name} (tag {tag}) lie beyond the file's end")
+            }),
+        }
+    };
+    for (offsets, counts, what) in [(273, 279, "strip"), (324, 325, "tile")] {
+        let off = values(offsets, &format!("{what} offsets"))?;
+        let cnt = values(counts, &format!("{what} byte counts"))?;
+        for (i, (&o, &c)) in off.iter().zip(&cnt).enumerate() {
+            if o.saturating_add(c) > len {
+                return Err(format!(
+                    "corrupt RAW file: {what} {i} declares {c} bytes at offset {o}, beyond the \
+                     file's {len} bytes"
+                ));
+            }
+        }
+    }
+    let first = |tag: u16| get(tag).and_then(|e| t.integers(e)?.first().copied());
+    let width = first(256).unwrap_or(0);
+    let height = first(257).unwrap_or(0);
+    let (tw, th) = match (first(322), first(323)) {
+        (Some(w), Some(h)) => (w, h),
+        _ => (width, first(278).unwrap_or(height).min(height)),
+    };
+    let spp = first(277).unwrap_or(1).max(1);
+    let stored = tw.saturating_mul(th).saturating_mul(spp).saturating_mul(4);
+    if tw > crate::model::image::MAX_IMAGE_SIDE
+        || th > crate::model::image::MAX_IMAGE_SIDE
+        || stored > len.saturating_mul(MAX_TIFF_RATIO).saturating_add(1 << 16)
+    {
+        return Err(format!(
+            "corrupt RAW file: a {tw}×{th} tile or strip of {spp} sample(s) per pixel, more \
+             than a file of {len} bytes can hold"
+        ));
     }
     Ok(())
 }

@@ -402,9 +402,12 @@ fn estimate_note(e: &ResponseEstimate, used: bool) -> String {
             }
         )
     };
+    let left_out = e
+        .left_out_note()
+        .map_or(String::new(), |n| format!("; {n}"));
     let what = format!(
         "the readings fit the Lambertian model best under the response {} (best power law \
-         {:.2} ± {:.2}, {basis}; {} pixel-channels lit by every light)",
+         {:.2} ± {:.2}, {basis}; {} pixel-channels lit by every light{left_out})",
         e.chosen, e.gamma, e.gamma_std, e.rows
     );
     if used {

@@ -22,7 +22,9 @@
 //! the given intensities then disagree with the images, and the note says so). The fits are
 //! robust: each row's `b_r` is fitted with every reading relative to its light's gain (so that
 //! the gains scale with the lights), each gain is the median ratio of readings to model over
-//! the rows, and the regression weighs the lights by Huber's and then Tukey's weights.
+//! the rows, and the regression is fitted by least trimmed squares over images and then by
+//! least squares on the images consistent with it (a per-image 99% test): a minority of images
+//! whose given intensity or exposure is wrong is found, left out and named.
 //!
 //! *The shading* (the basis `"shading"`, when the brightness does not decide). A candidate is
 //! scored by how well the same rank-3 model fits the readings it makes linear, the gains
@@ -116,6 +118,12 @@ pub struct ResponseEstimate {
     /// and the estimate rests on the shading.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub intensities_disagree: Option<[f64; 2]>,
+    /// The images (numbered from 0 in the capture's order) whose brightness in the readings
+    /// disagrees with their given intensity and exposure under the exponent the others share,
+    /// left out of the brightness test. When they are not a minority, `intensities_disagree`
+    /// is set.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub images_left_out: Vec<usize>,
     /// The best power by the shading alone, with its standard error over pixel sets.
     pub gamma_shading: f64,
     pub gamma_shading_std: f64,
@@ -128,6 +136,38 @@ pub struct ResponseEstimate {
     pub rows: usize,
     #[serde(skip)]
     pub response: Response,
+}
+
+impl ResponseEstimate {
+    /// The images the brightness test left out, for a note: how many, and which (numbered
+    /// from 1, runs as `a–b`); `None` when none was.
+    pub fn left_out_note(&self) -> Option<String> {
+        let v = &self.images_left_out;
+        if v.is_empty() {
+            return None;
+        }
+        let mut runs: Vec<String> = Vec::new();
+        let mut i = 0;
+        while i < v.len() {
+            let mut j = i;
+            while j + 1 < v.len() && v[j + 1] == v[j] + 1 {
+                j += 1;
+            }
+            runs.push(if j > i {
+                format!("{}–{}", v[i] + 1, v[j] + 1)
+            } else {
+                format!("{}", v[i] + 1)
+            });
+            i = j + 1;
+        }
+        Some(format!(
+            "{} image(s) ({}, numbered from 1) show a brightness that disagrees with their given \
+             intensity and exposure under the exponent the others share, and were left out of \
+             the brightness test",
+            v.len(),
+            runs.join(", ")
+        ))
+    }
 }
 
 /// The relative model error the detector's noise model uses by default (κ).
@@ -289,7 +329,7 @@ fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<Respon
         lights,
     };
     // Per candidate: each row's reduced χ² (shading) and the brightness slope β ± se.
-    let per: Vec<(Vec<f64>, Option<[f64; 3]>)> = candidates
+    let per: Vec<(Vec<f64>, Option<Slope>)> = candidates
         .par_iter()
         .map(|&r| {
             (
@@ -321,12 +361,15 @@ fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<Respon
     // The grid's own resolution bounds how small the error can be.
     let shading_std = (var / GROUPS as f64).sqrt().max(0.02 / 12f64.sqrt());
     let brightness = brightness_exponent(&grid, &per);
-    // An exponent significantly below 1 is no file's: the given intensities disagree with the
-    // images, and the brightness cannot be the basis.
-    let disagree = brightness.filter(|(g, sd, t)| *g < 1.0 - (t * sd).max(SYSTEMATIC));
-    let (basis, gamma, gamma_std, t) = match brightness {
-        Some((g, sd, t)) if sd <= BRIGHTNESS_MAX_STD && disagree.is_none() => {
-            ("brightness", g, sd, t)
+    // An exponent significantly below 1 is no file's, and images that do not share one
+    // exponent no capture's: the given intensities disagree with the images, and the
+    // brightness cannot be the basis.
+    let disagree = brightness
+        .as_ref()
+        .filter(|b| !b.slope.majority() || b.gamma < 1.0 - (b.t * b.sd).max(SYSTEMATIC));
+    let (basis, gamma, gamma_std, t) = match &brightness {
+        Some(b) if b.sd <= BRIGHTNESS_MAX_STD && disagree.is_none() => {
+            ("brightness", b.gamma, b.sd, b.t)
         }
         _ => ("shading", grid[shading_best], shading_std, T7_995),
     };
@@ -338,9 +381,9 @@ fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<Respon
         .map_or(0, |(i, _)| i);
     let score_gamma = score(near, None);
     let score_srgb = score(srgb, None);
-    let srgb_slope = per[srgb].1.map(|b| [b[0], b[1]]);
-    let srgb_consistent = match (basis, per[srgb].1) {
-        ("brightness", Some([b, se, dof])) => b.abs() <= (t_995(dof) * se).max(SYSTEMATIC),
+    let srgb_slope = per[srgb].1.as_ref().map(|b| [b.beta, b.se]);
+    let srgb_consistent = match (basis, &per[srgb].1) {
+        ("brightness", Some(b)) => b.beta.abs() <= (t_995(b.dof) * b.se).max(SYSTEMATIC),
         ("brightness", None) => false,
         _ => true,
     };
@@ -357,7 +400,8 @@ fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<Respon
         gamma,
         gamma_std,
         srgb_slope,
-        intensities_disagree: disagree.map(|d| [d.0, d.1]),
+        intensities_disagree: disagree.map(|d| [d.gamma, d.sd]),
+        images_left_out: brightness.map_or(Vec::new(), |b| b.slope.left_out),
         gamma_shading: grid[shading_best],
         gamma_shading_std: shading_std,
         score_gamma,
@@ -368,24 +412,34 @@ fn estimate_on(s: &Samples, lights: &LightInfo, rows: &[usize]) -> Option<Respon
     })
 }
 
-/// The exponent the lights' brightness gives, its standard error and the 99% t quantile of its
-/// regression: `γ' / (1 + β)` at the power candidate whose slope `|β|` is smallest. `None`
-/// without a lever (the brightness constant, or explained by the directions).
-fn brightness_exponent(
-    grid: &[f64],
-    per: &[(Vec<f64>, Option<[f64; 3]>)],
-) -> Option<(f64, f64, f64)> {
-    let (i, [b, se, dof]) = grid
+/// What the lights' brightness gives: the exponent, its standard error, the 99% t quantile of
+/// its regression, and that regression.
+struct Brightness {
+    gamma: f64,
+    sd: f64,
+    t: f64,
+    slope: Slope,
+}
+
+/// The exponent the lights' brightness gives: `γ' / (1 + β)` at the power candidate whose
+/// slope `|β|` is smallest. `None` without a lever (the brightness constant, or explained by
+/// the directions).
+fn brightness_exponent(grid: &[f64], per: &[(Vec<f64>, Option<Slope>)]) -> Option<Brightness> {
+    let (i, slope) = grid
         .iter()
         .enumerate()
-        .filter_map(|(i, _)| per[i].1.map(|s| (i, s)))
-        .min_by(|a, b| a.1[0].abs().total_cmp(&b.1[0].abs()))?;
-    if 1.0 + b <= 0.0 || !se.is_finite() {
+        .filter_map(|(i, _)| per[i].1.as_ref().map(|s| (i, s)))
+        .min_by(|a, b| a.1.beta.abs().total_cmp(&b.1.beta.abs()))?;
+    let b = slope.beta;
+    if 1.0 + b <= 0.0 || !slope.se.is_finite() {
         return None;
     }
-    let g = grid[i] / (1.0 + b);
-    let sd = grid[i] * se / (1.0 + b).powi(2);
-    Some((g, sd, t_995(dof)))
+    Some(Brightness {
+        gamma: grid[i] / (1.0 + b),
+        sd: grid[i] * slope.se / (1.0 + b).powi(2),
+        t: t_995(slope.dof),
+        slope: slope.clone(),
+    })
 }
 
 /// Student's t quantile 0.995 with `dof` degrees of freedom (Cornish–Fisher expansion about
@@ -398,90 +452,249 @@ fn t_995(dof: f64) -> f64 {
         + (3.0 * z.powi(7) + 19.0 * z.powi(5) + 17.0 * z.powi(3) - 15.0 * z) / (384.0 * d * d * d)
 }
 
-/// The brightness test on a candidate's gains (`[k * C + c]`): the least-squares slope β of
-/// `ln(G_kc / I_kc)` on `ln(I_kc / scale_k)` (the light's known brightness in channel c, its
-/// exposure included), with a constant per channel and `l_k` as further regressors; returns
-/// `[β, its standard error, degrees of freedom]`. `None` with fewer than three degrees of
-/// freedom, or when the known brightness varies by less than 1% beyond what the other
-/// regressors explain (no lever).
-fn brightness_slope(gains: &[f64], s: &Samples, lights: &LightInfo) -> Option<[f64; 3]> {
-    let c = s.channels.max(1);
-    let p = c + 4;
-    let mut points: Vec<(nalgebra::DVector<f64>, f64)> = Vec::with_capacity(gains.len());
-    for (k, (d, i)) in lights
-        .directions
-        .iter()
-        .zip(&lights.intensities)
-        .enumerate()
-    {
-        for ch in 0..c {
-            let (g, int) = (gains[k * c + ch], channel_intensity(i, ch, c));
-            if !(g > 0.0 && int > 0.0 && lights.scale[k] > 0.0) {
-                continue;
+/// The brightness test at one candidate response ([`brightness_slope`]).
+#[derive(Clone, Debug)]
+struct Slope {
+    /// The slope β, its standard error and the fit's degrees of freedom.
+    beta: f64,
+    se: f64,
+    dof: f64,
+    /// Images (0-based, in the capture's order) whose brightness the consistency test found
+    /// inconsistent with the others' common exponent, left out of the fit.
+    left_out: Vec<usize>,
+    /// Images in the regression.
+    images: usize,
+}
+
+impl Slope {
+    /// Whether the images consistent with the common exponent are a majority (the most a
+    /// high-breakdown fit can rest on); otherwise the slope is that of every image.
+    fn majority(&self) -> bool {
+        2 * self.left_out.len() < self.images
+    }
+}
+
+/// The brightness regression's points: one per light and channel, grouped by image.
+struct Regression {
+    /// `[point][parameter]`: a constant per channel, the light's direction, `ln` of its known
+    /// brightness (the last parameter, whose coefficient is β).
+    design: Vec<f64>,
+    /// `ln(G_kc / I_kc)`.
+    y: Vec<f64>,
+    /// Per image in the regression: its index and its points' range.
+    groups: Vec<(usize, std::ops::Range<usize>)>,
+    p: usize,
+}
+
+impl Regression {
+    fn new(gains: &[f64], s: &Samples, lights: &LightInfo) -> Self {
+        let c = s.channels.max(1);
+        let p = c + 4;
+        let (mut design, mut y, mut groups) = (Vec::new(), Vec::new(), Vec::new());
+        for (k, (d, i)) in lights
+            .directions
+            .iter()
+            .zip(&lights.intensities)
+            .enumerate()
+        {
+            let start = y.len();
+            for ch in 0..c {
+                let (g, int) = (gains[k * c + ch], channel_intensity(i, ch, c));
+                if !(g > 0.0 && int > 0.0 && lights.scale[k] > 0.0) {
+                    continue;
+                }
+                let mut row = vec![0.0; p];
+                row[ch] = 1.0;
+                row[c..c + 3].copy_from_slice(d);
+                row[c + 3] = (int / lights.scale[k]).ln();
+                design.extend_from_slice(&row);
+                y.push((g / int).ln());
             }
-            let mut row = nalgebra::DVector::<f64>::zeros(p);
-            row[ch] = 1.0;
-            row[c] = d[0];
-            row[c + 1] = d[1];
-            row[c + 2] = d[2];
-            row[c + 3] = (int / lights.scale[k]).ln();
-            points.push((row, (g / int).ln()));
+            if y.len() > start {
+                groups.push((k, start..y.len()));
+            }
+        }
+        Regression {
+            design,
+            y,
+            groups,
+            p,
         }
     }
-    let dof = points.len() as f64 - p as f64;
+
+    fn row(&self, i: usize) -> &[f64] {
+        &self.design[i * self.p..(i + 1) * self.p]
+    }
+
+    /// Least squares on the points of the groups `subset`: the coefficients and the inverse
+    /// of the normal matrix; `None` when the subset does not determine them.
+    fn fit(&self, subset: &[usize]) -> Option<(Vec<f64>, nalgebra::DMatrix<f64>)> {
+        let p = self.p;
+        let mut ata = nalgebra::DMatrix::<f64>::zeros(p, p);
+        let mut atb = nalgebra::DVector::<f64>::zeros(p);
+        for &g in subset {
+            for i in self.groups[g].1.clone() {
+                let a = self.row(i);
+                for u in 0..p {
+                    atb[u] += a[u] * self.y[i];
+                    for v in 0..p {
+                        ata[(u, v)] += a[u] * a[v];
+                    }
+                }
+            }
+        }
+        let inv = ata.try_inverse()?;
+        let coef = &inv * atb;
+        coef.iter()
+            .all(|v| v.is_finite())
+            .then(|| (coef.iter().copied().collect(), inv))
+    }
+
+    /// Each group's mean residual under `coef`.
+    fn group_residuals(&self, coef: &[f64]) -> Vec<f64> {
+        self.groups
+            .iter()
+            .map(|(_, range)| {
+                let sum: f64 = range
+                    .clone()
+                    .map(|i| {
+                        let a = self.row(i);
+                        self.y[i] - a.iter().zip(coef).map(|(a, c)| a * c).sum::<f64>()
+                    })
+                    .sum();
+                sum / range.len() as f64
+            })
+            .collect()
+    }
+
+    /// One concentration step: the `h` groups whose mean residual under `coef` is smallest,
+    /// and the sum of their squares (the trimmed objective).
+    fn concentrate(&self, coef: &[f64], h: usize) -> (f64, Vec<usize>) {
+        let r = self.group_residuals(coef);
+        let mut order: Vec<usize> = (0..r.len()).collect();
+        order.sort_by(|&a, &b| r[a].abs().total_cmp(&r[b].abs()));
+        order.truncate(h);
+        (order.iter().map(|&g| r[g] * r[g]).sum(), order)
+    }
+
+    /// Least trimmed squares over images (Rousseeuw and Van Driessen's FAST-LTS): the fit of
+    /// the `h` images (about half) whose mean residuals have the smallest sum of squares,
+    /// searched from [`LTS_STARTS`] random elemental sets of [`ELEMENTAL`] images, each
+    /// improved by two concentration steps, the best [`LTS_KEEP`] then to convergence. Its
+    /// breakdown point is about one half: images whose given brightness is wrong, up to
+    /// nearly half of them, cannot move it.
+    fn lts(&self, h: usize) -> Option<Vec<f64>> {
+        let n = self.groups.len();
+        let mut rng = crate::base::rng::Pcg32::new(0x1175, 0);
+        let mut pool: Vec<(f64, Vec<usize>)> = Vec::with_capacity(LTS_STARTS);
+        let mut order: Vec<usize> = (0..n).collect();
+        for _ in 0..LTS_STARTS {
+            // A random elemental set, enlarged until it determines the fit.
+            for i in 0..n {
+                let j = i + (rng.next_u32() as usize) % (n - i);
+                order.swap(i, j);
+            }
+            let Some((mut coef, _)) = (ELEMENTAL..=n).find_map(|m| self.fit(&order[..m])) else {
+                continue;
+            };
+            let mut best = self.concentrate(&coef, h);
+            for _ in 0..2 {
+                let Some((c, _)) = self.fit(&best.1) else {
+                    break;
+                };
+                coef = c;
+                best = self.concentrate(&coef, h);
+            }
+            pool.push(best);
+        }
+        pool.sort_by(|a, b| a.0.total_cmp(&b.0));
+        pool.truncate(LTS_KEEP);
+        let mut best: Option<(f64, Vec<f64>)> = None;
+        for (mut obj, mut subset) in pool {
+            let mut coef = self.fit(&subset)?.0;
+            for _ in 0..50 {
+                let (o, s) = self.concentrate(&coef, h);
+                if o >= obj * (1.0 - 1e-12) && s == subset {
+                    break;
+                }
+                (obj, subset) = (o, s);
+                coef = self.fit(&subset)?.0;
+            }
+            if best.as_ref().is_none_or(|b| obj < b.0) {
+                best = Some((obj, coef));
+            }
+        }
+        best.map(|b| b.1)
+    }
+}
+
+/// Random elemental sets of the least-trimmed-squares search, the ones kept to convergence,
+/// and the images in an elemental set: with grey (or grey-ratioed) lights an image adds one
+/// equation to the four of the direction's share and the slope, and one for the constant. At
+/// half the images wrong, 128 sets of five miss a clean one with probability (1 − 2⁻⁵)¹²⁸ ≈
+/// 2%; at a quarter wrong, 10⁻¹⁰.
+const LTS_STARTS: usize = 128;
+const LTS_KEEP: usize = 8;
+const ELEMENTAL: usize = 5;
+
+/// The brightness test on a candidate's gains (`[k * C + c]`): the slope β of
+/// `ln(G_kc / I_kc)` on `ln(I_kc / scale_k)` (the light's known brightness in channel c, its
+/// exposure included), with a constant per channel and `l_k` as further regressors, with its
+/// standard error and degrees of freedom, and the images left out.
+///
+/// The fit must survive images whose given intensity or exposure is wrong, and these are
+/// wrong in all their channels at once: a least-trimmed-squares fit over images
+/// ([`Regression::lts`]) finds the common exponent of the consistent half; each image's mean
+/// residual under it is then studentised by the residuals' robust spread (1.4826 × their
+/// median absolute value) and the images beyond the two-sided 99% normal quantile are left
+/// out; β is the least-squares slope of the others, its standard error from their residuals.
+/// When those left out are not a minority, the images do not share one exponent: β is then
+/// that of every image, and [`Slope::majority`] says so. `None` with fewer than three degrees
+/// of freedom, or when the known brightness varies by less than 1% beyond what the other
+/// regressors explain (no lever).
+fn brightness_slope(gains: &[f64], s: &Samples, lights: &LightInfo) -> Option<Slope> {
+    let reg = Regression::new(gains, s, lights);
+    let (n, p) = (reg.groups.len(), reg.p);
+    if (reg.y.len() as f64) < p as f64 + 3.0 || n < ELEMENTAL + 2 {
+        return None;
+    }
+    let all: Vec<usize> = (0..n).collect();
+    let h = (n + ELEMENTAL).div_ceil(2);
+    let coef = reg.lts(h).or_else(|| reg.fit(&all).map(|f| f.0))?;
+    let r = reg.group_residuals(&coef);
+    let mut abs: Vec<f64> = r.iter().map(|v| v.abs()).collect();
+    let scale = 1.4826 * median(&mut abs) * (n as f64 / (n - ELEMENTAL) as f64).sqrt();
+    let z = crate::base::stats::normal_upper_quantile(0.005);
+    let (kept, out): (Vec<usize>, Vec<usize>) =
+        (0..n).partition(|&g| r[g].abs() <= z * scale.max(1e-12));
+    let left_out: Vec<usize> = out.iter().map(|&g| reg.groups[g].0).collect();
+    let used = if 2 * out.len() < n { &kept } else { &all };
+    let (coef, inv) = reg.fit(used)?;
+    let points: usize = used.iter().map(|&g| reg.groups[g].1.len()).sum();
+    let sxx = 1.0 / inv[(p - 1, p - 1)];
+    // The known brightness's spread beyond the other regressors, per point: at least 1%.
+    if !(sxx.is_finite() && sxx > 1e-4 * points as f64) {
+        return None;
+    }
+    let rss: f64 = used
+        .iter()
+        .flat_map(|&g| reg.groups[g].1.clone())
+        .map(|i| {
+            let fit: f64 = reg.row(i).iter().zip(&coef).map(|(a, c)| a * c).sum();
+            (reg.y[i] - fit).powi(2)
+        })
+        .sum();
+    let dof = points as f64 - p as f64;
     if dof < 3.0 {
         return None;
     }
-    // A robust fit by iteratively reweighted least squares: Huber's weights (k = 1.345 robust
-    // standard deviations) to convergence, then Tukey's biweight (c = 4.685; both 95%
-    // efficient under normal errors), which gives no weight to lights whose given intensity is
-    // grossly off.
-    let mut weights = vec![1.0; points.len()];
-    let mut result = None;
-    let mut tukey = false;
-    for _ in 0..40 {
-        let mut ata = nalgebra::DMatrix::<f64>::zeros(p, p);
-        let mut atb = nalgebra::DVector::<f64>::zeros(p);
-        for ((a, y), w) in points.iter().zip(&weights) {
-            ata += *w * a * a.transpose();
-            atb += *w * *y * a;
-        }
-        let inv = ata.try_inverse()?;
-        let sxx = 1.0 / inv[(p - 1, p - 1)];
-        // The known brightness's spread beyond the other regressors, per point: at least 1%.
-        if !(sxx.is_finite() && sxx > 1e-4 * weights.iter().sum::<f64>()) {
-            return None;
-        }
-        let coef = &inv * atb;
-        let res: Vec<f64> = points.iter().map(|(a, y)| y - a.dot(&coef)).collect();
-        let mut abs: Vec<f64> = res.iter().map(|r| r.abs()).collect();
-        let scale = (1.4826 * median(&mut abs)).max(1e-12);
-        let rss: f64 = res.iter().zip(&weights).map(|(r, w)| w * r * r).sum();
-        let wsum: f64 = weights.iter().sum();
-        let se = (rss / (wsum - p as f64).max(1.0) / sxx).sqrt();
-        let done = result.is_some_and(|[b, _, _]: [f64; 3]| (b - coef[p - 1]).abs() < 1e-6);
-        result = Some([coef[p - 1], se, dof]);
-        for (w, r) in weights.iter_mut().zip(&res) {
-            let z = r.abs() / scale;
-            *w = if !tukey {
-                if z <= 1.345 {
-                    1.0
-                } else {
-                    1.345 / z
-                }
-            } else if z < 4.685 {
-                (1.0 - (z / 4.685).powi(2)).powi(2)
-            } else {
-                0.0
-            };
-        }
-        if done && !tukey {
-            tukey = true;
-        } else if done {
-            break;
-        }
-    }
-    result
+    Some(Slope {
+        beta: coef[p - 1],
+        se: (rss / dof / sxx).sqrt(),
+        dof,
+        left_out,
+        images: n,
+    })
 }
 
 /// A light's intensity in channel `ch` of images with `channels` channels (grey images: the
