@@ -1106,6 +1106,33 @@ mod tests {
         assert!((e.gamma - 2.2).abs() <= 0.1, "{e:?}");
     }
 
+    /// A fifth of the lights stated ×1.6 or ×0.625 off their true brightness (as a lamp whose
+    /// calibration was mislabelled): the brightness test leaves exactly those images out (or at
+    /// most two more) and the others give the true exponent.
+    #[test]
+    fn images_whose_stated_intensity_is_wrong_are_left_out() {
+        let truth = uneven();
+        let wrong: Vec<usize> = (0..truth.len()).step_by(5).collect();
+        let stated: Vec<f64> = truth
+            .iter()
+            .enumerate()
+            .map(|(k, &i)| match wrong.iter().position(|&w| w == k) {
+                Some(j) if j % 2 == 0 => i * 1.6,
+                Some(_) => i * 0.625,
+                None => i,
+            })
+            .collect();
+        let s = readings(Response::Gamma(2.2), 8, 0.0, 21, &truth, 1.5);
+        let e = estimate_response(&s, &info(&stated)).unwrap();
+        assert_eq!(e.basis, "brightness", "{e:?}");
+        assert!((e.gamma - 2.2).abs() <= 0.1, "{e:?}");
+        assert!(e.intensities_disagree.is_none(), "{e:?}");
+        for w in &wrong {
+            assert!(e.images_left_out.contains(w), "image {w}: {e:?}");
+        }
+        assert!(e.images_left_out.len() <= wrong.len() + 2, "{e:?}");
+    }
+
     #[test]
     fn an_offset_is_found_where_there_is_one() {
         let l = lights();
