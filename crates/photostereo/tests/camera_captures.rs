@@ -308,6 +308,41 @@ fn a_capture_whose_orientations_differ_is_refused() {
     );
 }
 
+/// Exposures recorded in some files only cannot be corrected: the capture loads with every
+/// image's factor 1 and a note naming a file without one.
+#[test]
+fn exposures_recorded_in_some_files_only_are_left_and_named() {
+    let root = tempfile::tempdir().unwrap();
+    let (linear, _) = synth_linear(SceneKind::Sphere, &root.path().join("lin"));
+    let jpeg = camera(
+        &linear,
+        &root.path().join("jpeg"),
+        CameraSpec {
+            response: Response::Srgb,
+            ambient: 0.0,
+            exposure_jitter: 2.0,
+            format: CameraFormat::Jpeg(90),
+            seed: 1,
+        },
+    );
+    let bare = &jpeg.images[5];
+    let img = read_image(bare).unwrap();
+    let bytes: Vec<u8> = img.data.iter().map(|v| (v * 255.0).round() as u8).collect();
+    write_jpeg(bare, img.width, img.height, 3, &bytes, 90, Vec::new()).unwrap();
+    let (capture, report) = jpeg.load_measured(&Silent, &Default::default()).unwrap();
+    let name = bare.display().to_string();
+    assert!(
+        capture
+            .notes
+            .iter()
+            .any(|n| n.contains("exposures not corrected") && n.contains(&name)),
+        "{:?}",
+        capture.notes
+    );
+    assert_eq!(report.images.len(), jpeg.images.len());
+    assert!(report.images.iter().all(|r| r.exposure_factor == 1.0));
+}
+
 #[test]
 fn photometry_options_have_a_json_form() {
     let p = Photometry {
