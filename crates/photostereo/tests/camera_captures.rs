@@ -281,26 +281,39 @@ fn gamma_of(notes: &[String]) -> f64 {
     after.split_whitespace().next().unwrap().parse().unwrap()
 }
 
-#[test]
-fn a_capture_whose_orientations_differ_is_refused() {
-    let root = tempfile::tempdir().unwrap();
-    let (linear, _) = synth_linear(SceneKind::Sphere, &root.path().join("lin"));
+/// A sphere written as sRGB JPEGs (EXIF exposures jittered by `exposure_jitter`) into
+/// `root/jpeg`, with image `k` written again carrying the EXIF block `exif` instead; returns
+/// the capture and that image's path.
+fn jpegs_with_one_rewritten(
+    root: &Path,
+    exposure_jitter: f64,
+    k: usize,
+    exif: Vec<u8>,
+) -> (CaptureFiles, PathBuf) {
+    let (linear, _) = synth_linear(SceneKind::Sphere, &root.join("lin"));
     let jpeg = camera(
         &linear,
-        &root.path().join("jpeg"),
+        &root.join("jpeg"),
         CameraSpec {
             response: Response::Srgb,
             ambient: 0.0,
-            exposure_jitter: 1.0,
+            exposure_jitter,
             format: CameraFormat::Jpeg(90),
             seed: 1,
         },
     );
-    let turned = &jpeg.images[3];
-    let img = read_image(turned).unwrap();
+    let path = jpeg.images[k].clone();
+    let img = read_image(&path).unwrap();
     let bytes: Vec<u8> = img.data.iter().map(|v| (v * 255.0).round() as u8).collect();
+    write_jpeg(&path, img.width, img.height, 3, &bytes, 90, exif).unwrap();
+    (jpeg, path)
+}
+
+#[test]
+fn a_capture_whose_orientations_differ_is_refused() {
+    let root = tempfile::tempdir().unwrap();
     let exif = exif_block_oriented(&Exposure::default(), 3);
-    write_jpeg(turned, img.width, img.height, 3, &bytes, 90, exif).unwrap();
+    let (jpeg, turned) = jpegs_with_one_rewritten(root.path(), 1.0, 3, exif);
     let e = jpeg.load(&Silent).unwrap_err().to_string();
     assert!(
         e.contains(&turned.display().to_string()) && e.contains("orientation"),
@@ -313,22 +326,7 @@ fn a_capture_whose_orientations_differ_is_refused() {
 #[test]
 fn exposures_recorded_in_some_files_only_are_left_and_named() {
     let root = tempfile::tempdir().unwrap();
-    let (linear, _) = synth_linear(SceneKind::Sphere, &root.path().join("lin"));
-    let jpeg = camera(
-        &linear,
-        &root.path().join("jpeg"),
-        CameraSpec {
-            response: Response::Srgb,
-            ambient: 0.0,
-            exposure_jitter: 2.0,
-            format: CameraFormat::Jpeg(90),
-            seed: 1,
-        },
-    );
-    let bare = &jpeg.images[5];
-    let img = read_image(bare).unwrap();
-    let bytes: Vec<u8> = img.data.iter().map(|v| (v * 255.0).round() as u8).collect();
-    write_jpeg(bare, img.width, img.height, 3, &bytes, 90, Vec::new()).unwrap();
+    let (jpeg, bare) = jpegs_with_one_rewritten(root.path(), 2.0, 5, Vec::new());
     let (capture, report) = jpeg.load_measured(&Silent, &Default::default()).unwrap();
     let name = bare.display().to_string();
     assert!(
