@@ -5,7 +5,10 @@
 //! allocation above [`MAX_ALLOCATION`] (a counting global allocator watches them).
 //!
 //! `FUZZ_ITERATIONS` (default 10,000 per reader) sets the count; `FUZZ_SECONDS` runs each reader
-//! for that long instead; `FUZZ_SEED` changes the sequence. `cargo fuzz` targets for longer,
+//! for that long instead; `FUZZ_SEED` changes the sequence; `FUZZ_TRACE=1` prints each case's
+//! number and writes its input to `photostereo-fuzz-NAME-current.bin` in the system's temporary
+//! folder before reading it (to catch an input that ends the process: a memory cap, a stack
+//! overflow). `cargo fuzz` targets for longer,
 //! coverage-guided runs live in `fuzz/` (not a workspace member; needs a nightly toolchain).
 
 use photostereo::base::rng::Pcg32;
@@ -313,6 +316,8 @@ where
     let start = Instant::now();
     let (mut done, mut accepted, mut slowest) = (0u64, 0u64, Duration::ZERO);
     let mut failures: Vec<String> = Vec::new();
+    let trace = std::env::var_os("FUZZ_TRACE").is_some();
+    let current = std::env::temp_dir().join(format!("photostereo-fuzz-{name}-current.bin"));
     loop {
         match seconds {
             Some(s) if start.elapsed().as_secs() >= s => break,
@@ -322,6 +327,10 @@ where
         let seed = &seeds[m.below(seeds.len())];
         let other = &seeds[m.below(seeds.len())];
         let input = mutate(&mut m, seed, other);
+        if trace {
+            let _ = std::fs::write(&current, &input);
+            eprintln!("fuzz {name}: case {done}");
+        }
         LARGEST.with(|l| l.set(0));
         let t = Instant::now();
         let outcome = std::panic::catch_unwind(|| read(&input));

@@ -11,7 +11,9 @@
 //! mosaics (X-Trans, four-colour) are refused.
 //!
 //! Before the decoder allocates anything, every image directory of a TIFF-based file is
-//! checked against [`crate::io::limits`]; RAW containers that are not TIFF-based (Fujifilm
+//! checked against [`crate::io::limits`] (every entry's values inside the file, the image and
+//! its strips or tiles within the size limits, the main chain of directories without a loop,
+//! at most 64 directories); RAW containers that are not TIFF-based (Fujifilm
 //! RAF, Canon CR3) are refused with the advice to convert them to DNG.
 
 use crate::io::limits::{DeclaredImage, MAX_TIFF_RATIO};
@@ -49,6 +51,11 @@ fn is_cr3(bytes: &[u8]) -> bool {
 const TAG_DNG_VERSION: u16 = 50706;
 const TAG_SUB_IFDS: u16 = 330;
 const TAG_EXIF_IFD: u16 = 34665;
+/// The most directory entries the decoder reads from one directory (rawler's own limit).
+const MAX_ENTRIES: u16 = 4096;
+/// The most image directories a RAW file may hold (real files hold a handful: the image, its
+/// previews, EXIF and GPS); every one is checked before the decoder reads it.
+const MAX_IFDS: usize = 64;
 
 /// A TIFF's byte order and first directory, read without allocating anything per its
 /// declarations (only bounded walks over the file's own bytes).
@@ -116,9 +123,10 @@ impl<'a> Tiff<'a> {
         Some(self.u32_at(4)? as usize)
     }
 
-    /// The entries of the directory at `at` (at most 1000; none past the file's end).
+    /// The entries of the directory at `at` (at most [`MAX_ENTRIES`], as many as the decoder
+    /// reads; none past the file's end).
     fn entries(&self, at: usize) -> Vec<Entry> {
-        let n = self.u16_at(at).unwrap_or(0).min(1000) as usize;
+        let n = self.u16_at(at).unwrap_or(0).min(MAX_ENTRIES) as usize;
         (0..n)
             .map_while(|i| {
                 let e = at + 2 + 12 * i;
@@ -141,9 +149,10 @@ impl<'a> Tiff<'a> {
             .collect()
     }
 
-    /// The offset of the directory after the one at `at` (0: none).
+    /// The offset of the directory after the one at `at` (0: none), where the decoder reads
+    /// it: after the entries it reads.
     fn next_ifd(&self, at: usize) -> usize {
-        let n = self.u16_at(at).unwrap_or(0) as usize;
+        let n = self.u16_at(at).unwrap_or(0).min(MAX_ENTRIES) as usize;
         self.u32_at(at + 2 + 12 * n).unwrap_or(0) as usize
     }
 
@@ -188,25 +197,50 @@ impl<'a> Tiff<'a> {
             .collect()
     }
 
-    /// Every image directory: the main chain, their sub-directories and EXIF directories, at
-    /// most 64, each once.
+    /// Every image directory: the main chain, their sub-directories, EXIF directories and
+    /// whatever an ICC profile tag points to (the decoder reads it as a directory), each once;
+    /// at most [`MAX_IFDS`] + 1 (more is refused).
     fn all_ifds(&self) -> Vec<usize> {
         let mut seen = Vec::new();
         let mut todo = vec![self.first_ifd().unwrap_or(0)];
         while let Some(at) = todo.pop() {
-            if at == 0 || at >= self.bytes.len() || seen.contains(&at) || seen.len() >= 64 {
+            if at == 0 || at >= self.bytes.len() || seen.contains(&at) || seen.len() > MAX_IFDS {
                 continue;
             }
             seen.push(at);
             todo.push(self.next_ifd(at));
             for e in self.entries(at) {
-                // Sub-images, EXIF, GPS and interoperability directories.
-                if matches!(e.tag, TAG_SUB_IFDS | TAG_EXIF_IFD | 34853 | 40965) {
+                // Sub-images, EXIF, GPS, interoperability and ICC profile directories.
+                if matches!(e.tag, TAG_SUB_IFDS | TAG_EXIF_IFD | 34853 | 40965 | 34675) {
                     todo.extend(self.offsets(&e));
                 }
             }
         }
         seen
+    }
+
+    /// Checks the main chain of directories, which the decoder follows from each directory's
+    /// next-directory offset without remembering where it has been: a chain that comes back
+    /// to a directory it passed would be read (and allocated) without end.
+    fn check_chain(&self) -> Result<(), String> {
+        let mut seen = Vec::new();
+        let mut at = self.first_ifd().unwrap_or(0);
+        while at != 0 && at < self.bytes.len() {
+            if seen.contains(&at) {
+                return Err(format!(
+                    "corrupt RAW file: its chain of image directories loops back to the \
+                     directory at byte {at}"
+                ));
+            }
+            if seen.len() >= MAX_IFDS {
+                return Err(format!(
+                    "corrupt RAW file: more than {MAX_IFDS} image directories in its main chain"
+                ));
+            }
+            seen.push(at);
+            at = self.next_ifd(at);
+        }
+        Ok(())
     }
 }
 
@@ -221,7 +255,14 @@ fn check_declared(bytes: &[u8]) -> Result<(), String> {
         );
     }
     let t = Tiff::new(bytes).ok_or("corrupt RAW file: no TIFF header")?;
-    for at in t.all_ifds() {
+    t.check_chain()?;
+    let ifds = t.all_ifds();
+    if ifds.len() > MAX_IFDS {
+        return Err(format!(
+            "corrupt RAW file: more than {MAX_IFDS} image directories"
+        ));
+    }
+    for at in ifds {
         let entries = t.entries(at);
         // Every entry's values lie in the file: the decoder allocates what a count declares.
         for e in &entries {
