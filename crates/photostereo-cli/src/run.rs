@@ -14,9 +14,14 @@ pub struct RunArgs {
     pub capture: crate::common::CaptureInput,
     /// A folder with light_positions.txt (near lights) or K.txt (a camera with distant lights):
     /// the object's mean distance from the camera along the optical axis, mm; replaces
-    /// mean_distance.txt.
+    /// mean_distance.txt. For a relight .dome capture: the distance from the camera to the
+    /// dome's origin (the imaged plane).
     #[arg(long)]
     pub distance: Option<f64>,
+    /// The camera's intrinsics (K.txt: fx 0 cx / 0 fy cy / 0 0 1, pixels) in place of the
+    /// capture folder's K.txt; with it a relight .dome's LED positions are near lights.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
     #[command(flatten)]
     pub photometry: crate::photometry::PhotometryArgs,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG) to score against.
@@ -75,23 +80,26 @@ pub fn main(a: RunArgs) -> Result<()> {
     let params = a.params.params()?;
     check_options(&a)?;
     a.capture.check()?;
+    let camera = match &a.camera {
+        Some(k) => Some(photostereo::io::layouts::near::read_camera(k)?),
+        None => None,
+    };
     let mut files = CaptureFiles::from_inputs_with(
         &a.capture.input,
         a.capture.lights.as_deref(),
         a.capture.intensities.as_deref(),
         a.capture.mask.as_deref(),
         a.distance,
-        None,
+        camera,
     )?;
     a.photometry.apply(&mut files)?;
     // --force never replaces an input or a folder holding one.
     let mut inputs: Vec<&Path> = a.capture.given().collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
-    inputs.extend(files.photometry.ambient.as_deref());
-    inputs.extend(files.photometry.dark.as_deref());
-    inputs.extend(files.photometry.flat.as_deref());
+    inputs.extend(files.photometry.frames());
     inputs.extend(a.gt.as_deref());
+    inputs.extend(a.camera.as_deref());
     photostereo::io::export::check_output(
         &a.output,
         a.out.force,

@@ -232,3 +232,112 @@ fn a_relight_dome_folder_reads_directions_or_positions() {
         "{e}"
     );
 }
+
+/// L2's mean angular error on a near-light rendering, with the solver's defaults.
+fn near_error(files: &CaptureFiles, truth: &[[f32; 3]]) -> f64 {
+    let capture = files.load(&Silent).unwrap();
+    let params = Params {
+        method: Method::L2,
+        ..Params::default()
+    };
+    let mut rec =
+        photostereo::method::engine::reconstruct_with_truth(&capture, &params, None, &Silent)
+            .unwrap();
+    rec.evaluate(truth).unwrap().mean_deg
+}
+
+#[test]
+fn a_relight_dome_seen_through_a_camera_places_its_leds_as_near_lights() {
+    use photostereo::scene::near::{synthesize_near, NearRig, NearSpec};
+    // 24 LEDs on a hemisphere of radius D = 300 mm about the object's centre, rendered with
+    // the near image model; the same capture as a near-light folder and as a relight folder.
+    let spec = NearSpec {
+        size: 48,
+        ..NearSpec::new(SceneKind::Sphere, NearRig::Dome)
+    };
+    let r = synthesize_near(&spec).unwrap();
+    let truth = &r.rendered.truth.normals;
+    let root = tempfile::tempdir().unwrap();
+    let near = root.path().join("near");
+    std::fs::create_dir(&near).unwrap();
+    photostereo::io::synth::write_near_capture(&near, &r).unwrap();
+    let near_files =
+        CaptureFiles::from_inputs(std::slice::from_ref(&near), None, None, None).unwrap();
+    let e_near = near_error(&near_files, truth);
+    let folder = root.path().join("relight");
+    std::fs::create_dir(&folder).unwrap();
+    for (k, p) in near_files.images.iter().enumerate() {
+        std::fs::copy(p, folder.join(format!("img_{:04}.png", k + 1))).unwrap();
+    }
+    let mask = near.join("mask.png");
+    // The dome's frame: cm, origin at the centre of the imaged area (D below the camera).
+    let d = spec.distance;
+    let cm: Vec<[f64; 3]> = r
+        .positions
+        .iter()
+        .map(|p| [p[0] / 10.0, p[1] / 10.0, (p[2] + d) / 10.0])
+        .collect();
+    let adjust: Vec<[f64; 3]> = r.radiance.iter().map(|e| e.map(|v| 1.0 / v)).collect();
+    let adjust: Vec<String> = adjust
+        .iter()
+        .map(|a| format!("{{\"r\": {}, \"g\": {}, \"b\": {}}}", a[0], a[1], a[2]))
+        .collect();
+    let dome = folder.join("rig.dome");
+    std::fs::write(
+        &dome,
+        format!(
+            "{{\"imageWidth\": {}, \"domeDiameter\": {}, \"lightConfiguration\": \"lights3d\", \
+             \"positions3d\": {}, \"ledAdjust\": [{}]}}",
+            d / 30.0,
+            d / 5.0,
+            xyz(&cm),
+            adjust.join(", ")
+        ),
+    )
+    .unwrap();
+    let camera = photostereo::io::layouts::near::read_camera(&near.join("K.txt")).unwrap();
+    let input = std::slice::from_ref(&folder);
+    let seen =
+        CaptureFiles::from_inputs_with(input, None, None, Some(&mask), Some(d), Some(camera))
+            .unwrap();
+    assert!(seen.lights.near.is_some(), "{:?}", seen.notes);
+    assert!(seen.notes.iter().any(|n| n.contains("near lights")));
+    let e_dome = near_error(&seen, truth);
+    let distant = CaptureFiles::from_inputs(input, None, None, Some(&mask)).unwrap();
+    assert!(distant.lights.near.is_none());
+    assert!(distant.notes.iter().any(|n| n.contains("distant")));
+    let e_distant = near_error(&distant, truth);
+    eprintln!(
+        "l2: dome as near lights {e_dome:.2}°, near layout {e_near:.2}°, dome as distant \
+         {e_distant:.2}°"
+    );
+    assert!(
+        (e_dome - e_near).abs() < 0.1 && e_dome < 0.5 * e_distant,
+        "dome as near lights {e_dome:.2}°, near layout {e_near:.2}°, dome as distant \
+         {e_distant:.2}°"
+    );
+    // The camera's files in the folder do the same.
+    std::fs::copy(near.join("K.txt"), folder.join("K.txt")).unwrap();
+    std::fs::write(folder.join("mean_distance.txt"), format!("{d}\n")).unwrap();
+    let in_folder = CaptureFiles::from_inputs(input, None, None, Some(&mask)).unwrap();
+    assert!(in_folder.lights.near.is_some());
+    // A camera without the distance is refused, the file named.
+    std::fs::remove_file(folder.join("mean_distance.txt")).unwrap();
+    let e = CaptureFiles::from_inputs(input, None, None, None)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("mean_distance.txt") && e.contains("distance"),
+        "{e}"
+    );
+    // A dome of directions only stays distant, and says so.
+    let dirs: Vec<[f64; 3]> = near_files.lights.directions.clone();
+    std::fs::write(&dome, format!("{{\"directions\": {}}}", xyz(&dirs))).unwrap();
+    let f = CaptureFiles::from_inputs_with(input, None, None, None, Some(d), Some(camera)).unwrap();
+    assert!(f.lights.near.is_none() && f.lights.camera.is_some());
+    assert!(
+        f.notes.iter().any(|n| n.contains("directions only")),
+        "{:?}",
+        f.notes
+    );
+}

@@ -98,7 +98,7 @@ impl CaptureFiles {
                         .is_some_and(|e| e.eq_ignore_ascii_case("dome")) =>
             {
                 let dir = dome.parent().unwrap_or(Path::new("."));
-                rti_capture(dome, dir, lights, intensities)?
+                rti_capture(dome, dir, lights, intensities, None)?
             }
             [dir]
                 if dir.is_dir()
@@ -108,7 +108,7 @@ impl CaptureFiles {
             {
                 let found = crate::io::layouts::rti_folders::find_light_file(dir)?;
                 let file = found.expect("checked by the guard");
-                rti_capture(&file, dir, lights, intensities)?
+                rti_capture(&file, dir, lights, intensities, None)?
             }
             [dir] if dir.is_dir() => {
                 let mut f = CaptureFiles::diligent_with_lights(dir, lights)?;
@@ -196,6 +196,14 @@ impl CaptureFiles {
         if distance.is_none() && camera.is_none() {
             return Self::from_inputs(inputs, lights, intensities, mask);
         }
+        if let Some((file, dir)) = rti_light_file(inputs, lights)? {
+            let mut files =
+                rti_capture(&file, &dir, lights, intensities, Some((distance, camera)))?;
+            if let Some(m) = mask {
+                files.mask = Some(m.to_path_buf());
+            }
+            return Ok(files);
+        }
         let dir = match inputs {
             [dir] if dir.is_dir() => dir,
             _ => {
@@ -205,7 +213,7 @@ impl CaptureFiles {
                     _ => format!("{} and {}", param("distance"), param("camera")),
                 };
                 return Err(Error::invalid(format!(
-                    "{given}: apply to one capture folder holding light_positions.txt (near lights) or light_directions.txt (distant lights)"
+                    "{given}: apply to one capture folder holding light_positions.txt (near lights) or light_directions.txt (distant lights), or to a relight .dome or RTI .lp capture"
                 )));
             }
         };
@@ -360,13 +368,40 @@ const IMAGE_EXTENSIONS: [&str; 15] = [
     "raf", "cr3",
 ];
 
+/// The RTI light file (`.lp` or `.dome`) that `inputs` name, and the folder of its images: the
+/// file itself, or the one an RTI capture folder holds (without `light_directions.txt`,
+/// `light_positions.txt` or `lights`). `None` for any other input.
+fn rti_light_file(inputs: &[PathBuf], lights: Option<&Path>) -> Result<Option<(PathBuf, PathBuf)>> {
+    let has_ext = |p: &Path, ext: &str| p.extension().is_some_and(|e| e.eq_ignore_ascii_case(ext));
+    match inputs {
+        [file] if file.is_file() && (has_ext(file, "dome") || has_ext(file, "lp")) => {
+            let dir = file.parent().unwrap_or(Path::new("."));
+            Ok(Some((file.clone(), dir.to_path_buf())))
+        }
+        [dir]
+            if dir.is_dir()
+                && lights.is_none()
+                && !dir.join("light_directions.txt").exists()
+                && !crate::io::layouts::near::is_near_layout(dir) =>
+        {
+            let found = crate::io::layouts::rti_folders::find_light_file(dir)?;
+            Ok(found.map(|f| (f, dir.clone())))
+        }
+        _ => Ok(None),
+    }
+}
+
 /// The capture of an RTI tool's light file (`.lp` or `.dome`) whose images lie in `dir`
-/// (a `.dome` names none), with `intensities` replacing the file's own.
+/// (a `.dome` names none), with `intensities` replacing the file's own. `seen`, when given,
+/// holds the `distance` (mm) and `camera` options: a dome's LED positions become near lights
+/// through the camera (else `dir`'s `K.txt`), and an `.lp` file's distant lights are seen
+/// through it.
 fn rti_capture(
     file: &Path,
     dir: &Path,
     lights: Option<&Path>,
     intensities: Option<&Path>,
+    seen: Option<(Option<f64>, Option<crate::model::lightmodel::Camera>)>,
 ) -> Result<CaptureFiles> {
     if let Some(l) = lights {
         return Err(Error::file(
@@ -382,10 +417,15 @@ fn rti_capture(
     let is_lp = file
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("lp"));
+    let (distance, camera) = seen.unwrap_or((None, None));
     let f = if is_lp {
-        crate::io::layouts::rti_folders::lp_capture_files(file)?
+        let f = crate::io::layouts::rti_folders::lp_capture_files(file)?;
+        match seen {
+            Some(_) => crate::io::layouts::near::attach_camera_with(f, dir, distance, camera)?,
+            None => f,
+        }
     } else {
-        crate::io::layouts::rti_folders::dome_capture_files(file, dir)?
+        crate::io::layouts::rti_folders::dome_capture_files_with(file, dir, distance, camera)?
     };
     match intensities {
         Some(p) => f.with_intensities_file(p),

@@ -558,6 +558,25 @@ pub fn attach_camera_with(
     distance: Option<f64>,
     camera: Option<Camera>,
 ) -> Result<CaptureFiles> {
+    let Some((camera, d)) = folder_camera(dir, distance, camera)? else {
+        return Ok(files);
+    };
+    files.lights.camera = Some((camera, d));
+    files.notes.push(format!(
+        "perspective camera for distant lights: fx {} fy {} cx {} cy {}, mean distance {d} mm",
+        camera.fx, camera.fy, camera.cx, camera.cy
+    ));
+    Ok(files)
+}
+
+/// The camera a capture folder is seen through and the object's distance (mm): `camera`, else
+/// the folder's `K.txt`; `distance`, else its `mean_distance.txt`. `None` without a camera
+/// (and then `distance` is refused); a camera without a distance is refused, the file named.
+pub fn folder_camera(
+    dir: &Path,
+    distance: Option<f64>,
+    camera: Option<Camera>,
+) -> Result<Option<(Camera, f64)>> {
     let k = dir.join("K.txt");
     if camera.is_none() && !k.is_file() {
         if distance.is_some() {
@@ -569,7 +588,7 @@ pub fn attach_camera_with(
                 ),
             ));
         }
-        return Ok(files);
+        return Ok(None);
     }
     let camera = match camera {
         Some(c) => c,
@@ -595,12 +614,7 @@ pub fn attach_camera_with(
             ))
         }
     };
-    files.lights.camera = Some((camera, d));
-    files.notes.push(format!(
-        "perspective camera for distant lights: fx {} fy {} cx {} cy {}, mean distance {d} mm",
-        camera.fx, camera.fy, camera.cx, camera.cy
-    ));
-    Ok(files)
+    Ok(Some((camera, d)))
 }
 
 /// Parses an `.lp` light file of the RTI tools: a count line, then `filename x y z` per image

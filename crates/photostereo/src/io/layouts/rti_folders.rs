@@ -13,13 +13,23 @@
 //! (the directions placed on a sphere of `domeDiameter` raised by `verticalOffset`) and
 //! `positions3d` (measured positions), with `lightConfiguration` naming which applies
 //! (`directional`, `spherical`, `lights3d`), and `ledAdjust` (per-LED `{"r", "g", "b"}` factors
-//! that pixel values are multiplied by). LED positions are read as distant lights in the
-//! direction of the origin, and a note states the largest angle by which that direction is
-//! off at the edge of the imaged area (`imageWidth`).
+//! that pixel values are multiplied by).
+//!
+//! LED positions are read as near point lights when the capture is seen through a known camera
+//! (`K.txt` in the folder or given, and the distance D in mm from the camera to the imaged
+//! plane, `mean_distance.txt` or given): the camera is taken to look straight down the dome's
+//! z axis at its origin, so a position p (cm, dome frame) lies at 10·p − (0, 0, D) mm in the
+//! camera frame of the near-light layout (CONVENTIONS.md: camera centre at the origin, x right,
+//! y up, z toward the viewer), and the near-light model is solved with D as the object's mean
+//! distance. Without a camera they are read as distant lights in the direction of the origin,
+//! and a note states the largest angle by which that direction is off at the edge of the
+//! imaged area (`imageWidth`). A dome that holds directions only stays distant when a camera
+//! is given; the camera then serves the perspective integration, and a note says so.
 
 use super::{folder_images, CaptureFiles};
 use crate::base::error::{Error, Result};
-use crate::io::layouts::near::parse_lp;
+use crate::io::layouts::near::{folder_camera, parse_lp, NearLayout};
+use crate::model::lightmodel::Camera;
 use crate::model::lights::Lights;
 use std::path::{Path, PathBuf};
 
@@ -144,8 +154,15 @@ fn display_name(p: &Path) -> String {
 
 /// The lights a relight `.dome` file describes, with notes (see the module's comment).
 pub struct Dome {
+    /// The distant lights (directions toward the LEDs from the origin).
     pub lights: Lights,
+    /// The notes of the distant reading.
     pub notes: Vec<String>,
+    /// The LED positions, cm, dome frame (x right, y up, z toward the camera, origin at the
+    /// centre of the imaged area); `None` for a dome of directions only.
+    pub positions: Option<Vec<[f64; 3]>>,
+    /// Each LED's brightness relative to the others (the inverse of `ledAdjust`; 1 without it).
+    pub brightness: Vec<[f64; 3]>,
 }
 
 /// Parses a `.dome` file's JSON text.
@@ -229,6 +246,7 @@ pub fn parse_dome(text: &str, path: &Path) -> Result<Dome> {
         }
     }
     let mut lights = Lights::new(&points).map_err(|e| Error::file(path, e.to_string()))?;
+    let mut brightness = vec![[1.0; 3]; points.len()];
     let adjust = vectors(&v, "ledAdjust", ["r", "g", "b"], path)?;
     if !adjust.is_empty() {
         if adjust.len() != points.len() {
@@ -253,10 +271,16 @@ pub fn parse_dome(text: &str, path: &Path) -> Result<Dome> {
             int.push([1.0 / a[0], 1.0 / a[1], 1.0 / a[2]]);
         }
         lights = lights
-            .with_intensities(int)
+            .with_intensities(int.clone())
             .map_err(|e| Error::file(path, e.to_string()))?;
+        brightness = int;
     }
-    Ok(Dome { lights, notes })
+    Ok(Dome {
+        lights,
+        notes,
+        positions: (key != "directions").then_some(points),
+        brightness,
+    })
 }
 
 fn vectors_of(v: &serde_json::Value, key: &str, path: &Path) -> Result<Vec<[f64; 3]>> {
@@ -298,8 +322,19 @@ fn vectors(
 }
 
 /// The capture files of a folder with a `.dome` file: the folder's images in sorted order,
-/// one per LED.
+/// one per LED; near lights when a camera is known (see the module's comment).
 pub fn dome_capture_files(dome: &Path, dir: &Path) -> Result<CaptureFiles> {
+    dome_capture_files_with(dome, dir, None, None)
+}
+
+/// [`dome_capture_files`] seen through `camera` (else the folder's `K.txt`) with the imaged
+/// plane `distance` mm from the camera (else the folder's `mean_distance.txt`).
+pub fn dome_capture_files_with(
+    dome: &Path,
+    dir: &Path,
+    distance: Option<f64>,
+    camera: Option<Camera>,
+) -> Result<CaptureFiles> {
     let d = parse_dome(&crate::io::limits::read_text(dome)?, dome)?;
     let images = folder_images(dir)?;
     if images.len() != d.lights.len() {
@@ -320,10 +355,51 @@ pub fn dome_capture_files(dome: &Path, dir: &Path) -> Result<CaptureFiles> {
         images.len(),
         dir.display()
     )];
-    notes.extend(d.notes);
+    let lights = match (folder_camera(dir, distance, camera)?, d.positions) {
+        (None, _) => {
+            notes.extend(d.notes);
+            d.lights
+        }
+        (Some((camera, plane)), Some(cm)) => {
+            let layout = NearLayout {
+                camera,
+                positions: cm
+                    .iter()
+                    .map(|p| [10.0 * p[0], 10.0 * p[1], 10.0 * p[2] - plane])
+                    .collect(),
+                axes: None,
+                anisotropy: None,
+                intensities: d.brightness,
+                distance: plane,
+            };
+            notes.push(format!(
+                "near lights: {} LED positions of {} placed in the camera frame (the dome's \
+                 origin on the optical axis, {plane} mm from the camera), fx {} fy {} cx {} cy {}",
+                cm.len(),
+                dome.display(),
+                camera.fx,
+                camera.fy,
+                camera.cx,
+                camera.cy
+            ));
+            layout.lights(dome)?
+        }
+        (Some((camera, plane)), None) => {
+            notes.push(format!(
+                "{} holds LED directions only: read as distant lights (near lights need LED \
+                 positions, positionsSphere or positions3d); the camera serves the perspective \
+                 integration, mean distance {plane} mm",
+                dome.display()
+            ));
+            Lights {
+                camera: Some((camera, plane)),
+                ..d.lights
+            }
+        }
+    };
     Ok(CaptureFiles {
         images,
-        lights: d.lights,
+        lights,
         mask: None,
         notes,
         photometry: super::folder_frames(dir)?,
