@@ -189,7 +189,8 @@ fn camera(files: &CaptureFiles, dir: &Path, spec: CameraSpec) -> CaptureFiles {
     CaptureFiles::diligent(dir).unwrap()
 }
 
-/// On three rendered scenes: an sRGB JPEG with exposures over ×0.25–×1 and ambient light with
+/// On three rendered scenes: an sRGB JPEG with EXIF exposures over ×0.5–×2 of the nominal one
+/// (the pixel data scaled likewise, from half the linear original) and ambient light with
 /// its frame reconstructs within 0.8° of the linear original with no option; a bare 2.2 power
 /// law in 8-bit PNG is flagged (read as linear), and `auto` recovers its exponent within 0.1,
 /// sRGB, and linear on the linear capture.
@@ -214,6 +215,22 @@ fn rendered_camera_captures_reconstruct_like_linear_ones() {
             },
         );
         assert!(jpeg.photometry.ambient.is_some());
+        // The recorded exposures, relative to the nominal 1/60 s, span ×0.5–×2.
+        let rel: Vec<f64> = jpeg
+            .images
+            .iter()
+            .map(|p| {
+                let meta = photostereo::io::photometry::meta::read_meta(&std::fs::read(p).unwrap());
+                meta.unwrap().exposure.time_s.unwrap() * 60.0
+            })
+            .collect();
+        let (lo, hi) = rel
+            .iter()
+            .fold((f64::MAX, 0.0f64), |(a, b), &t| (a.min(t), b.max(t)));
+        assert!(
+            lo >= 0.499 && hi <= 2.001 && lo < 0.7 && hi > 1.4,
+            "{rel:?}"
+        );
         let (e, notes) = l2_error(&jpeg, &truth);
         assert!(
             e < base + 0.8,

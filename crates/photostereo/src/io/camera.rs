@@ -29,8 +29,9 @@ pub struct CameraSpec {
     /// share of full scale; 0 = none. It lights the scene evenly from every light's side at
     /// once (the mean of the images), so it shades like a lamp over the camera.
     pub ambient: f64,
-    /// Exposures spread log-uniformly over a `jitter²`-fold range (×1/jitter to ×jitter about
-    /// their geometric middle), the brightest at the source's own; 1 = all the same.
+    /// Exposures spread log-uniformly from ×1/jitter to ×jitter about the nominal exposure
+    /// (EXIF records each); the pixel data are the source's scaled by exposure/jitter, so the
+    /// longest exposure is the source's own and none clips; 1 = all the same.
     pub exposure_jitter: f64,
     pub format: CameraFormat,
     pub seed: u64,
@@ -42,7 +43,8 @@ const BASE_TIME_S: f64 = 1.0 / 60.0;
 /// Encodes the images of `src` into `dst` as `spec` says (named like the source, with the
 /// format's extension), writes the ambient frame as `ambient.*` when `spec.ambient > 0`, and
 /// `filenames.txt` listing the new names. Returns the images written and their exposures
-/// relative to the brightest.
+/// relative to the nominal exposure. The ambient frame is taken at the longest exposure
+/// (×jitter).
 pub fn reencode_capture(
     src: &CaptureFiles,
     dst: &Path,
@@ -55,7 +57,7 @@ pub fn reencode_capture(
         .map(|_| {
             if spec.exposure_jitter > 1.0 {
                 let t = rng.next_f64();
-                spec.exposure_jitter.powf(2.0 * (t - 1.0))
+                spec.exposure_jitter.powf(2.0 * t - 1.0)
             } else {
                 1.0
             }
@@ -94,7 +96,7 @@ pub fn reencode_capture(
             &dst.join(format!("ambient.{ext}")),
             &zero,
             Some(a),
-            1.0,
+            spec.exposure_jitter,
             spec,
         )?;
     }
@@ -150,8 +152,9 @@ fn ambient_light(src: &CaptureFiles, level: f64) -> Result<Image> {
     Ok(a)
 }
 
-/// Writes one image as the camera would: `(linear + ambient) × exposure`, clipped to full
-/// scale, encoded through the response and quantised by the format.
+/// Writes one image as the camera would: `(linear + ambient) × exposure / jitter`, clipped to
+/// full scale, encoded through the response and quantised by the format; a JPEG's EXIF records
+/// the nominal exposure times `exposure`.
 fn write_camera_image(
     out: &Path,
     linear: &Image,
@@ -165,7 +168,7 @@ fn write_camera_image(
         .enumerate()
         .map(|(i, &x)| {
             let a = ambient.map_or(0.0, |a| a.data[i] as f64);
-            let y = ((x as f64 + a) * exposure).clamp(0.0, 1.0);
+            let y = ((x as f64 + a) * exposure / spec.exposure_jitter).clamp(0.0, 1.0);
             spec.response.encode(y)
         })
         .collect();
