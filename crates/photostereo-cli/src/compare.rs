@@ -15,6 +15,8 @@ use std::path::{Path, PathBuf};
 pub struct CompareArgs {
     #[command(flatten)]
     pub capture: crate::common::CaptureInput,
+    #[command(flatten)]
+    pub photometry: crate::photometry::PhotometryArgs,
     /// Ground-truth normals (.npy, DiLiGenT .mat, or 16-bit normal-map PNG): adds the Table 1
     /// row (mean angular error) and error maps.
     #[arg(long)]
@@ -78,7 +80,8 @@ pub fn main(a: CompareArgs) -> Result<()> {
             methods.push(*m);
         }
     }
-    let files = a.capture.files()?;
+    let mut files = a.capture.files()?;
+    a.photometry.apply(&mut files)?;
     let options = CompareOptions {
         params,
         methods,

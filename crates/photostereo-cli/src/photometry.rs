@@ -1,4 +1,4 @@
-//! The capture-loading flags of `run` that make the images linear: `--response`, `--ambient`,
+//! The capture-loading flags of `run`, `rti` and `compare` that make the images linear: `--response`, `--ambient`,
 //! `--dark`, `--flat`, `--ignore-exposure` (the library's [`Photometry`]; names and meanings from its
 //! [`photometry::CAPTURE_OPTIONS`]).
 
@@ -49,19 +49,21 @@ impl PhotometryArgs {
 mod tests {
     use clap::CommandFactory;
 
-    /// Every capture-reading option of the library is a flag of `run`, with the library's
-    /// meaning.
+    /// Every capture-reading option of the library is a flag of `run`, `rti` and `compare`,
+    /// with the library's meaning.
     #[test]
     fn the_flags_are_the_librarys_options() {
         let cmd = crate::Cli::command();
-        let run = cmd.find_subcommand("run").unwrap();
-        for o in photostereo::io::photometry::CAPTURE_OPTIONS {
-            let long = o.name.replace('_', "-");
-            let arg = run
-                .get_arguments()
-                .find(|a| a.get_long() == Some(long.as_str()))
-                .unwrap_or_else(|| panic!("run has no --{long}"));
-            assert_eq!(arg.get_help().unwrap().to_string(), o.doc);
+        for name in ["run", "rti", "compare"] {
+            let sub = cmd.find_subcommand(name).unwrap();
+            for o in photostereo::io::photometry::CAPTURE_OPTIONS {
+                let long = o.name.replace('_', "-");
+                let arg = sub
+                    .get_arguments()
+                    .find(|a| a.get_long() == Some(long.as_str()))
+                    .unwrap_or_else(|| panic!("{name} has no --{long}"));
+                assert_eq!(arg.get_help().unwrap().to_string(), o.doc);
+            }
         }
     }
 }

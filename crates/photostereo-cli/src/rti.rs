@@ -12,6 +12,8 @@ use std::path::{Path, PathBuf};
 pub struct RtiArgs {
     #[command(flatten)]
     pub capture: crate::common::CaptureInput,
+    #[command(flatten)]
+    pub photometry: crate::photometry::PhotometryArgs,
     /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
     /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
     /// written as .rti), rbf (relight's radial basis: 9 principal-component coefficients per
@@ -45,11 +47,13 @@ pub fn parse_basis(s: &str) -> Result<Basis, String> {
 }
 
 pub fn main(a: RtiArgs) -> Result<()> {
-    let files = a.capture.files()?;
+    let mut files = a.capture.files()?;
+    a.photometry.apply(&mut files)?;
     // --force never replaces an input or a folder holding one.
     let mut inputs: Vec<&Path> = a.capture.given().collect();
     inputs.extend(files.images.iter().map(PathBuf::as_path));
     inputs.extend(files.mask.as_deref());
+    inputs.extend(files.photometry.frames());
     photostereo::io::export::check_output(
         &a.output,
         a.out.force,

@@ -216,3 +216,73 @@ fn run_finds_an_rtibuilder_projects_light_file() {
     );
     assert!((a - b).abs() < 0.05, "{a:.3}° vs {b:.3}°");
 }
+
+/// `rti` and `compare` take `run`'s photometry flags: on an untagged 2.2 power-law capture of a
+/// Lambertian sphere, `--response gamma:2.2` makes the readings linear, so that `rti` fits the
+/// coefficients it fits to the linear rendering of the same scene, and `compare`'s l2 error
+/// falls to `run`'s with the same flag.
+#[test]
+fn rti_and_compare_take_the_photometry_flags() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "linear", &[]);
+    synth(dir, "gamma", &["--response", "gamma:2.2"]);
+    // Each hemispherical-harmonics term's range over the pixels.
+    let rti = |capture: &str, out: &str, extra: &[&str]| {
+        let mut args = vec!["rti", capture, "--basis", "hsh2", "-q", "-o", out];
+        args.extend_from_slice(extra);
+        let o = photostereo(&args, dir);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let r = report(&dir.join(out));
+        let ranges: Vec<f64> = r["coefficient_ranges"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .flat_map(|t| t.as_array().unwrap().iter().map(|v| v.as_f64().unwrap()))
+            .collect();
+        ranges
+    };
+    let truth = rti("linear", "rti-linear", &[]);
+    let off = |v: Vec<f64>| {
+        v.iter()
+            .zip(&truth)
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0, f64::max)
+    };
+    let plain = off(rti("gamma", "rti-plain", &[]));
+    let given = off(rti("gamma", "rti-gamma", &["--response", "gamma:2.2"]));
+    assert!(
+        given < 0.05 && plain > 0.2,
+        "coefficient ranges off the linear capture's by {given} with --response, {plain} without"
+    );
+    let compare = |out: &str, extra: &[&str]| {
+        let mut args = vec![
+            "compare",
+            "gamma",
+            "--gt",
+            "gamma/gt/normal.npy",
+            "--methods",
+            "l2",
+            "-q",
+            "-o",
+            out,
+        ];
+        args.extend_from_slice(extra);
+        let o = photostereo(&args, dir);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let v: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(dir.join(out).join("compare.json")).unwrap(),
+        )
+        .unwrap();
+        v["table1_mean_angular_error_deg"]["l2"].as_f64().unwrap()
+    };
+    let plain = compare("cmp-plain", &[]);
+    let given = compare("cmp-gamma", &["--response", "gamma:2.2"]);
+    let o = run(dir, "gamma", "r-gamma", &["--response", "gamma:2.2"]);
+    assert!(o.status.success());
+    let by_run = mean_error(&dir.join("r-gamma"));
+    assert!(
+        given < plain - 2.0 && (given - by_run).abs() < 1e-6,
+        "compare l2 {given:.2}° with --response, {plain:.2}° without, run {by_run:.2}°"
+    );
+}

@@ -277,6 +277,13 @@ pub const CAPTURE_OPTIONS: &[CaptureOption] = &[
 ];
 
 impl Photometry {
+    /// The calibration frames given or found (ambient, dark, flat), for the output checks.
+    pub fn frames(&self) -> impl Iterator<Item = &std::path::Path> {
+        [&self.ambient, &self.dark, &self.flat]
+            .into_iter()
+            .filter_map(|p| p.as_deref())
+    }
+
     /// The choices as a front end receives them: `response` spelt as `--response` takes it,
     /// `ambient` an image file that must exist. Errors name the option
     /// ([`crate::base::error::param_set`]).
