@@ -1221,7 +1221,7 @@ enum Shift<'s> {
 
 /// One chunk of [`cg_update`], with the shift of the chunk's `k`-th cell from `shift(k)`.
 #[inline(always)]
-fn cg_update_chunk(
+fn cg_update_chunk<const TRACK: bool>(
     xs: &mut [f32],
     rs: &mut [f32],
     aps: &[f32],
@@ -1240,8 +1240,10 @@ fn cg_update_chunk(
     {
         for k in 0..xc.len() {
             xc[k] = (xc[k] as f64 + alpha * pc[k] as f64) as f32;
-            p_max[k] = p_max[k].max(pc[k].abs());
-            x_max[k] = x_max[k].max(xc[k].abs());
+            if TRACK {
+                p_max[k] = p_max[k].max(pc[k].abs());
+                x_max[k] = x_max[k].max(xc[k].abs());
+            }
             let rv = (rc[k] as f64 - alpha * (ac[k] as f64 - shift(j * LANES + k))) as f32;
             rc[k] = rv;
             acc[k] += rv as f64 * rv as f64;
@@ -1274,8 +1276,10 @@ impl Update {
 }
 
 /// One CG update in a single pass: `x += α p`, `r −= α (A p − shift)` (f32 storage, f64
-/// arithmetic). Returns `‖r‖²` (of the stored values), `max |p|` and `max |x|`.
+/// arithmetic). Returns `‖r‖²` (of the stored values), and with `track` `max |p|` and
+/// `max |x|` (else 0).
 fn cg_update(
+    track: bool,
     x: &mut [f32],
     r: &mut [f32],
     ap: &[f32],
@@ -1291,11 +1295,21 @@ fn cg_update(
         .map(|(t, (((xs, rs), aps), ps))| {
             let lo = t * CHUNK;
             let hi = lo + xs.len();
+            // One monomorphised loop per (shift, track): no branch on either inside it.
+            macro_rules! chunk {
+                ($shift:expr) => {
+                    if track {
+                        cg_update_chunk::<true>(xs, rs, aps, ps, alpha, $shift)
+                    } else {
+                        cg_update_chunk::<false>(xs, rs, aps, ps, alpha, $shift)
+                    }
+                };
+            }
             match shift {
-                Shift::Const(v) => cg_update_chunk(xs, rs, aps, ps, alpha, |_| v),
+                Shift::Const(v) => chunk!(|_| v),
                 Shift::Small(labels, values) => {
                     let l = &labels[lo..hi];
-                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                    chunk!(|k| {
                         if l[k] == u8::MAX {
                             0.0
                         } else {
@@ -1305,7 +1319,7 @@ fn cg_update(
                 }
                 Shift::Large(labels, values) => {
                     let l = &labels[lo..hi];
-                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                    chunk!(|k| {
                         if l[k] == u32::MAX {
                             0.0
                         } else {
@@ -1400,6 +1414,7 @@ pub(crate) fn pcg(
         .collect();
     let mut iterations = 0;
     let mut at_precision = false;
+    let track = hierarchy.stop_at_precision;
     while iterations < max_iterations {
         iterations += 1;
         let (pap, ap_sum) = hierarchy.fine().apply32(&p, &mut zap);
@@ -1411,10 +1426,10 @@ pub(crate) fn pcg(
         // rounding of the stored r leaves a small null-space part in it at each step, which CG
         // cannot reduce; it is removed at the next step (so it never accumulates).
         let update = match null_space {
-            None => cg_update(x, r, &zap, &p, alpha, Shift::Const(0.0)),
+            None => cg_update(track, x, r, &zap, &p, alpha, Shift::Const(0.0)),
             Some(c) if c.is_whole_grid() => {
                 let shift = ap_sum / n as f64 - r_sum / n as f64 / alpha;
-                cg_update(x, r, &zap, &p, alpha, Shift::Const(shift))
+                cg_update(track, x, r, &zap, &p, alpha, Shift::Const(shift))
             }
             Some(c) => {
                 let ap_means = c.means(&zap);
@@ -1428,7 +1443,7 @@ pub(crate) fn pcg(
                     LabelSlice::Large(l) => Shift::Large(l, &shift),
                     LabelSlice::Whole => unreachable!("a labelled mask"),
                 };
-                cg_update(x, r, &zap, &p, alpha, by)
+                cg_update(track, x, r, &zap, &p, alpha, by)
             }
         };
         progress.advance(1);
