@@ -76,7 +76,9 @@ pub struct Bilateral {
     pub inner_reduction: f64,
     /// Most CG iterations of each reweighted solve.
     pub inner_iterations: usize,
-    /// Relative residual of the last solve (the converged weights' system).
+    /// Relative residual of the last solve (the converged weights' system); it also stops once
+    /// a CG step moves no pixel by more than the f32 resolution of the surface (on a smooth
+    /// whole frame the DCT start is already that close).
     pub final_tolerance: f64,
     /// Pixels with a weight below this get interpolated gradients (as in `poisson`).
     pub fill_below: f32,
@@ -647,7 +649,7 @@ impl Bilateral {
         let (relative_residual, levels) = self.solve_reweighted(&px, problem, &mut state, true);
         progress.advance(1);
         progress.end();
-        let cg_iterations = state.cg_iterations;
+        let (cg_iterations, at_precision) = (state.cg_iterations, state.at_precision);
         let State {
             mut x,
             plus,
@@ -663,7 +665,7 @@ impl Bilateral {
         let discontinuities = px.discontinuities([&plus[0], &plus[1]]);
         drop(plus);
         let mut notes = Vec::new();
-        if relative_residual > self.final_tolerance {
+        if relative_residual > self.final_tolerance && !at_precision {
             notes.push(format!(
                 "bilateral's last solve stopped at relative residual {relative_residual:.2e} (tolerance {:.1e})",
                 self.final_tolerance
@@ -718,6 +720,8 @@ impl Bilateral {
             )
             .sqrt();
         let mut hier = Hierarchy::new(level);
+        // The last solve also stops when CG can no longer change the stored (f32) surface.
+        hier.stop_at_precision = tight;
         let levels = hier.depth();
         let (scale, tolerance, most) = if tight {
             (b_norm, self.final_tolerance, 200)
@@ -736,6 +740,7 @@ impl Bilateral {
             &crate::base::progress::Silent,
         );
         st.cg_iterations += solve.iterations;
+        st.at_precision = solve.at_precision;
         (st.east, st.south) = hier.into_fine().into_edges();
         (
             solve.relative_residual * scale / b_norm.max(f64::MIN_POSITIVE),
@@ -758,6 +763,8 @@ struct State<'c> {
     /// The constants of each component, when no prior fixes them.
     null_space: Option<&'c Components>,
     cg_iterations: usize,
+    /// The last solve stopped at the f32 resolution of the surface, not at its tolerance.
+    at_precision: bool,
 }
 
 impl<'c> State<'c> {
@@ -786,6 +793,7 @@ impl<'c> State<'c> {
             r: par_zeros(n),
             null_space: (!has_prior).then_some(components),
             cg_iterations: 0,
+            at_precision: false,
         }
     }
 }

@@ -1049,6 +1049,9 @@ pub(crate) struct Hierarchy<'a> {
     zeros: Vec<f32>,
     /// Gauss–Seidel sweeps (red + black) before and after the coarse correction.
     pub sweeps: usize,
+    /// [`pcg`] also stops once a step moves no cell by more than the f32 resolution of the
+    /// iterate (`f32::EPSILON · max |x|`): the stored surface can no longer change.
+    pub stop_at_precision: bool,
 }
 
 impl<'a> Hierarchy<'a> {
@@ -1087,6 +1090,7 @@ impl<'a> Hierarchy<'a> {
             work,
             zeros,
             sweeps: 1,
+            stop_at_precision: false,
         }
     }
 
@@ -1137,6 +1141,9 @@ pub(crate) struct Solve {
     pub iterations: usize,
     /// ‖b − A x‖ / ‖b‖ at the end (the recurrence's residual; 0 when `b = 0`).
     pub relative_residual: f64,
+    /// Stopped because the last step was below the iterate's f32 resolution (see
+    /// [`Hierarchy::stop_at_precision`]), not at the tolerance.
+    pub at_precision: bool,
 }
 
 /// Independent accumulators of the f64 sums below (they let the sums vectorise).
@@ -1214,15 +1221,16 @@ enum Shift<'s> {
 
 /// One chunk of [`cg_update`], with the shift of the chunk's `k`-th cell from `shift(k)`.
 #[inline(always)]
-fn cg_update_chunk(
+fn cg_update_chunk<const TRACK: bool>(
     xs: &mut [f32],
     rs: &mut [f32],
     aps: &[f32],
     ps: &[f32],
     alpha: f64,
     shift: impl Fn(usize) -> f64,
-) -> f64 {
+) -> Update {
     let mut acc = [0f64; LANES];
+    let (mut p_max, mut x_max) = ([0f32; LANES], [0f32; LANES]);
     for (j, (((xc, rc), ac), pc)) in xs
         .chunks_mut(LANES)
         .zip(rs.chunks_mut(LANES))
@@ -1232,17 +1240,53 @@ fn cg_update_chunk(
     {
         for k in 0..xc.len() {
             xc[k] = (xc[k] as f64 + alpha * pc[k] as f64) as f32;
+            if TRACK {
+                p_max[k] = p_max[k].max(pc[k].abs());
+                x_max[k] = x_max[k].max(xc[k].abs());
+            }
             let rv = (rc[k] as f64 - alpha * (ac[k] as f64 - shift(j * LANES + k))) as f32;
             rc[k] = rv;
             acc[k] += rv as f64 * rv as f64;
         }
     }
-    acc.iter().sum::<f64>()
+    let most = |m: [f32; LANES]| m.iter().fold(0f32, |a, &v| a.max(v));
+    Update {
+        rr: acc.iter().sum::<f64>(),
+        p_max: most(p_max),
+        x_max: most(x_max),
+    }
+}
+
+/// What [`cg_update`] measured: `‖r‖²` (of the stored values), `max |p|` and `max |x|` (new).
+#[derive(Clone, Copy, Default)]
+struct Update {
+    rr: f64,
+    p_max: f32,
+    x_max: f32,
+}
+
+impl Update {
+    fn join(self, o: Update) -> Update {
+        Update {
+            rr: self.rr + o.rr,
+            p_max: self.p_max.max(o.p_max),
+            x_max: self.x_max.max(o.x_max),
+        }
+    }
 }
 
 /// One CG update in a single pass: `x += α p`, `r −= α (A p − shift)` (f32 storage, f64
-/// arithmetic). Returns `‖r‖²` (of the stored values).
-fn cg_update(x: &mut [f32], r: &mut [f32], ap: &[f32], p: &[f32], alpha: f64, shift: Shift) -> f64 {
+/// arithmetic). Returns `‖r‖²` (of the stored values), and with `track` `max |p|` and
+/// `max |x|` (else 0).
+fn cg_update(
+    track: bool,
+    x: &mut [f32],
+    r: &mut [f32],
+    ap: &[f32],
+    p: &[f32],
+    alpha: f64,
+    shift: Shift,
+) -> Update {
     x.par_chunks_mut(CHUNK)
         .zip(r.par_chunks_mut(CHUNK))
         .zip(ap.par_chunks(CHUNK))
@@ -1251,11 +1295,21 @@ fn cg_update(x: &mut [f32], r: &mut [f32], ap: &[f32], p: &[f32], alpha: f64, sh
         .map(|(t, (((xs, rs), aps), ps))| {
             let lo = t * CHUNK;
             let hi = lo + xs.len();
+            // One monomorphised loop per (shift, track): no branch on either inside it.
+            macro_rules! chunk {
+                ($shift:expr) => {
+                    if track {
+                        cg_update_chunk::<true>(xs, rs, aps, ps, alpha, $shift)
+                    } else {
+                        cg_update_chunk::<false>(xs, rs, aps, ps, alpha, $shift)
+                    }
+                };
+            }
             match shift {
-                Shift::Const(v) => cg_update_chunk(xs, rs, aps, ps, alpha, |_| v),
+                Shift::Const(v) => chunk!(|_| v),
                 Shift::Small(labels, values) => {
                     let l = &labels[lo..hi];
-                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                    chunk!(|k| {
                         if l[k] == u8::MAX {
                             0.0
                         } else {
@@ -1265,7 +1319,7 @@ fn cg_update(x: &mut [f32], r: &mut [f32], ap: &[f32], p: &[f32], alpha: f64, sh
                 }
                 Shift::Large(labels, values) => {
                     let l = &labels[lo..hi];
-                    cg_update_chunk(xs, rs, aps, ps, alpha, |k| {
+                    chunk!(|k| {
                         if l[k] == u32::MAX {
                             0.0
                         } else {
@@ -1275,16 +1329,19 @@ fn cg_update(x: &mut [f32], r: &mut [f32], ap: &[f32], p: &[f32], alpha: f64, sh
                 }
             }
         })
-        .collect::<Vec<f64>>()
+        .collect::<Vec<Update>>()
         .into_iter()
-        .sum()
+        .fold(Update::default(), Update::join)
 }
 
 /// Conjugate gradients on the finest level's operator, preconditioned by one V-cycle, in place:
 /// `x` holds the starting point (f32; inactive cells are never changed) and receives the
 /// solution; `r` holds the starting residual `b − A x` (0 on inactive cells, see
 /// [`Level::residual_from`]) and is used up; `b_norm` is `‖b‖`. Stops at
-/// `‖r‖ ≤ tolerance · ‖b‖` or after `max_iterations`; `progress` gets one unit per iteration.
+/// `‖r‖ ≤ tolerance · ‖b‖` or after `max_iterations`, or with the hierarchy's
+/// `stop_at_precision` once `max |α p| ≤ f32::EPSILON · max |x|` (a step below the resolution
+/// of the stored iterate: with the V-cycle's contraction the error left is smaller still);
+/// `progress` gets one unit per iteration.
 /// Besides `x` and `r` it holds two f32 vectors (the direction, and one shared by the
 /// preconditioned residual and `A p`, whose uses never overlap).
 ///
@@ -1311,6 +1368,7 @@ pub(crate) fn pcg(
         return Solve {
             iterations: 0,
             relative_residual: 0.0,
+            at_precision: false,
         };
     }
     let mut rel = norm2(r).sqrt() / b_norm;
@@ -1318,6 +1376,7 @@ pub(crate) fn pcg(
         return Solve {
             iterations: 0,
             relative_residual: rel,
+            at_precision: false,
         };
     }
     // `zap` holds the preconditioned residual z, then A p (the two uses never overlap).
@@ -1354,6 +1413,8 @@ pub(crate) fn pcg(
         .map(|&v| (v as f64 - z_mean) as f32)
         .collect();
     let mut iterations = 0;
+    let mut at_precision = false;
+    let track = hierarchy.stop_at_precision;
     while iterations < max_iterations {
         iterations += 1;
         let (pap, ap_sum) = hierarchy.fine().apply32(&p, &mut zap);
@@ -1364,11 +1425,11 @@ pub(crate) fn pcg(
         // x += α p and r −= α A p, both less their null-space parts, in one pass: the f32
         // rounding of the stored r leaves a small null-space part in it at each step, which CG
         // cannot reduce; it is removed at the next step (so it never accumulates).
-        let rr = match null_space {
-            None => cg_update(x, r, &zap, &p, alpha, Shift::Const(0.0)),
+        let update = match null_space {
+            None => cg_update(track, x, r, &zap, &p, alpha, Shift::Const(0.0)),
             Some(c) if c.is_whole_grid() => {
                 let shift = ap_sum / n as f64 - r_sum / n as f64 / alpha;
-                cg_update(x, r, &zap, &p, alpha, Shift::Const(shift))
+                cg_update(track, x, r, &zap, &p, alpha, Shift::Const(shift))
             }
             Some(c) => {
                 let ap_means = c.means(&zap);
@@ -1382,12 +1443,17 @@ pub(crate) fn pcg(
                     LabelSlice::Large(l) => Shift::Large(l, &shift),
                     LabelSlice::Whole => unreachable!("a labelled mask"),
                 };
-                cg_update(x, r, &zap, &p, alpha, by)
+                cg_update(track, x, r, &zap, &p, alpha, by)
             }
         };
         progress.advance(1);
-        rel = rr.sqrt() / b_norm;
+        rel = update.rr.sqrt() / b_norm;
         if rel <= tolerance {
+            break;
+        }
+        let step = alpha.abs() * update.p_max as f64;
+        if hierarchy.stop_at_precision && step <= f32::EPSILON as f64 * update.x_max as f64 {
+            at_precision = true;
             break;
         }
         hierarchy.vcycle(r, &mut zap);
@@ -1407,6 +1473,7 @@ pub(crate) fn pcg(
     Solve {
         iterations,
         relative_residual: rel,
+        at_precision,
     }
 }
 
