@@ -75,6 +75,20 @@ fn fits_every_basis_and_writes_its_file_and_report() {
     }
     // Nine terms per channel follow a glossy sphere better than four.
     assert!(loo[3] < loo[2], "hsh3 {} vs hsh2 {}", loo[3], loo[2]);
+    // The viewer needs a run's normals: an rti folder is refused with the way to get them,
+    // and nothing is written into it.
+    let before = std::fs::read_dir(dir.join("out-hsh3")).unwrap().count();
+    let o = photostereo(&["view", "out-hsh3"], dir);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("out-hsh3") && e.contains("photostereo rti") && e.contains("--rti"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read_dir(dir.join("out-hsh3")).unwrap().count(),
+        before
+    );
     // --force replaces an rti folder, and never a run folder.
     let o = photostereo(&["rti", "cap", "-o", "out-hsh3", "--quiet"], dir);
     assert!(!o.status.success() && stderr(&o).contains("out-hsh3"));
