@@ -183,6 +183,32 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--memory-limit"), "{}", stderr(&o));
     assert!(!dir.join("w").exists());
+    // The smallest budget it names works, and the process's peak stays within it, for the
+    // least-squares reference and for the recursive one.
+    for extra in [None, Some("--exclude-unreliable")] {
+        let mut args = vec!["rti", "cap", "--memory-limit", "20K", "-o", "w"];
+        args.extend(extra);
+        let e = stderr(&photostereo(&args, dir));
+        let minimum = e
+            .rsplit("smallest budget that works is ")
+            .next()
+            .unwrap()
+            .trim();
+        args[3] = minimum;
+        args.push("--quiet");
+        let o = photostereo(&args, dir);
+        assert!(o.status.success(), "{extra:?} at {minimum}: {}", stderr(&o));
+        let m = &report(&dir.join("w/report.json"))["memory"];
+        let (peak, budget) = (
+            m["peak_rss"].as_u64().unwrap(),
+            m["budget"].as_u64().unwrap(),
+        );
+        assert!(
+            peak > 0 && peak <= budget,
+            "{extra:?}: peak {peak} of {budget}"
+        );
+        std::fs::remove_dir_all(dir.join("w")).unwrap();
+    }
 }
 
 /// The width and height of a baseline or progressive JPEG, from its start-of-frame segment
