@@ -47,7 +47,7 @@ pub const IIIF_FULL_BYTES: usize = 16 << 20;
 const SLACK_ROWS: usize = 128;
 
 /// Bytes per column of the frame a [`TilePyramid`] of the default tiles and the PNG encoder of
-/// its image hold at most: each level reserves 3 bytes × (tile + 2 overlap + [`SLACK_ROWS`])
+/// its image hold at most: each level reserves 3 bytes × (tile + 2 overlap + 128)
 /// rows, the levels together about twice the first (IIIF's 512-row tiles the tallest), and the
 /// encoder two bands of 64 rows.
 pub const BYTES_PER_COLUMN: u64 =
