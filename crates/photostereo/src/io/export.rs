@@ -828,7 +828,8 @@ pub fn write_npy_u8_planes(
 /// `descr` (`<f4`, `|u1`), as NPY format 1.0 lays it out: the magic `\x93NUMPY`, version 1.0,
 /// the header's length (u16, little-endian), then the header dictionary padded with spaces
 /// and ended by a newline so that the data starts at a multiple of 64 bytes; the data follows.
-/// The bytes are those `ndarray-npy` writes.
+/// The bytes are those `ndarray-npy` writes, but for a dictionary that ends exactly on the
+/// boundary: NumPy and `ndarray-npy` then pad a further 64 bytes, here none (both valid).
 pub(crate) fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
     let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
     let shape_text = if dims.len() == 1 {
