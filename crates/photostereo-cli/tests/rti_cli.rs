@@ -75,6 +75,20 @@ fn fits_every_basis_and_writes_its_file_and_report() {
     }
     // Nine terms per channel follow a glossy sphere better than four.
     assert!(loo[3] < loo[2], "hsh3 {} vs hsh2 {}", loo[3], loo[2]);
+    // The viewer needs a run's normals: an rti folder is refused with the way to get them,
+    // and nothing is written into it.
+    let before = std::fs::read_dir(dir.join("out-hsh3")).unwrap().count();
+    let o = photostereo(&["view", "out-hsh3"], dir);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    let e = stderr(&o);
+    assert!(
+        e.contains("out-hsh3") && e.contains("photostereo rti") && e.contains("--rti"),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read_dir(dir.join("out-hsh3")).unwrap().count(),
+        before
+    );
     // --force replaces an rti folder, and never a run folder.
     let o = photostereo(&["rti", "cap", "-o", "out-hsh3", "--quiet"], dir);
     assert!(!o.status.success() && stderr(&o).contains("out-hsh3"));
@@ -169,6 +183,32 @@ fn refusals_name_their_cause_and_leave_nothing() {
     assert_eq!(o.status.code(), Some(2));
     assert!(stderr(&o).contains("--memory-limit"), "{}", stderr(&o));
     assert!(!dir.join("w").exists());
+    // The smallest budget it names works, and the process's peak stays within it, for the
+    // least-squares reference and for the recursive one.
+    for extra in [None, Some("--exclude-unreliable")] {
+        let mut args = vec!["rti", "cap", "--memory-limit", "20K", "-o", "w"];
+        args.extend(extra);
+        let e = stderr(&photostereo(&args, dir));
+        let minimum = e
+            .rsplit("smallest budget that works is ")
+            .next()
+            .unwrap()
+            .trim();
+        args[3] = minimum;
+        args.push("--quiet");
+        let o = photostereo(&args, dir);
+        assert!(o.status.success(), "{extra:?} at {minimum}: {}", stderr(&o));
+        let m = &report(&dir.join("w/report.json"))["memory"];
+        let (peak, budget) = (
+            m["peak_rss"].as_u64().unwrap(),
+            m["budget"].as_u64().unwrap(),
+        );
+        assert!(
+            peak > 0 && peak <= budget,
+            "{extra:?}: peak {peak} of {budget}"
+        );
+        std::fs::remove_dir_all(dir.join("w")).unwrap();
+    }
 }
 
 /// The width and height of a baseline or progressive JPEG, from its start-of-frame segment

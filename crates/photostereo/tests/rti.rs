@@ -984,3 +984,57 @@ fn files_streamed_from_the_coefficient_files_equal_those_of_a_fit_held_whole() {
     }
     std::fs::remove_dir_all(&root).unwrap();
 }
+
+#[test]
+fn pyramids_streamed_by_rows_are_those_of_the_whole_image() {
+    // The pyramids are written from rows as they come (a few hundred rows held per level):
+    // pushed in uneven bands, the files are byte for byte those of the whole image at once,
+    // whose layout the two tests above check against the DZI and IIIF specifications.
+    let (w, h) = (1100, 1300);
+    let rgb = test_rgb(w, h);
+    let tmp = tempfile::tempdir().unwrap();
+    let (whole, bands) = (tmp.path().join("whole"), tmp.path().join("bands"));
+    use photostereo::io::rti::tiles::{write_deep_zoom, write_iiif, TilePyramid};
+    std::fs::create_dir_all(&whole).unwrap();
+    write_deep_zoom(&whole.join("p.dzi"), (w, h), &rgb, 254, 1).unwrap();
+    write_iiif(
+        &whole.join("iiif"),
+        "https://example.org/p",
+        (w, h),
+        &rgb,
+        512,
+    )
+    .unwrap();
+    std::fs::create_dir_all(&bands).unwrap();
+    let dzi = bands.join("p.dzi");
+    let iiif = bands.join("iiif");
+    let mut p = TilePyramid::new(
+        (w, h),
+        Some((&dzi, 254, 1)),
+        Some((&iiif, "https://example.org/p", 512)),
+    )
+    .unwrap();
+    let mut y = 0;
+    for step in [1usize, 7, 64, 255, 3].iter().cycle() {
+        let y1 = (y + step).min(h);
+        p.push(&rgb[y * w * 3..y1 * w * 3]).unwrap();
+        y = y1;
+        if y == h {
+            break;
+        }
+    }
+    let ((levels, tiles), info) = p.finish().unwrap();
+    assert_eq!(levels, 12); // 2^10 < 1300 ≤ 2^11
+    assert!(tiles > 0 && info.is_some());
+    let (a, b) = (tree(&whole), tree(&bands));
+    assert_eq!(a.keys().collect::<Vec<_>>(), b.keys().collect::<Vec<_>>());
+    for (k, v) in &a {
+        assert!(v == &b[k], "{k} differs");
+    }
+    // Rows beyond the image, or not whole, are refused.
+    let mut p = TilePyramid::new((4, 2), Some((&bands.join("q.dzi"), 254, 1)), None).unwrap();
+    assert!(p.push(&[0; 5]).is_err());
+    assert!(p.push(&[0; 36]).is_err());
+    p.push(&[0; 12]).unwrap();
+    assert!(p.finish().is_err());
+}

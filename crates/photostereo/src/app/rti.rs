@@ -16,9 +16,9 @@ use crate::io::layouts::{CaptureFiles, LoadOptions};
 use crate::io::rti::{CoefficientFiles, FitSource, StoredFit};
 use crate::method::engine::{reconstruct, Method, Params, Reconstruction};
 use crate::model::capture::Capture;
-use crate::model::memory::Beside;
+use crate::model::memory::{Beside, Stages};
 use crate::solve::lambert::status;
-use crate::solve::rti::{fit_into, lambert_errors, Basis, RelightErrors, RtiFit};
+use crate::solve::rti::{fit_into, lambert_errors, Basis, ReadingMask, RelightErrors, RtiFit};
 use serde_json::{json, Value};
 use std::path::Path;
 use std::time::Instant;
@@ -52,21 +52,34 @@ pub fn image_name(basis: Basis) -> &'static str {
 }
 
 /// What an RTI fit and the writing of its files hold beside the run's stages
-/// ([`crate::model::memory::Beside`]), for a capture of `lights` images: per mask pixel the
-/// fit's copy of the mask pixels' frame indices (4 bytes) and, with `exclude_unreliable`, one
-/// flag a light; per frame pixel one 8-bit RGB plane image of relight's folder and its tile
-/// pyramid (3 + 1 bytes); and fixed buffers: the fit's blocks and the writers' row bands
-/// (64 MiB), and for RBF the PCA's sample of pixels (12 bytes a reading).
-pub fn memory_beside(basis: Basis, lights: usize, channels: usize, exclude: bool) -> Beside {
+/// ([`crate::model::memory::Beside`]), for a capture of `lights` images. Beside the stages:
+/// per mask pixel the fit's copy of the mask pixels' frame indices (4 bytes), the fit's blocks
+/// ([`crate::solve::rti::BLOCK_PIXELS`] pixels of at most 27 coefficients and 3 chroma, 8 MiB)
+/// and for RBF the PCA's sample of pixels (12 bytes a reading). While writing: the writers' row
+/// band ([`crate::io::rti::BAND_BYTES`]), with `iiif` IIIF's whole small levels
+/// ([`crate::io::rti::tiles::IIIF_FULL_BYTES`] and the levels below), and per column of the
+/// frame the tile pyramids' row strips and the PNG encoder's bands
+/// ([`crate::io::rti::tiles::BYTES_PER_COLUMN`]). `exclude_unreliable` adds nothing: the
+/// statuses are read where the recursive method holds them. The stages are `run`'s; the `rti`
+/// command's own are set by [`rti`].
+pub fn memory_beside(basis: Basis, lights: usize, channels: usize, iiif: bool) -> Beside {
     let pca = if basis == Basis::Rbf {
         (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64
     } else {
         0
     };
+    let full = if iiif {
+        (crate::io::rti::tiles::IIIF_FULL_BYTES * 4 / 3) as u64
+    } else {
+        0
+    };
     Beside {
-        per_frame_pixel: 4,
-        per_mask_pixel: 4 + if exclude { lights as u64 } else { 0 },
-        fixed: (64 << 20) + pca,
+        per_frame_pixel: 0,
+        per_mask_pixel: 4,
+        fixed: (8 << 20) + pca,
+        writing_per_column: crate::io::rti::tiles::BYTES_PER_COLUMN,
+        writing_fixed: crate::io::rti::BAND_BYTES as u64 + full,
+        stages: Stages::Run,
     }
 }
 
@@ -85,12 +98,21 @@ pub fn rti(
     let load = LoadOptions {
         budget: options.memory_limit,
         spill_dir: Some(folder.path().to_path_buf()),
-        beside: memory_beside(
-            options.basis,
-            files.images.len(),
-            channels,
-            options.exclude_unreliable,
-        ),
+        // The reference is the recursive method with `exclude_unreliable` (run's stages less
+        // the integration), else a least-squares estimate.
+        beside: Beside {
+            stages: if options.exclude_unreliable {
+                Stages::Run
+            } else {
+                Stages::Estimate
+            },
+            ..memory_beside(
+                options.basis,
+                files.images.len(),
+                channels,
+                options.iiif.is_some(),
+            )
+        },
         ..Default::default()
     };
     let capture = files.load_with(progress, &load)?;
@@ -99,21 +121,20 @@ pub fn rti(
     let rec = reference(&capture, options, progress)?;
     let exclude = options
         .exclude_unreliable
-        .then(|| unused_readings(&capture, &rec));
+        .then_some(&rec.light_status as &dyn ReadingMask);
     let reference_s = t.elapsed().as_secs_f64();
     let t = Instant::now();
     let size = (capture.width, capture.height, capture.channels);
     let mut store = CoefficientFiles::create(folder.path(), options.basis, size, &capture.pixels)?;
-    let meta = fit_into(&capture, options.basis, exclude.as_deref(), &mut store)?;
+    let meta = fit_into(&capture, options.basis, exclude, &mut store)?;
     let fitted = store.finish(meta);
     let lambert = lambert_errors(
         &capture,
         &rec.normals,
         &rec.albedo,
         fitted.meta().gain,
-        exclude.as_deref(),
+        exclude,
     )?;
-    drop(exclude);
     let fit_s = t.elapsed().as_secs_f64();
     let mut report = report(&capture, fitted.meta(), &lambert, &rec, options);
     let plan = capture.memory.clone();
@@ -256,14 +277,15 @@ fn reference(
     reconstruct(capture, &params, progress)
 }
 
-/// Per mask pixel and light, whether the reconstruction left the reading out (any status but
-/// USED).
-fn unused_readings(capture: &Capture, rec: &Reconstruction) -> Vec<bool> {
-    let n = capture.n_lights();
-    (0..capture.n_pixels())
-        .flat_map(|p| (0..n).map(move |k| (p, k)))
-        .map(|(p, k)| rec.light_status.code(p, k) != status::USED)
-        .collect()
+/// The readings the reconstruction left out (any status but USED), read from its statuses in
+/// place.
+impl ReadingMask for crate::method::statusmap::StatusMap {
+    fn readings(&self) -> usize {
+        self.pixels().len() * self.lights
+    }
+    fn excluded(&self, p: usize, k: usize, _n: usize) -> bool {
+        self.code(p, k) != status::USED
+    }
 }
 
 /// Per-light and mean figures of a relighting error.

@@ -807,23 +807,8 @@ pub fn write_npy_u8_planes(
         .split_first()
         .ok_or_else(|| Error::invalid("a plane-wise array needs at least one dimension"))?;
     let per_plane: usize = rest.iter().product();
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape_text = if dims.len() == 1 {
-        format!("({},)", dims[0])
-    } else {
-        format!("({})", dims.join(", "))
-    };
-    // NPY format 1.0: magic, version, header length (u16, little-endian), then the header
-    // dictionary padded with spaces and ended by a newline to a multiple of 64 bytes.
-    let mut header = format!("{{'descr': '|u1', 'fortran_order': False, 'shape': {shape_text}}}");
-    let unpadded = 10 + header.len() + 1;
-    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
-    header.push('\n');
     let mut file = std::io::BufWriter::new(std::fs::File::create(path).map_err(io)?);
-    file.write_all(b"\x93NUMPY\x01\x00").map_err(io)?;
-    file.write_all(&(header.len() as u16).to_le_bytes())
-        .map_err(io)?;
-    file.write_all(header.as_bytes()).map_err(io)?;
+    file.write_all(&npy_header("|u1", shape)).map_err(io)?;
     let mut buf = Vec::with_capacity(per_plane);
     for k in 0..planes {
         buf.clear();
@@ -837,6 +822,30 @@ pub fn write_npy_u8_planes(
         file.write_all(&buf).map_err(io)?;
     }
     file.flush().map_err(io)
+}
+
+/// The header of a C-order `.npy` array of `shape` whose elements have the NumPy type string
+/// `descr` (`<f4`, `|u1`), as NPY format 1.0 lays it out: the magic `\x93NUMPY`, version 1.0,
+/// the header's length (u16, little-endian), then the header dictionary padded with spaces
+/// and ended by a newline so that the data starts at a multiple of 64 bytes; the data follows.
+/// The bytes are those `ndarray-npy` writes, but for a dictionary that ends exactly on the
+/// boundary: NumPy and `ndarray-npy` then pad a further 64 bytes, here none (both valid).
+pub(crate) fn npy_header(descr: &str, shape: &[usize]) -> Vec<u8> {
+    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
+    let shape_text = if dims.len() == 1 {
+        format!("({},)", dims[0])
+    } else {
+        format!("({})", dims.join(", "))
+    };
+    let mut header =
+        format!("{{'descr': '{descr}', 'fortran_order': False, 'shape': {shape_text}}}");
+    let unpadded = 10 + header.len() + 1;
+    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
+    header.push('\n');
+    let mut out = b"\x93NUMPY\x01\x00".to_vec();
+    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
+    out.extend_from_slice(header.as_bytes());
+    out
 }
 
 /// Writes a bool `.npy` array of the given shape (C order).
@@ -887,6 +896,44 @@ mod tests {
         let c = dir.path().join("short.npy");
         let e = write_npy_u8_planes(&c, &[2, 3], |_, out| out.push(0)).unwrap_err();
         assert!(e.to_string().contains("expected 3"), "{e}");
+    }
+
+    #[test]
+    fn npy_headers_follow_the_format_and_match_ndarray_npy() {
+        // NPY format 1.0 (numpy.lib.format): magic, version 1.0, header length, then the
+        // dictionary literal, space-padded, newline-ended, the data 64-byte aligned.
+        let h = npy_header("<f4", &[2, 3]);
+        let dict = "{'descr': '<f4', 'fortran_order': False, 'shape': (2, 3)}";
+        let mut want = b"\x93NUMPY\x01\x00".to_vec();
+        want.extend_from_slice(&[118, 0]);
+        want.extend_from_slice(dict.as_bytes());
+        want.extend(std::iter::repeat_n(b' ', 128 - 10 - dict.len() - 1));
+        want.push(b'\n');
+        assert_eq!((h.len(), &h), (128, &want));
+        assert!(String::from_utf8_lossy(&npy_header("|u1", &[7])).contains("'shape': (7,)}"));
+        // An independent writer (ndarray-npy) writes the same bytes before the data.
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.npy");
+        for shape in [vec![5usize], vec![4, 3, 2], vec![8000, 6000, 3, 9]] {
+            let n: usize = shape.iter().product::<usize>().min(64);
+            if n == shape.iter().product::<usize>() {
+                write_npy_f32(&p, &shape, &vec![0.5; n]).unwrap();
+                let head = npy_header("<f4", &shape);
+                assert_eq!(
+                    &std::fs::read(&p).unwrap()[..head.len()],
+                    &head[..],
+                    "{shape:?}"
+                );
+                write_npy_u8(&p, &shape, &vec![1; n]).unwrap();
+                let head = npy_header("|u1", &shape);
+                assert_eq!(
+                    &std::fs::read(&p).unwrap()[..head.len()],
+                    &head[..],
+                    "{shape:?}"
+                );
+            }
+            assert_eq!(npy_header("<f4", &shape).len() % 64, 0, "{shape:?}");
+        }
     }
 
     #[test]

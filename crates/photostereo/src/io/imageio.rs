@@ -671,6 +671,30 @@ fn png_encoder<W: std::io::Write>(
         .map_err(|e| Error::file(path, format!("PNG encoding failed: {e}")))
 }
 
+/// Writes an 8-bit PNG with `channels` interleaved channels whose rows `fill(rows, bytes)`
+/// produces a band at a time, top to bottom (a large image is streamed into the file; what is
+/// held is one band of rows). The first error `fill` returns stops the writing and is returned.
+pub fn write_png8_bands(
+    path: &Path,
+    (width, height, channels): (usize, usize, usize),
+    mut fill: impl FnMut(std::ops::Range<usize>, &mut [u8]) -> Result<()>,
+) -> Result<()> {
+    let mut failed = None;
+    write_png_bands(
+        path,
+        width,
+        height,
+        channels,
+        png::BitDepth::Eight,
+        |rows, bytes| {
+            if failed.is_none() {
+                failed = fill(rows, bytes).err();
+            }
+        },
+    )?;
+    failed.map_or(Ok(()), Err)
+}
+
 /// Writes a PNG whose raw (big-endian, unfiltered) bytes `fill(rows, bytes)` produces for a range
 /// of rows at a time: the whole image at once when it is small, else bands of
 /// [`PNG_BAND_ROWS`] rows streamed through the encoder into the file.

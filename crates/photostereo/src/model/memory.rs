@@ -90,12 +90,48 @@ pub struct Beside {
     pub per_mask_pixel: u64,
     /// Bytes whatever the size (buffers of fixed size).
     pub fixed: u64,
+    /// Bytes per column of the frame held while the command writes its files (buffers of
+    /// whole rows), after the stages when they are [`Stages::Estimate`].
+    pub writing_per_column: u64,
+    /// Bytes of fixed size held while the command writes its files, as
+    /// [`Beside::writing_per_column`].
+    pub writing_fixed: u64,
+    /// The stages the command runs besides: `run`'s, or a least-squares estimate only.
+    pub stages: Stages,
 }
 
+/// The full-frame stages a command runs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Stages {
+    /// `run`'s: detection, the recursion, integration, the exported maps (the constants above).
+    #[default]
+    Run,
+    /// A least-squares estimate of normals and albedo over every light, without detection or
+    /// integration (the `rti` command's reference): [`ESTIMATE_BYTES_PER_PIXEL`] and
+    /// [`ESTIMATE_BYTES_PER_CHANNEL`] per frame pixel, [`ESTIMATE_BYTES_PER_MASK_PIXEL`].
+    Estimate,
+}
+
+/// Bytes per frame pixel of a least-squares estimate's maps ([`Stages::Estimate`]), beside
+/// [`ESTIMATE_BYTES_PER_CHANNEL`] per channel: the normals (12), the integration weight (4),
+/// the capture's and the estimate's masks (2), and 3 of margin (measured peaks of 2000 × 1500
+/// and 8000 × 6000 captures of 48 lights are 10–16% below the plan).
+pub const ESTIMATE_BYTES_PER_PIXEL: u64 = 21;
+/// Bytes per frame pixel and channel of a least-squares estimate's maps: the albedo.
+pub const ESTIMATE_BYTES_PER_CHANNEL: u64 = 4;
+/// Bytes per mask pixel of a least-squares estimate ([`Stages::Estimate`]): the mask pixels'
+/// frame indices, in the capture and in the estimate's statuses.
+pub const ESTIMATE_BYTES_PER_MASK_PIXEL: u64 = 8;
+
 impl Beside {
-    /// Bytes for a capture of `frame` pixels with `mask` mask pixels.
+    /// Bytes held beside the stages for a capture of `frame` pixels with `mask` mask pixels.
     pub fn bytes(&self, frame: u64, mask: u64) -> u64 {
         self.per_frame_pixel * frame + self.per_mask_pixel * mask + self.fixed
+    }
+    /// Bytes held while writing, for a frame `width` pixels wide.
+    pub fn writing_bytes(&self, width: u64) -> u64 {
+        self.writing_per_column * width + self.writing_fixed
     }
 }
 
@@ -173,6 +209,15 @@ pub fn size_flag(bytes: u64) -> String {
 /// The full-frame stages' bytes (see the constants), with what is held beside them.
 pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     let n = s.lights as u64;
+    let beside = s.beside.bytes(s.frame(), s.pixels as u64);
+    let writing = s.beside.writing_bytes(s.width as u64);
+    if s.beside.stages == Stages::Estimate {
+        // The files are written once the capture and the estimate are released.
+        let stages = s.frame()
+            * (ESTIMATE_BYTES_PER_PIXEL + ESTIMATE_BYTES_PER_CHANNEL * s.channels as u64)
+            + s.pixels as u64 * ESTIMATE_BYTES_PER_MASK_PIXEL;
+        return stages.max(writing) + FIXED_BYTES + beside;
+    }
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + (s.pixels as u64 * MASK_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
@@ -184,7 +229,8 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
                     0
                 })
         + FIXED_BYTES
-        + s.beside.bytes(s.frame(), s.pixels as u64)
+        + beside
+        + writing
 }
 
 /// Bytes of one tile of `pixels` mask pixels in use.
@@ -291,7 +337,8 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         tiles,
         spill_bytes: if layout == Layout::Spill { stored } else { 0 },
         full_frame_bytes: full,
-        beside_bytes: s.beside.bytes(s.frame(), s.pixels as u64),
+        beside_bytes: s.beside.bytes(s.frame(), s.pixels as u64)
+            + s.beside.writing_bytes(s.width as u64),
         beside: s.beside,
         minimum_budget: minimum,
     };

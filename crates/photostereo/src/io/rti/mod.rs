@@ -10,8 +10,9 @@
 //! Every file is written by row bands of the frame ([`FitSource`]), from a fit held in memory
 //! ([`RtiFit`]) or from its coefficients on disk ([`StoredFit`]: `coefficients.npy` and
 //! `chroma.npy`, written as the fit makes them): what is held is one band of
-//! [`BAND_BYTES`] of floats at a time, beside the 8-bit plane images of relight's folder and
-//! their tile pyramids (3 + 1 bytes a frame pixel, one image at a time).
+//! [`BAND_BYTES`] of floats at a time, and for relight's plane images a PNG band and their
+//! tile pyramids' row strips ([`tiles::TilePyramid`], [`tiles::BYTES_PER_COLUMN`] a column):
+//! nothing the size of the frame.
 
 pub mod hsh;
 pub mod ptm;
@@ -232,26 +233,6 @@ pub fn for_each_band(
     Ok(())
 }
 
-/// The header of a little-endian float32 `.npy` array of `shape` (NPY format 1.0: magic,
-/// version, header length, the dictionary padded with spaces and a newline to a multiple of 64
-/// bytes), as `ndarray-npy` writes it.
-fn npy_f32_header(shape: &[usize]) -> Vec<u8> {
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let shape_text = if dims.len() == 1 {
-        format!("({},)", dims[0])
-    } else {
-        format!("({})", dims.join(", "))
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape_text}}}");
-    let unpadded = 10 + header.len() + 1;
-    header.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
-    header.push('\n');
-    let mut out = b"\x93NUMPY\x01\x00".to_vec();
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    out
-}
-
 /// One `.npy` float array of the frame, `[row][col][floats]`, read and written with
 /// positioned I/O (nothing mapped, nothing held).
 struct FrameArray {
@@ -267,7 +248,7 @@ impl FrameArray {
         let io = |e| Error::io(&path, e);
         let mut full = vec![height, width];
         full.extend_from_slice(shape);
-        let head = npy_f32_header(&full);
+        let head = crate::io::export::npy_header("<f4", &full);
         let floats: usize = shape.iter().product();
         let file = std::fs::OpenOptions::new()
             .read(true)

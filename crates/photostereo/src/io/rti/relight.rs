@@ -26,9 +26,10 @@
 
 use super::{for_each_band, FitSource, TermMap};
 use crate::base::error::{Error, Result};
-use crate::io::imageio::write_png8;
+use crate::io::imageio::write_png8_bands;
 use crate::solve::rti::{rbf, Basis, RtiFit};
 use serde_json::{json, Value};
+use std::ops::Range;
 use std::path::Path;
 
 /// The PTM terms in relight's order (1, x, y, x², xy, y²) as indices of photostereo's
@@ -85,46 +86,83 @@ pub fn write_relight_with(
         })
         .collect();
     let (w, h) = (meta.width, meta.height);
-    let mut frame = vec![0u8; w * h * 3];
     let mut ids = Vec::new();
+    let mut band = super::Band::default();
     for g in 0..n.div_ceil(3) {
-        for_each_band(fit, false, |rows, band| {
-            let out = &mut frame[rows.start * w * 3..rows.end * w * 3];
-            for (i, px) in out.chunks_exact_mut(3).enumerate() {
-                if band.inside[i] {
-                    planes.pixel(meta, band, i, &mut row);
-                }
-                for (k, b) in px.iter_mut().enumerate() {
-                    let q = 3 * g + k;
-                    *b = match (q < n, band.inside[i]) {
-                        (false, _) => 0,
-                        (true, true) => quantise(f64::from(row[q]), &maps[q]),
-                        (true, false) => quantise(outside[q], &maps[q]),
-                    };
-                }
-            }
-            Ok(())
-        })?;
-        write_png8(&dir.join(format!("plane_{g}.png")), w, h, 3, &frame)?;
-        super::tiles::write_deep_zoom(
-            &dir.join(format!("plane_{g}.dzi")),
+        let dzi = dir.join(format!("plane_{g}.dzi"));
+        let tiles = dir.join(format!("plane_{g}"));
+        let id = iiif.map(|base| format!("{base}/plane_{g}"));
+        let mut pyramid = super::tiles::TilePyramid::new(
             (w, h),
-            &frame,
-            super::tiles::DZI_TILE,
-            super::tiles::DZI_OVERLAP,
+            Some((&dzi, super::tiles::DZI_TILE, super::tiles::DZI_OVERLAP)),
+            id.as_deref()
+                .map(|id| (tiles.as_path(), id, super::tiles::IIIF_TILE)),
         )?;
-        if let Some(base) = iiif {
-            let id = format!("{base}/plane_{g}");
-            let tiles = dir.join(format!("plane_{g}"));
-            super::tiles::write_iiif(&tiles, &id, (w, h), &frame, super::tiles::IIIF_TILE)?;
-            ids.push(id);
-        }
+        let plane = PlaneBytes {
+            fit,
+            planes: &planes,
+            maps: &maps,
+            outside: &outside,
+            group: g,
+        };
+        write_png8_bands(
+            &dir.join(format!("plane_{g}.png")),
+            (w, h, 3),
+            |rows, bytes| {
+                plane.rows(rows, bytes, &mut band)?;
+                // A small image comes whole: its rows go to the pyramid a PNG band's worth at a time.
+                bytes
+                    .chunks(64 * w * 3)
+                    .try_for_each(|rows| pyramid.push(rows))
+            },
+        )?;
+        pyramid.finish()?;
+        ids.extend(id);
     }
     let info = planes.info(meta, &maps);
     let text = serde_json::to_string_pretty(&info)
         .map_err(|e| Error::invalid(format!("info.json: {e}")))?;
     super::write_file(&dir.join("info.json"), &[text.as_bytes()])?;
     Ok((info, ids))
+}
+
+/// The bytes of one plane image (planes 3g, 3g + 1, 3g + 2 in red, green, blue).
+struct PlaneBytes<'a> {
+    fit: &'a dyn FitSource,
+    planes: &'a Planes,
+    maps: &'a [TermMap],
+    outside: &'a [f64],
+    group: usize,
+}
+
+impl PlaneBytes<'_> {
+    /// The image's rows `rows` into `out` (RGB), read from the fit in bands of at most
+    /// [`FitSource::band_rows`] rows.
+    fn rows(&self, rows: Range<usize>, out: &mut [u8], band: &mut super::Band) -> Result<()> {
+        let meta = self.fit.meta();
+        let (w, n) = (meta.width, self.planes.count);
+        let mut row = vec![0f32; n];
+        for y in rows.clone().step_by(self.fit.band_rows()) {
+            let part = y..(y + self.fit.band_rows()).min(rows.end);
+            self.fit.band(part.clone(), band)?;
+            let at = (part.start - rows.start) * w * 3;
+            let bytes = &mut out[at..at + part.len() * w * 3];
+            for (i, px) in bytes.chunks_exact_mut(3).enumerate() {
+                if band.inside[i] {
+                    self.planes.pixel(meta, band, i, &mut row);
+                }
+                for (k, b) in px.iter_mut().enumerate() {
+                    let q = 3 * self.group + k;
+                    *b = match (q < n, band.inside[i]) {
+                        (false, _) => 0,
+                        (true, true) => quantise(f64::from(row[q]), &self.maps[q]),
+                        (true, false) => quantise(self.outside[q], &self.maps[q]),
+                    };
+                }
+            }
+        }
+        Ok(())
+    }
 }
 
 /// The byte of `v` under `m`: round(255 (v / scale + bias)), clamped.

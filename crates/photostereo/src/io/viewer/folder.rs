@@ -77,6 +77,15 @@ fn read_bool_png(path: &Path, w: usize, h: usize, notes: &mut Vec<String>) -> Op
 /// finite or has no length). The folder is not a run's without it.
 fn read_normals(dir: &Path) -> Result<(usize, usize, Vec<[f32; 3]>)> {
     let np = dir.join("normals.npy");
+    if !np.is_file() && dir.join(super::rti::MODEL_JSON).is_file() {
+        return Err(Error::file(
+            dir,
+            "an output folder of `photostereo rti`: a relightable image without normals, which \
+             the viewer's layers (and the RTI layer's enhancements) need; open the .ptm/.rti in \
+             RTIViewer or relight/ in OpenLIME, or run `photostereo run CAPTURE --rti BASIS -o \
+             OUT` and view OUT to see the RTI layer beside the normals",
+        ));
+    }
     if !np.is_file() {
         return Err(Error::file(
             dir,

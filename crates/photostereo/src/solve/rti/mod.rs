@@ -429,9 +429,30 @@ fn normal_matrix(
 /// leverages, and a pixel's own projector when it excludes lights.
 struct Scratch {
     y: Vec<f64>,
+    /// The pixel's excluded lights.
+    flags: Vec<bool>,
     leverage: Vec<f64>,
     projector: Vec<f64>,
     errors: RelightErrors,
+}
+
+/// Which readings a fit leaves out, per mask pixel (the capture's mask-pixel order) and light:
+/// flags held whole (`[pixel][light]`, for tests and callers of their own) or read in place from
+/// what already holds them (the `rti` command reads the recursive method's statuses, no copy).
+pub trait ReadingMask: Sync {
+    /// Readings covered: mask pixels × lights.
+    fn readings(&self) -> usize;
+    /// Whether the reading of light `k` of `n` at mask pixel `p` is left out.
+    fn excluded(&self, p: usize, k: usize, n: usize) -> bool;
+}
+
+impl ReadingMask for Vec<bool> {
+    fn readings(&self) -> usize {
+        self.len()
+    }
+    fn excluded(&self, p: usize, k: usize, n: usize) -> bool {
+        self[p * n + k]
+    }
 }
 
 /// Where a fit puts its coefficients as it makes them, a block of consecutive mask pixels at a
@@ -474,7 +495,7 @@ pub(crate) fn widen_ranges(ranges: &mut [(f32, f32)], values: &[f32]) {
 
 /// Fits `basis` to every mask pixel of `capture` and measures its leave-one-out error, the
 /// coefficients held whole in the result ([`fit_into`] with a sink that keeps them).
-pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<RtiFit> {
+pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&dyn ReadingMask>) -> Result<RtiFit> {
     let mut kept = Collect::default();
     let mut f = fit_into(capture, basis, exclude, &mut kept)?;
     f.coefficients = kept.coefficients;
@@ -485,12 +506,11 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&[bool]>) -> Result<
 /// Fits `basis` to every mask pixel of `capture`, block by block ([`BLOCK_PIXELS`]) into
 /// `sink`, and measures its leave-one-out error; the result holds no coefficients (its
 /// `coefficients` and `chroma` are empty, its `ranges` measured). `exclude`, when given, flags
-/// per mask pixel and light (`[pixel][light]`, the capture's mask-pixel order) the readings to
-/// leave out of the pixel's fit and error.
+/// per mask pixel and light the readings to leave out of the pixel's fit and error.
 pub fn fit_into(
     capture: &Capture,
     basis: Basis,
-    exclude: Option<&[bool]>,
+    exclude: Option<&dyn ReadingMask>,
     sink: &mut dyn CoefficientSink,
 ) -> Result<RtiFit> {
     if basis == Basis::Rbf {
@@ -512,10 +532,10 @@ pub fn fit_into(
     );
     check_distant(capture)?;
     if let Some(e) = exclude {
-        if e.len() != np * n {
+        if e.readings() != np * n {
             return Err(Error::invalid(format!(
                 "light mask of {} flags for {np} pixels × {n} lights",
-                e.len()
+                e.readings()
             )));
         }
     }
@@ -602,7 +622,7 @@ struct TileJob<'a> {
     basis: Basis,
     design: &'a Design,
     gain: f64,
-    exclude: Option<&'a [bool]>,
+    exclude: Option<&'a dyn ReadingMask>,
 }
 
 /// Pixels per rayon task (the scratch is allocated per task, not per pixel).
@@ -633,6 +653,7 @@ impl TileJob<'_> {
                 || {
                     let s = Scratch {
                         y: vec![0.0; n * fc],
+                        flags: vec![false; n],
                         leverage: vec![0.0; n],
                         projector: vec![0.0; t * n],
                         errors: RelightErrors::new(n),
@@ -684,7 +705,13 @@ impl TileJob<'_> {
             }
         }
         let global = self.start + local;
-        let flags = self.exclude.map(|e| &e[global * n..(global + 1) * n]);
+        let mut held = std::mem::take(&mut s.flags);
+        if let Some(e) = self.exclude {
+            for (k, f) in held.iter_mut().enumerate() {
+                *f = e.excluded(global, k, n);
+            }
+        }
+        let flags = self.exclude.map(|_| held.as_slice());
         let excluded = flags.map_or(0, |f| f.iter().filter(|&&x| x).count());
         let mut fell_back = false;
         let own = excluded > 0 && {
@@ -720,6 +747,7 @@ impl TileJob<'_> {
             kept: &kept,
         };
         self.loo_errors(&data, chroma, &mut s.errors);
+        s.flags = held;
         (excluded as u64 * u64::from(own), fell_back)
     }
 
@@ -799,7 +827,7 @@ pub fn lambert_errors(
     normals: &[[f32; 3]],
     albedo: &[f32],
     gain: f64,
-    exclude: Option<&[bool]>,
+    exclude: Option<&dyn ReadingMask>,
 ) -> Result<RelightErrors> {
     let (n, c) = (capture.n_lights(), capture.channels);
     let dirs = &capture.lights.directions;
@@ -814,7 +842,7 @@ pub fn lambert_errors(
                     let nn = normals[i];
                     let s = view.pixel_samples(p);
                     for (k, l) in dirs.iter().enumerate() {
-                        if exclude.is_some_and(|e| e[(start + p) * n + k]) {
+                        if exclude.is_some_and(|e| e.excluded(start + p, k, n)) {
                             continue;
                         }
                         let shade = (f64::from(nn[0]) * l[0]
