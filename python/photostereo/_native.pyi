@@ -41,7 +41,7 @@ class ParamValues(TypedDict, total=False):
     fallback: Literal["neighbours", "brightest"]  # default "neighbours"
     consensus_radius: int  # default 2
     surface_prior: float  # default 1.0
-    reflectance: Literal["lambert", "auto", "lobe"]  # default "lambert"
+    reflectance: Literal["lambert", "auto", "lobe", "material"]  # default "lambert"
     attached_tolerance: float  # default 0.02
     cast_tolerance: float  # default 0.05
     integrator: Literal["bilateral", "poisson", "dct", "fft", "paths"]  # default "bilateral"

@@ -826,7 +826,10 @@ pub const PARAMETERS: &[Parameter] = &[
         doc: "Reflectance model of the final estimate with distant lights: at pixels with a \
               highlight, the normal fitted jointly with a specular lobe where the chi-square \
               evidence says the lobe is significant (auto), wherever the fit finds a lobe \
-              (lobe), or from the lights left after dropping the highlight (lambert).",
+              (lobe), or from the lights left after dropping the highlight (lambert); \
+              material: one lobe shape and diffuse falloff per material (albedo colour \
+              cluster), fitted from all its pixels and kept where its pooled evidence (BIC) \
+              says so, Lambert elsewhere.",
         methods: RECURSIVE,
         report_key: "recursive.reflectance",
     },

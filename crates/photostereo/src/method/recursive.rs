@@ -123,7 +123,8 @@ pub struct RecursiveParams {
     /// ([`crate::solve::gloss`]): at pixels with a highlight, the normal fitted jointly with a
     /// specular lobe instead of from the lights left after the highlight is dropped. Default
     /// lambert (the paper): with a dozen 8-bit lights the lobe fit can trade the diffuse
-    /// readings for a broad lobe and turn a normal far from the readings' own.
+    /// readings for a broad lobe and turn a normal far from the readings' own. `material`
+    /// shares the lobe over the pixels of a material ([`crate::solve::material`]).
     pub reflectance: Reflectance,
 }
 

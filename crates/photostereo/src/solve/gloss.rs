@@ -92,12 +92,21 @@ pub enum Reflectance {
     /// The lobe where the χ² evidence says it is significant, Lambert elsewhere.
     #[serde(rename = "auto")]
     Auto,
+    /// One lobe shape (and diffuse falloff) shared by the pixels of a material, where the
+    /// material's pooled evidence (BIC) says it has a lobe; Lambert elsewhere
+    /// ([`crate::solve::material`]).
+    #[serde(rename = "material")]
+    Material,
 }
 
 impl Reflectance {
     /// Every choice, default first.
-    pub const ALL: &'static [Reflectance] =
-        &[Reflectance::Lambert, Reflectance::Auto, Reflectance::Lobe];
+    pub const ALL: &'static [Reflectance] = &[
+        Reflectance::Lambert,
+        Reflectance::Auto,
+        Reflectance::Lobe,
+        Reflectance::Material,
+    ];
 
     /// The name accepted by `--reflectance` (and the Python keyword `reflectance`).
     pub fn name(self) -> &'static str {
@@ -105,6 +114,7 @@ impl Reflectance {
             Reflectance::Lambert => "lambert",
             Reflectance::Lobe => "lobe",
             Reflectance::Auto => "auto",
+            Reflectance::Material => "material",
         }
     }
 }
@@ -156,6 +166,9 @@ pub struct GlossSummary {
     pub refined_share: f64,
     /// Refined pixels with a sharpness of their own.
     pub own_exponent_pixels: usize,
+    /// With [`Reflectance::Material`]: the materials found and what each chose.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub materials: Vec<crate::solve::material::MaterialSummary>,
 }
 
 /// Per mask pixel: the fitted lobe's peak s and roughness √(2/m); NaN where not fitted, and
@@ -167,19 +180,19 @@ pub struct GlossMaps {
 }
 
 /// Per-thread buffers of one pixel (no allocation per pixel).
-struct Scratch {
-    v: Vec<[f64; 3]>,
-    b: Vec<f64>,
-    g: Vec<f64>,
-    used: Vec<bool>,
+pub(crate) struct Scratch {
+    pub(crate) v: Vec<[f64; 3]>,
+    pub(crate) b: Vec<f64>,
+    pub(crate) g: Vec<f64>,
+    pub(crate) used: Vec<bool>,
     /// The lights of the Lambertian estimate (USED), for the albedo.
-    diffuse: Vec<bool>,
+    pub(crate) diffuse: Vec<bool>,
 }
 
 /// What every pixel's fit reads: the unit light directions, their half vectors, the noise.
-struct Lights<'a> {
-    dirs: &'a [[f64; 3]],
-    half: Vec<[f64; 3]>,
+pub(crate) struct Lights<'a> {
+    pub(crate) dirs: &'a [[f64; 3]],
+    pub(crate) half: Vec<[f64; 3]>,
     noise: &'a NoiseModel,
     /// χ² quantiles at the detector's confidence, by degrees of freedom.
     q: Vec<f64>,
@@ -209,7 +222,7 @@ struct PixelFit {
 }
 
 impl Scratch {
-    fn new(n: usize) -> Self {
+    pub(crate) fn new(n: usize) -> Self {
         Scratch {
             v: vec![[0.0; 3]; n],
             b: vec![0.0; n],
@@ -220,9 +233,16 @@ impl Scratch {
     }
 
     /// Loads a pixel's noise-weighted readings and the lights out of shadow; returns their
-    /// count, or 0 when the pixel has no highlight attributed (not fitted).
-    fn load(&mut self, lights: &Lights, samples: &[f32], channels: usize, st: &[u8]) -> usize {
-        if !st.contains(&status::HIGHLIGHT) {
+    /// count, or 0 when the pixel has no highlight attributed (not fitted) unless `any`.
+    pub(crate) fn load(
+        &mut self,
+        lights: &Lights,
+        samples: &[f32],
+        channels: usize,
+        st: &[u8],
+        any: bool,
+    ) -> usize {
+        if !any && !st.contains(&status::HIGHLIGHT) {
             return 0;
         }
         channel_mean(samples, channels, &mut self.g);
@@ -241,7 +261,7 @@ impl Scratch {
         count
     }
 
-    fn data<'a>(&'a self, lights: &'a Lights) -> PixelData<'a> {
+    pub(crate) fn data<'a>(&'a self, lights: &'a Lights) -> PixelData<'a> {
         PixelData {
             v: &self.v,
             h: &lights.half,
@@ -356,6 +376,7 @@ pub fn model_highlights(
         refined_pixels: 0,
         refined_share: 0.0,
         own_exponent_pixels: 0,
+        materials: Vec::new(),
     };
     let mut maps = GlossMaps {
         strength: vec![f32::NAN; np],
@@ -368,6 +389,12 @@ pub fn model_highlights(
         return Ok((summary, maps));
     };
     let m = evidence.exponent;
+    if reflectance == Reflectance::Material {
+        let mut material =
+            crate::solve::material::model_materials(capture, light_status, est, &lights, m)?;
+        material.summary.reflectance = reflectance;
+        return Ok((material.summary, material.maps));
+    }
     summary.exponent = Some(m);
     summary.roughness = Some((2.0 / m).sqrt());
     summary.sample_pixels = evidence.sampled;
@@ -400,7 +427,7 @@ pub fn model_highlights(
                         let p = off + lp;
                         let samples = tile.pixel_samples(lp);
                         light_status.row_into(p, st);
-                        let count = scratch.load(&lights, samples, c, st);
+                        let count = scratch.load(&lights, samples, c, st, false);
                         let Some(start) = start_of(*normal) else {
                             continue;
                         };
@@ -507,7 +534,7 @@ fn capture_sharpness(
     capture.for_ids_by_tile(&ids, |sub, view| {
         for &p in sub {
             light_status.row_into(p, &mut st);
-            scratch.load(lights, view.pixel_samples(p), capture.channels, &st);
+            scratch.load(lights, view.pixel_samples(p), capture.channels, &st, false);
             let d = scratch.data(lights);
             let start = start_of(est.normals[p]).expect("a candidate has a normal");
             let row: Vec<f64> = LOBE_EXPONENTS
@@ -528,7 +555,7 @@ fn capture_sharpness(
     capture.for_ids_by_tile(&ids, |sub, view| {
         for &p in sub {
             light_status.row_into(p, &mut st);
-            let count = scratch.load(lights, view.pixel_samples(p), capture.channels, &st);
+            let count = scratch.load(lights, view.pixel_samples(p), capture.channels, &st, false);
             let start = start_of(est.normals[p]).expect("a candidate has a normal");
             let fit = lights.fit(&scratch.data(lights), count, start, exponent);
             significant += fit.significant as usize;
@@ -578,9 +605,9 @@ fn f_quantiles(confidence: f64, extra: usize, n: usize) -> Vec<f64> {
 }
 
 /// Iterations of [`descend`] at most.
-const MAX_STEPS: usize = 30;
+pub(crate) const MAX_STEPS: usize = 30;
 /// [`descend`] stops when the normal moves by less than this, radians (0.003°).
-const SMALLEST_STEP: f64 = 5e-5;
+pub(crate) const SMALLEST_STEP: f64 = 5e-5;
 
 /// The least χ² normal for sharpness `m` near `from` (returns (χ², normal)): Levenberg–Marquardt
 /// steps in the normal's two tangent angles and (ρ, s), each step's normal then scored with ρ
@@ -588,7 +615,7 @@ const SMALLEST_STEP: f64 = 5e-5;
 /// in n except where n · l_k changes sign, and the start (the recursion's normal) lies within a
 /// few degrees of the fit: a descent finds the minimum in a fraction of the evaluations of the
 /// near-light fit's pattern search, which has to search from far starts.
-fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
+pub(crate) fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
     use nalgebra::{Matrix4, Vector4};
     let mut n = from;
     let (mut e, mut rho, mut s) = fit_at(d, n, m);
@@ -690,16 +717,16 @@ fn lambert_normal_variance(d: &PixelData) -> f64 {
     ((c.trace() - (u.transpose() * c * u)[(0, 0)]) / r2).max(0.0)
 }
 
-fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
+pub(crate) fn dot(a: [f64; 3], b: [f64; 3]) -> f64 {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 /// `x` as an f64 unit vector, or `None` for the zero vector (no normal).
-fn start_of(x: [f32; 3]) -> Option<[f64; 3]> {
+pub(crate) fn start_of(x: [f32; 3]) -> Option<[f64; 3]> {
     (x != [0.0; 3]).then(|| unit([x[0] as f64, x[1] as f64, x[2] as f64]))
 }
 
-fn unit(a: [f64; 3]) -> [f64; 3] {
+pub(crate) fn unit(a: [f64; 3]) -> [f64; 3] {
     let r = (a[0] * a[0] + a[1] * a[1] + a[2] * a[2]).sqrt();
     if r > 0.0 {
         [a[0] / r, a[1] / r, a[2] / r]

@@ -1,0 +1,851 @@
+//! Lobes shared by the pixels of a material: the recursive method's `--reflectance material`.
+//!
+//! The per-pixel lobe fit ([`crate::solve::gloss`]) gives every pixel its own lobe, and its
+//! significance rests on that pixel's readings alone. Most surfaces are made of a few materials,
+//! and the shape of a material's reflectance is the same at all its pixels: here it is fitted
+//! once per material from all its pixels, so that each pixel only adds its normal, its diffuse
+//! albedo ρ and a specular strength s:
+//!
+//! I_k = ρ f(n · l_k) + s g(n · h_k),   ρ ≥ 0, s ≥ 0,
+//!
+//! with h_k the half vector of light k and the orthographic camera, g a monotone lobe (g = 1 at
+//! the peak, falling to 0 at [`LOBE_KNOTS`] × [`LOBE_STEP_DEG`] from it; piecewise linear in
+//! 1 − n · h between knots at whole multiples of the step in the half-vector angle) and f a
+//! monotone diffuse falloff (f(0) = 0, f(1) = 1; Lambert is f(c) = c; piecewise linear with
+//! [`DIFFUSE_KNOTS`] knots). Monotone shapes with non-negative ramp weights cover the isotropic
+//! lobes of common BRDFs (Blinn–Phong, Torrance–Sparrow, Ward) without naming one. The readings
+//! are weighted by their noise as in the per-pixel fit; shadows stay excluded (the recursion's
+//! USED and HIGHLIGHT lights are fitted).
+//!
+//! Steps:
+//! 1. *Materials*: k-means of the Lambertian albedo's rg chromaticity (ln ρ for grey captures),
+//!    k = 1..=[`MAX_MATERIALS`] by the least BIC of spherical Gaussians; clusters with fewer than
+//!    [`MIN_MATERIAL_SAMPLE`] sampled pixels join the nearest other one.
+//! 2. *Shapes*: over at most [`SAMPLE_PIXELS`] pixels of the material with
+//!    [`crate::solve::gloss::MIN_LIGHTS`] lights out of shadow, alternately (a) each pixel's
+//!    normal, ρ and s by Levenberg–Marquardt from the recursion's normal and (b) the shapes'
+//!    ramp weights by non-negative least squares over all the pixels' readings, from the
+//!    capture's exponential lobe, [`ROUNDS`] times.
+//! 3. *Evidence*: the material's pooled χ² with the lobe (χ²_B) and without it (χ²_A, the
+//!    diffuse falloff alone), each pixel's normal refitted; the lobe's Δp parameters (one s per
+//!    pixel and the lobe's weights) are kept where Schwarz's criterion for N readings with
+//!    unknown noise prefers them: N ln(χ²_A / χ²_B) > Δp ln N. The criterion scales the
+//!    penalty with ln N rather than asking for a lowering beyond noise, so that model error
+//!    pooled over thousands of pixels — a camera response, interreflection — does not pass
+//!    for a lobe, while a lobe that explains a large share of the residual does.
+//! 4. Every pixel of a material with a lobe (and [`crate::solve::gloss::MIN_LIGHTS`] lights
+//!    out of shadow) takes the fitted normal where it faces the camera and its lit lights;
+//!    the other materials keep the recursion's estimate unchanged.
+//!
+//! The strength map gives s, the roughness map the material's lobe as the roughness √(2x₁/ₑ)
+//! of the exponential lobe exp(−m x) falling to 1/e at the same x = 1 − n · h (m = 1/x₁/ₑ).
+//! Cost: a few descents per fitted pixel and, per round, normal equations of
+//! [`LOBE_KNOTS`] + [`DIFFUSE_KNOTS`] unknowns over the sample; memory: the sample's readings
+//! (N_lights × 57 bytes per sampled pixel) and one byte per pixel for the materials.
+
+use crate::base::error::Result;
+use crate::model::capture::Capture;
+use crate::solve::gloss::{
+    descend, dot, start_of, unit, GlossMaps, GlossSummary, Lights, Reflectance, Scratch, MAX_STEPS,
+    MIN_LIGHTS, SMALLEST_STEP,
+};
+use crate::solve::lambert::{status, write_normal_albedo_with, Estimate, Statuses, CHUNK};
+use crate::solve::near_lobe::{basis, fit_at, PixelData};
+use rayon::prelude::*;
+use serde::Serialize;
+
+/// Spacing of the lobe's knots in the half-vector angle, degrees.
+pub const LOBE_STEP_DEG: f64 = 2.0;
+/// Knots of the lobe: it reaches zero 60° from its peak.
+pub const LOBE_KNOTS: usize = 30;
+/// Knots of the diffuse falloff, evenly spaced in n · l.
+pub const DIFFUSE_KNOTS: usize = 20;
+/// Alternations of per-pixel fits and shape fits.
+pub const ROUNDS: usize = 3;
+/// Pixels sampled per material for its shapes and evidence.
+pub const SAMPLE_PIXELS: usize = 3000;
+/// Materials at most.
+pub const MAX_MATERIALS: usize = 4;
+/// Sampled pixels a material needs of its own.
+pub const MIN_MATERIAL_SAMPLE: usize = 50;
+
+/// One material in `report.json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct MaterialSummary {
+    /// Its centre: rg chromaticity of the albedo, or (ln ρ, 0) for grey captures.
+    pub center: [f64; 2],
+    /// Mask pixels assigned to it.
+    pub pixels: usize,
+    /// Of them, sampled for the shapes and the evidence.
+    pub sample_pixels: usize,
+    /// N ln(χ²_A / χ²_B) − Δp ln N: positive where the lobe is kept.
+    pub evidence: Option<f64>,
+    /// Whether its pixels take the lobe fit.
+    pub lobe: bool,
+    /// The lobe's roughness √(2x₁/ₑ) (see the module documentation).
+    pub roughness: Option<f64>,
+    /// The lobe's value at the knots 0°, 6°, 12°, … of the half-vector angle.
+    pub lobe_shape: Vec<f64>,
+    /// The diffuse falloff f at n · l = 0, 0.1, …, 1.
+    pub diffuse_shape: Vec<f64>,
+}
+
+/// The result of [`model_materials`].
+pub(crate) struct Materials {
+    pub summary: GlossSummary,
+    pub maps: GlossMaps,
+}
+
+/// Piecewise-linear monotone shape: knots `x` (increasing), ramp weights `a[1..]` ≥ 0.
+/// As a lobe, x = 1 − n · h and the value Σ_{j} a_j clamp((x_j − x)/(x_j − x_{j−1}), 0, 1)
+/// falls from Σa at x_0 = 0 to 0 at the last knot; as a diffuse falloff, x = n · l and the
+/// value Σ_j a_j clamp((x − x_{j−1})/(x_j − x_{j−1}), 0, 1) rises from 0.
+#[derive(Clone, Debug)]
+pub(crate) struct Shape {
+    x: Vec<f64>,
+    a: Vec<f64>,
+    /// Value at each knot.
+    at: Vec<f64>,
+    falling: bool,
+}
+
+impl Shape {
+    /// The lobe exp(−m (1 − n · h)) at the knots.
+    fn lobe(m: f64) -> Self {
+        let x: Vec<f64> = (0..=LOBE_KNOTS)
+            .map(|j| 1.0 - (j as f64 * LOBE_STEP_DEG).to_radians().cos())
+            .collect();
+        let g = |j: usize| {
+            if j < LOBE_KNOTS {
+                (-m * x[j]).exp()
+            } else {
+                0.0
+            }
+        };
+        let a = (0..=LOBE_KNOTS)
+            .map(|j| if j == 0 { 0.0 } else { g(j - 1) - g(j) })
+            .collect();
+        Shape::new(x, a, true)
+    }
+
+    /// Lambert's f(c) = c.
+    fn lambert() -> Self {
+        let step = 1.0 / DIFFUSE_KNOTS as f64;
+        let x = (0..=DIFFUSE_KNOTS).map(|j| j as f64 * step).collect();
+        let a = (0..=DIFFUSE_KNOTS)
+            .map(|j| if j == 0 { 0.0 } else { step })
+            .collect();
+        Shape::new(x, a, false)
+    }
+
+    fn new(x: Vec<f64>, a: Vec<f64>, falling: bool) -> Self {
+        let mut s = Shape {
+            at: vec![0.0; x.len()],
+            x,
+            a,
+            falling,
+        };
+        s.set(&[]);
+        s
+    }
+
+    fn knots(&self) -> usize {
+        self.x.len() - 1
+    }
+
+    /// Replaces the ramp weights (`a[j − 1]` for j = 1..=J) unless empty, scaled so that the
+    /// shape's extreme is 1; false where they are all zero.
+    fn set(&mut self, a: &[f64]) -> bool {
+        let j = self.knots();
+        if !a.is_empty() {
+            let total: f64 = a.iter().sum();
+            if total <= 0.0 {
+                return false;
+            }
+            for i in 1..=j {
+                self.a[i] = a[i - 1] / total;
+            }
+        }
+        if self.falling {
+            self.at[j] = 0.0;
+            for i in (0..j).rev() {
+                self.at[i] = self.at[i + 1] + self.a[i + 1];
+            }
+        } else {
+            self.at[0] = 0.0;
+            for i in 1..=j {
+                self.at[i] = self.at[i - 1] + self.a[i];
+            }
+        }
+        true
+    }
+
+    /// The segment j of x: x_{j−1} < x ≤ x_j, clamped to 1..=J (J + 1 beyond a lobe's end).
+    #[inline]
+    fn segment(&self, x: f64) -> usize {
+        let j = self.knots();
+        if self.falling {
+            // Knots at whole steps of the half-vector angle θ, x = 1 − cos θ.
+            let theta = (1.0 - x).clamp(-1.0, 1.0).acos();
+            ((theta / LOBE_STEP_DEG.to_radians()).ceil() as usize).max(1)
+        } else {
+            ((x * j as f64).ceil() as usize).clamp(1, j)
+        }
+    }
+
+    /// The shape and its derivative at c (c = n · h for a lobe, n · l for a falloff).
+    #[inline]
+    fn eval(&self, c: f64) -> (f64, f64) {
+        let x = if self.falling { 1.0 - c } else { c };
+        if !self.falling && x <= 0.0 {
+            return (0.0, 0.0);
+        }
+        let j = self.segment(x);
+        if j > self.knots() {
+            return (0.0, 0.0);
+        }
+        let dx = self.x[j] - self.x[j - 1];
+        let t = ((x - self.x[j - 1]) / dx).clamp(0.0, 1.0);
+        // d/dc: the lobe falls in x = 1 − c, the falloff rises in x = c.
+        (
+            self.at[j - 1] + (self.at[j] - self.at[j - 1]) * t,
+            self.a[j] / dx,
+        )
+    }
+
+    /// The ramps at c into `out[j − 1]`, j = 1..=J.
+    fn ramps(&self, c: f64, out: &mut [f64]) {
+        let x = if self.falling { 1.0 - c } else { c };
+        for j in 1..=self.knots() {
+            let t = (x - self.x[j - 1]) / (self.x[j] - self.x[j - 1]);
+            out[j - 1] = if self.falling {
+                (1.0 - t).clamp(0.0, 1.0)
+            } else if x > 0.0 {
+                t.clamp(0.0, 1.0)
+            } else {
+                0.0
+            };
+        }
+    }
+
+    /// A lobe's roughness √(2x₁/ₑ): the exponential lobe falling to 1/e at the same x.
+    fn roughness(&self) -> f64 {
+        let target = (-1.0f64).exp();
+        let j = (1..=self.knots())
+            .find(|&j| self.at[j] <= target)
+            .unwrap_or(self.knots());
+        let (g0, g1) = (self.at[j - 1], self.at[j]);
+        let t = if g0 > g1 {
+            ((g0 - target) / (g0 - g1)).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
+        (2.0 * (self.x[j - 1] + t * (self.x[j] - self.x[j - 1]))).sqrt()
+    }
+}
+
+/// A material's shapes: the diffuse falloff f(n · l) and the lobe g(n · h).
+#[derive(Clone, Debug)]
+pub(crate) struct Shapes {
+    diffuse: Shape,
+    lobe: Shape,
+}
+
+/// The fit at normal `n` with the shapes: (χ², ρ, s), ρ and s non-negative least squares.
+fn fit_with(d: &PixelData, n: [f64; 3], shapes: &Shapes) -> (f64, f64, f64) {
+    let (mut aa, mut ab, mut bb, mut ag, mut bg, mut gg) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+        let a = d.b[k] * shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]).0;
+        let b = d.b[k] * shapes.lobe.eval(dot(d.h[k], n)).0;
+        let g = d.g[k];
+        aa += a * a;
+        ab += a * b;
+        bb += b * b;
+        ag += a * g;
+        bg += b * g;
+        gg += g * g;
+    }
+    let mut best = (gg, 0.0, 0.0);
+    if aa > 0.0 {
+        let r = (ag / aa).max(0.0);
+        best = (gg - r * ag, r, 0.0);
+    }
+    if bb > 0.0 {
+        let s = (bg / bb).max(0.0);
+        if gg - s * bg < best.0 {
+            best = (gg - s * bg, 0.0, s);
+        }
+    }
+    let det = aa * bb - ab * ab;
+    if det > 1e-12 * (aa * bb).max(1e-300) {
+        let r = (ag * bb - bg * ab) / det;
+        let s = (bg * aa - ag * ab) / det;
+        if r >= 0.0 && s >= 0.0 && gg - r * ag - s * bg < best.0 {
+            best = (gg - r * ag - s * bg, r, s);
+        }
+    }
+    (best.0.max(0.0), best.1, best.2)
+}
+
+/// The least χ² normal near `from` with the shapes (returns (χ², normal)): the per-pixel fit's
+/// Levenberg–Marquardt descent ([`crate::solve::gloss`]) with f and g in place of n · l and the
+/// exponential lobe.
+fn descend_with(d: &PixelData, from: [f64; 3], shapes: &Shapes) -> (f64, [f64; 3]) {
+    use nalgebra::{Matrix4, Vector4};
+    let mut n = from;
+    let (mut e, mut rho, mut s) = fit_with(d, n, shapes);
+    let mut lambda = 1e-3;
+    for _ in 0..MAX_STEPS {
+        let (t1, t2) = basis(n);
+        let (mut jtj, mut jtr) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
+        for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+            let (fl, df) = shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]);
+            let (gl, dg) = shapes.lobe.eval(dot(d.h[k], n));
+            let (a, lobe) = (d.b[k] * fl, d.b[k] * gl);
+            let r = d.g[k] - rho * a - s * lobe;
+            let j = Vector4::new(
+                rho * df * dot(d.v[k], t1) + s * d.b[k] * dg * dot(d.h[k], t1),
+                rho * df * dot(d.v[k], t2) + s * d.b[k] * dg * dot(d.h[k], t2),
+                a,
+                lobe,
+            );
+            jtj += j * j.transpose();
+            jtr += j * r;
+        }
+        let mut moved = false;
+        while lambda < 1e8 {
+            let mut damped = jtj;
+            for i in 0..4 {
+                damped[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
+            }
+            let Some(step) = damped.lu().solve(&jtr) else {
+                lambda *= 10.0;
+                continue;
+            };
+            let turn = (step[0] * step[0] + step[1] * step[1]).sqrt();
+            let c = unit([
+                n[0] + step[0] * t1[0] + step[1] * t2[0],
+                n[1] + step[0] * t1[1] + step[1] * t2[1],
+                n[2] + step[0] * t1[2] + step[1] * t2[2],
+            ]);
+            let (ec, rc, sc) = fit_with(d, c, shapes);
+            if ec < e {
+                (e, n, rho, s) = (ec, c, rc, sc);
+                lambda = (lambda * 0.1).max(1e-7);
+                moved = turn > SMALLEST_STEP;
+                break;
+            }
+            if turn < SMALLEST_STEP {
+                break;
+            }
+            lambda *= 10.0;
+        }
+        if !moved {
+            break;
+        }
+    }
+    (e, n)
+}
+
+/// A sampled pixel: its loaded readings, the recursion's normal and the current fit.
+struct Sampled {
+    v: Vec<[f64; 3]>,
+    b: Vec<f64>,
+    g: Vec<f64>,
+    used: Vec<bool>,
+    start: [f64; 3],
+    normal: [f64; 3],
+    rho: f64,
+    s: f64,
+}
+
+impl Sampled {
+    fn data<'a>(&'a self, half: &'a [[f64; 3]]) -> PixelData<'a> {
+        PixelData {
+            v: &self.v,
+            h: half,
+            b: &self.b,
+            g: &self.g,
+            used: &self.used,
+        }
+    }
+}
+
+/// The shapes' ramp weights from the sampled pixels at their current normal, ρ and s: the
+/// readings are linear in them (ρ ramps of f, s ramps of g); non-negative least squares by
+/// projected Gauss–Seidel on the normal equations. `None` where the lobe's weights all vanish.
+fn fit_shapes(pixels: &[Sampled], half: &[[f64; 3]], shapes: &Shapes) -> Option<Shapes> {
+    use nalgebra::{DMatrix, DVector};
+    let (jg, jf) = (shapes.lobe.knots(), shapes.diffuse.knots());
+    let dim = jg + jf;
+    let zero = || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim));
+    let (h, q) = pixels
+        .par_iter()
+        .fold(
+            || (zero(), vec![0.0; dim]),
+            |((mut h, mut q), mut row), p| {
+                for k in (0..p.v.len()).filter(|&k| p.used[k]) {
+                    shapes.lobe.ramps(dot(half[k], p.normal), &mut row[..jg]);
+                    shapes
+                        .diffuse
+                        .ramps(dot(p.v[k], p.normal) / p.b[k], &mut row[jg..]);
+                    let scale = |j: usize| if j < jg { p.s * p.b[k] } else { p.rho * p.b[k] };
+                    let r = DVector::from_fn(dim, |j, _| row[j] * scale(j));
+                    h.syger(1.0, &r, &r, 1.0);
+                    q.axpy(p.g[k], &r, 1.0);
+                }
+                ((h, q), row)
+            },
+        )
+        .map(|(hq, _)| hq)
+        .reduce(zero, |a, b| (a.0 + b.0, a.1 + b.1));
+    // syger fills the lower triangle.
+    let h = DMatrix::from_fn(dim, dim, |i, j| h[(i.max(j), i.min(j))]);
+    let mut a = DVector::from_fn(dim, |j, _| {
+        if j < jg {
+            shapes.lobe.a[j + 1]
+        } else {
+            shapes.diffuse.a[j - jg + 1]
+        }
+    });
+    for _ in 0..NNLS_SWEEPS {
+        for j in 0..dim {
+            if h[(j, j)] > 0.0 {
+                let ha = h.row(j).dot(&a.transpose());
+                a[j] = (a[j] + (q[j] - ha) / h[(j, j)]).max(0.0);
+            }
+        }
+    }
+    let mut out = shapes.clone();
+    let weights: Vec<f64> = a.iter().copied().collect();
+    if !out.lobe.set(&weights[..jg]) {
+        return None;
+    }
+    out.diffuse.set(&weights[jg..]);
+    Some(out)
+}
+
+/// Sweeps of projected Gauss–Seidel in [`fit_shapes`].
+const NNLS_SWEEPS: usize = 2000;
+
+/// Fits the materials of `est` (per mask pixel; `light_status` the recursion's statuses) and
+/// refits the pixels of those with a lobe (see the module documentation); `m` is the capture's
+/// exponential lobe sharpness, the shapes' start.
+pub(crate) fn model_materials(
+    capture: &Capture,
+    light_status: &(impl Statuses + ?Sized),
+    est: &mut Estimate,
+    lights: &Lights,
+    m: f64,
+) -> Result<Materials> {
+    let (n, c, np) = (capture.n_lights(), capture.channels, capture.n_pixels());
+    let mut summary = empty_summary();
+    let mut maps = GlossMaps {
+        strength: vec![f32::NAN; np],
+        roughness: vec![f32::NAN; np],
+    };
+    let mut st = vec![0u8; n];
+    let candidates: Vec<usize> = (0..np)
+        .filter(|&p| {
+            light_status.row_into(p, &mut st);
+            lit(&st) >= MIN_LIGHTS && start_of(est.normals[p]).is_some()
+        })
+        .collect();
+    let features: Vec<Option<[f64; 2]>> = (0..np)
+        .map(|p| feature(&est.albedo[p * c..(p + 1) * c]))
+        .collect();
+    let spaced = |ids: &[usize], most: usize| -> Vec<usize> {
+        ids.iter()
+            .step_by(ids.len().div_ceil(most.max(1)).max(1))
+            .copied()
+            .collect()
+    };
+    let sample: Vec<[f64; 2]> = spaced(&candidates, SAMPLE_PIXELS)
+        .iter()
+        .filter_map(|&p| features[p])
+        .collect();
+    let centers = materials_of(&sample);
+    let labels: Vec<u8> = features
+        .iter()
+        .map(|f| f.map_or(0, |f| nearest(&centers, f) as u8))
+        .collect();
+    let mut shapes: Vec<Option<Shapes>> = Vec::new();
+    for (k, &center) in centers.iter().enumerate() {
+        let own: Vec<usize> = candidates
+            .iter()
+            .copied()
+            .filter(|&p| labels[p] as usize == k)
+            .collect();
+        let ids = spaced(&own, SAMPLE_PIXELS);
+        let (fitted, evidence) = material_shapes(capture, light_status, est, lights, m, &ids)?;
+        let lobe = evidence.is_some_and(|e| e > 0.0);
+        summary.materials.push(MaterialSummary {
+            center,
+            pixels: labels.iter().filter(|&&l| l as usize == k).count(),
+            sample_pixels: ids.len(),
+            evidence,
+            lobe,
+            roughness: fitted.as_ref().map(|s| s.lobe.roughness()),
+            lobe_shape: fitted.as_ref().map_or(Vec::new(), |s| {
+                s.lobe.at.iter().step_by(3).copied().collect()
+            }),
+            diffuse_shape: fitted.as_ref().map_or(Vec::new(), |s| {
+                (0..=10)
+                    .map(|i| s.diffuse.eval(i as f64 / 10.0).0)
+                    .collect()
+            }),
+        });
+        shapes.push(fitted.filter(|_| lobe));
+    }
+    if shapes.iter().all(Option::is_none) {
+        return Ok(Materials { summary, maps });
+    }
+    let dirs = &capture.lights.directions;
+    let mut counts = [0usize; 2];
+    capture.for_each_tile(|off, tile| {
+        let tn = tile.n_pixels();
+        let sums: Vec<[usize; 2]> = est.normals[off..off + tn]
+            .par_chunks_mut(CHUNK)
+            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
+            .zip(maps.strength[off..off + tn].par_chunks_mut(CHUNK))
+            .zip(maps.roughness[off..off + tn].par_chunks_mut(CHUNK))
+            .enumerate()
+            .map_init(
+                || (Scratch::new(n), vec![0u8; n]),
+                |(scratch, st), (chunk, (((normals, albedo), strength), roughness))| {
+                    let mut counts = [0usize; 2];
+                    for (dp, normal) in normals.iter_mut().enumerate() {
+                        let lp = chunk * CHUNK + dp;
+                        let p = off + lp;
+                        let Some(shape) = &shapes[labels[p] as usize] else {
+                            continue;
+                        };
+                        let Some(start) = start_of(*normal) else {
+                            continue;
+                        };
+                        let samples = tile.pixel_samples(lp);
+                        light_status.row_into(p, st);
+                        if scratch.load(lights, samples, c, st, true) < MIN_LIGHTS {
+                            continue;
+                        }
+                        counts[0] += 1;
+                        let d = scratch.data(lights);
+                        let (_, fit) = descend_with(&d, start, shape);
+                        let (_, rho, s) = fit_with(&d, fit, shape);
+                        let physical =
+                            fit[2] > 0.0 && (0..n).all(|k| !d.used[k] || dot(d.v[k], fit) > 0.0);
+                        if !(physical && s > 0.0) {
+                            strength[dp] = 0.0;
+                            continue;
+                        }
+                        counts[1] += 1;
+                        strength[dp] = s as f32;
+                        roughness[dp] = shape.lobe.roughness() as f32;
+                        let b = nalgebra::Vector3::from(fit) * rho.max(1e-12);
+                        write_normal_albedo_with(
+                            dirs,
+                            c,
+                            samples,
+                            &b,
+                            Some(&scratch.diffuse),
+                            normal,
+                            &mut albedo[dp * c..(dp + 1) * c],
+                        );
+                    }
+                    counts
+                },
+            )
+            .collect();
+        for s in sums {
+            counts[0] += s[0];
+            counts[1] += s[1];
+        }
+        Ok(())
+    })?;
+    summary.fitted_pixels = counts[0];
+    summary.refined_pixels = counts[1];
+    summary.refined_share = counts[1] as f64 / np.max(1) as f64;
+    if counts[1] > 0 {
+        summary.chosen = "lobe";
+    }
+    summary.roughness = summary
+        .materials
+        .iter()
+        .find(|s| s.lobe)
+        .and_then(|s| s.roughness);
+    summary.exponent = summary.roughness.map(|r| 2.0 / (r * r));
+    Ok(Materials { summary, maps })
+}
+
+/// The lights out of shadow in a pixel's statuses.
+fn lit(st: &[u8]) -> usize {
+    st.iter()
+        .filter(|&&s| s == status::USED || s == status::HIGHLIGHT)
+        .count()
+}
+
+fn empty_summary() -> GlossSummary {
+    GlossSummary {
+        reflectance: Reflectance::Material,
+        chosen: "lambert",
+        exponent: None,
+        roughness: None,
+        sample_pixels: 0,
+        sample_significant: 0,
+        sample_null_bound: 0,
+        sample_specular: 0,
+        sample_specular_bound: 0,
+        fitted_pixels: 0,
+        lambert_rejected_pixels: 0,
+        significant_pixels: 0,
+        passing_pixels: 0,
+        refined_pixels: 0,
+        refined_share: 0.0,
+        own_exponent_pixels: 0,
+        materials: Vec::new(),
+    }
+}
+
+/// One material's shapes from its sampled pixels `ids` and the evidence for its lobe,
+/// N ln(χ²_A / χ²_B) − Δp ln N; `None` for the shapes where the lobe vanished, for the
+/// evidence where no pixel was sampled.
+fn material_shapes(
+    capture: &Capture,
+    light_status: &(impl Statuses + ?Sized),
+    est: &Estimate,
+    lights: &Lights,
+    m: f64,
+    ids: &[usize],
+) -> Result<(Option<Shapes>, Option<f64>)> {
+    let n = capture.n_lights();
+    let mut st = vec![0u8; n];
+    let mut scratch = Scratch::new(n);
+    let mut pixels = Vec::with_capacity(ids.len());
+    capture.for_ids_by_tile(ids, |sub, view| {
+        for &p in sub {
+            light_status.row_into(p, &mut st);
+            scratch.load(lights, view.pixel_samples(p), capture.channels, &st, true);
+            let start = start_of(est.normals[p]).expect("a candidate has a normal");
+            let d = scratch.data(lights);
+            let (_, normal) = descend(&d, start, m);
+            let (_, rho, s) = fit_at(&d, normal, m);
+            pixels.push(Sampled {
+                v: scratch.v.clone(),
+                b: scratch.b.clone(),
+                g: scratch.g.clone(),
+                used: scratch.used.clone(),
+                start,
+                normal,
+                rho,
+                s,
+            });
+        }
+        Ok(())
+    })?;
+    if ids.len() < MIN_MATERIAL_SAMPLE {
+        return Ok((None, None));
+    }
+    let half = &lights.half;
+    let mut shapes = Shapes {
+        diffuse: Shape::lambert(),
+        lobe: Shape::lobe(m),
+    };
+    for _ in 0..ROUNDS {
+        let Some(next) = fit_shapes(&pixels, half, &shapes) else {
+            return Ok((None, Some(f64::NEG_INFINITY)));
+        };
+        shapes = next;
+        pixels.par_iter_mut().for_each(|p| {
+            let d = p.data(half);
+            let (_, normal) = descend_with(&d, p.start, &shapes);
+            let (_, rho, s) = fit_with(&d, normal, &shapes);
+            (p.normal, p.rho, p.s) = (normal, rho, s);
+        });
+    }
+    // The same falloff without the lobe: g = 0.
+    let mut flat = shapes.clone();
+    flat.lobe.a.iter_mut().for_each(|a| *a = 0.0);
+    flat.lobe.set(&[]);
+    let (with, without, readings) = pixels
+        .par_iter()
+        .map(|p| {
+            let d = p.data(half);
+            let with = descend_with(&d, p.start, &shapes).0;
+            let without = descend_with(&d, p.start, &flat).0;
+            (with, without, p.used.iter().filter(|&&u| u).count())
+        })
+        .reduce(|| (0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
+    let big_n = readings as f64;
+    let extra = (pixels.len() + shapes.lobe.knots()) as f64;
+    let evidence = big_n * (without / with.max(1e-300)).ln() - extra * big_n.ln();
+    Ok((Some(shapes), Some(evidence)))
+}
+
+/// The clustering feature of an albedo: rg chromaticity for colour, (ln ρ, 0) for grey;
+/// `None` without a positive albedo.
+fn feature(albedo: &[f32]) -> Option<[f64; 2]> {
+    if albedo.len() >= 3 {
+        let (r, g, b) = (albedo[0] as f64, albedo[1] as f64, albedo[2] as f64);
+        let t = r + g + b;
+        (t > 0.0 && r >= 0.0 && g >= 0.0 && b >= 0.0).then(|| [r / t, g / t])
+    } else {
+        let a = albedo[0] as f64;
+        (a > 0.0).then(|| [a.ln(), 0.0])
+    }
+}
+
+fn nearest(centers: &[[f64; 2]], f: [f64; 2]) -> usize {
+    (0..centers.len())
+        .min_by(|&a, &b| d2(centers[a], f).total_cmp(&d2(centers[b], f)))
+        .unwrap_or(0)
+}
+
+fn d2(a: [f64; 2], b: [f64; 2]) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2)
+}
+
+/// The materials' centres: k-means (farthest-point start, Lloyd) for k = 1..=[`MAX_MATERIALS`],
+/// the k of least BIC (spherical Gaussians of one variance per feature dimension used, hard
+/// assignment); then clusters with fewer than [`MIN_MATERIAL_SAMPLE`] members are dropped
+/// (their pixels go to the nearest centre left).
+pub(crate) fn materials_of(x: &[[f64; 2]]) -> Vec<[f64; 2]> {
+    let nf = x.len() as f64;
+    if x.len() < 2 * MIN_MATERIAL_SAMPLE {
+        let mean = x.iter().fold([0.0; 2], |a, p| [a[0] + p[0], a[1] + p[1]]);
+        return vec![[mean[0] / nf.max(1.0), mean[1] / nf.max(1.0)]];
+    }
+    // Grey features vary in one dimension only.
+    let dims = if x.iter().all(|p| p[1] == 0.0) {
+        1.0
+    } else {
+        2.0
+    };
+    let mut best: Option<(f64, Vec<[f64; 2]>, Vec<usize>)> = None;
+    for k in 1..=MAX_MATERIALS {
+        let (centers, counts) = kmeans(x, k);
+        let sse: f64 = x
+            .iter()
+            .map(|p| d2(centers[nearest(&centers, *p)], *p))
+            .sum();
+        let var = (sse / (nf * dims)).max(1e-300);
+        let ll = -0.5 * nf * dims * ((2.0 * std::f64::consts::PI * var).ln() + 1.0)
+            + counts
+                .iter()
+                .filter(|&&c| c > 0)
+                .map(|&c| c as f64 * (c as f64 / nf).ln())
+                .sum::<f64>();
+        // k centres of `dims` coordinates, k − 1 weights, one variance.
+        let params = k as f64 * (dims + 1.0);
+        let bic = -2.0 * ll + params * nf.ln();
+        if best.as_ref().is_none_or(|b| bic < b.0) {
+            best = Some((bic, centers, counts));
+        }
+    }
+    let (_, centers, counts) = best.expect("k = 1 at least");
+    let kept: Vec<[f64; 2]> = centers
+        .iter()
+        .zip(&counts)
+        .filter(|(_, &c)| c >= MIN_MATERIAL_SAMPLE)
+        .map(|(c, _)| *c)
+        .collect();
+    if kept.is_empty() {
+        centers[..1].to_vec()
+    } else {
+        kept
+    }
+}
+
+/// k-means with a farthest-point start: (centres, members).
+fn kmeans(x: &[[f64; 2]], k: usize) -> (Vec<[f64; 2]>, Vec<usize>) {
+    let nf = x.len() as f64;
+    let mean = x
+        .iter()
+        .fold([0.0; 2], |a, p| [a[0] + p[0] / nf, a[1] + p[1] / nf]);
+    let mut centers = vec![mean];
+    while centers.len() < k {
+        let spread = |p: &[f64; 2]| d2(centers[nearest(&centers, *p)], *p);
+        let far = *x
+            .iter()
+            .max_by(|a, b| spread(a).total_cmp(&spread(b)))
+            .expect("points");
+        centers.push(far);
+    }
+    let mut counts = vec![0usize; k];
+    for _ in 0..KMEANS_ROUNDS {
+        let mut sums = vec![[0.0f64; 2]; k];
+        counts.iter_mut().for_each(|c| *c = 0);
+        for p in x {
+            let j = nearest(&centers, *p);
+            sums[j][0] += p[0];
+            sums[j][1] += p[1];
+            counts[j] += 1;
+        }
+        let mut moved = false;
+        for j in 0..k {
+            if counts[j] > 0 {
+                let c = [sums[j][0] / counts[j] as f64, sums[j][1] / counts[j] as f64];
+                moved |= c != centers[j];
+                centers[j] = c;
+            }
+        }
+        if !moved {
+            break;
+        }
+    }
+    (centers, counts)
+}
+
+/// Lloyd iterations of [`kmeans`] at most.
+const KMEANS_ROUNDS: usize = 100;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn shapes_match_their_closed_forms() {
+        // The lobe exp(−m x) at every knot and, between knots, linearly in x; its 1/e point
+        // x = 1/m gives the roughness √(2/m).
+        let m = 100.0;
+        let lobe = Shape::lobe(m);
+        for j in 0..LOBE_KNOTS {
+            let c = (j as f64 * LOBE_STEP_DEG).to_radians().cos();
+            assert!((lobe.eval(c).0 - (-m * (1.0 - c)).exp()).abs() < 1e-12);
+        }
+        assert!((lobe.roughness() / (2.0f64 / m).sqrt() - 1.0).abs() < 0.03);
+        // Lambert's falloff is c, slope 1, and zero behind the surface.
+        let f = Shape::lambert();
+        for c in [0.03, 0.25, 0.5, 0.77, 1.0] {
+            let (v, d) = f.eval(c);
+            assert!(
+                (v - c).abs() < 1e-12 && (d - 1.0).abs() < 1e-9,
+                "{c}: {v} {d}"
+            );
+        }
+        assert_eq!(f.eval(-0.2), (0.0, 0.0));
+    }
+
+    #[test]
+    fn two_separated_colours_make_two_materials_and_one_makes_one() {
+        let mut rng = crate::base::rng::Pcg32::new(5, 1);
+        let mut blob = |c: [f64; 2], n: usize| -> Vec<[f64; 2]> {
+            (0..n)
+                .map(|_| {
+                    [
+                        c[0] + 0.01 * rng.next_normal(),
+                        c[1] + 0.01 * rng.next_normal(),
+                    ]
+                })
+                .collect()
+        };
+        let one = blob([0.4, 0.3], 1000);
+        assert_eq!(materials_of(&one).len(), 1);
+        let mut two = blob([0.5, 0.3], 600);
+        two.extend(blob([0.2, 0.35], 400));
+        let mut centers = materials_of(&two);
+        centers.sort_by(|a, b| a[0].total_cmp(&b[0]));
+        assert_eq!(centers.len(), 2, "{centers:?}");
+        assert!(d2(centers[0], [0.2, 0.35]).sqrt() < 0.005, "{centers:?}");
+        assert!(d2(centers[1], [0.5, 0.3]).sqrt() < 0.005, "{centers:?}");
+    }
+}
