@@ -62,6 +62,7 @@ use crate::solve::lambert::{
     channel_mean, status, write_normal_albedo_with, Estimate, Statuses, CHUNK,
 };
 use crate::solve::near_lobe::{basis, diffuse_residual, fit_at, quantiles, PixelData};
+use nalgebra::{Matrix4, Vector4};
 use rayon::prelude::*;
 use serde::Serialize;
 use std::str::FromStr;
@@ -609,34 +610,22 @@ pub(crate) const MAX_STEPS: usize = 30;
 /// [`descend`] stops when the normal moves by less than this, radians (0.003°).
 pub(crate) const SMALLEST_STEP: f64 = 5e-5;
 
-/// The least χ² normal for sharpness `m` near `from` (returns (χ², normal)): Levenberg–Marquardt
-/// steps in the normal's two tangent angles and (ρ, s), each step's normal then scored with ρ
-/// and s solved exactly ([`fit_at`], non-negative), so that χ² never rises. The model is smooth
-/// in n except where n · l_k changes sign, and the start (the recursion's normal) lies within a
-/// few degrees of the fit: a descent finds the minimum in a fraction of the evaluations of the
-/// near-light fit's pattern search, which has to search from far starts.
-pub(crate) fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
-    use nalgebra::{Matrix4, Vector4};
+/// The Levenberg–Marquardt descent of [`descend`] and of the per-material fit
+/// ([`crate::solve::material`]): from `from`, steps in the normal's two tangent angles and (ρ, s)
+/// solved from the normal equations (JᵀJ, Jᵀr) that `normal_equations(n, (t1, t2), ρ, s)` sums
+/// over the readings, each step's normal scored by `fit(n)` → (χ², ρ, s) with ρ and s solved
+/// exactly, so that χ² never rises. Returns (χ², normal).
+pub(crate) fn descend_by(
+    from: [f64; 3],
+    fit: impl Fn([f64; 3]) -> (f64, f64, f64),
+    normal_equations: impl Fn([f64; 3], ([f64; 3], [f64; 3]), f64, f64) -> (Matrix4<f64>, Vector4<f64>),
+) -> (f64, [f64; 3]) {
     let mut n = from;
-    let (mut e, mut rho, mut s) = fit_at(d, n, m);
+    let (mut e, mut rho, mut s) = fit(n);
     let mut lambda = 1e-3;
     for _ in 0..MAX_STEPS {
         let (t1, t2) = basis(n);
-        let (mut jtj, mut jtr) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
-        for k in (0..d.v.len()).filter(|&k| d.used[k]) {
-            let vn = dot(d.v[k], n);
-            let lobe = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
-            let (a, lit) = if vn > 0.0 { (vn, 1.0) } else { (0.0, 0.0) };
-            let r = d.g[k] - rho * a - s * lobe;
-            let j = Vector4::new(
-                rho * lit * dot(d.v[k], t1) + s * lobe * m * dot(d.h[k], t1),
-                rho * lit * dot(d.v[k], t2) + s * lobe * m * dot(d.h[k], t2),
-                a,
-                lobe,
-            );
-            jtj += j * j.transpose();
-            jtr += j * r;
-        }
+        let (jtj, jtr) = normal_equations(n, (t1, t2), rho, s);
         let mut moved = false;
         while lambda < 1e8 {
             let mut damped = jtj;
@@ -653,7 +642,7 @@ pub(crate) fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) 
                 n[1] + step[0] * t1[1] + step[1] * t2[1],
                 n[2] + step[0] * t1[2] + step[1] * t2[2],
             ]);
-            let (ec, rc, sc) = fit_at(d, c, m);
+            let (ec, rc, sc) = fit(c);
             if ec < e {
                 (e, n, rho, s) = (ec, c, rc, sc);
                 lambda = (lambda * 0.1).max(1e-7);
@@ -672,10 +661,40 @@ pub(crate) fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) 
     (e, n)
 }
 
+/// The least χ² normal for sharpness `m` near `from` (returns (χ², normal)): Levenberg–Marquardt
+/// steps in the normal's two tangent angles and (ρ, s), each step's normal then scored with ρ
+/// and s solved exactly ([`fit_at`], non-negative), so that χ² never rises. The model is smooth
+/// in n except where n · l_k changes sign, and the start (the recursion's normal) lies within a
+/// few degrees of the fit: a descent finds the minimum in a fraction of the evaluations of the
+/// near-light fit's pattern search, which has to search from far starts.
+pub(crate) fn descend(d: &PixelData, from: [f64; 3], m: f64) -> (f64, [f64; 3]) {
+    descend_by(
+        from,
+        |n| fit_at(d, n, m),
+        |n, (t1, t2), rho, s| {
+            let (mut jtj, mut jtr) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
+            for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+                let vn = dot(d.v[k], n);
+                let lobe = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
+                let (a, lit) = if vn > 0.0 { (vn, 1.0) } else { (0.0, 0.0) };
+                let r = d.g[k] - rho * a - s * lobe;
+                let j = Vector4::new(
+                    rho * lit * dot(d.v[k], t1) + s * lobe * m * dot(d.h[k], t1),
+                    rho * lit * dot(d.v[k], t2) + s * lobe * m * dot(d.h[k], t2),
+                    a,
+                    lobe,
+                );
+                jtj += j * j.transpose();
+                jtr += j * r;
+            }
+            (jtj, jtr)
+        },
+    )
+}
+
 /// The variance (rad², per unit residual variance) of the lobe fit's normal at `n`: the sum of
 /// the tangent-angle entries of (JᵀJ)⁻¹ over (angles, ρ, s). Infinite where JᵀJ is singular.
 fn lobe_normal_variance(d: &PixelData, n: [f64; 3], m: f64, rho: f64, s: f64) -> f64 {
-    use nalgebra::{Matrix4, Vector4};
     let (t1, t2) = basis(n);
     let mut jtj = Matrix4::<f64>::zeros();
     for k in (0..d.v.len()).filter(|&k| d.used[k]) {

@@ -46,11 +46,12 @@
 use crate::base::error::Result;
 use crate::model::capture::Capture;
 use crate::solve::gloss::{
-    descend, dot, start_of, unit, GlossMaps, GlossSummary, Lights, Reflectance, Scratch, MAX_STEPS,
-    MIN_LIGHTS, SMALLEST_STEP,
+    descend, descend_by, dot, start_of, GlossMaps, GlossSummary, Lights, Reflectance, Scratch,
+    MIN_LIGHTS,
 };
 use crate::solve::lambert::{status, write_normal_albedo_with, Estimate, Statuses, CHUNK};
-use crate::solve::near_lobe::{basis, fit_at, PixelData};
+use crate::solve::near_lobe::{fit_at, PixelData};
+use nalgebra::{Matrix4, Vector4};
 use rayon::prelude::*;
 use serde::Serialize;
 
@@ -291,60 +292,28 @@ fn fit_with(d: &PixelData, n: [f64; 3], shapes: &Shapes) -> (f64, f64, f64) {
 /// Levenberg–Marquardt descent ([`crate::solve::gloss`]) with f and g in place of n · l and the
 /// exponential lobe.
 fn descend_with(d: &PixelData, from: [f64; 3], shapes: &Shapes) -> (f64, [f64; 3]) {
-    use nalgebra::{Matrix4, Vector4};
-    let mut n = from;
-    let (mut e, mut rho, mut s) = fit_with(d, n, shapes);
-    let mut lambda = 1e-3;
-    for _ in 0..MAX_STEPS {
-        let (t1, t2) = basis(n);
-        let (mut jtj, mut jtr) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
-        for k in (0..d.v.len()).filter(|&k| d.used[k]) {
-            let (fl, df) = shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]);
-            let (gl, dg) = shapes.lobe.eval(dot(d.h[k], n));
-            let (a, lobe) = (d.b[k] * fl, d.b[k] * gl);
-            let r = d.g[k] - rho * a - s * lobe;
-            let j = Vector4::new(
-                rho * df * dot(d.v[k], t1) + s * d.b[k] * dg * dot(d.h[k], t1),
-                rho * df * dot(d.v[k], t2) + s * d.b[k] * dg * dot(d.h[k], t2),
-                a,
-                lobe,
-            );
-            jtj += j * j.transpose();
-            jtr += j * r;
-        }
-        let mut moved = false;
-        while lambda < 1e8 {
-            let mut damped = jtj;
-            for i in 0..4 {
-                damped[(i, i)] += lambda * jtj[(i, i)].max(1e-12);
+    descend_by(
+        from,
+        |n| fit_with(d, n, shapes),
+        |n, (t1, t2), rho, s| {
+            let (mut jtj, mut jtr) = (Matrix4::<f64>::zeros(), Vector4::<f64>::zeros());
+            for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+                let (fl, df) = shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]);
+                let (gl, dg) = shapes.lobe.eval(dot(d.h[k], n));
+                let (a, lobe) = (d.b[k] * fl, d.b[k] * gl);
+                let r = d.g[k] - rho * a - s * lobe;
+                let j = Vector4::new(
+                    rho * df * dot(d.v[k], t1) + s * d.b[k] * dg * dot(d.h[k], t1),
+                    rho * df * dot(d.v[k], t2) + s * d.b[k] * dg * dot(d.h[k], t2),
+                    a,
+                    lobe,
+                );
+                jtj += j * j.transpose();
+                jtr += j * r;
             }
-            let Some(step) = damped.lu().solve(&jtr) else {
-                lambda *= 10.0;
-                continue;
-            };
-            let turn = (step[0] * step[0] + step[1] * step[1]).sqrt();
-            let c = unit([
-                n[0] + step[0] * t1[0] + step[1] * t2[0],
-                n[1] + step[0] * t1[1] + step[1] * t2[1],
-                n[2] + step[0] * t1[2] + step[1] * t2[2],
-            ]);
-            let (ec, rc, sc) = fit_with(d, c, shapes);
-            if ec < e {
-                (e, n, rho, s) = (ec, c, rc, sc);
-                lambda = (lambda * 0.1).max(1e-7);
-                moved = turn > SMALLEST_STEP;
-                break;
-            }
-            if turn < SMALLEST_STEP {
-                break;
-            }
-            lambda *= 10.0;
-        }
-        if !moved {
-            break;
-        }
-    }
-    (e, n)
+            (jtj, jtr)
+        },
+    )
 }
 
 /// A sampled pixel: its loaded readings, the recursion's normal and the current fit.
