@@ -124,7 +124,7 @@ pub struct RecursiveParams {
     /// specular lobe instead of from the lights left after the highlight is dropped. Default
     /// lambert (the paper): with a dozen 8-bit lights the lobe fit can trade the diffuse
     /// readings for a broad lobe and turn a normal far from the readings' own. `material`
-    /// shares the lobe over the pixels of a material ([`crate::solve::material`]).
+    /// shares the lobe over the pixels of a material ([`crate::solve::gloss::material`]).
     pub reflectance: Reflectance,
 }
 

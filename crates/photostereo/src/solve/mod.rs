@@ -7,7 +7,6 @@ pub mod detect;
 pub mod estimate;
 pub mod gloss;
 pub mod lambert;
-pub mod material;
 pub mod metrics;
 pub mod near_lobe;
 pub mod plausibility;

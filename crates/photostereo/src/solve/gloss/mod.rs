@@ -55,6 +55,8 @@
 //! there. Cost: a few Gauss–Newton passes over the pixel's lights per fitted pixel; memory two
 //! f32 maps per mask pixel.
 
+pub mod material;
+
 use crate::base::error::Result;
 use crate::model::capture::Capture;
 use crate::solve::detect::NoiseModel;
@@ -95,7 +97,7 @@ pub enum Reflectance {
     Auto,
     /// One lobe shape (and diffuse falloff) shared by the pixels of a material, where the
     /// material's pooled evidence (BIC) says it has a lobe; Lambert elsewhere
-    /// ([`crate::solve::material`]).
+    /// ([`crate::solve::gloss::material`]).
     #[serde(rename = "material")]
     Material,
 }
@@ -169,7 +171,7 @@ pub struct GlossSummary {
     pub own_exponent_pixels: usize,
     /// With [`Reflectance::Material`]: the materials found and what each chose.
     #[serde(skip_serializing_if = "Vec::is_empty")]
-    pub materials: Vec<crate::solve::material::MaterialSummary>,
+    pub materials: Vec<crate::solve::gloss::material::MaterialSummary>,
 }
 
 /// Per mask pixel: the fitted lobe's peak s and roughness √(2/m); NaN where not fitted, and
@@ -392,7 +394,7 @@ pub fn model_highlights(
     let m = evidence.exponent;
     if reflectance == Reflectance::Material {
         let mut material =
-            crate::solve::material::model_materials(capture, light_status, est, &lights, m)?;
+            crate::solve::gloss::material::model_materials(capture, light_status, est, &lights, m)?;
         material.summary.reflectance = reflectance;
         return Ok((material.summary, material.maps));
     }
@@ -611,7 +613,7 @@ pub(crate) const MAX_STEPS: usize = 30;
 pub(crate) const SMALLEST_STEP: f64 = 5e-5;
 
 /// The Levenberg–Marquardt descent of [`descend`] and of the per-material fit
-/// ([`crate::solve::material`]): from `from`, steps in the normal's two tangent angles and (ρ, s)
+/// ([`crate::solve::gloss::material`]): from `from`, steps in the normal's two tangent angles and (ρ, s)
 /// solved from the normal equations (JᵀJ, Jᵀr) that `normal_equations(n, (t1, t2), ρ, s)` sums
 /// over the readings, each step's normal scored by `fit(n)` → (χ², ρ, s) with ρ and s solved
 /// exactly, so that χ² never rises. Returns (χ², normal).
