@@ -76,9 +76,10 @@ pub struct Bilateral {
     pub inner_reduction: f64,
     /// Most CG iterations of each reweighted solve.
     pub inner_iterations: usize,
-    /// Relative residual of the last solve (the converged weights' system); it also stops once
-    /// a CG step moves no pixel by more than the f32 resolution of the surface (on a smooth
-    /// whole frame the DCT start is already that close).
+    /// Relative residual of the last solve (the converged weights' system); at the default or
+    /// above it also stops once a CG step moves no pixel by more than the f32 resolution of the
+    /// surface (on a smooth whole frame the DCT start is already that close); a tolerance below
+    /// the default is solved to.
     pub final_tolerance: f64,
     /// Pixels with a weight below this get interpolated gradients (as in `poisson`).
     pub fill_below: f32,
@@ -720,8 +721,9 @@ impl Bilateral {
             )
             .sqrt();
         let mut hier = Hierarchy::new(level);
-        // The last solve also stops when CG can no longer change the stored (f32) surface.
-        hier.stop_at_precision = tight;
+        // The last solve also stops when CG can no longer change the stored (f32) surface,
+        // unless a tolerance below the default asks for the residual itself.
+        hier.stop_at_precision = tight && self.final_tolerance >= DEFAULT_TOLERANCE;
         let levels = hier.depth();
         let (scale, tolerance, most) = if tight {
             (b_norm, self.final_tolerance, 200)
