@@ -128,6 +128,32 @@ fn correlation(a: &[f64], b: &[f64]) -> f64 {
     ab / (aa * bb).sqrt()
 }
 
+/// The unit normal of a sphere of radius 0.45 `size` centred in a `size`² image at pixel
+/// (x = col, y = row), camera frame; `None` off the sphere and within its outermost rim
+/// (n_z² ≤ 0.05).
+fn sphere_normal(size: usize) -> impl Fn(usize, usize) -> Option<[f64; 3]> {
+    let r = 0.45 * size as f64;
+    let c = 0.5 * (size as f64 - 1.0);
+    move |x, y| {
+        let (dx, dy) = ((x as f64 - c) / r, (c - y as f64) / r);
+        let z2 = 1.0 - dx * dx - dy * dy;
+        (z2 > 0.05).then(|| [dx, dy, z2.sqrt()])
+    }
+}
+
+/// Lambert plus a Blinn–Phong lobe under a unit distant light `l` seen by the orthographic
+/// camera: ρ n·l + k_s (n·h)^e where n·l > 0, else 0 (h the half vector of l and (0, 0, 1)).
+fn blinn_phong(n: [f64; 3], l: [f64; 3], rho: f64, ks: f64, e: f64) -> f64 {
+    let nl = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
+    if nl <= 0.0 {
+        return 0.0;
+    }
+    let h = [l[0], l[1], l[2] + 1.0];
+    let hn = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
+    let nh = ((n[0] * h[0] + n[1] * h[1] + n[2] * h[2]) / hn).max(0.0);
+    rho * nl + ks * nh.powf(e)
+}
+
 /// A sphere under 50 dome lights whose Blinn–Phong lobe k_s (n·h)^e varies over the image:
 /// k_s from 0.2 (left) to 0.8 (right), e from 50 (top) to 400 (bottom), diffuse albedo 0.5,
 /// Gaussian noise σ = 0.005. Returns the capture and the known (k_s, √(2/e)) per pixel.
@@ -136,13 +162,7 @@ fn varying_gloss_capture(size: usize) -> (photostereo::model::capture::Capture, 
     use photostereo::base::rng::Pcg32;
     use photostereo::model::capture::{Capture, Stack};
     let lights = photostereo::scene::rigs::dome_lights(50, 60.0);
-    let r = 0.45 * size as f64;
-    let c = 0.5 * (size as f64 - 1.0);
-    let normal = |x: usize, y: usize| {
-        let (dx, dy) = ((x as f64 - c) / r, (c - y as f64) / r);
-        let z2 = 1.0 - dx * dx - dy * dy;
-        (z2 > 0.05).then(|| [dx, dy, z2.sqrt()])
-    };
+    let normal = sphere_normal(size);
     let known = |x: usize, y: usize| {
         let ks = 0.2 + 0.6 * x as f64 / (size - 1) as f64;
         let e = 50.0 * 8f64.powf(y as f64 / (size - 1) as f64);
@@ -154,16 +174,8 @@ fn varying_gloss_capture(size: usize) -> (photostereo::model::capture::Capture, 
         let Some(n) = normal(x, y) else {
             return 0f32;
         };
-        let l = dirs[k];
-        let nl = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
-        let mut v = 0.0;
-        if nl > 0.0 {
-            let h = [l[0], l[1], l[2] + 1.0];
-            let hn = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
-            let nh = ((n[0] * h[0] + n[1] * h[1] + n[2] * h[2]) / hn).max(0.0);
-            let (ks, e) = known(x, y);
-            v = 0.5 * nl + ks * nh.powf(e);
-        }
+        let (ks, e) = known(x, y);
+        let v = blinn_phong(n, dirs[k], 0.5, ks, e);
         (v + 0.005 * rng.next_normal()).clamp(0.0, 1.0) as f32
     });
     let mask = Array2::from_shape_fn((size, size), |(y, x)| normal(x, y).is_some());
@@ -225,13 +237,7 @@ fn two_material_capture(
     use photostereo::base::rng::Pcg32;
     use photostereo::model::capture::{Capture, Stack};
     let lights = photostereo::scene::rigs::dome_lights(50, 60.0);
-    let r = 0.45 * size as f64;
-    let c = 0.5 * (size as f64 - 1.0);
-    let normal = |x: usize, y: usize| {
-        let (dx, dy) = ((x as f64 - c) / r, (c - y as f64) / r);
-        let z2 = 1.0 - dx * dx - dy * dy;
-        (z2 > 0.05).then(|| [dx, dy, z2.sqrt()])
-    };
+    let normal = sphere_normal(size);
     let albedo = [[0.6, 0.3, 0.2], [0.2, 0.3, 0.6]];
     let exponent = [40.0, 300.0];
     let material = |x: usize| (2 * x >= size) as usize;
@@ -241,16 +247,8 @@ fn two_material_capture(
         let Some(n) = normal(x, y) else {
             return 0f32;
         };
-        let l = dirs[k];
-        let nl = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
-        let mut v = 0.0;
-        if nl > 0.0 {
-            let h = [l[0], l[1], l[2] + 1.0];
-            let hn = (h[0] * h[0] + h[1] * h[1] + h[2] * h[2]).sqrt();
-            let nh = ((n[0] * h[0] + n[1] * h[1] + n[2] * h[2]) / hn).max(0.0);
-            let m = material(x);
-            v = albedo[m][ch] * nl + 0.5 * nh.powf(exponent[m]);
-        }
+        let m = material(x);
+        let v = blinn_phong(n, dirs[k], albedo[m][ch], 0.5, exponent[m]);
         (v + 0.005 * rng.next_normal()).clamp(0.0, 1.0) as f32
     });
     let mask = Array2::from_shape_fn((size, size), |(y, x)| normal(x, y).is_some());

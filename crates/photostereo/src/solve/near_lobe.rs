@@ -97,45 +97,77 @@ pub(crate) struct PixelData<'a> {
 /// The fit at normal `n` with sharpness `m`: (squared residual, ρ, s).
 #[inline]
 pub(crate) fn fit_at(d: &PixelData, n: [f64; 3], m: f64) -> (f64, f64, f64) {
-    let (mut aa, mut ab, mut bb, mut ag, mut bg, mut gg) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let mut sums = PairSums::default();
     for k in 0..d.v.len() {
-        if !d.used[k] {
-            continue;
-        }
-        let a = dot(d.v[k], n).max(0.0);
-        let b = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
-        let g = d.g[k];
-        aa += a * a;
-        ab += a * b;
-        bb += b * b;
-        ag += a * g;
-        bg += b * g;
-        gg += g * g;
-    }
-    // Non-negative least squares in two unknowns: the interior solution, else an edge.
-    let mut best = (gg, 0.0, 0.0);
-    if aa > 0.0 {
-        let r = (ag / aa).max(0.0);
-        best = (gg - r * ag, r, 0.0);
-    }
-    if bb > 0.0 {
-        let s = (bg / bb).max(0.0);
-        if gg - s * bg < best.0 {
-            best = (gg - s * bg, 0.0, s);
+        if d.used[k] {
+            let a = dot(d.v[k], n).max(0.0);
+            let b = d.b[k] * (-m * (1.0 - dot(d.h[k], n))).exp();
+            sums.add(a, b, d.g[k]);
         }
     }
-    let det = aa * bb - ab * ab;
-    if det > 1e-12 * (aa * bb).max(1e-300) {
-        let r = (ag * bb - bg * ab) / det;
-        let s = (bg * aa - ag * ab) / det;
-        if r >= 0.0 && s >= 0.0 {
-            let e = gg - r * ag - s * bg;
-            if e < best.0 {
-                best = (e, r, s);
+    sums.solve()
+}
+
+/// The sums of products of a two-term model's columns a_k (diffuse), b_k (lobe) and the
+/// readings g_k, from which the non-negative (ρ, s) of g ≈ ρ a + s b follow.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct PairSums {
+    aa: f64,
+    ab: f64,
+    bb: f64,
+    ag: f64,
+    bg: f64,
+    gg: f64,
+}
+
+impl PairSums {
+    /// Adds one reading `g` with the columns' values `a` and `b`.
+    #[inline]
+    pub(crate) fn add(&mut self, a: f64, b: f64, g: f64) {
+        self.aa += a * a;
+        self.ab += a * b;
+        self.bb += b * b;
+        self.ag += a * g;
+        self.bg += b * g;
+        self.gg += g * g;
+    }
+
+    /// Non-negative least squares in the two unknowns: the interior solution where both are
+    /// non-negative, else the better edge (ρ alone, s alone, or neither). Returns
+    /// (squared residual, ρ, s).
+    pub(crate) fn solve(&self) -> (f64, f64, f64) {
+        let PairSums {
+            aa,
+            ab,
+            bb,
+            ag,
+            bg,
+            gg,
+        } = *self;
+        let mut best = (gg, 0.0, 0.0);
+        if aa > 0.0 {
+            let r = (ag / aa).max(0.0);
+            best = (gg - r * ag, r, 0.0);
+        }
+        if bb > 0.0 {
+            let s = (bg / bb).max(0.0);
+            if gg - s * bg < best.0 {
+                best = (gg - s * bg, 0.0, s);
             }
         }
+        let det = aa * bb - ab * ab;
+        if det > 1e-12 * (aa * bb).max(1e-300) {
+            let r = (ag * bb - bg * ab) / det;
+            let s = (bg * aa - ag * ab) / det;
+            if r >= 0.0 && s >= 0.0 {
+                let e = gg - r * ag - s * bg;
+                if e < best.0 {
+                    best = (e, r, s);
+                }
+            }
+        }
+        (best.0.max(0.0), best.1, best.2)
     }
-    (best.0.max(0.0), best.1, best.2)
 }
 
 /// Grid offsets (tan x, tan y) of the trial normals about u.

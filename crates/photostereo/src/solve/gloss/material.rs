@@ -46,11 +46,11 @@
 use crate::base::error::Result;
 use crate::model::capture::Capture;
 use crate::solve::gloss::{
-    descend, descend_by, dot, start_of, GlossMaps, GlossSummary, Lights, Reflectance, Scratch,
-    MIN_LIGHTS,
+    descend, descend_by, dot, refit_pixels, start_of, GlossMaps, GlossSummary, Lights, Reflectance,
+    Scratch, Taken, MIN_LIGHTS,
 };
-use crate::solve::lambert::{status, write_normal_albedo_with, Estimate, Statuses, CHUNK};
-use crate::solve::near_lobe::{fit_at, PixelData};
+use crate::solve::lambert::{status, Estimate, Statuses};
+use crate::solve::near_lobe::{fit_at, PairSums, PixelData};
 use nalgebra::{Matrix4, Vector4};
 use rayon::prelude::*;
 use serde::Serialize;
@@ -254,38 +254,13 @@ pub(crate) struct Shapes {
 
 /// The fit at normal `n` with the shapes: (χ², ρ, s), ρ and s non-negative least squares.
 fn fit_with(d: &PixelData, n: [f64; 3], shapes: &Shapes) -> (f64, f64, f64) {
-    let (mut aa, mut ab, mut bb, mut ag, mut bg, mut gg) = (0f64, 0f64, 0f64, 0f64, 0f64, 0f64);
+    let mut sums = PairSums::default();
     for k in (0..d.v.len()).filter(|&k| d.used[k]) {
         let a = d.b[k] * shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]).0;
         let b = d.b[k] * shapes.lobe.eval(dot(d.h[k], n)).0;
-        let g = d.g[k];
-        aa += a * a;
-        ab += a * b;
-        bb += b * b;
-        ag += a * g;
-        bg += b * g;
-        gg += g * g;
+        sums.add(a, b, d.g[k]);
     }
-    let mut best = (gg, 0.0, 0.0);
-    if aa > 0.0 {
-        let r = (ag / aa).max(0.0);
-        best = (gg - r * ag, r, 0.0);
-    }
-    if bb > 0.0 {
-        let s = (bg / bb).max(0.0);
-        if gg - s * bg < best.0 {
-            best = (gg - s * bg, 0.0, s);
-        }
-    }
-    let det = aa * bb - ab * ab;
-    if det > 1e-12 * (aa * bb).max(1e-300) {
-        let r = (ag * bb - bg * ab) / det;
-        let s = (bg * aa - ag * ab) / det;
-        if r >= 0.0 && s >= 0.0 && gg - r * ag - s * bg < best.0 {
-            best = (gg - r * ag - s * bg, r, s);
-        }
-    }
-    (best.0.max(0.0), best.1, best.2)
+    sums.solve()
 }
 
 /// The least χ² normal near `from` with the shapes (returns (χ², normal)): the per-pixel fit's
@@ -469,68 +444,33 @@ pub(crate) fn model_materials(
     if shapes.iter().all(Option::is_none) {
         return Ok(Materials { summary, maps });
     }
-    let dirs = &capture.lights.directions;
-    let mut counts = [0usize; 2];
-    capture.for_each_tile(|off, tile| {
-        let tn = tile.n_pixels();
-        let sums: Vec<[usize; 2]> = est.normals[off..off + tn]
-            .par_chunks_mut(CHUNK)
-            .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
-            .zip(maps.strength[off..off + tn].par_chunks_mut(CHUNK))
-            .zip(maps.roughness[off..off + tn].par_chunks_mut(CHUNK))
-            .enumerate()
-            .map_init(
-                || (Scratch::new(n), vec![0u8; n]),
-                |(scratch, st), (chunk, (((normals, albedo), strength), roughness))| {
-                    let mut counts = [0usize; 2];
-                    for (dp, normal) in normals.iter_mut().enumerate() {
-                        let lp = chunk * CHUNK + dp;
-                        let p = off + lp;
-                        let Some(shape) = &shapes[labels[p] as usize] else {
-                            continue;
-                        };
-                        let Some(start) = start_of(*normal) else {
-                            continue;
-                        };
-                        let samples = tile.pixel_samples(lp);
-                        light_status.row_into(p, st);
-                        if scratch.load(lights, samples, c, st, true) < MIN_LIGHTS {
-                            continue;
-                        }
-                        counts[0] += 1;
-                        let d = scratch.data(lights);
-                        let (_, fit) = descend_with(&d, start, shape);
-                        let (_, rho, s) = fit_with(&d, fit, shape);
-                        let physical =
-                            fit[2] > 0.0 && (0..n).all(|k| !d.used[k] || dot(d.v[k], fit) > 0.0);
-                        if !(physical && s > 0.0) {
-                            strength[dp] = 0.0;
-                            continue;
-                        }
-                        counts[1] += 1;
-                        strength[dp] = s as f32;
-                        roughness[dp] = shape.lobe.roughness() as f32;
-                        let b = nalgebra::Vector3::from(fit) * rho.max(1e-12);
-                        write_normal_albedo_with(
-                            dirs,
-                            c,
-                            samples,
-                            &b,
-                            Some(&scratch.diffuse),
-                            normal,
-                            &mut albedo[dp * c..(dp + 1) * c],
-                        );
-                    }
-                    counts
-                },
-            )
-            .collect();
-        for s in sums {
-            counts[0] += s[0];
-            counts[1] += s[1];
-        }
-        Ok(())
-    })?;
+    let counts = refit_pixels(
+        capture,
+        light_status,
+        est,
+        &mut maps,
+        |scratch, samples, st, p, start, counts: &mut [usize; 2]| {
+            let shape = shapes[labels[p] as usize].as_ref()?;
+            if scratch.load(lights, samples, c, st, true) < MIN_LIGHTS {
+                return None;
+            }
+            counts[0] += 1;
+            let d = scratch.data(lights);
+            let (_, fit) = descend_with(&d, start, shape);
+            let (_, rho, s) = fit_with(&d, fit, shape);
+            let physical = fit[2] > 0.0 && (0..n).all(|k| !d.used[k] || dot(d.v[k], fit) > 0.0);
+            if !(physical && s > 0.0) {
+                return Some(None);
+            }
+            counts[1] += 1;
+            Some(Some(Taken {
+                normal: fit,
+                rho,
+                strength: s,
+                roughness: shape.lobe.roughness(),
+            }))
+        },
+    )?;
     summary.fitted_pixels = counts[0];
     summary.refined_pixels = counts[1];
     summary.refined_share = counts[1] as f64 / np.max(1) as f64;

@@ -412,10 +412,81 @@ pub fn model_highlights(
         return Ok((summary, maps));
     }
     // (fitted, significant, passing, refined, own exponent, Lambert rejected)
-    let mut counts = [0usize; 6];
+    let counts = refit_pixels(
+        capture,
+        light_status,
+        est,
+        &mut maps,
+        |scratch, samples, st, _, start, counts: &mut [usize; 6]| {
+            let count = scratch.load(&lights, samples, c, st, false);
+            if count < MIN_LIGHTS {
+                return None;
+            }
+            let fit = lights.fit(&scratch.data(&lights), count, start, m);
+            counts[0] += 1;
+            counts[1] += fit.significant as usize;
+            counts[2] += fit.passes as usize;
+            counts[5] += fit.lambert_rejected as usize;
+            let take = match reflectance {
+                Reflectance::Auto => fit.significant && fit.specular,
+                _ => fit.lobe,
+            };
+            if !take {
+                return Some(None);
+            }
+            counts[3] += 1;
+            counts[4] += fit.own_exponent as usize;
+            Some(Some(Taken {
+                normal: fit.normal,
+                rho: fit.rho,
+                strength: fit.strength,
+                roughness: (2.0 / fit.exponent).sqrt(),
+            }))
+        },
+    )?;
+    let [fitted, significant, passing, refined, own, rejected] = counts;
+    summary.fitted_pixels = fitted;
+    summary.lambert_rejected_pixels = rejected;
+    summary.significant_pixels = significant;
+    summary.passing_pixels = passing;
+    summary.refined_pixels = refined;
+    summary.refined_share = refined as f64 / np.max(1) as f64;
+    summary.own_exponent_pixels = own;
+    if refined > 0 {
+        summary.chosen = "lobe";
+    }
+    Ok((summary, maps))
+}
+
+/// A refitted pixel's result that replaces the recursion's estimate.
+pub(crate) struct Taken {
+    pub(crate) normal: [f64; 3],
+    /// The diffuse albedo of the fit (grey), the scale of the Lambertian lights' albedo.
+    pub(crate) rho: f64,
+    pub(crate) strength: f64,
+    pub(crate) roughness: f64,
+}
+
+/// Refits every mask pixel of `est` with a normal, tile by tile and in parallel: `refit`
+/// (scratch, the pixel's samples, its statuses, the mask pixel, the start normal, the
+/// counts) returns `None` to leave the pixel as it is (not fitted), `Some(None)` for a fit
+/// that keeps the recursion's estimate (strength 0 in the maps), `Some(Some(taken))` for one
+/// whose normal replaces it, with the albedo of the recursion's Lambertian lights (USED) at
+/// that normal and the fit's strength and roughness in the maps. Returns the counts summed.
+pub(crate) fn refit_pixels<const K: usize>(
+    capture: &Capture,
+    light_status: &(impl Statuses + ?Sized),
+    est: &mut Estimate,
+    maps: &mut GlossMaps,
+    refit: impl Fn(&mut Scratch, &[f32], &[u8], usize, [f64; 3], &mut [usize; K]) -> Option<Option<Taken>>
+        + Sync,
+) -> Result<[usize; K]> {
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let dirs = &capture.lights.directions;
+    let mut counts = [0usize; K];
     capture.for_each_tile(|off, tile| {
         let tn = tile.n_pixels();
-        let sums: Vec<[usize; 6]> = est.normals[off..off + tn]
+        let sums: Vec<[usize; K]> = est.normals[off..off + tn]
             .par_chunks_mut(CHUNK)
             .zip(est.albedo[off * c..(off + tn) * c].par_chunks_mut(CHUNK * c))
             .zip(maps.strength[off..off + tn].par_chunks_mut(CHUNK))
@@ -424,37 +495,25 @@ pub fn model_highlights(
             .map_init(
                 || (Scratch::new(n), vec![0u8; n]),
                 |(scratch, st), (chunk, (((normals, albedo), strength), roughness))| {
-                    let mut counts = [0usize; 6];
+                    let mut counts = [0usize; K];
                     for (dp, normal) in normals.iter_mut().enumerate() {
                         let lp = chunk * CHUNK + dp;
-                        let p = off + lp;
-                        let samples = tile.pixel_samples(lp);
-                        light_status.row_into(p, st);
-                        let count = scratch.load(&lights, samples, c, st, false);
                         let Some(start) = start_of(*normal) else {
                             continue;
                         };
-                        if count < MIN_LIGHTS {
+                        let samples = tile.pixel_samples(lp);
+                        light_status.row_into(off + lp, st);
+                        let Some(fit) = refit(scratch, samples, st, off + lp, start, &mut counts)
+                        else {
                             continue;
-                        }
-                        let fit = lights.fit(&scratch.data(&lights), count, start, m);
-                        counts[0] += 1;
-                        counts[1] += fit.significant as usize;
-                        counts[2] += fit.passes as usize;
-                        counts[5] += fit.lambert_rejected as usize;
-                        let take = match reflectance {
-                            Reflectance::Auto => fit.significant && fit.specular,
-                            _ => fit.lobe,
                         };
-                        if !take {
+                        let Some(t) = fit else {
                             strength[dp] = 0.0;
                             continue;
-                        }
-                        strength[dp] = fit.strength as f32;
-                        roughness[dp] = (2.0 / fit.exponent).sqrt() as f32;
-                        counts[3] += 1;
-                        counts[4] += fit.own_exponent as usize;
-                        let b = nalgebra::Vector3::from(fit.normal) * fit.rho.max(1e-12);
+                        };
+                        strength[dp] = t.strength as f32;
+                        roughness[dp] = t.roughness as f32;
+                        let b = nalgebra::Vector3::from(t.normal) * t.rho.max(1e-12);
                         write_normal_albedo_with(
                             dirs,
                             c,
@@ -476,18 +535,7 @@ pub fn model_highlights(
         }
         Ok(())
     })?;
-    let [fitted, significant, passing, refined, own, rejected] = counts;
-    summary.fitted_pixels = fitted;
-    summary.lambert_rejected_pixels = rejected;
-    summary.significant_pixels = significant;
-    summary.passing_pixels = passing;
-    summary.refined_pixels = refined;
-    summary.refined_share = refined as f64 / np.max(1) as f64;
-    summary.own_exponent_pixels = own;
-    if refined > 0 {
-        summary.chosen = "lobe";
-    }
-    Ok((summary, maps))
+    Ok(counts)
 }
 
 /// The capture's lobe sharpness and the evidence for its lobes (see [`capture_sharpness`]).
