@@ -26,6 +26,7 @@ fn tiled(layout: Layout, tile_pixels: usize, dir: &Path) -> LoadOptions {
         force: Force {
             layout: Some(layout),
             tile_pixels: Some(tile_pixels),
+            park: None,
         },
         ..Default::default()
     }
