@@ -16,15 +16,15 @@
 //! | `curl` | (H, W), the integrability residual of eq. 10 | NaN |
 //! | `trust` | (H, W), integration weight of each pixel in 0..1 | 0 |
 
+use crate::base::codes2::Codes2;
 use crate::base::error::{Error, Result};
 use crate::base::progress::{check_cancelled, Progress, Silent};
 use crate::geometry::integrate::{
     gradients_from_normals, surface_from_gradients, weighted_normals, IntegrationParams, Surface,
 };
+use crate::geometry::shadows::ShadowMaps;
 use crate::method::recursive::{RecursiveDiagnostics, RecursiveParams};
 use crate::method::report::{InputSummary, Report};
-use crate::base::codes2::Codes2;
-use crate::geometry::shadows::ShadowMaps;
 use crate::model::capture::Capture;
 use crate::model::store::{Parked, Parking};
 use crate::solve::detect::{Detection, DetectionParams};
@@ -1001,7 +1001,8 @@ fn estimate(
             let (mut estimate, mut diagnostics) = (r.estimate, r.diagnostics);
             if capture.lights.near.is_some() {
                 // The near model's lobe refinement reads and rewrites the estimate's statuses.
-                estimate.light_status = Some(std::mem::take(&mut diagnostics.light_status).unpack());
+                estimate.light_status =
+                    Some(std::mem::take(&mut diagnostics.light_status).unpack());
             }
             (estimate, tested, Some(diagnostics))
         }

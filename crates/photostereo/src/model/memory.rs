@@ -23,13 +23,20 @@ use crate::model::store::SampleType;
 /// exported maps. Set on measured peaks with a margin of about 10% (`docs/performance.md`, Memory): the
 /// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
-/// Bytes per frame pixel of the full-frame stages when the per-pixel arrays they do not read
-/// are parked in a file ([`MemoryPlan::park`]): at their largest (an integration) the
-/// integrator's arrays with its inputs, the weights and the mask.
-pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 50;
-/// Bytes per mask pixel held beside a stage when the other arrays are parked: the mask pixels'
-/// frame indices and the detector's verdicts.
-pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 12;
+/// Bytes per frame pixel of the full-frame stages when the per-pixel arrays a stage does not
+/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the
+/// recursion's intermediate integrations (the integrator's arrays, about 52 for `bilateral`,
+/// beside its inputs: the gradients, the weights, the last surface) and the end of the run (the
+/// exported maps while they are written: normals 12, albedo 12 for RGB, depth, curl, trust and
+/// residual 16, the shadow planes of 24 lights 6, the flag maps and the mask 5, the packed
+/// statuses 6); the recursion's decisions (the estimate parked) stay below them. Set on the
+/// measured peak of a full-frame 24-light RGB capture with a margin of about 6%
+/// (`docs/performance.md`, Memory).
+pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 76;
+/// Bytes per mask pixel held beside every stage when the other arrays are parked: the mask
+/// pixels' frame indices (the capture's and the status map's, 8), the detector's residual and
+/// verdicts (6).
+pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 14;
 /// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit
 /// planes).
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
@@ -322,7 +329,7 @@ pub fn too_small(s: &CaptureSize) -> String {
         },
         s.lights,
         s.channels,
-        human_bytes(full_frame_bytes(s)),
+        human_bytes(stage_bytes(s, true)),
         size_flag(minimum_budget(s))
     )
 }
@@ -439,6 +446,13 @@ mod tests {
             full_frame_bytes(&scored) - full_frame_bytes(&s),
             s.pixels as u64 * TRUTH_BYTES_PER_MASK_PIXEL
         );
+        // Between the two minimums the arrays are parked during the full-frame stages; above
+        // the larger one they are not.
+        assert!(minimum_budget(&s) < minimum_unparked(&s));
+        let (_, p) = plan(&s, minimum_budget(&s), Force::default()).unwrap();
+        assert!(p.park && p.full_frame_bytes == parked_full_frame_bytes(&s));
+        let (_, p) = plan(&s, minimum_unparked(&s), Force::default()).unwrap();
+        assert!(!p.park && p.full_frame_bytes == full_frame_bytes(&s));
         let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
         let m = e.to_string();
         assert!(

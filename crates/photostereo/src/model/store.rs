@@ -546,9 +546,8 @@ impl Parking {
         {
             // SAFETY: the capacity holds `n_bytes`; every byte is written below before the
             // length is set, with bytes the same `T`s were written as.
-            let bytes = unsafe {
-                std::slice::from_raw_parts_mut(values.as_mut_ptr() as *mut u8, n_bytes)
-            };
+            let bytes =
+                unsafe { std::slice::from_raw_parts_mut(values.as_mut_ptr() as *mut u8, n_bytes) };
             for (i, chunk) in bytes.chunks_mut(PARK_CHUNK).enumerate() {
                 let at = parked.offset + (i * PARK_CHUNK) as u64;
                 self.file
@@ -665,7 +664,10 @@ mod tests {
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
         assert_eq!(park.take(pb).unwrap(), b);
         let back = park.take(pc).unwrap();
-        assert!(back.iter().zip(&c).all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
+        assert!(back
+            .iter()
+            .zip(&c)
+            .all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
         assert_eq!(park.read(&pa).unwrap(), a);
         assert_eq!(park.take(pa).unwrap(), a);
     }
