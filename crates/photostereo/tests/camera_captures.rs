@@ -524,6 +524,7 @@ fn tiled_and_whole_loads_make_the_same_linear_samples() {
         force: Force {
             layout: Some(Layout::Tiles),
             tile_pixels: Some(500),
+            park: None,
         },
         ..Default::default()
     };

@@ -74,6 +74,7 @@ fn load_as(dir: &Path, paths: &[PathBuf], tiles: bool) -> Result<Capture> {
                 Layout::InMemory
             }),
             tile_pixels: Some(500),
+            park: None,
         },
         ..LoadOptions::default()
     };

@@ -232,6 +232,7 @@ fn refinement_in_tiles_is_the_refinement_held_whole() {
         force: Force {
             layout: Some(Layout::Spill),
             tile_pixels: Some(300),
+            park: None,
         },
         ..Default::default()
     };

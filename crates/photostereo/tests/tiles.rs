@@ -26,6 +26,9 @@ fn tiled(layout: Layout, tile_pixels: usize, dir: &Path) -> LoadOptions {
         force: Force {
             layout: Some(layout),
             tile_pixels: Some(tile_pixels),
+            // A spilled capture also parks its per-pixel arrays during the full-frame stages:
+            // the results stay those of the capture held whole.
+            park: Some(layout == Layout::Spill),
         },
         ..Default::default()
     }

@@ -197,6 +197,25 @@ impl Codes2 {
     pub fn bytes(&self) -> usize {
         self.data.len()
     }
+
+    /// The packed rows as bytes ([`Codes2::as_bytes_mut`]), given up (to park them in a file).
+    pub fn into_bytes(self) -> Vec<u8> {
+        self.data
+    }
+
+    /// Rows of `width` codes from their packed bytes ([`Codes2::into_bytes`]).
+    pub fn from_bytes(width: usize, data: Vec<u8>) -> Codes2 {
+        let stride = row_bytes(width);
+        assert!(
+            data.len() % stride.max(1) == 0,
+            "whole rows of {stride} bytes"
+        );
+        Codes2 {
+            width,
+            stride,
+            data,
+        }
+    }
 }
 
 #[cfg(test)]

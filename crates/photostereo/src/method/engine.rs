@@ -16,14 +16,17 @@
 //! | `curl` | (H, W), the integrability residual of eq. 10 | NaN |
 //! | `trust` | (H, W), integration weight of each pixel in 0..1 | 0 |
 
+use crate::base::codes2::Codes2;
 use crate::base::error::{Error, Result};
 use crate::base::progress::{check_cancelled, Progress, Silent};
 use crate::geometry::integrate::{
     gradients_from_normals, surface_from_gradients, weighted_normals, IntegrationParams, Surface,
 };
+use crate::geometry::shadows::ShadowMaps;
 use crate::method::recursive::{RecursiveDiagnostics, RecursiveParams};
 use crate::method::report::{InputSummary, Report};
 use crate::model::capture::Capture;
+use crate::model::store::{Parked, Parking};
 use crate::solve::detect::{Detection, DetectionParams};
 use crate::solve::estimate::{BarskyPetrou, ColemanJain, Estimator, LeastSquares};
 use crate::solve::lambert::Estimate;
@@ -321,16 +324,24 @@ pub fn reconstruct_with_truth(
         )?,
     };
     check_cancelled(progress)?;
+    // The statuses packed (2 bits a light; the recursive method's come packed) before the
+    // final integration: no byte-per-light array is held beside the integrator's work arrays.
+    let recursive_status = diagnostics
+        .as_mut()
+        .map(|d| std::mem::take(&mut d.light_status))
+        .filter(|c| c.rows() > 0);
+    let statuses_decided =
+        estimate.light_status.is_some() || detection.is_some() || recursive_status.is_some();
+    let mut packed_status = match recursive_status {
+        Some(c) => Some(c),
+        None => estimate
+            .light_status
+            .take()
+            .map(|s| Codes2::from_codes(&s, capture.n_lights())),
+    };
     if let Some(d) = &detection {
-        record_detection(capture, &estimate, d, &mut report)?;
+        record_detection(capture, &estimate, packed_status.as_ref(), d, &mut report)?;
     }
-    // The statuses packed (2 bits a light) before the final integration: the byte-per-light
-    // array is not held beside the integrator's work arrays.
-    let statuses_decided = estimate.light_status.is_some() || detection.is_some();
-    let packed_status = estimate
-        .light_status
-        .take()
-        .map(|s| crate::base::codes2::Codes2::from_codes(&s, capture.n_lights()));
     // The recursive method's trust map is moved out of its diagnostics, not copied.
     // The last intermediate surface is not an output: freed before the final integration.
     let trust = match diagnostics.as_mut() {
@@ -347,11 +358,31 @@ pub fn reconstruct_with_truth(
         let full = trust;
         capture.gather(&full)
     };
-    let flags_at_mask = diagnostics.as_mut().map(|d| {
+    let mut flags_at_mask = diagnostics.as_mut().map(|d| {
         [&mut d.highlight, &mut d.fewer_than_three, &mut d.reliable]
             .map(|map| capture.gather(&std::mem::take(map)))
     });
-    let surface = final_surface(capture, params, &estimate, &trust, progress, &mut report)?;
+    let t = Instant::now();
+    let inputs = final_inputs(capture, params, &estimate, &trust)?;
+    // A tight budget: what the integration does not read waits in a file while it runs.
+    let mut parking = capture.parking()?;
+    let mut detection = detection;
+    let mut arrays = RunArrays {
+        estimate: &mut estimate,
+        status: &mut packed_status,
+        detection: &mut detection,
+        flags: &mut flags_at_mask,
+        diagnostics: &mut diagnostics,
+    };
+    let parked = match parking.as_mut() {
+        Some(parking) => Some(arrays.park(parking)?),
+        None => None,
+    };
+    let surface = final_surface(capture, params, inputs, t, progress, &mut report)?;
+    if let (Some(parking), Some(parked)) = (parking.as_ref(), parked) {
+        arrays.unpark(parking, parked)?;
+    }
+    drop(parking);
     let trust = capture.scatter(&trust, 1, 0.0);
     if let (Some(d), Some([highlight, few, reliable])) = (diagnostics.as_mut(), flags_at_mask) {
         d.highlight = capture.scatter(&highlight, 1, false);
@@ -425,6 +456,7 @@ fn start_report(capture: &Capture, params: &Params) -> Report {
 fn record_detection(
     capture: &Capture,
     estimate: &Estimate,
+    status: Option<&Codes2>,
     d: &Detection,
     report: &mut Report,
 ) -> Result<()> {
@@ -440,7 +472,7 @@ fn record_detection(
                 &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
                 &d.noise.light_factor,
             ),
-            "shadow_labels": match estimate.light_status.as_ref() {
+            "shadow_labels": match status {
                 Some(s) => Some(tiled_shadow_labels(capture, estimate, s)?),
                 None => None,
             },
@@ -449,59 +481,166 @@ fn record_detection(
     Ok(())
 }
 
-/// The final integration of the estimate's normals with the per-mask-pixel `trust` (the same
-/// weighting rule the recursive method uses): through the camera with a perspective model,
-/// orthographic otherwise; none unless `params.integrate`.
-fn final_surface(
+/// What the final integration reads: the gradients of the weighted normals and the weights
+/// (orthographic), or the full-frame normals and trust (through the camera).
+enum FinalInputs {
+    Orthographic(crate::geometry::integrate::Gradients, Vec<f32>),
+    Perspective(Vec<[f32; 3]>, Vec<f32>),
+}
+
+/// The final integration's inputs from the estimate's normals and the per-mask-pixel `trust`
+/// (the same weighting rule the recursive method uses); none unless `params.integrate`.
+fn final_inputs(
     capture: &Capture,
     params: &Params,
     estimate: &Estimate,
     trust: &[f32],
-    progress: &dyn Progress,
-    report: &mut Report,
-) -> Result<Option<Surface>> {
+) -> Result<Option<FinalInputs>> {
     if !params.integrate {
         return Ok(None);
     }
     let (w, h) = (capture.width, capture.height);
-    let t = Instant::now();
-    let surface = if capture.lights.perspective().is_some() {
-        near_integration(
-            capture,
-            params,
-            &capture.scatter(&estimate.normals, 1, [0.0; 3]),
-            &capture.scatter(trust, 1, 0.0),
-            progress,
-        )?
-    } else {
-        // The output's normal map is made after the solve: during it only the gradients,
-        // the weights and the integrator's arrays are held whole.
-        let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
-            w * h,
-            &capture.pixels,
-            &estimate.normals,
-            &|p, _| trust[p],
-        );
-        // The weighted copy of the normal map is dropped once its gradients are taken.
-        let gradients = gradients_from_normals(
-            w,
-            h,
-            &weighted,
-            Some(&capture.mask),
-            params.integration.max_slope,
-        )?;
-        drop(weighted);
-        surface_from_gradients(
+    if capture.lights.perspective().is_some() {
+        let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
+        let trust = capture.scatter(trust, 1, 0.0);
+        return Ok(Some(FinalInputs::Perspective(normals, trust)));
+    }
+    // The output's normal map is made after the solve: during it only the gradients, the
+    // weights and the integrator's arrays are held whole.
+    let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
+        w * h,
+        &capture.pixels,
+        &estimate.normals,
+        &|p, _| trust[p],
+    );
+    // The weighted copy of the normal map is dropped once its gradients are taken.
+    let gradients = gradients_from_normals(
+        w,
+        h,
+        &weighted,
+        Some(&capture.mask),
+        params.integration.max_slope,
+    )?;
+    Ok(Some(FinalInputs::Orthographic(gradients, weights)))
+}
+
+/// The final integration of [`final_inputs`]: through the camera with a perspective model,
+/// orthographic otherwise; timed from `t`.
+fn final_surface(
+    capture: &Capture,
+    params: &Params,
+    inputs: Option<FinalInputs>,
+    t: Instant,
+    progress: &dyn Progress,
+    report: &mut Report,
+) -> Result<Option<Surface>> {
+    let surface = match inputs {
+        None => return Ok(None),
+        Some(FinalInputs::Perspective(normals, trust)) => {
+            near_integration(capture, params, &normals, &trust, progress)?
+        }
+        Some(FinalInputs::Orthographic(gradients, weights)) => surface_from_gradients(
             gradients,
             Some(&weights),
             params.integration.method.integrator().as_ref(),
             params.integration.max_slope,
             progress,
-        )?
+        )?,
     };
     report.extra.insert("integration".into(), surface.summary());
     report.time("integrate", t);
     Ok(Some(surface))
+}
+
+/// The per-pixel arrays of a run beside its final integration, which it does not read.
+struct RunArrays<'a> {
+    estimate: &'a mut Estimate,
+    status: &'a mut Option<crate::base::codes2::Codes2>,
+    detection: &'a mut Option<Detection>,
+    flags: &'a mut Option<[Vec<bool>; 3]>,
+    diagnostics: &'a mut Option<RecursiveDiagnostics>,
+}
+
+/// Where [`RunArrays::park`] put each array.
+struct ParkedRun {
+    normals: Parked<[f32; 3]>,
+    albedo: Parked<f32>,
+    status: Option<(usize, Parked<u8>)>,
+    detection: Option<[Parked<f32>; 1]>,
+    verdicts: Option<[Parked<bool>; 2]>,
+    flags: Option<[Parked<bool>; 3]>,
+    shadows: Option<([usize; 3], [Parked<u64>; 2])>,
+}
+
+impl RunArrays<'_> {
+    /// Moves the arrays into `parking` (the run's results are unchanged: they are read back
+    /// bit for bit by [`RunArrays::unpark`]).
+    fn park(&mut self, parking: &mut Parking) -> Result<ParkedRun> {
+        let normals = parking.shelve(&mut self.estimate.normals)?;
+        let albedo = parking.shelve(&mut self.estimate.albedo)?;
+        let status = match self.status.take() {
+            Some(c) => Some((c.width(), parking.park(c.into_bytes())?)),
+            None => None,
+        };
+        let (detection, verdicts) = match self.detection.as_mut() {
+            Some(d) => (
+                Some([parking.shelve(&mut d.residual)?]),
+                Some([
+                    parking.shelve(&mut d.unreliable)?,
+                    parking.shelve(&mut d.settled)?,
+                ]),
+            ),
+            None => (None, None),
+        };
+        let flags = match self.flags.as_mut() {
+            Some([a, b, c]) => Some([parking.shelve(a)?, parking.shelve(b)?, parking.shelve(c)?]),
+            None => None,
+        };
+        let shadows = match self.diagnostics.as_mut() {
+            Some(d) => {
+                let maps = std::mem::replace(&mut d.shadows, ShadowMaps::empty(0, 0, 0));
+                let size = [maps.width, maps.height, maps.lights];
+                let [a, c] = maps.into_planes();
+                Some((size, [parking.park(a)?, parking.park(c)?]))
+            }
+            None => None,
+        };
+        Ok(ParkedRun {
+            normals,
+            albedo,
+            status,
+            detection,
+            verdicts,
+            flags,
+            shadows,
+        })
+    }
+
+    /// Reads back what [`RunArrays::park`] parked.
+    fn unpark(&mut self, parking: &Parking, p: ParkedRun) -> Result<()> {
+        parking.unshelve(&mut self.estimate.normals, p.normals)?;
+        parking.unshelve(&mut self.estimate.albedo, p.albedo)?;
+        if let Some((width, bytes)) = p.status {
+            *self.status = Some(Codes2::from_bytes(width, parking.take(bytes)?));
+        }
+        if let (Some(d), Some([residual]), Some([unreliable, settled])) =
+            (self.detection.as_mut(), p.detection, p.verdicts)
+        {
+            parking.unshelve(&mut d.residual, residual)?;
+            parking.unshelve(&mut d.unreliable, unreliable)?;
+            parking.unshelve(&mut d.settled, settled)?;
+        }
+        if let (Some([a, b, c]), Some([pa, pb, pc])) = (self.flags.as_mut(), p.flags) {
+            parking.unshelve(a, pa)?;
+            parking.unshelve(b, pb)?;
+            parking.unshelve(c, pc)?;
+        }
+        if let (Some(d), Some(([w, h, n], [a, c]))) = (self.diagnostics.as_mut(), p.shadows) {
+            let planes = [parking.take(a)?, parking.take(c)?];
+            d.shadows = ShadowMaps::from_planes(w, h, n, planes);
+        }
+        Ok(())
+    }
 }
 
 /// The recursive method's maps for the reconstruction, its figures into the report.
@@ -859,7 +998,13 @@ fn estimate(
                 .timings_s
                 .insert("detect".into(), r.detect_seconds.into());
             let tested = (capture.n_lights() >= 4).then_some(r.detection);
-            (r.estimate, tested, Some(r.diagnostics))
+            let (mut estimate, mut diagnostics) = (r.estimate, r.diagnostics);
+            if capture.lights.near.is_some() {
+                // The near model's lobe refinement reads and rewrites the estimate's statuses.
+                estimate.light_status =
+                    Some(std::mem::take(&mut diagnostics.light_status).unpack());
+            }
+            (estimate, tested, Some(diagnostics))
         }
     };
     report.time("estimate", t);
@@ -870,13 +1015,13 @@ fn estimate(
 fn tiled_shadow_labels(
     capture: &Capture,
     est: &Estimate,
-    light_status: &[u8],
+    light_status: &Codes2,
 ) -> Result<crate::solve::lambert::ShadowLabels> {
     if !capture.is_tiled() {
         return Ok(crate::solve::lambert::shadow_labels(
             capture,
             est,
-            light_status,
+            &light_status.unpack(),
         ));
     }
     let (n, c) = (capture.n_lights(), capture.channels);
@@ -891,7 +1036,7 @@ fn tiled_shadow_labels(
         let (a, b, d) = crate::solve::lambert::shadow_label_counts(
             tile,
             &part,
-            &light_status[off * n..(off + np) * n],
+            &light_status.unpack_rows(off..off + np),
         );
         counts = (counts.0 + a, counts.1 + b, counts.2 + d);
         Ok(())

@@ -36,6 +36,7 @@ use crate::geometry::integrate::{
 };
 use crate::geometry::shadows::{shadow_maps, ShadowMaps, ShadowParams};
 use crate::model::capture::Capture;
+use crate::model::store::{Parked, Parking};
 use crate::solve::detect::{
     AttributionScratch, Attributor, Detection, DetectionParams, NoiseModel,
 };
@@ -195,6 +196,10 @@ pub struct RecursiveDiagnostics {
     pub surface_prior: Option<SurfacePriorRecord>,
     /// The highlight lobes' fit (distant lights) and its maps, full frame, when it ran.
     pub gloss: Option<(GlossSummary, GlossMaps)>,
+    /// The final usable-light statuses per mask pixel, packed (2 bits a light): the
+    /// estimate's `light_status` is left `None`, so that no byte-per-light copy is made
+    /// ([`Recursive`]'s [`Estimator`] result unpacks them).
+    pub light_status: Codes2,
 }
 
 /// The normals, albedo and light statuses of a recursive run, and its diagnostics.
@@ -228,7 +233,10 @@ impl Estimator for Recursive {
     }
 
     fn estimate(&self, capture: &Capture, progress: &dyn Progress) -> Result<Estimate> {
-        Ok(self.run(capture, progress, &mut |_| {})?.estimate)
+        let r = self.run(capture, progress, &mut |_| {})?;
+        let mut estimate = r.estimate;
+        estimate.light_status = Some(r.diagnostics.light_status.unpack());
+        Ok(estimate)
     }
 }
 
@@ -659,12 +667,19 @@ impl Recursion {
         let (n, np) = (setting.n_lights(), setting.n_pixels());
         // The last iteration's shadow maps are replaced below: not kept beside the new ones.
         drop(self.last_maps.take());
+        // A tight budget: the per-pixel arrays wait in a file while the surface and its
+        // shadows are made, the estimate until the re-estimate.
+        let mut parking = setting.capture.parking()?;
         // 2. The surface, and 3. its shadows.
         setting.step(iteration, "surface", 1);
-        let (surface, shading) = self.integrate_surface(setting)?;
+        let (surface, shading, parked) = self.integrate_surface(setting, parking.as_mut())?;
         setting.step(iteration, "shadows", 1);
         let maps = shadows_of(setting, &surface, &shading)?;
         drop(shading);
+        let parked_estimate = match (parking.as_ref(), parked) {
+            (Some(parking), Some(parked)) => Some(self.unpark(parking, parked)?),
+            _ => None,
+        };
         // 4–5. The usable lights: each pixel's own decisions, the neighbourhood's consensus,
         // and the oscillation rule.
         setting.step(iteration, "usable lights", np as u64);
@@ -679,6 +694,11 @@ impl Recursion {
             .map(|p| usable_differs(&new.status, &self.light_status, p, n))
             .collect();
         let changed_pixels = changed.iter().filter(|&&x| x).count();
+        if let (Some(parking), Some((normals, albedo))) = (parking.as_ref(), parked_estimate) {
+            parking.unshelve(&mut self.est.normals, normals)?;
+            parking.unshelve(&mut self.est.albedo, albedo)?;
+        }
+        drop(parking);
         self.re_estimate(setting, new, own_status, changed)?;
         if setting.params.fallback == Fallback::Neighbours {
             self.fill_few(setting, &surface)?;
@@ -723,7 +743,14 @@ impl Recursion {
     /// with low weight on the pixels of E (which fills them from their reliable surroundings)
     /// and zero weight where fewer than three lights remain. Returns the surface and the normals
     /// its shadows are shaded with (the estimate where it is trusted, the surface elsewhere).
-    fn integrate_surface(&mut self, setting: &Setting) -> Result<(Surface, Vec<[f32; 3]>)> {
+    ///
+    /// With a `parking` file the recursion's per-pixel arrays are parked once the inputs are
+    /// made ([`Recursion::park`]).
+    fn integrate_surface(
+        &mut self,
+        setting: &Setting,
+        mut parking: Option<&mut Parking>,
+    ) -> Result<(Surface, Vec<[f32; 3]>, Option<ParkedState>)> {
         let capture = setting.capture;
         let (w, h) = (capture.width, capture.height);
         let masked_trust = self.trust(setting);
@@ -735,7 +762,11 @@ impl Recursion {
             &|p, _| masked_trust[p],
         );
         drop(masked_trust);
-        match capture.lights.near.as_deref() {
+        let parked = match parking.as_deref_mut() {
+            Some(parking) => Some(self.park(parking)?),
+            None => None,
+        };
+        let (surface, shading) = match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few
                 // pixels since, so the solver needs a fraction of its iterations. The normal
@@ -752,16 +783,24 @@ impl Recursion {
                 // Attached shadows from the estimate where it is trusted (there the integrated
                 // normal was the estimate itself), from the surface elsewhere.
                 let mut shading = normals_from_depth(w, h, &depth.values, &capture.mask);
+                let parked_normals = match (parking.as_deref(), parked.as_ref()) {
+                    (Some(parking), Some(parked)) => parking.read(&parked.estimate.0)?,
+                    _ => Vec::new(),
+                };
+                let normals = match parked.as_ref() {
+                    Some(_) => &parked_normals,
+                    None => &self.est.normals,
+                };
                 for (p, &i) in capture.pixels.iter().enumerate() {
                     if weights[i as usize] >= 1.0 {
-                        shading[i as usize] = self.est.normals[p];
+                        shading[i as usize] = normals[p];
                     }
                 }
                 let surface = Surface {
                     depth,
                     near_normals: None,
                 };
-                Ok((surface, shading))
+                (surface, shading)
             }
             // Near lights: the surface in mm through the camera, and the light vectors follow
             // it (ALGORITHMS.md §9).
@@ -781,9 +820,60 @@ impl Recursion {
                     depth,
                     near_normals: Some(surface_normals),
                 };
-                Ok((surface, shading))
+                (surface, shading)
             }
-        }
+        };
+        Ok((surface, shading, parked))
+    }
+
+    /// Parks the recursion's per-pixel arrays in `parking` (the estimate, the statuses, the
+    /// own decisions, the flags and fingerprints), leaving them empty.
+    fn park(&mut self, parking: &mut Parking) -> Result<ParkedState> {
+        let status = std::mem::take(&mut self.light_status);
+        let width = status.width();
+        Ok(ParkedState {
+            estimate: (
+                parking.shelve(&mut self.est.normals)?,
+                parking.shelve(&mut self.est.albedo)?,
+            ),
+            status: (width, parking.park(status.into_bytes())?),
+            own_status: (
+                parking.shelve(&mut self.own.status.ids)?,
+                parking.shelve(&mut self.own.status.codes)?,
+            ),
+            key: parking.shelve(&mut self.own.key)?,
+            earlier_print: parking.shelve(&mut self.earlier_print)?,
+            flags: [
+                parking.shelve(&mut self.consistent)?,
+                parking.shelve(&mut self.few)?,
+                parking.shelve(&mut self.solved_two)?,
+                parking.shelve(&mut self.highlight)?,
+                parking.shelve(&mut self.oscillating)?,
+                parking.shelve(&mut self.own.consistent)?,
+                parking.shelve(&mut self.own.few)?,
+            ],
+        })
+    }
+
+    /// Reads back what [`Recursion::park`] parked, except the estimate (returned, still
+    /// parked: the re-estimate reads it back).
+    fn unpark(&mut self, parking: &Parking, p: ParkedState) -> Result<ParkedEstimate> {
+        let (width, status) = p.status;
+        self.light_status = Codes2::from_bytes(width, parking.take(status)?);
+        let (ids, codes) = p.own_status;
+        parking.unshelve(&mut self.own.status.ids, ids)?;
+        parking.unshelve(&mut self.own.status.codes, codes)?;
+        parking.unshelve(&mut self.own.key, p.key)?;
+        parking.unshelve(&mut self.earlier_print, p.earlier_print)?;
+        let [a, b, c, d, e, f, g] = p.flags;
+        parking.unshelve(&mut self.consistent, a)?;
+        parking.unshelve(&mut self.few, b)?;
+        parking.unshelve(&mut self.solved_two, c)?;
+        parking.unshelve(&mut self.highlight, d)?;
+        parking.unshelve(&mut self.oscillating, e)?;
+        parking.unshelve(&mut self.own.consistent, f)?;
+        parking.unshelve(&mut self.own.few, g)?;
+        Ok(p.estimate)
     }
 
     /// Steps 4–5 at every pixel ([`Recursion::decide_pixel`]), tile by tile (the whole capture
@@ -970,6 +1060,22 @@ impl Recursion {
         }
         false
     }
+}
+
+/// The estimate's normals and albedo, parked.
+type ParkedEstimate = (Parked<[f32; 3]>, Parked<f32>);
+
+/// Where [`Recursion::park`] put the recursion's per-pixel arrays.
+struct ParkedState {
+    estimate: ParkedEstimate,
+    /// The statuses' width (lights) and packed rows.
+    status: (usize, Parked<u8>),
+    own_status: (Parked<u32>, Parked<u8>),
+    key: Parked<u8>,
+    earlier_print: Parked<u32>,
+    /// `consistent`, `few`, `solved_two`, `highlight`, `oscillating` and the own decisions'
+    /// `consistent` and `few`.
+    flags: [Parked<bool>; 7],
 }
 
 /// What a pixel's decision reads: its mask index, its grey readings and the surface's shadows.
@@ -1240,10 +1346,9 @@ impl Recursion {
             stop_reason,
             surface_prior,
             gloss,
+            light_status: self.light_status,
         };
-        let mut est = self.est;
-        est.light_status = Some(self.light_status.unpack());
-        Ok((est, diagnostics))
+        Ok((self.est, diagnostics))
     }
 }
 

@@ -61,6 +61,23 @@ pub struct Capture {
     statistics: Statistics,
 }
 
+impl Capture {
+    /// A parking file for the per-pixel arrays a full-frame stage does not read, when the
+    /// memory plan asks for one ([`MemoryPlan::park`]): beside the samples' spill file, else in
+    /// the system's temporary folder.
+    pub fn parking(&self) -> Result<Option<crate::model::store::Parking>> {
+        if !self.memory.as_ref().is_some_and(|m| m.park) {
+            return Ok(None);
+        }
+        let dir = self
+            .store
+            .as_ref()
+            .and_then(|s| s.spill_dir().map(std::path::Path::to_path_buf))
+            .unwrap_or_else(std::env::temp_dir);
+        crate::model::store::Parking::new(&dir).map(Some)
+    }
+}
+
 /// The capture-wide statistics of one [`Capture`], each measured on first use
 /// ([`crate::solve::detect::image_noise`], [`crate::solve::detect::dark_floor`],
 /// [`crate::solve::detect::estimate_kappa_weighted`], [`crate::solve::detect::light_noise_factors`]). They are a function of the samples, lights and mask, which

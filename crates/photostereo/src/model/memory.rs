@@ -23,6 +23,20 @@ use crate::model::store::SampleType;
 /// exported maps. Set on measured peaks with a margin of about 10% (`docs/performance.md`, Memory): the
 /// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
+/// Bytes per frame pixel of the full-frame stages when the per-pixel arrays a stage does not
+/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the
+/// recursion's intermediate integrations (the integrator's arrays, about 52 for `bilateral`,
+/// beside its inputs: the gradients, the weights, the last surface) and the end of the run (the
+/// exported maps while they are written: normals 12, albedo 12 for RGB, depth, curl, trust and
+/// residual 16, the shadow planes of 24 lights 6, the flag maps and the mask 5, the packed
+/// statuses 6); the recursion's decisions (the estimate parked) stay below them. Set on the
+/// measured peak of a full-frame 24-light RGB capture with a margin of about 6%
+/// (`docs/performance.md`, Memory).
+pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 76;
+/// Bytes per mask pixel held beside every stage when the other arrays are parked: the mask
+/// pixels' frame indices (the capture's and the status map's, 8), the detector's residual and
+/// verdicts (6).
+pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 14;
 /// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit
 /// planes).
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
@@ -190,6 +204,10 @@ pub struct MemoryPlan {
     pub beside: Beside,
     /// The smallest budget that works for this capture.
     pub minimum_budget: u64,
+    /// Whether the per-pixel arrays a stage does not read wait in a parking file
+    /// ([`crate::model::store::Parking`]) while the integrations and the shadow maps run: when
+    /// the budget cannot hold them beside those stages.
+    pub park: bool,
 }
 
 /// A size as `--memory-limit` takes it: bytes below 1 MiB (`1000`), whole MiB rounded up
@@ -233,6 +251,36 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
         + writing
 }
 
+/// The full-frame stages' bytes with the per-pixel arrays parked ([`MemoryPlan::park`]), with
+/// what is held beside them.
+pub fn parked_full_frame_bytes(s: &CaptureSize) -> u64 {
+    if s.beside.stages == Stages::Estimate {
+        return full_frame_bytes(s);
+    }
+    let beside = s.beside.bytes(s.frame(), s.pixels as u64);
+    let writing = s.beside.writing_bytes(s.width as u64);
+    s.frame() * PARKED_FRAME_BYTES_PER_PIXEL
+        + s.pixels as u64
+            * (PARKED_MASK_BYTES_PER_PIXEL
+                + if s.ground_truth {
+                    TRUTH_BYTES_PER_MASK_PIXEL
+                } else {
+                    0
+                })
+        + FIXED_BYTES
+        + beside
+        + writing
+}
+
+/// The full-frame stages' bytes under a plan that parks (`park`) or not.
+fn stage_bytes(s: &CaptureSize, park: bool) -> u64 {
+    if park {
+        parked_full_frame_bytes(s).min(full_frame_bytes(s))
+    } else {
+        full_frame_bytes(s)
+    }
+}
+
 /// Bytes of one tile of `pixels` mask pixels in use.
 fn tile_bytes(s: &CaptureSize, pixels: u64) -> u64 {
     pixels * (s.lights * s.channels) as u64 * TILE_BYTES_PER_SAMPLE
@@ -243,8 +291,14 @@ fn decoder_bytes(s: &CaptureSize) -> u64 {
     s.lights as u64 * (s.width as u64 * s.channels as u64 * 4 + (256 << 10))
 }
 
-/// The smallest budget that works: the full-frame stages and a tile of the widest row.
+/// The smallest budget that works: the full-frame stages (their arrays parked when that needs
+/// less) and a tile of the widest row.
 pub fn minimum_budget(s: &CaptureSize) -> u64 {
+    stage_bytes(s, true) + tile_bytes(s, s.width as u64) + decoder_bytes(s)
+}
+
+/// The smallest budget that holds every per-pixel array in memory (no parking).
+fn minimum_unparked(s: &CaptureSize) -> u64 {
     full_frame_bytes(s) + tile_bytes(s, s.width as u64) + decoder_bytes(s)
 }
 
@@ -256,6 +310,8 @@ pub struct Force {
     pub layout: Option<Layout>,
     /// Mask pixels per tile.
     pub tile_pixels: Option<usize>,
+    /// Park the per-pixel arrays during the full-frame stages, or not, whatever the budget asks.
+    pub park: Option<bool>,
 }
 
 /// Why a budget below [`minimum_budget`] cannot hold a capture of size `s`, naming the
@@ -273,7 +329,7 @@ pub fn too_small(s: &CaptureSize) -> String {
         },
         s.lights,
         s.channels,
-        human_bytes(full_frame_bytes(s)),
+        human_bytes(stage_bytes(s, true)),
         size_flag(minimum_budget(s))
     )
 }
@@ -288,7 +344,10 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
             format!("{}: {}", size_flag(budget), too_small(s)),
         ));
     }
-    let full = full_frame_bytes(s);
+    let park = force
+        .park
+        .unwrap_or(budget < minimum_unparked(s) && stage_bytes(s, true) < full_frame_bytes(s));
+    let full = stage_bytes(s, park);
     let f32_bytes = s.samples() * 4;
     let stored = s.samples() * s.sample_type.bytes() as u64;
     // Whole f32 samples, their transient second copy while loading, one image per thread.
@@ -341,6 +400,7 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
             + s.beside.writing_bytes(s.width as u64),
         beside: s.beside,
         minimum_budget: minimum,
+        park,
     };
     Ok((layout, plan))
 }
@@ -386,6 +446,13 @@ mod tests {
             full_frame_bytes(&scored) - full_frame_bytes(&s),
             s.pixels as u64 * TRUTH_BYTES_PER_MASK_PIXEL
         );
+        // Between the two minimums the arrays are parked during the full-frame stages; above
+        // the larger one they are not.
+        assert!(minimum_budget(&s) < minimum_unparked(&s));
+        let (_, p) = plan(&s, minimum_budget(&s), Force::default()).unwrap();
+        assert!(p.park && p.full_frame_bytes == parked_full_frame_bytes(&s));
+        let (_, p) = plan(&s, minimum_unparked(&s), Force::default()).unwrap();
+        assert!(!p.park && p.full_frame_bytes == full_frame_bytes(&s));
         let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
         let m = e.to_string();
         assert!(

@@ -417,6 +417,150 @@ impl SampleStore {
     }
 }
 
+/// Plain values that a [`Parking`] file holds as their bytes: every bit pattern the program
+/// writes reads back as the same value (no padding, no pointers).
+///
+/// # Safety
+/// Implementors have no padding and no invalid bit patterns among the values written.
+pub unsafe trait Plain: Copy + Default + Send + Sync + 'static {}
+unsafe impl Plain for u8 {}
+unsafe impl Plain for u32 {}
+unsafe impl Plain for u64 {}
+unsafe impl Plain for f32 {}
+unsafe impl Plain for [f32; 3] {}
+// Only `bool`s the program made are written, and they read back as 0 or 1.
+unsafe impl Plain for bool {}
+
+/// A per-pixel array waiting in a [`Parking`] file: where it is, and how many values.
+#[derive(Debug)]
+#[must_use = "a parked array is read back with Parking::take"]
+pub struct Parked<T> {
+    offset: u64,
+    len: usize,
+    _values: std::marker::PhantomData<T>,
+}
+
+impl<T> Parked<T> {
+    /// Values parked.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether no value is parked.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+}
+
+/// A temporary file where per-pixel arrays wait while a full-frame stage (an integration, the
+/// shadow maps) needs the memory they hold (ALGORITHMS.md §10): [`Parking::park`] writes an
+/// array and frees it, [`Parking::take`] reads it back bit for bit. Like the sample store's
+/// spill file it is unlinked at once, so the system frees it however the run ends; arrays are
+/// moved with positioned I/O in bounded chunks, so the resident memory never holds a second
+/// copy.
+pub struct Parking {
+    file: File,
+    dir: PathBuf,
+    end: u64,
+}
+
+/// Bytes moved per positioned read or write.
+const PARK_CHUNK: usize = 8 << 20;
+
+impl Parking {
+    /// A new, empty parking file in `dir`.
+    pub fn new(dir: &Path) -> Result<Parking> {
+        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+        let path = dir.join(format!(
+            ".photostereo-parked-{}-{}.spill",
+            std::process::id(),
+            NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+        ));
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create_new(true)
+            .open(&path)
+            .map_err(|e| Error::io(&path, e))?;
+        std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+        Ok(Parking {
+            file,
+            dir: dir.to_path_buf(),
+            end: 0,
+        })
+    }
+
+    fn io_error(&self, e: std::io::Error) -> Error {
+        Error::io(self.dir.join("(parking file)"), e)
+    }
+
+    /// Bytes written so far.
+    pub fn bytes(&self) -> u64 {
+        self.end
+    }
+
+    /// Writes `values` to the file and frees them.
+    pub fn park<T: Plain>(&mut self, values: Vec<T>) -> Result<Parked<T>> {
+        // SAFETY: `T: Plain` has no padding; the slice covers the vector's initialised values.
+        let bytes = unsafe {
+            std::slice::from_raw_parts(
+                values.as_ptr() as *const u8,
+                std::mem::size_of_val(values.as_slice()),
+            )
+        };
+        let offset = self.end;
+        for (i, chunk) in bytes.chunks(PARK_CHUNK).enumerate() {
+            let at = offset + (i * PARK_CHUNK) as u64;
+            self.file
+                .write_all_at(chunk, at)
+                .map_err(|e| self.io_error(e))?;
+        }
+        self.end += bytes.len() as u64;
+        Ok(Parked {
+            offset,
+            len: values.len(),
+            _values: std::marker::PhantomData,
+        })
+    }
+
+    /// Reads a parked array back (it stays in the file: [`Parking::read`] can read it again).
+    pub fn take<T: Plain>(&self, parked: Parked<T>) -> Result<Vec<T>> {
+        self.read(&parked)
+    }
+
+    /// Parks the array `values` holds, leaving it empty.
+    pub fn shelve<T: Plain>(&mut self, values: &mut Vec<T>) -> Result<Parked<T>> {
+        self.park(std::mem::take(values))
+    }
+
+    /// Puts a parked array back into `values` (empty on entry).
+    pub fn unshelve<T: Plain>(&self, values: &mut Vec<T>, parked: Parked<T>) -> Result<()> {
+        *values = self.take(parked)?;
+        Ok(())
+    }
+
+    /// A copy of a parked array, leaving it parked.
+    pub fn read<T: Plain>(&self, parked: &Parked<T>) -> Result<Vec<T>> {
+        let mut values: Vec<T> = Vec::with_capacity(parked.len);
+        let n_bytes = parked.len * std::mem::size_of::<T>();
+        {
+            // SAFETY: the capacity holds `n_bytes`; every byte is written below before the
+            // length is set, with bytes the same `T`s were written as.
+            let bytes =
+                unsafe { std::slice::from_raw_parts_mut(values.as_mut_ptr() as *mut u8, n_bytes) };
+            for (i, chunk) in bytes.chunks_mut(PARK_CHUNK).enumerate() {
+                let at = parked.offset + (i * PARK_CHUNK) as u64;
+                self.file
+                    .read_exact_at(chunk, at)
+                    .map_err(|e| self.io_error(e))?;
+            }
+        }
+        // SAFETY: all `parked.len` values were read in full.
+        unsafe { values.set_len(parked.len) };
+        Ok(values)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -502,5 +646,29 @@ mod tests {
         drop((a, b, sel));
         assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
         std::fs::remove_dir(&dir).unwrap();
+    }
+
+    #[test]
+    fn parked_arrays_read_back_bit_for_bit_from_a_nameless_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut park = Parking::new(dir.path()).unwrap();
+        let a: Vec<f32> = (0..3_000_000).map(|i| (i as f32).sqrt() - 7.5).collect();
+        let b: Vec<bool> = (0..1001).map(|i| i % 3 == 0).collect();
+        let c: Vec<[f32; 3]> = (0..17).map(|i| [i as f32, -0.0, f32::NAN]).collect();
+        let (pa, pb, pc) = (
+            park.park(a.clone()).unwrap(),
+            park.park(b.clone()).unwrap(),
+            park.park(c.clone()).unwrap(),
+        );
+        assert_eq!(park.bytes(), 12_000_000 + 1001 + 17 * 12);
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+        assert_eq!(park.take(pb).unwrap(), b);
+        let back = park.take(pc).unwrap();
+        assert!(back
+            .iter()
+            .zip(&c)
+            .all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
+        assert_eq!(park.read(&pa).unwrap(), a);
+        assert_eq!(park.take(pa).unwrap(), a);
     }
 }

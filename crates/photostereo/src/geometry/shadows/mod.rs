@@ -97,6 +97,27 @@ impl ShadowMaps {
     /// Bit set when the height field hides the light.
     pub const CAST: u8 = 2;
 
+    /// The attached and cast bit planes, given up (to park them in a file while a full-frame
+    /// stage needs the memory).
+    pub fn into_planes(self) -> [Vec<u64>; 2] {
+        [self.attached, self.cast]
+    }
+
+    /// Maps from their bit planes ([`ShadowMaps::into_planes`]).
+    pub fn from_planes(width: usize, height: usize, lights: usize, planes: [Vec<u64>; 2]) -> Self {
+        let words = (width * height).div_ceil(64);
+        let [attached, cast] = planes;
+        assert!(attached.len() == words * lights && cast.len() == words * lights);
+        ShadowMaps {
+            width,
+            height,
+            lights,
+            words,
+            attached,
+            cast,
+        }
+    }
+
     /// Maps without any shadow.
     pub fn empty(width: usize, height: usize, lights: usize) -> ShadowMaps {
         let words = (width * height).div_ceil(64);
