@@ -321,6 +321,7 @@ pub(super) fn fit_into(capture: &Capture, sink: &mut dyn CoefficientSink) -> Res
         excluded_readings: 0,
         fell_back_to_all_lights: 0,
         rbf: Some(model),
+        ridge: None,
         ranges,
     })
 }
