@@ -160,10 +160,12 @@ impl Basis {
     }
 
     /// The diagonal of the roughness penalty D of the ridge fit (module documentation), per
-    /// term into `out[..terms]`: the Dirichlet energy ∫|∇f|² of f = Σ_j c_j b_j is Σ_j D_j c_j².
-    /// - HSH: the harmonics are spherical harmonics of the hemisphere stretched to the sphere
-    ///   (cos θ' = 2 cos θ − 1), orthonormal, each an eigenfunction of the Laplacian with
-    ///   eigenvalue l(l + 1): D = 0 (H0), 2 (H1…H3, l = 1), 6 (H4…H8, l = 2).
+    /// term into `out[..terms]`: the Dirichlet energy ∫|∇f|² of f = Σ_j c_j b_j is Σ_j D_j c_j²
+    /// (for HSH up to a common factor, which λ absorbs).
+    /// - HSH: the harmonics are √2 × the spherical harmonics of the hemisphere stretched to the
+    ///   sphere (cos θ' = 2 cos θ − 1), each an eigenfunction of the Laplacian with eigenvalue
+    ///   l(l + 1), orthogonal: ∫|∇f|² dω' = 2 Σ_j l_j(l_j + 1) c_j². D = 0 (H0), 2 (H1…H3,
+    ///   l = 1), 6 (H4…H8, l = 2).
     /// - PTM: over the unit disk of the projected light (l_u, l_v), where ∫1 = π and
     ///   ∫l_u² = ∫l_v² = π/4, ∫|∇L|² = π (a0² + a1² + a2²/2 + a3² + a4²) exactly (the cross
     ///   terms integrate to zero): D = π (1, 1, 1/2, 1, 1, 0).
@@ -408,13 +410,7 @@ pub fn display_gain(capture: &Capture) -> Result<f64> {
         return Ok(1.0);
     }
     let ids = sample_ids(np, 4096);
-    let sampled;
-    let view = if capture.is_tiled() {
-        sampled = capture.sampled(&ids)?;
-        &sampled
-    } else {
-        capture
-    };
+    let view = sample_view(capture, &ids)?;
     let mut v: Vec<f32> = ids
         .iter()
         .flat_map(|&p| view.pixel_samples(p).iter().copied())
@@ -429,8 +425,21 @@ pub fn display_gain(capture: &Capture) -> Result<f64> {
 }
 
 /// Up to `most` evenly spaced mask pixels of `np` (every ⌈np / most⌉-th).
-fn sample_ids(np: usize, most: usize) -> Vec<usize> {
+pub(crate) fn sample_ids(np: usize, most: usize) -> Vec<usize> {
     (0..np).step_by(np.div_ceil(most).max(1)).collect()
+}
+
+/// A view of `capture` that answers for the mask pixels `ids`: the capture itself when held
+/// whole (no copy), else the samples of those pixels read from its tiles.
+pub(crate) fn sample_view<'a>(
+    capture: &'a Capture,
+    ids: &[usize],
+) -> Result<std::borrow::Cow<'a, Capture>> {
+    Ok(if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(ids)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    })
 }
 
 /// The design of a capture's lights: `A` (N × T, row-major), the ridge λ D, the projector
@@ -745,13 +754,7 @@ pub fn choose_ridge(
 ) -> Result<Ridge> {
     let (n, t) = (capture.n_lights(), basis.terms());
     let ids = sample_ids(capture.n_pixels(), RIDGE_SAMPLE);
-    let sampled;
-    let view = if capture.is_tiled() {
-        sampled = capture.sampled(&ids)?;
-        &sampled
-    } else {
-        capture
-    };
+    let view = sample_view(capture, &ids)?;
     let fc = if basis.luminance() {
         1
     } else {
@@ -764,7 +767,7 @@ pub fn choose_ridge(
         let lambda = per_light * n as f64;
         let design = Design::new(capture, basis, lambda)?;
         let job = TileJob {
-            view,
+            view: &view,
             start: 0,
             first: 0,
             ids: Some(&ids),

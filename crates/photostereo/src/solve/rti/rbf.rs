@@ -151,15 +151,8 @@ pub fn kernel_width(lights: &[[f64; 3]]) -> f64 {
 /// mask pixels; returns them with the number of pixels used.
 fn moments(capture: &Capture, gain: f64) -> Result<(Vec<f64>, DMatrix<f64>, usize)> {
     let (np, d) = (capture.n_pixels(), capture.n_lights() * capture.channels);
-    let step = np.div_ceil(PCA_PIXELS).max(1);
-    let ids: Vec<usize> = (0..np).step_by(step).collect();
-    let sampled;
-    let view = if capture.is_tiled() {
-        sampled = capture.sampled(&ids)?;
-        &sampled
-    } else {
-        capture
-    };
+    let ids = super::sample_ids(np, PCA_PIXELS);
+    let view = super::sample_view(capture, &ids)?;
     let m = ids.len();
     let mut mean = vec![0.0; d];
     for &p in &ids {
