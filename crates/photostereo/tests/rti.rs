@@ -9,6 +9,7 @@
 use nalgebra::{DMatrix, DVector};
 use ndarray::Array4;
 use photostereo::model::capture::Stack;
+use photostereo::solve::rti::rbf::{self, Width};
 use photostereo::solve::rti::{fit, fit_penalised, Basis, Penalty, RtiFit, MAX_TERMS};
 use photostereo::{Capture, Lights};
 
@@ -664,64 +665,123 @@ fn median_nearest(lights: &[[f64; 3]]) -> f64 {
     d[d.len() / 2]
 }
 
-#[test]
-fn rbf_leave_one_out_equals_refits_without_each_light() {
-    // Refit per left-out light: PCA by nalgebra's SVD of the centred readings without that
-    // light (not the library's covariance eigenvectors), projection, kernel interpolation.
-    let dirs = lights(20);
-    let (w, h, planes) = (6, 5, 9);
-    for c in [1, 3] {
-        let cap = capture(w, h, c, &dirs, varied);
-        let f = fit(&cap, Basis::Rbf, None).unwrap();
-        let model = f.rbf.as_ref().unwrap();
-        let sigma = median_nearest(&dirs);
-        assert!((model.sigma - sigma).abs() < 1e-12);
-        let (n, m) = (dirs.len(), w * h);
-        let x = |p: usize, r: usize| f64::from(cap.pixel_samples(p)[r]) * f.gain;
-        let mut sse = vec![0.0; n];
-        for k in 0..n {
-            let cols: Vec<usize> = (0..n * c).filter(|&r| r / c != k).collect();
-            let mean: Vec<f64> = cols
+/// The leave-one-out SSE per light of an RBF fit with kernel width `sigma`, by refits: PCA by
+/// nalgebra's SVD of the centred readings without each light (not the library's covariance
+/// eigenvectors), projection, kernel interpolation.
+fn rbf_refit_sse(cap: &Capture, gain: f64, dirs: &[[f64; 3]], sigma: f64) -> Vec<f64> {
+    let planes = 9;
+    let (n, c, m) = (dirs.len(), cap.channels, cap.n_pixels());
+    let x = |p: usize, r: usize| f64::from(cap.pixel_samples(p)[r]) * gain;
+    let mut sse = vec![0.0; n];
+    for k in 0..n {
+        let cols: Vec<usize> = (0..n * c).filter(|&r| r / c != k).collect();
+        let mean: Vec<f64> = cols
+            .iter()
+            .map(|&r| (0..m).map(|p| x(p, r)).sum::<f64>() / m as f64)
+            .collect();
+        let centred = DMatrix::from_fn(m, cols.len(), |p, j| x(p, cols[j]) - mean[j]);
+        let svd = centred.svd(false, true);
+        let vt = svd.v_t.unwrap();
+        let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
+        order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+        let wk = rbf_weights(dirs, sigma, dirs[k], k);
+        for p in 0..m {
+            let coef: Vec<f64> = order[..planes]
                 .iter()
-                .map(|&r| (0..m).map(|p| x(p, r)).sum::<f64>() / m as f64)
+                .map(|&o| {
+                    (0..cols.len())
+                        .map(|j| vt[(o, j)] * (x(p, cols[j]) - mean[j]))
+                        .sum()
+                })
                 .collect();
-            let centred = DMatrix::from_fn(m, cols.len(), |p, j| x(p, cols[j]) - mean[j]);
-            let svd = centred.svd(false, true);
-            let vt = svd.v_t.unwrap();
-            let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
-            order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
-            let wk = rbf_weights(&dirs, sigma, dirs[k], k);
-            for p in 0..m {
-                let coef: Vec<f64> = order[..planes]
-                    .iter()
-                    .map(|&o| {
-                        (0..cols.len())
-                            .map(|j| vt[(o, j)] * (x(p, cols[j]) - mean[j]))
-                            .sum()
-                    })
-                    .collect();
-                for ch in 0..c {
-                    let mut pred = 0.0;
-                    for (j, &r) in cols.iter().enumerate() {
-                        if r % c == ch {
-                            let rec: f64 = mean[j]
-                                + (0..planes)
-                                    .map(|q| coef[q] * vt[(order[q], j)])
-                                    .sum::<f64>();
-                            pred += wk[r / c] * rec;
-                        }
+            for ch in 0..c {
+                let mut pred = 0.0;
+                for (j, &r) in cols.iter().enumerate() {
+                    if r % c == ch {
+                        let rec: f64 = mean[j]
+                            + (0..planes)
+                                .map(|q| coef[q] * vt[(order[q], j)])
+                                .sum::<f64>();
+                        pred += wk[r / c] * rec;
                     }
-                    sse[k] += (pred - x(p, k * c + ch)).powi(2);
                 }
+                sse[k] += (pred - x(p, k * c + ch)).powi(2);
             }
         }
-        for (k, (&a, &b)) in f.loo.sse.iter().zip(&sse).enumerate() {
-            assert!(
-                (a - b).abs() <= 1e-6 * b.max(1e-9),
-                "C={c} light {k}: {a} vs {b}"
-            );
+    }
+    sse
+}
+
+#[test]
+fn rbf_leave_one_out_equals_refits_without_each_light() {
+    // The chosen width and a fixed one twice the default: the closed-form leave-one-out error
+    // equals refits without each light under the fit's σ.
+    let dirs = lights(20);
+    let default = median_nearest(&dirs);
+    for c in [1, 3] {
+        let cap = capture(6, 5, c, &dirs, varied);
+        for width in [Width::Auto, Width::Fixed(2.0 * default)] {
+            let f = rbf::fit_width(&cap, width).unwrap();
+            let model = f.rbf.as_ref().unwrap();
+            let kernel = f.kernel.as_ref().unwrap();
+            assert!((kernel.default - default).abs() < 1e-12);
+            if width != Width::Auto {
+                assert_eq!(model.sigma, 2.0 * default);
+            }
+            let sse = rbf_refit_sse(&cap, f.gain, &dirs, model.sigma);
+            for (k, (&a, &b)) in f.loo.sse.iter().zip(&sse).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-6 * b.max(1e-9),
+                    "C={c} {width:?} light {k}: {a} vs {b}"
+                );
+            }
+            assert!(f.loo.mean_rmse_8bit() > 0.1);
         }
-        assert!(f.loo.mean_rmse_8bit() > 0.1);
+    }
+}
+
+#[test]
+fn rbf_kernel_width_is_the_candidate_of_least_leave_one_out_error() {
+    // 30 pixels: the sample is every pixel, so each candidate's error is the fit's own at that
+    // σ; the chosen one is the least, never worse than the default's.
+    let dirs = lights(20);
+    let default = median_nearest(&dirs);
+    let cap = capture(6, 5, 3, &dirs, varied);
+    let f = rbf::fit_width(&cap, Width::Auto).unwrap();
+    let kernel = f.kernel.as_ref().unwrap();
+    assert_eq!(kernel.candidates.len(), rbf::SIGMA_FACTORS.len());
+    assert_eq!(kernel.sample_pixels, 30);
+    for (&(sigma, loo), &factor) in kernel.candidates.iter().zip(&rbf::SIGMA_FACTORS) {
+        assert!((sigma - factor * default).abs() < 1e-12);
+        let fixed = rbf::fit_width(&cap, Width::Fixed(sigma)).unwrap();
+        let want = fixed.loo.mean_rmse_8bit();
+        assert!(
+            (loo - want).abs() <= 1e-9 * want,
+            "σ {sigma}: {loo} vs {want}"
+        );
+    }
+    let least = kernel
+        .candidates
+        .iter()
+        .map(|c| c.1)
+        .fold(f64::INFINITY, f64::min);
+    let at_default = kernel.candidates[2];
+    assert_eq!(at_default.0, default);
+    assert_eq!(f.loo.mean_rmse_8bit(), least);
+    assert!(least <= at_default.1);
+    let sigma = f.rbf.as_ref().unwrap().sigma;
+    assert!(kernel.candidates.contains(&(sigma, least)));
+    // The plain fit chooses as fit_width(Auto); a width that is not a positive number is
+    // refused by name.
+    assert_eq!(
+        fit(&cap, Basis::Rbf, None).unwrap().rbf.unwrap().sigma,
+        sigma
+    );
+    for bad in [0.0, -1.0, f64::NAN] {
+        let e = rbf::fit_width(&cap, Width::Fixed(bad))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("rbf_sigma"), "{e}");
     }
 }
 
@@ -739,7 +799,7 @@ fn rbf_relights_readings_its_components_hold_by_the_kernel() {
     };
     let cap = capture(5, 4, 3, &dirs, |p, k, c, _| value(p, k, c));
     let f = fit(&cap, Basis::Rbf, None).unwrap();
-    let sigma = median_nearest(&dirs);
+    let sigma = f.rbf.as_ref().unwrap().sigma;
     let mut got = [0.0; 3];
     for l in [[0.0f64, 0.0, 1.0], [0.3, -0.2, 0.933], [-0.5, 0.4, 0.768]] {
         let norm: f64 = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();

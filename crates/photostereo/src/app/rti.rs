@@ -346,6 +346,14 @@ fn report(
     let rbf = fitted.rbf.as_ref().map(|m| {
         json!({
             "sigma": m.sigma,
+            "sigma_default": fitted.kernel.as_ref().map(|k| k.default),
+            "sigma_sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
+            "sigma_candidates": fitted.kernel.as_ref().map(|k| {
+                k.candidates.iter().map(|&(sigma, loo)| json!({
+                    "sigma": sigma,
+                    "loo_mean_rmse_8bit": loo,
+                })).collect::<Vec<_>>()
+            }),
             "planes": options.basis.terms(),
             "explained_variance": m.explained_variance,
             "pca_pixels": m.pca_pixels,

@@ -344,6 +344,8 @@ pub struct RtiFit {
     pub rbf: Option<rbf::RbfModel>,
     /// The linear bases: the fit's ridge weight and its choice; `None` for RBF.
     pub ridge: Option<Ridge>,
+    /// RBF: the kernel width's choice (the width itself is `rbf`'s σ); `None` otherwise.
+    pub kernel: Option<rbf::KernelChoice>,
     /// Per term, the least and greatest coefficient over the mask pixels and fitted channels
     /// (measured as the fit made them, so also known when the coefficients went to a
     /// [`CoefficientSink`]).
@@ -655,7 +657,7 @@ pub fn fit_penalised_into(
             ));
         }
         check_distant(capture)?;
-        return rbf::fit_into(capture, sink);
+        return rbf::fit_into(capture, rbf::Width::Auto, sink);
     }
     let (np, n, c, t) = (
         capture.n_pixels(),
@@ -736,6 +738,7 @@ pub fn fit_penalised_into(
         fell_back_to_all_lights: fell_back,
         rbf: None,
         ridge: Some(ridge),
+        kernel: None,
         ranges,
     })
 }
