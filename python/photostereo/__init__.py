@@ -561,6 +561,7 @@ def rti(
     flat: Optional[PathLike] = None,
     ignore_exposure: bool = False,
     iiif: Optional[str] = None,
+    ridge: Optional[float] = None,
 ) -> Dict[str, Any]:
     """The command line's ``rti``: fits a relightable image to the capture at ``path`` (any
     layout, as :func:`load_capture`; distant lights) and writes the output folder ``output``
@@ -584,6 +585,10 @@ def rti(
         Also write each plane image of ``relight/`` as IIIF Image API 3.0 level-0 static
         tiles, ``relight/plane_G/``, served at this ``http://`` or ``https://`` base URI (the
         command line's ``rti --iiif BASE_URI``).
+    ridge : float, optional
+        The ridge weight per light, λ / N, of the ptm and hsh fits (0: plain least squares);
+        default: chosen from the data by leave-one-out error (the command line's
+        ``rti --ridge auto``). Not with ``"rbf"``.
 
     Returns
     -------
@@ -614,6 +619,7 @@ def rti(
         _path(flat),
         ignore_exposure,
         iiif,
+        ridge,
     )
 
 

@@ -216,6 +216,8 @@ def rti(
     dark: Optional[str] = None,
     flat: Optional[str] = None,
     ignore_exposure: bool = False,
+    iiif: Optional[str] = None,
+    ridge: Optional[float] = None,
 ) -> Dict[str, Any]:
     """The command line's ``rti``; returns report.json's content."""
 

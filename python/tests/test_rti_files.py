@@ -160,6 +160,20 @@ def test_python_rti_writes_what_the_command_line_writes(cli, capture, tmp_path, 
     with pytest.raises(photostereo.PhotostereoError, match="basis"):
         photostereo.rti(folder, tmp_path / "bad", basis="rbf9")
     assert not (tmp_path / "bad").exists()
+    if basis == "rbf":
+        # RBF has no ridge weight.
+        with pytest.raises(photostereo.PhotostereoError, match="ridge"):
+            photostereo.rti(folder, tmp_path / "bad", basis=basis, ridge=0.1)
+        assert not (tmp_path / "bad").exists()
+        return
+    # ridge=0 is the command line's --ridge 0: the unregularised fit.
+    plain = photostereo.rti(folder, tmp_path / "py0", basis=basis, ridge=0.0)
+    subprocess.run([cli, "rti", str(folder), "--basis", basis, "--ridge", "0", "-o",
+                    str(tmp_path / "cli0"), "--quiet"], check=True)
+    assert plain["ridge"]["lambda"] == 0.0 and plain["ridge"]["candidates"] == []
+    assert report["ridge"]["candidates"][0]["lambda"] == 0.0
+    assert np.array_equal(np.load(tmp_path / "py0" / "coefficients.npy"),
+                          np.load(tmp_path / "cli0" / "coefficients.npy"))
 
 
 def test_python_iiif_and_run_rti_write_what_the_command_line_writes(cli, capture, tmp_path):

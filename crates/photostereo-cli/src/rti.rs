@@ -24,6 +24,12 @@ pub struct RtiArgs {
     /// to be shadows or highlights.
     #[arg(long)]
     pub exclude_unreliable: bool,
+    /// The ridge weight per light, λ / N, of the ptm and hsh fits, (AᵀA + λ D) c = Aᵀ y with D
+    /// the basis's roughness over the light hemisphere: auto (the weight with the least
+    /// leave-one-out error on a sample of pixels, 0 included) or a number ≥ 0 (0: plain least
+    /// squares). Not with rbf.
+    #[arg(long, default_value = "auto", value_parser = parse_ridge)]
+    pub ridge: RidgeArg,
     /// Also write relight's plane images as IIIF Image API 3.0 level-0 static tiles
     /// (relight/plane_G/info.json and the tiles), to be served at this base URI (e.g.
     /// https://example.org/iiif/object): each plane's service id is BASE/relight/plane_G.
@@ -46,6 +52,20 @@ pub fn parse_basis(s: &str) -> Result<Basis, String> {
     s.parse().map_err(|e: photostereo::Error| e.to_string())
 }
 
+/// `--ridge`: `auto` (`None`) or a weight per light.
+#[derive(Clone, Copy, Debug)]
+pub struct RidgeArg(pub Option<f64>);
+
+fn parse_ridge(s: &str) -> Result<RidgeArg, String> {
+    if s == "auto" {
+        return Ok(RidgeArg(None));
+    }
+    match s.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(RidgeArg(Some(v))),
+        _ => Err(format!("'{s}': expected auto or a weight per light ≥ 0")),
+    }
+}
+
 pub fn main(a: RtiArgs) -> Result<()> {
     let mut files = a.capture.files()?;
     a.photometry.apply(&mut files)?;
@@ -63,6 +83,7 @@ pub fn main(a: RtiArgs) -> Result<()> {
     let options = RtiOptions {
         basis: a.basis,
         exclude_unreliable: a.exclude_unreliable,
+        ridge: a.ridge.0,
         memory_limit: a.memory_limit,
         iiif: a.iiif.clone(),
     };

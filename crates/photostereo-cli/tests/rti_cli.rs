@@ -71,8 +71,27 @@ fn fits_every_basis_and_writes_its_file_and_report() {
             .as_f64()
             .unwrap();
         assert!(lam.is_finite() && lam > 0.0);
+        // The linear bases' ridge weight, chosen among candidates that include none.
+        if basis == "rbf" {
+            assert!(r["ridge"].is_null());
+        } else {
+            let ridge = &r["ridge"];
+            assert!(ridge["lambda"].as_f64().unwrap() >= 0.0, "{basis}");
+            assert_eq!(ridge["candidates"][0]["lambda"].as_f64(), Some(0.0));
+        }
         loo.push(m);
     }
+    // --ridge 0: the unregularised fit.
+    let o = photostereo(
+        &[
+            "rti", "cap", "--basis", "hsh3", "--ridge", "0", "-o", "plain", "--quiet",
+        ],
+        dir,
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    let ridge = &report(&dir.join("plain/report.json"))["ridge"];
+    assert_eq!(ridge["lambda"].as_f64(), Some(0.0));
+    assert_eq!(ridge["candidates"].as_array().map(Vec::len), Some(0));
     // Nine terms per channel follow a glossy sphere better than four.
     assert!(loo[3] < loo[2], "hsh3 {} vs hsh2 {}", loo[3], loo[2]);
     // The viewer needs a run's normals: an rti folder is refused with the way to get them,
@@ -177,6 +196,18 @@ fn refusals_name_their_cause_and_leave_nothing() {
         stderr(&o)
     );
     assert!(!dir.join("v").exists());
+    // RBF has no ridge weight, and a weight is a number ≥ 0.
+    for (basis, weight) in [("rbf", "0.1"), ("hsh3", "-1"), ("hsh3", "some")] {
+        let o = photostereo(
+            &[
+                "rti", "four", "--basis", basis, "--ridge", weight, "-o", "r",
+            ],
+            dir,
+        );
+        assert_eq!(o.status.code(), Some(2), "{basis} {weight}");
+        assert!(stderr(&o).contains("--ridge"), "{}", stderr(&o));
+        assert!(!dir.join("r").exists());
+    }
     // A budget too small for the coefficients names --memory-limit.
     synth(dir, "dome-30", "cap");
     let o = photostereo(&["rti", "cap", "--memory-limit", "20K", "-o", "w"], dir);

@@ -1084,7 +1084,8 @@ fn run<'py>(
 #[pyfunction]
 #[pyo3(signature = (inputs, output, basis, lights=None, intensities=None, mask=None,
     exclude_unreliable=false, memory_limit=None, force=false, num_threads=None, progress=None,
-    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false, iiif=None))]
+    response=None, ambient=None, dark=None, flat=None, ignore_exposure=false, iiif=None,
+    ridge=None))]
 #[allow(clippy::too_many_arguments)]
 fn rti<'py>(
     py: Python<'py>,
@@ -1105,6 +1106,7 @@ fn rti<'py>(
     flat: Option<PathBuf>,
     ignore_exposure: bool,
     iiif: Option<String>,
+    ridge: Option<f64>,
 ) -> PyResult<Py<PyAny>> {
     let frames = Frames {
         ambient: ambient.as_deref(),
@@ -1119,6 +1121,7 @@ fn rti<'py>(
     let options = photostereo::app::rti::RtiOptions {
         basis,
         exclude_unreliable,
+        ridge,
         memory_limit,
         iiif,
     };

@@ -1,13 +1,16 @@
 //! RTI fits against independent truth: coefficients recovered from readings synthesised from
 //! known coefficients; the closed-form leave-one-out error against refits without each light
-//! (nalgebra's SVD, not the library's normal equations); and the `.ptm` / `.rti` files read back
+//! (nalgebra's SVD of the ridge-augmented system, not the library's normal equations); the
+//! ridge's roughness penalty against quadratures of the Dirichlet energy and its shrinkage in
+//! closed form on a rig with an orthogonal design; and the `.ptm` / `.rti` files read back
 //! by readers written here from the format descriptions (PTM v1.2: bottom-up rows, a =
 //! (c' − bias) · scale; RTIViewer's HSH: top-down rows, value = c / 255 · scale + bias).
 
 use nalgebra::{DMatrix, DVector};
 use ndarray::Array4;
 use photostereo::model::capture::Stack;
-use photostereo::solve::rti::{fit, Basis, RtiFit, MAX_TERMS};
+use photostereo::solve::rti::rbf::{self, Width};
+use photostereo::solve::rti::{fit, fit_penalised, Basis, Penalty, RtiFit, MAX_TERMS};
 use photostereo::{Capture, Lights};
 
 /// `n` lights on a spiral over the upper hemisphere: elevations from 15° to 80°.
@@ -111,10 +114,24 @@ fn glossy(p: usize, _k: usize, c: usize, l: [f64; 3]) -> f64 {
     0.3 + 0.1 * c as f64 + 0.6 * ndl + 0.4 * hz.powi(20)
 }
 
-/// The leave-one-out sums by refitting without each light (nalgebra's SVD least squares),
-/// over the lights `kept(p, k)` admits.
+/// The roughness of each term written out from the penalty's definition (HSH l(l + 1), PTM
+/// the Dirichlet energy over the unit disk), independently of [`Basis::roughness`].
+fn roughness(basis: Basis) -> Vec<f64> {
+    use std::f64::consts::PI;
+    match basis {
+        Basis::PtmLrgb | Basis::PtmRgb => vec![PI, PI, PI / 2.0, PI, PI, 0.0],
+        Basis::Hsh2 => vec![0.0, 2.0, 2.0, 2.0],
+        _ => vec![0.0, 2.0, 2.0, 2.0, 6.0, 6.0, 6.0, 6.0, 6.0],
+    }
+}
+
+/// The leave-one-out sums by refitting without each light, over the lights `kept(p, k)`
+/// admits: the ridge fit min ‖A c − y‖² + λ Σ_j D_j c_j² (λ the fit's) as the least-squares
+/// solution of A stacked on diag(√(λ D_j)) against y stacked on zeros (nalgebra's SVD).
 fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> bool) -> Vec<f64> {
     let (n, c, t, basis) = (cap.n_lights(), cap.channels, f.basis.terms(), f.basis);
+    let lambda = f.ridge.as_ref().unwrap().lambda;
+    let d = roughness(basis);
     let mut sse = vec![0.0; n];
     let row = |k: usize| {
         let mut b = [0.0; MAX_TERMS];
@@ -127,10 +144,15 @@ fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> boo
         let lum = |k: usize| (0..c).map(|ch| y(k, ch)).sum::<f64>() / c as f64;
         for k in (0..n).filter(|&k| kept(p, k)) {
             let others: Vec<usize> = (0..n).filter(|&i| i != k && kept(p, i)).collect();
-            let a = DMatrix::from_fn(others.len(), t, |r, j| row(others[r])[j]);
+            let m = others.len();
+            let a = DMatrix::from_fn(m + t, t, |r, j| match r {
+                r if r < m => row(others[r])[j],
+                r if r - m == j => (lambda * d[j]).sqrt(),
+                _ => 0.0,
+            });
             let svd = a.svd(true, true);
             let solve = |v: &dyn Fn(usize) -> f64| {
-                let b = DVector::from_fn(others.len(), |r, _| v(others[r]));
+                let b = DVector::from_fn(m + t, |r, _| if r < m { v(others[r]) } else { 0.0 });
                 let x = svd.solve(&b, 1e-12).unwrap();
                 (0..t).map(|j| x[j] * row(k)[j]).sum::<f64>()
             };
@@ -159,18 +181,193 @@ fn closed_form_leave_one_out_equals_refits_without_each_light() {
     for c in [1, 3] {
         let cap = capture(4, 3, c, &dirs, glossy);
         for basis in Basis::LINEAR {
-            let f = fit(&cap, basis, None).unwrap();
-            let brute = brute_force_loo(&cap, &f, &|_, _| true);
-            for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
+            // Unregularised, a strong ridge, and the ridge chosen from the data.
+            for penalty in [Penalty::Fixed(0.0), Penalty::Fixed(2.4), Penalty::Auto] {
+                let f = fit_penalised(&cap, basis, None, penalty).unwrap();
+                let brute = brute_force_loo(&cap, &f, &|_, _| true);
+                for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
+                    assert!(
+                        (a - b).abs() <= 1e-4 * b.max(1e-6),
+                        "{} C={c} {penalty:?} light {k}: closed form {a} vs refits {b}",
+                        basis.name()
+                    );
+                }
+                // The glossy lobe is not in any basis: the error is real, not zero.
+                assert!(f.loo.mean_rmse_8bit() > 0.1, "{}", basis.name());
+            }
+        }
+    }
+}
+
+#[test]
+fn the_chosen_ridge_predicts_left_out_lights_at_least_as_well_as_none() {
+    // Noisy readings of a glossy reflectance under 14 lights: HSH3's 9 terms chase the noise.
+    let dirs = lights(14);
+    let noise = |p: usize, k: usize, c: usize| {
+        0.05 * ((((p * 31 + k * 17 + c * 7) * 2654435761usize) % 1000) as f64 / 1000.0 - 0.5)
+    };
+    let cap = capture(8, 6, 3, &dirs, |p, k, c, l| {
+        glossy(p, k, c, l) + noise(p, k, c)
+    });
+    for basis in Basis::LINEAR {
+        let plain = fit_penalised(&cap, basis, None, Penalty::Fixed(0.0)).unwrap();
+        let auto = fit(&cap, basis, None).unwrap();
+        let ridge = auto.ridge.as_ref().unwrap();
+        // The sample is every pixel (48 < 4096): the candidates' errors are the fits' own, and
+        // λ = 0 is a candidate, so the chosen error is at most the unregularised one.
+        assert_eq!(ridge.sample_pixels, 48);
+        assert_eq!(ridge.candidates[0].0, 0.0);
+        let plain_loo = plain.loo.mean_rmse_8bit();
+        assert!((ridge.candidates[0].1 - plain_loo).abs() < 1e-9 * plain_loo);
+        let least = ridge
+            .candidates
+            .iter()
+            .map(|c| c.1)
+            .fold(f64::INFINITY, f64::min);
+        assert_eq!(auto.loo.mean_rmse_8bit(), least, "{}", basis.name());
+        assert!(least <= plain_loo, "{}", basis.name());
+        if basis == Basis::Hsh3 {
+            assert!(ridge.lambda > 0.0 && least < 0.9 * plain_loo, "{ridge:?}");
+        }
+    }
+}
+
+#[test]
+fn the_ridge_leaves_what_the_constant_term_holds() {
+    // The constant term is not penalised: readings that do not depend on the light are fitted
+    // exactly whatever λ, every other coefficient zero, nothing to predict when left out.
+    let dirs = lights(14);
+    let flat = capture(3, 2, 1, &dirs, |p, _, _, _| 0.2 + 0.1 * p as f64);
+    for basis in Basis::LINEAR {
+        let f = fit_penalised(&flat, basis, None, Penalty::Fixed(1400.0)).unwrap();
+        let (t, constant) = match basis {
+            Basis::PtmLrgb | Basis::PtmRgb => (6, 5),
+            _ => (basis.terms(), 0),
+        };
+        let unit = if constant == 0 {
+            (2.0 * std::f64::consts::PI).sqrt()
+        } else {
+            1.0
+        };
+        for p in 0..6 {
+            for j in 0..t {
+                let got = f64::from(f.coefficients[p * t + j]) / f.gain;
+                let want = if j == constant {
+                    (0.2 + 0.1 * p as f64) * unit
+                } else {
+                    0.0
+                };
                 assert!(
-                    (a - b).abs() <= 1e-4 * b.max(1e-6),
-                    "{} C={c} light {k}: closed form {a} vs refits {b}",
+                    (got - want).abs() < 1e-5,
+                    "{} p{p} term {j}: {got}",
                     basis.name()
                 );
             }
-            // The glossy lobe is not in any basis: the error is real, not zero.
-            assert!(f.loo.mean_rmse_8bit() > 0.1, "{}", basis.name());
         }
+        assert!(f.loo.mean_rmse_8bit() < 1e-3, "{}", basis.name());
+    }
+}
+
+#[test]
+fn the_ridge_shrinks_each_term_by_its_roughness_on_an_orthogonal_design() {
+    // Two rings of 8 lights at cos θ = 0.3 and 0.7, azimuths 45° apart: Σ_k H_i H_j = 0 for
+    // i ≠ j over HSH order 2 (Σ (2 cos θ − 1) = 0, the azimuth sums of cos φ, sin φ, cos φ sin φ
+    // vanish), so the ridge solves each term alone: c_j = ĉ_j G_jj / (G_jj + λ D_j), ĉ the
+    // coefficients the readings were made from, G_jj = Σ_k H_j(l_k)²:
+    // G_00 = 16 / (2π), G_11 = G_33 = (6/π) · 8 · 0.21 (cos θ − cos² θ = 0.21 on both rings,
+    // Σ cos² φ = 4 a ring), G_22 = (3 / (2π)) · 16 · 0.16; D = (0, 2, 2, 2).
+    use std::f64::consts::PI;
+    let dirs: Vec<[f64; 3]> = [0.3f64, 0.7]
+        .iter()
+        .flat_map(|&ct| {
+            let st = (1.0 - ct * ct).sqrt();
+            (0..8).map(move |i| {
+                let phi = i as f64 * PI / 4.0;
+                [st * phi.cos(), st * phi.sin(), ct]
+            })
+        })
+        .collect();
+    let truth = [1.0, 0.3, -0.2, 0.15];
+    let cap = capture(2, 1, 1, &dirs, |_, _, _, l| {
+        let mut b = [0.0; MAX_TERMS];
+        Basis::Hsh2.eval(l, &mut b);
+        (0..4).map(|j| truth[j] * b[j]).sum()
+    });
+    let g = [
+        16.0 / (2.0 * PI),
+        6.0 / PI * 8.0 * 0.21,
+        3.0 / (2.0 * PI) * 16.0 * 0.16,
+        6.0 / PI * 8.0 * 0.21,
+    ];
+    let d = [0.0, 2.0, 2.0, 2.0];
+    for lambda in [0.0, 0.5, 4.0, 40.0] {
+        let f = fit_penalised(&cap, Basis::Hsh2, None, Penalty::Fixed(lambda)).unwrap();
+        for j in 0..4 {
+            let want = truth[j] * g[j] / (g[j] + lambda * d[j]);
+            let got = f64::from(f.coefficients[j]) / f.gain;
+            assert!(
+                (got - want).abs() < 1e-5,
+                "λ {lambda} term {j}: {got} vs {want}"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_roughness_is_the_dirichlet_energy_of_each_term() {
+    use std::f64::consts::PI;
+    let m = 400;
+    // PTM: ∫ over the unit disk of |∇ b_j|², by a midpoint rule in polar coordinates, the
+    // gradients written out ((2u, 0), (0, 2v), (v, u), (1, 0), (0, 1), 0).
+    let mut want = [0.0; 6];
+    for i in 0..m {
+        let r = (i as f64 + 0.5) / m as f64;
+        for a in 0..m {
+            let phi = (a as f64 + 0.5) / m as f64 * 2.0 * PI;
+            let (u, v) = (r * phi.cos(), r * phi.sin());
+            let w = r * (2.0 * PI) / (m * m) as f64;
+            let g2 = [4.0 * u * u, 4.0 * v * v, u * u + v * v, 1.0, 1.0, 0.0];
+            for (a, g) in want.iter_mut().zip(g2) {
+                *a += g * w;
+            }
+        }
+    }
+    let mut got = [0.0; MAX_TERMS];
+    Basis::PtmRgb.roughness(&mut got);
+    for (j, (g, w)) in got.iter().zip(want).enumerate() {
+        assert!((g - w).abs() < 1e-4, "ptm term {j}: {g} vs {w}");
+    }
+    // HSH: on the sphere the hemisphere is stretched to (cos θ' = 2 cos θ − 1), H_j is an
+    // eigenfunction of the Laplacian: ∫|∇H_j|² dω' = l(l + 1) ∫ H_j² dω' = 2 l(l + 1) (the
+    // stretch doubles the measure of ∫ H_j² dω = 1). Finite differences of the library's H_j
+    // in (θ', φ), |∇f|² = f_θ'² + f_φ² / sin² θ'.
+    let h = |j: usize, tp: f64, phi: f64| {
+        let ct = (tp.cos() + 1.0) / 2.0;
+        let st = (1.0 - ct * ct).sqrt();
+        let mut b = [0.0; MAX_TERMS];
+        Basis::Hsh3.eval([st * phi.cos(), st * phi.sin(), ct], &mut b);
+        b[j]
+    };
+    Basis::Hsh3.roughness(&mut got);
+    let e = 1e-5;
+    let independent = roughness(Basis::Hsh3);
+    for (j, &dj) in got.iter().enumerate() {
+        let mut energy = 0.0;
+        for i in 0..m {
+            let tp = (i as f64 + 0.5) / m as f64 * PI;
+            for a in 0..m {
+                let phi = (a as f64 + 0.5) / m as f64 * 2.0 * PI;
+                let ft = (h(j, tp + e, phi) - h(j, tp - e, phi)) / (2.0 * e);
+                let fp = (h(j, tp, phi + e) - h(j, tp, phi - e)) / (2.0 * e);
+                let w = tp.sin() * PI * 2.0 * PI / (m * m) as f64;
+                energy += (ft * ft + fp * fp / (tp.sin() * tp.sin())) * w;
+            }
+        }
+        assert!(
+            (energy - 2.0 * dj).abs() < 1e-2,
+            "hsh term {j}: {energy} vs 2·{dj}"
+        );
+        assert_eq!(dj, independent[j]);
     }
 }
 
@@ -184,8 +381,13 @@ fn excluded_readings_leave_the_fit_and_its_error() {
     let flags: Vec<bool> = (0..cap.n_pixels())
         .flat_map(|p| (0..n).map(move |k| !kept(p, k)))
         .collect();
-    for basis in [Basis::PtmLrgb, Basis::Hsh3] {
-        let f = fit(&cap, basis, Some(&flags)).unwrap();
+    for (basis, penalty) in [
+        (Basis::PtmLrgb, Penalty::Auto),
+        (Basis::Hsh3, Penalty::Auto),
+        (Basis::PtmLrgb, Penalty::Fixed(1.0)),
+        (Basis::Hsh3, Penalty::Fixed(1.0)),
+    ] {
+        let f = fit_penalised(&cap, basis, Some(&flags), penalty).unwrap();
         let brute = brute_force_loo(&cap, &f, &kept);
         for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
             assert!(
@@ -463,64 +665,123 @@ fn median_nearest(lights: &[[f64; 3]]) -> f64 {
     d[d.len() / 2]
 }
 
-#[test]
-fn rbf_leave_one_out_equals_refits_without_each_light() {
-    // Refit per left-out light: PCA by nalgebra's SVD of the centred readings without that
-    // light (not the library's covariance eigenvectors), projection, kernel interpolation.
-    let dirs = lights(20);
-    let (w, h, planes) = (6, 5, 9);
-    for c in [1, 3] {
-        let cap = capture(w, h, c, &dirs, varied);
-        let f = fit(&cap, Basis::Rbf, None).unwrap();
-        let model = f.rbf.as_ref().unwrap();
-        let sigma = median_nearest(&dirs);
-        assert!((model.sigma - sigma).abs() < 1e-12);
-        let (n, m) = (dirs.len(), w * h);
-        let x = |p: usize, r: usize| f64::from(cap.pixel_samples(p)[r]) * f.gain;
-        let mut sse = vec![0.0; n];
-        for k in 0..n {
-            let cols: Vec<usize> = (0..n * c).filter(|&r| r / c != k).collect();
-            let mean: Vec<f64> = cols
+/// The leave-one-out SSE per light of an RBF fit with kernel width `sigma`, by refits: PCA by
+/// nalgebra's SVD of the centred readings without each light (not the library's covariance
+/// eigenvectors), projection, kernel interpolation.
+fn rbf_refit_sse(cap: &Capture, gain: f64, dirs: &[[f64; 3]], sigma: f64) -> Vec<f64> {
+    let planes = 9;
+    let (n, c, m) = (dirs.len(), cap.channels, cap.n_pixels());
+    let x = |p: usize, r: usize| f64::from(cap.pixel_samples(p)[r]) * gain;
+    let mut sse = vec![0.0; n];
+    for k in 0..n {
+        let cols: Vec<usize> = (0..n * c).filter(|&r| r / c != k).collect();
+        let mean: Vec<f64> = cols
+            .iter()
+            .map(|&r| (0..m).map(|p| x(p, r)).sum::<f64>() / m as f64)
+            .collect();
+        let centred = DMatrix::from_fn(m, cols.len(), |p, j| x(p, cols[j]) - mean[j]);
+        let svd = centred.svd(false, true);
+        let vt = svd.v_t.unwrap();
+        let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
+        order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
+        let wk = rbf_weights(dirs, sigma, dirs[k], k);
+        for p in 0..m {
+            let coef: Vec<f64> = order[..planes]
                 .iter()
-                .map(|&r| (0..m).map(|p| x(p, r)).sum::<f64>() / m as f64)
+                .map(|&o| {
+                    (0..cols.len())
+                        .map(|j| vt[(o, j)] * (x(p, cols[j]) - mean[j]))
+                        .sum()
+                })
                 .collect();
-            let centred = DMatrix::from_fn(m, cols.len(), |p, j| x(p, cols[j]) - mean[j]);
-            let svd = centred.svd(false, true);
-            let vt = svd.v_t.unwrap();
-            let mut order: Vec<usize> = (0..svd.singular_values.len()).collect();
-            order.sort_by(|&a, &b| svd.singular_values[b].total_cmp(&svd.singular_values[a]));
-            let wk = rbf_weights(&dirs, sigma, dirs[k], k);
-            for p in 0..m {
-                let coef: Vec<f64> = order[..planes]
-                    .iter()
-                    .map(|&o| {
-                        (0..cols.len())
-                            .map(|j| vt[(o, j)] * (x(p, cols[j]) - mean[j]))
-                            .sum()
-                    })
-                    .collect();
-                for ch in 0..c {
-                    let mut pred = 0.0;
-                    for (j, &r) in cols.iter().enumerate() {
-                        if r % c == ch {
-                            let rec: f64 = mean[j]
-                                + (0..planes)
-                                    .map(|q| coef[q] * vt[(order[q], j)])
-                                    .sum::<f64>();
-                            pred += wk[r / c] * rec;
-                        }
+            for ch in 0..c {
+                let mut pred = 0.0;
+                for (j, &r) in cols.iter().enumerate() {
+                    if r % c == ch {
+                        let rec: f64 = mean[j]
+                            + (0..planes)
+                                .map(|q| coef[q] * vt[(order[q], j)])
+                                .sum::<f64>();
+                        pred += wk[r / c] * rec;
                     }
-                    sse[k] += (pred - x(p, k * c + ch)).powi(2);
                 }
+                sse[k] += (pred - x(p, k * c + ch)).powi(2);
             }
         }
-        for (k, (&a, &b)) in f.loo.sse.iter().zip(&sse).enumerate() {
-            assert!(
-                (a - b).abs() <= 1e-6 * b.max(1e-9),
-                "C={c} light {k}: {a} vs {b}"
-            );
+    }
+    sse
+}
+
+#[test]
+fn rbf_leave_one_out_equals_refits_without_each_light() {
+    // The chosen width and a fixed one twice the default: the closed-form leave-one-out error
+    // equals refits without each light under the fit's σ.
+    let dirs = lights(20);
+    let default = median_nearest(&dirs);
+    for c in [1, 3] {
+        let cap = capture(6, 5, c, &dirs, varied);
+        for width in [Width::Auto, Width::Fixed(2.0 * default)] {
+            let f = rbf::fit_width(&cap, width).unwrap();
+            let model = f.rbf.as_ref().unwrap();
+            let kernel = f.kernel.as_ref().unwrap();
+            assert!((kernel.default - default).abs() < 1e-12);
+            if width != Width::Auto {
+                assert_eq!(model.sigma, 2.0 * default);
+            }
+            let sse = rbf_refit_sse(&cap, f.gain, &dirs, model.sigma);
+            for (k, (&a, &b)) in f.loo.sse.iter().zip(&sse).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-6 * b.max(1e-9),
+                    "C={c} {width:?} light {k}: {a} vs {b}"
+                );
+            }
+            assert!(f.loo.mean_rmse_8bit() > 0.1);
         }
-        assert!(f.loo.mean_rmse_8bit() > 0.1);
+    }
+}
+
+#[test]
+fn rbf_kernel_width_is_the_candidate_of_least_leave_one_out_error() {
+    // 30 pixels: the sample is every pixel, so each candidate's error is the fit's own at that
+    // σ; the chosen one is the least, never worse than the default's.
+    let dirs = lights(20);
+    let default = median_nearest(&dirs);
+    let cap = capture(6, 5, 3, &dirs, varied);
+    let f = rbf::fit_width(&cap, Width::Auto).unwrap();
+    let kernel = f.kernel.as_ref().unwrap();
+    assert_eq!(kernel.candidates.len(), rbf::SIGMA_FACTORS.len());
+    assert_eq!(kernel.sample_pixels, 30);
+    for (&(sigma, loo), &factor) in kernel.candidates.iter().zip(&rbf::SIGMA_FACTORS) {
+        assert!((sigma - factor * default).abs() < 1e-12);
+        let fixed = rbf::fit_width(&cap, Width::Fixed(sigma)).unwrap();
+        let want = fixed.loo.mean_rmse_8bit();
+        assert!(
+            (loo - want).abs() <= 1e-9 * want,
+            "σ {sigma}: {loo} vs {want}"
+        );
+    }
+    let least = kernel
+        .candidates
+        .iter()
+        .map(|c| c.1)
+        .fold(f64::INFINITY, f64::min);
+    let at_default = kernel.candidates[2];
+    assert_eq!(at_default.0, default);
+    assert_eq!(f.loo.mean_rmse_8bit(), least);
+    assert!(least <= at_default.1);
+    let sigma = f.rbf.as_ref().unwrap().sigma;
+    assert!(kernel.candidates.contains(&(sigma, least)));
+    // The plain fit chooses as fit_width(Auto); a width that is not a positive number is
+    // refused by name.
+    assert_eq!(
+        fit(&cap, Basis::Rbf, None).unwrap().rbf.unwrap().sigma,
+        sigma
+    );
+    for bad in [0.0, -1.0, f64::NAN] {
+        let e = rbf::fit_width(&cap, Width::Fixed(bad))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("rbf_sigma"), "{e}");
     }
 }
 
@@ -538,7 +799,7 @@ fn rbf_relights_readings_its_components_hold_by_the_kernel() {
     };
     let cap = capture(5, 4, 3, &dirs, |p, k, c, _| value(p, k, c));
     let f = fit(&cap, Basis::Rbf, None).unwrap();
-    let sigma = median_nearest(&dirs);
+    let sigma = f.rbf.as_ref().unwrap().sigma;
     let mut got = [0.0; 3];
     for l in [[0.0f64, 0.0, 1.0], [0.3, -0.2, 0.933], [-0.5, 0.4, 0.768]] {
         let norm: f64 = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();

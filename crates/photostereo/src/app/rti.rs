@@ -18,7 +18,9 @@ use crate::method::engine::{reconstruct, Method, Params, Reconstruction};
 use crate::model::capture::Capture;
 use crate::model::memory::{Beside, Stages};
 use crate::solve::lambert::status;
-use crate::solve::rti::{fit_into, lambert_errors, Basis, ReadingMask, RelightErrors, RtiFit};
+use crate::solve::rti::{
+    fit_penalised_into, lambert_errors, Basis, Penalty, ReadingMask, RelightErrors, RtiFit,
+};
 use serde_json::{json, Value};
 use std::path::Path;
 use std::time::Instant;
@@ -31,6 +33,10 @@ pub struct RtiOptions {
     /// Run the recursive method first and leave out of each pixel's fit the readings it did
     /// not use (shadows and highlights).
     pub exclude_unreliable: bool,
+    /// The ridge weight per light, λ / N, of the linear bases' fits (0: unregularised least
+    /// squares); `None`: chosen from the data by leave-one-out ([`Penalty::Auto`]). Not
+    /// with rbf.
+    pub ridge: Option<f64>,
     /// Memory budget in bytes (`None`: half the memory available), as `run`'s.
     pub memory_limit: Option<u64>,
     /// Also write each plane image of relight's web folder as IIIF Image API 3.0 level-0
@@ -126,7 +132,8 @@ pub fn rti(
     let t = Instant::now();
     let size = (capture.width, capture.height, capture.channels);
     let mut store = CoefficientFiles::create(folder.path(), options.basis, size, &capture.pixels)?;
-    let meta = fit_into(&capture, options.basis, exclude, &mut store)?;
+    let penalty = penalty(options, capture.n_lights());
+    let meta = fit_penalised_into(&capture, options.basis, exclude, penalty, &mut store)?;
     let fitted = store.finish(meta);
     let lambert = lambert_errors(
         &capture,
@@ -219,6 +226,7 @@ pub fn fit_beside_run(
     let options = RtiOptions {
         basis,
         exclude_unreliable: false,
+        ridge: None,
         memory_limit: None,
         iiif: None,
     };
@@ -226,7 +234,7 @@ pub fn fit_beside_run(
     let t = Instant::now();
     let size = (capture.width, capture.height, capture.channels);
     let mut store = CoefficientFiles::create(dir, basis, size, &capture.pixels)?;
-    let meta = fit_into(capture, basis, None, &mut store)?;
+    let meta = fit_penalised_into(capture, basis, None, Penalty::Auto, &mut store)?;
     let fitted = store.finish(meta);
     let gain = fitted.meta().gain;
     let lambert = lambert_errors(capture, &rec.normals, &rec.albedo, gain, None)?;
@@ -235,8 +243,31 @@ pub fn fit_beside_run(
     Ok((fitted, entry))
 }
 
-/// Refuses what the fit cannot serve: near lights, and rbf with a per-pixel light mask.
+/// The ridge weight of `options` for a capture of `lights` lights.
+fn penalty(options: &RtiOptions, lights: usize) -> Penalty {
+    options.ridge.map_or(Penalty::Auto, |per_light| {
+        Penalty::Fixed(per_light * lights as f64)
+    })
+}
+
+/// Refuses what the fit cannot serve: near lights, rbf with a per-pixel light mask or a ridge
+/// weight, a ridge weight that is not a finite number ≥ 0.
 fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
+    if let Some(r) = options.ridge {
+        if options.basis == Basis::Rbf {
+            return Err(Error::parameter(
+                "ridge",
+                "rbf interpolates principal components over the lights and has no ridge \
+                 weight; give --ridge with ptm, ptm-rgb, hsh2 or hsh3",
+            ));
+        }
+        if !(r.is_finite() && r >= 0.0) {
+            return Err(Error::parameter(
+                "ridge",
+                format!("{r}: expected auto or a weight per light ≥ 0"),
+            ));
+        }
+    }
     if options.basis == Basis::Rbf && options.exclude_unreliable {
         return Err(Error::parameter(
             "exclude_unreliable",
@@ -315,14 +346,36 @@ fn report(
     let rbf = fitted.rbf.as_ref().map(|m| {
         json!({
             "sigma": m.sigma,
+            "sigma_default": fitted.kernel.as_ref().map(|k| k.default),
+            "sigma_sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
+            "sigma_candidates": fitted.kernel.as_ref().map(|k| {
+                k.candidates.iter().map(|&(sigma, loo)| json!({
+                    "sigma": sigma,
+                    "loo_mean_rmse_8bit": loo,
+                })).collect::<Vec<_>>()
+            }),
             "planes": options.basis.terms(),
             "explained_variance": m.explained_variance,
             "pca_pixels": m.pca_pixels,
         })
     });
+    let ridge = fitted.ridge.as_ref().map(|r| {
+        json!({
+            "lambda": r.lambda,
+            "lambda_per_light": r.lambda / capture.n_lights().max(1) as f64,
+            "penalty": "(AᵀA + λ D) c = Aᵀ y, D the Dirichlet energy of the basis over the \
+                        light hemisphere (HSH l(l+1), PTM over the unit disk; constant free)",
+            "sample_pixels": r.sample_pixels,
+            "candidates": r.candidates.iter().map(|&(lambda, loo)| json!({
+                "lambda": lambda,
+                "loo_mean_rmse_8bit": loo,
+            })).collect::<Vec<_>>(),
+        })
+    });
     json!({
         "basis": options.basis.name(),
         "rbf": rbf,
+        "ridge": ridge,
         "terms": options.basis.terms(),
         "input": {
             "width": capture.width,

@@ -130,20 +130,10 @@ pub fn synth_camera_to_folder(
     Ok((rendered, target))
 }
 
-/// Writes the header of a `.npy` file of booleans of `shape`; the data follows.
+/// Writes the header of a `.npy` file of booleans of `shape`
+/// ([`npy_header`](crate::io::export::npy_header)); the data follows.
 fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::Result<()> {
-    let dims: Vec<String> = shape.iter().map(|d| d.to_string()).collect();
-    let mut dict = format!(
-        "{{'descr': '|b1', 'fortran_order': False, 'shape': ({}{}), }}",
-        dims.join(", "),
-        if shape.len() == 1 { "," } else { "" }
-    );
-    let unpadded = 10 + dict.len() + 1;
-    dict.push_str(&" ".repeat(unpadded.next_multiple_of(64) - unpadded));
-    dict.push('\n');
-    file.write_all(b"\x93NUMPY\x01\x00")?;
-    file.write_all(&(dict.len() as u16).to_le_bytes())?;
-    file.write_all(dict.as_bytes())
+    file.write_all(&crate::io::export::npy_header("|b1", shape))
 }
 
 /// [`synth_to_folder`] for captures too large to render whole: the scene is built once, each

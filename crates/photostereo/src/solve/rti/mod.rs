@@ -41,6 +41,15 @@
 //! needed; [`RtiFit`]'s figures use it for every basis. For PTM LRGB the chroma left out of
 //! light k is recomputed without k as well, so its LOO prediction is exact too.
 //!
+//! Ridge (Tikhonov regularisation): the linear bases are fitted by c = (AᵀA + λ D)⁻¹ Aᵀ y, D a
+//! diagonal roughness penalty over the light hemisphere ([`Basis::roughness`]: the Dirichlet
+//! energy ∫|∇f|² of the fitted function, zero for the constant term). The fit is still a
+//! fixed linear smoother, H = A (AᵀA + λ D)⁻¹ Aᵀ, so the PRESS identity above holds exactly
+//! for it. One λ per capture and basis is chosen from the data ([`Penalty::Auto`]): the value
+//! of a log grid, λ = 0 included, whose exact leave-one-out error over a regular sample of
+//! mask pixels is least (cross-validation, e.g. Hastie, Tibshirani & Friedman §7.10). λ = 0 is
+//! the unregularised least-squares fit; the coefficients are those of the same basis whatever λ.
+//!
 //! Units: readings are the capture's intensity-normalised samples times a display gain
 //! ([`display_gain`]), so that 1.0 is the top of the 8-bit range of the files (RTIViewer shows
 //! HSH values × 255 and PTM values as they are, with the PTM coefficients stored × 255).
@@ -149,6 +158,67 @@ impl Basis {
             Basis::Rbf => out[..rbf::PLANES].fill(0.0),
         }
     }
+
+    /// The diagonal of the roughness penalty D of the ridge fit (module documentation), per
+    /// term into `out[..terms]`: the Dirichlet energy ∫|∇f|² of f = Σ_j c_j b_j is Σ_j D_j c_j²
+    /// (for HSH up to a common factor, which λ absorbs).
+    /// - HSH: the harmonics are √2 × the spherical harmonics of the hemisphere stretched to the
+    ///   sphere (cos θ' = 2 cos θ − 1), each an eigenfunction of the Laplacian with eigenvalue
+    ///   l(l + 1), orthogonal: ∫|∇f|² dω' = 2 Σ_j l_j(l_j + 1) c_j². D = 0 (H0), 2 (H1…H3,
+    ///   l = 1), 6 (H4…H8, l = 2).
+    /// - PTM: over the unit disk of the projected light (l_u, l_v), where ∫1 = π and
+    ///   ∫l_u² = ∫l_v² = π/4, ∫|∇L|² = π (a0² + a1² + a2²/2 + a3² + a4²) exactly (the cross
+    ///   terms integrate to zero): D = π (1, 1, 1/2, 1, 1, 0).
+    /// - RBF, not a fixed basis, is not regularised: zeros.
+    pub fn roughness(self, out: &mut [f64]) {
+        use std::f64::consts::PI;
+        match self {
+            Basis::PtmLrgb | Basis::PtmRgb => {
+                out[..6].copy_from_slice(&[PI, PI, PI / 2.0, PI, PI, 0.0]);
+            }
+            Basis::Hsh2 | Basis::Hsh3 => {
+                const DEGREE: [f64; MAX_TERMS] = [0.0, 1.0, 1.0, 1.0, 2.0, 2.0, 2.0, 2.0, 2.0];
+                for (o, l) in out.iter_mut().zip(DEGREE).take(self.terms()) {
+                    *o = l * (l + 1.0);
+                }
+            }
+            Basis::Rbf => out[..rbf::PLANES].fill(0.0),
+        }
+    }
+}
+
+/// How the ridge weight λ of a linear fit is set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Penalty {
+    /// Chosen from the data: the value of [`RIDGE_GRID`] (× the number of lights, λ = 0
+    /// included) with the least leave-one-out error over a regular sample of up to
+    /// [`RIDGE_SAMPLE`] mask pixels ([`choose_ridge`]).
+    Auto,
+    /// This λ (0: unregularised least squares).
+    Fixed(f64),
+}
+
+/// The candidate ridge weights per light, λ / N: 0 and half decades from 10⁻⁶ to 10². AᵀA
+/// grows with the number of lights N, so λ / N weighs the roughness against the mean squared
+/// residual per light whatever the rig.
+pub const RIDGE_GRID: [f64; 18] = [
+    0.0, 1e-6, 3.16e-6, 1e-5, 3.16e-5, 1e-4, 3.16e-4, 1e-3, 3.16e-3, 1e-2, 3.16e-2, 0.1, 0.316,
+    1.0, 3.16, 10.0, 31.6, 100.0,
+];
+
+/// The most mask pixels, evenly spaced, whose leave-one-out error chooses λ.
+pub const RIDGE_SAMPLE: usize = 4096;
+
+/// The ridge weight of a fit and how it was chosen.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Ridge {
+    /// λ of (AᵀA + λ D) c = Aᵀ y (0: unregularised).
+    pub lambda: f64,
+    /// Each candidate λ and the mean over the lights of its leave-one-out RMSE (8-bit units)
+    /// over the sample; empty when λ was given ([`Penalty::Fixed`]).
+    pub candidates: Vec<(f64, f64)>,
+    /// Mask pixels of the sample (0 when λ was given).
+    pub sample_pixels: usize,
 }
 
 impl FromStr for Basis {
@@ -272,6 +342,10 @@ pub struct RtiFit {
     pub fell_back_to_all_lights: u64,
     /// RBF: the model the coefficients weight; `None` for the other bases.
     pub rbf: Option<rbf::RbfModel>,
+    /// The linear bases: the fit's ridge weight and its choice; `None` for RBF.
+    pub ridge: Option<Ridge>,
+    /// RBF: the kernel width's choice (the width itself is `rbf`'s σ); `None` otherwise.
+    pub kernel: Option<rbf::KernelChoice>,
     /// Per term, the least and greatest coefficient over the mask pixels and fitted channels
     /// (measured as the fit made them, so also known when the coefficients went to a
     /// [`CoefficientSink`]).
@@ -337,9 +411,8 @@ pub fn display_gain(capture: &Capture) -> Result<f64> {
     if np == 0 {
         return Ok(1.0);
     }
-    let step = np.div_ceil(4096).max(1);
-    let ids: Vec<usize> = (0..np).step_by(step).collect();
-    let view = capture.sampled(&ids)?;
+    let ids = sample_ids(np, 4096);
+    let view = sample_view(capture, &ids)?;
     let mut v: Vec<f32> = ids
         .iter()
         .flat_map(|&p| view.pixel_samples(p).iter().copied())
@@ -353,25 +426,56 @@ pub fn display_gain(capture: &Capture) -> Result<f64> {
     Ok(if *q > 0.0 { 1.0 / f64::from(*q) } else { 1.0 })
 }
 
-/// The design of a capture's lights: `A` (N × T, row-major), the projector P = G⁻¹Aᵀ
-/// (T × N, row-major) and the leverages h_kk.
+/// Up to `most` evenly spaced mask pixels of `np` (every ⌈np / most⌉-th).
+pub(crate) fn sample_ids(np: usize, most: usize) -> Vec<usize> {
+    (0..np).step_by(np.div_ceil(most).max(1)).collect()
+}
+
+/// A view of `capture` that answers for the mask pixels `ids`: the capture itself when held
+/// whole (no copy), else the samples of those pixels read from its tiles.
+pub(crate) fn sample_view<'a>(
+    capture: &'a Capture,
+    ids: &[usize],
+) -> Result<std::borrow::Cow<'a, Capture>> {
+    Ok(if capture.is_tiled() {
+        std::borrow::Cow::Owned(capture.sampled(ids)?)
+    } else {
+        std::borrow::Cow::Borrowed(capture)
+    })
+}
+
+/// The design of a capture's lights: `A` (N × T, row-major), the ridge λ D, the projector
+/// P = (G + λ D)⁻¹Aᵀ (T × N, row-major) with G = AᵀA, and the leverages h_kk = (A P)_kk.
 struct Design {
     t: usize,
     a: Vec<f64>,
+    /// λ D_j per term.
+    penalty: [f64; MAX_TERMS],
     projector: Vec<f64>,
     leverage: Vec<f64>,
 }
 
 impl Design {
-    fn new(capture: &Capture, basis: Basis) -> Result<Design> {
+    /// The design of `basis` under the capture's lights with ridge weight `lambda`; refused
+    /// when the lights do not determine the coefficients without the ridge (a penalty would
+    /// hide a rig that cannot tell the terms apart).
+    fn new(capture: &Capture, basis: Basis, lambda: f64) -> Result<Design> {
         let (n, t) = (capture.n_lights(), basis.terms());
         let mut a = vec![0.0; n * t];
         for (k, l) in capture.lights.directions.iter().enumerate() {
             basis.eval(*l, &mut a[k * t..(k + 1) * t]);
         }
+        let mut penalty = [0.0; MAX_TERMS];
+        basis.roughness(&mut penalty);
+        penalty.iter_mut().for_each(|d| *d *= lambda);
         let mut g = [0.0; MAX_TERMS * MAX_TERMS];
         normal_matrix(&a, t, |_| true, &mut g);
-        if n < t + 1 || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse) {
+        let mut plain = g;
+        add_diagonal(&mut g, t, &penalty);
+        if n < t + 1
+            || !cholesky::factor(&mut plain[..t * t], t, SmallPivot::Refuse)
+            || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse)
+        {
             return Err(Error::invalid(format!(
                 "the {n} light directions do not determine the {t} coefficients of {} (the \
                  basis needs at least {} lights spread in azimuth and elevation; lights all at \
@@ -395,9 +499,17 @@ impl Design {
         Ok(Design {
             t,
             a,
+            penalty,
             projector,
             leverage,
         })
+    }
+}
+
+/// Adds `d` (per term) to the diagonal of the T × T matrix `g`.
+fn add_diagonal(g: &mut [f64; MAX_TERMS * MAX_TERMS], t: usize, d: &[f64; MAX_TERMS]) {
+    for (j, dj) in d.iter().enumerate().take(t) {
+        g[j * t + j] += dj;
     }
 }
 
@@ -495,9 +607,20 @@ pub(crate) fn widen_ranges(ranges: &mut [(f32, f32)], values: &[f32]) {
 
 /// Fits `basis` to every mask pixel of `capture` and measures its leave-one-out error, the
 /// coefficients held whole in the result ([`fit_into`] with a sink that keeps them).
+/// The ridge weight is chosen from the data ([`Penalty::Auto`]).
 pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&dyn ReadingMask>) -> Result<RtiFit> {
+    fit_penalised(capture, basis, exclude, Penalty::Auto)
+}
+
+/// [`fit`] with the ridge weight set by `penalty`.
+pub fn fit_penalised(
+    capture: &Capture,
+    basis: Basis,
+    exclude: Option<&dyn ReadingMask>,
+    penalty: Penalty,
+) -> Result<RtiFit> {
     let mut kept = Collect::default();
-    let mut f = fit_into(capture, basis, exclude, &mut kept)?;
+    let mut f = fit_penalised_into(capture, basis, exclude, penalty, &mut kept)?;
     f.coefficients = kept.coefficients;
     f.chroma = kept.chroma;
     Ok(f)
@@ -506,11 +629,23 @@ pub fn fit(capture: &Capture, basis: Basis, exclude: Option<&dyn ReadingMask>) -
 /// Fits `basis` to every mask pixel of `capture`, block by block ([`BLOCK_PIXELS`]) into
 /// `sink`, and measures its leave-one-out error; the result holds no coefficients (its
 /// `coefficients` and `chroma` are empty, its `ranges` measured). `exclude`, when given, flags
-/// per mask pixel and light the readings to leave out of the pixel's fit and error.
+/// per mask pixel and light the readings to leave out of the pixel's fit and error. The ridge
+/// weight is chosen from the data ([`Penalty::Auto`]).
 pub fn fit_into(
     capture: &Capture,
     basis: Basis,
     exclude: Option<&dyn ReadingMask>,
+    sink: &mut dyn CoefficientSink,
+) -> Result<RtiFit> {
+    fit_penalised_into(capture, basis, exclude, Penalty::Auto, sink)
+}
+
+/// [`fit_into`] with the ridge weight of the linear bases set by `penalty` (RBF has none).
+pub fn fit_penalised_into(
+    capture: &Capture,
+    basis: Basis,
+    exclude: Option<&dyn ReadingMask>,
+    penalty: Penalty,
     sink: &mut dyn CoefficientSink,
 ) -> Result<RtiFit> {
     if basis == Basis::Rbf {
@@ -522,7 +657,7 @@ pub fn fit_into(
             ));
         }
         check_distant(capture)?;
-        return rbf::fit_into(capture, sink);
+        return rbf::fit_into(capture, rbf::Width::Auto, sink);
     }
     let (np, n, c, t) = (
         capture.n_pixels(),
@@ -539,8 +674,22 @@ pub fn fit_into(
             )));
         }
     }
-    let design = Design::new(capture, basis)?;
     let gain = display_gain(capture)?;
+    let ridge = match penalty {
+        Penalty::Auto => choose_ridge(capture, basis, exclude, gain)?,
+        Penalty::Fixed(lambda) if lambda.is_finite() && lambda >= 0.0 => Ridge {
+            lambda,
+            candidates: Vec::new(),
+            sample_pixels: 0,
+        },
+        Penalty::Fixed(lambda) => {
+            return Err(Error::parameter(
+                "ridge",
+                format!("{lambda}: expected a finite weight ≥ 0"),
+            ))
+        }
+    };
+    let design = Design::new(capture, basis, ridge.lambda)?;
     let fc = if basis.luminance() { 1 } else { c };
     let per_pixel = fc * t;
     let mut loo = RelightErrors::new(n);
@@ -559,6 +708,7 @@ pub fn fit_into(
                 view,
                 start,
                 first,
+                ids: None,
                 basis,
                 design: &design,
                 gain,
@@ -587,7 +737,59 @@ pub fn fit_into(
         excluded_readings: excluded,
         fell_back_to_all_lights: fell_back,
         rbf: None,
+        ridge: Some(ridge),
+        kernel: None,
         ranges,
+    })
+}
+
+/// λ of [`Penalty::Auto`] for `basis` on `capture` (readings × `gain`, `exclude` as
+/// [`fit_into`] takes it): of the candidates [`RIDGE_GRID`] × N, the one whose exact
+/// leave-one-out error (the mean over the lights of the RMSE, as [`RtiFit::loo`] reports it)
+/// over up to [`RIDGE_SAMPLE`] evenly spaced mask pixels is least; the smaller λ on a tie, so
+/// λ = 0 unless a ridge predicts the left-out readings better. By construction the sample's
+/// error at the chosen λ is at most its error unregularised.
+pub fn choose_ridge(
+    capture: &Capture,
+    basis: Basis,
+    exclude: Option<&dyn ReadingMask>,
+    gain: f64,
+) -> Result<Ridge> {
+    let (n, t) = (capture.n_lights(), basis.terms());
+    let ids = sample_ids(capture.n_pixels(), RIDGE_SAMPLE);
+    let view = sample_view(capture, &ids)?;
+    let fc = if basis.luminance() {
+        1
+    } else {
+        capture.channels
+    };
+    let mut coefficients = vec![0f32; ids.len() * fc * t];
+    let mut chroma = vec![1f32; if basis.luminance() { ids.len() * 3 } else { 0 }];
+    let mut candidates = Vec::with_capacity(RIDGE_GRID.len());
+    for per_light in RIDGE_GRID {
+        let lambda = per_light * n as f64;
+        let design = Design::new(capture, basis, lambda)?;
+        let job = TileJob {
+            view: &view,
+            start: 0,
+            first: 0,
+            ids: Some(&ids),
+            basis,
+            design: &design,
+            gain,
+            exclude,
+        };
+        let (errors, _, _) = job.run(&mut coefficients, &mut chroma);
+        candidates.push((lambda, errors.mean_rmse_8bit()));
+    }
+    let best = candidates
+        .iter()
+        .copied()
+        .fold(candidates[0], |b, c| if c.1 < b.1 { c } else { b });
+    Ok(Ridge {
+        lambda: best.0,
+        candidates,
+        sample_pixels: ids.len(),
     })
 }
 
@@ -619,6 +821,9 @@ struct TileJob<'a> {
     start: usize,
     /// The block's first pixel within the tile.
     first: usize,
+    /// When given, the pixels fitted (indices of `view`, which answers for them): pixel i of
+    /// the block is `ids[first + i]` ([`choose_ridge`]'s sample).
+    ids: Option<&'a [usize]>,
     basis: Basis,
     design: &'a Design,
     gain: f64,
@@ -692,6 +897,7 @@ impl TileJob<'_> {
         s: &mut Scratch,
     ) -> (u64, bool) {
         let (n, t, c) = (self.view.n_lights(), self.design.t, self.view.channels);
+        let local = self.ids.map_or(local, |ids| ids[local]);
         let samples = self.view.pixel_samples(local);
         let fc = if chroma.is_some() { 1 } else { c };
         for k in 0..n {
@@ -757,7 +963,13 @@ impl TileJob<'_> {
         let (n, t, a) = (self.view.n_lights(), self.design.t, &self.design.a);
         let mut g = [0.0; MAX_TERMS * MAX_TERMS];
         normal_matrix(a, t, |k| !flags[k], &mut g);
-        if !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse) {
+        // Determined by the kept lights alone (as the design is by all of them), then ridged
+        // with the capture's λ D.
+        let mut plain = g;
+        add_diagonal(&mut g, t, &self.design.penalty);
+        if !cholesky::factor(&mut plain[..t * t], t, SmallPivot::Refuse)
+            || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse)
+        {
             return false;
         }
         let mut x = [0.0; MAX_TERMS];

@@ -11,15 +11,21 @@
 //! relight's renderer and OpenLIME's RTI shader apply, so a file renders as the fit predicts).
 //! The prediction is I_c(l) = Σ_i w_i(l) (μ_{i,c} + Σ_j c_j e_{j,i,c}).
 //!
-//! σ is the median over the lights of the chord distance to the nearest other light: the
-//! kernel reaches a light's neighbours and no further, whatever the rig's density.
+//! σ (a chord length) is chosen per capture ([`Width::Auto`]): the default is the median over
+//! the lights of the chord distance to the nearest other light (the kernel reaches a light's
+//! neighbours and no further, whatever the rig's density), and of the half octaves
+//! [`SIGMA_FACTORS`] × that default the one with the least exact leave-one-out error over a
+//! regular sample of mask pixels is kept, the default on a tie. The fit's σ is the one the
+//! written files carry, so a renderer weights the lights as the chosen fit predicts.
 //!
 //! Leave-one-out: the fit without light k is the PCA of the same pixels' readings without
 //! light k's C entries — the mean without them and the eigenvectors of the covariance with
 //! light k's rows and columns deleted — the projection of the pixel's other readings on it,
 //! and the kernel interpolation at l_k over the other lights. All of it is linear in the
 //! pixel's readings, so the prediction of light k is a_{k,c} + W_{k,c} · x (W zero on light k's
-//! entries), precomputed once per light: exact, and N·C·D operations a pixel.
+//! entries), precomputed once per light: exact, and N·C·D operations a pixel. The PCA without
+//! light k does not depend on σ, so each candidate σ costs only its predictors and the sample's
+//! N·C·D operations a pixel.
 //!
 //! The PCA uses up to [`PCA_PIXELS`] evenly spaced mask pixels (as relight samples its
 //! pixels); the covariance is D × D in f64, `8 · D²` bytes.
@@ -151,15 +157,8 @@ pub fn kernel_width(lights: &[[f64; 3]]) -> f64 {
 /// mask pixels; returns them with the number of pixels used.
 fn moments(capture: &Capture, gain: f64) -> Result<(Vec<f64>, DMatrix<f64>, usize)> {
     let (np, d) = (capture.n_pixels(), capture.n_lights() * capture.channels);
-    let step = np.div_ceil(PCA_PIXELS).max(1);
-    let ids: Vec<usize> = (0..np).step_by(step).collect();
-    let sampled;
-    let view = if capture.is_tiled() {
-        sampled = capture.sampled(&ids)?;
-        &sampled
-    } else {
-        capture
-    };
+    let ids = super::sample_ids(np, PCA_PIXELS);
+    let view = super::sample_view(capture, &ids)?;
     let m = ids.len();
     let mut mean = vec![0.0; d];
     for &p in &ids {
@@ -209,17 +208,18 @@ fn without_light(cov: &DMatrix<f64>, k: usize, c: usize) -> DMatrix<f64> {
     DMatrix::from_fn(keep.len(), keep.len(), |a, b| cov[(keep[a], keep[b])])
 }
 
-/// The leave-one-out predictor of light k: per channel, a_c and W_c (length D, zero on light
-/// k's entries) with prediction a_c + W_c · x.
-fn loo_predictor(model: &RbfModel, cov: &DMatrix<f64>, k: usize) -> (Vec<f64>, Vec<f64>) {
+/// The leave-one-out predictor of light k under kernel width `sigma`, from `planes`, the
+/// [`PLANES`] leading eigenvectors of the covariance without light k (`[plane][D − C]`, which
+/// do not depend on σ): per channel, a_c and W_c (length D, zero on light k's entries) with
+/// prediction a_c + W_c · x.
+fn loo_predictor(model: &RbfModel, sigma: f64, planes: &[f64], k: usize) -> (Vec<f64>, Vec<f64>) {
     let (n, c) = (model.lights.len(), model.channels);
     let d = n * c;
-    let (planes, _) = principal(without_light(cov, k, c));
     let dk = d - c;
     // Positions in x of the reduced vector's entries.
     let at = |r: usize| if r / c < k { r } else { r + c };
     let mut w = vec![0.0; n];
-    model.weights(model.lights[k], Some(k), &mut w);
+    kernel_weights(&model.lights, sigma, model.lights[k], Some(k), &mut w);
     let mut offset = vec![0.0; c];
     let mut weights = vec![0.0; c * d];
     for ch in 0..c {
@@ -247,14 +247,135 @@ fn loo_predictor(model: &RbfModel, cov: &DMatrix<f64>, k: usize) -> (Vec<f64>, V
     (offset, weights)
 }
 
+/// The leave-one-out predictors of every light under kernel width `sigma`.
+fn predictors(model: &RbfModel, sigma: f64, loo_planes: &[Vec<f64>]) -> Vec<Predictor> {
+    (0..model.lights.len())
+        .into_par_iter()
+        .map(|k| loo_predictor(model, sigma, &loo_planes[k], k))
+        .collect()
+}
+
+/// Per light, a_c and W_c of its leave-one-out prediction ([`loo_predictor`]).
+type Predictor = (Vec<f64>, Vec<f64>);
+
+/// Adds the leave-one-out errors of one pixel's readings `x` (display units, D values).
+fn add_loo(predictors: &[Predictor], c: usize, x: &[f64], e: &mut RelightErrors) {
+    let d = x.len();
+    for (k, (a, wts)) in predictors.iter().enumerate() {
+        for ch in 0..c {
+            let row = &wts[ch * d..(ch + 1) * d];
+            let pred = a[ch] + row.iter().zip(x).map(|(w, v)| w * v).sum::<f64>();
+            e.add(k, pred, x[k * c + ch]);
+        }
+    }
+}
+
+/// How the kernel width σ of a fit is set.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Width {
+    /// Chosen from the data: of [`SIGMA_FACTORS`] × [`kernel_width`], the one with the least
+    /// leave-one-out error over up to [`super::RIDGE_SAMPLE`] evenly spaced mask pixels.
+    Auto,
+    /// This σ (chord length on the unit sphere, > 0).
+    Fixed(f64),
+}
+
+/// The candidate kernel widths, × the median nearest-light distance ([`kernel_width`]): half
+/// octaves from 1/2 (a light's nearest neighbours barely reach it) to 4 (a broad average).
+pub const SIGMA_FACTORS: [f64; 7] = [
+    0.5,
+    std::f64::consts::FRAC_1_SQRT_2,
+    1.0,
+    std::f64::consts::SQRT_2,
+    2.0,
+    2.0 * std::f64::consts::SQRT_2,
+    4.0,
+];
+
+/// The kernel width of a fit and how it was chosen.
+#[derive(Clone, Debug, PartialEq)]
+pub struct KernelChoice {
+    /// The default width, [`kernel_width`] of the lights.
+    pub default: f64,
+    /// Each candidate σ and the mean over the lights of its leave-one-out RMSE (8-bit units)
+    /// over the sample; empty when σ was given ([`Width::Fixed`]).
+    pub candidates: Vec<(f64, f64)>,
+    /// Mask pixels of the sample (0 when σ was given).
+    pub sample_pixels: usize,
+}
+
+/// σ of [`Width::Auto`]: of the candidates [`SIGMA_FACTORS`] × `default`, the one whose exact
+/// leave-one-out error (mean over the lights of the RMSE, as [`RtiFit::loo`] reports it) over
+/// up to [`super::RIDGE_SAMPLE`] evenly spaced mask pixels is least; the default on a tie, so
+/// by construction the sample's error at the chosen σ is at most the default's.
+fn choose_sigma(
+    capture: &Capture,
+    model: &RbfModel,
+    loo_planes: &[Vec<f64>],
+    gain: f64,
+) -> Result<(f64, KernelChoice)> {
+    let default = kernel_width(&model.lights);
+    let ids = super::sample_ids(capture.n_pixels(), super::RIDGE_SAMPLE);
+    let view = super::sample_view(capture, &ids)?;
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let candidates: Vec<(f64, f64)> = SIGMA_FACTORS
+        .iter()
+        .map(|&f| {
+            let sigma = f * default;
+            let pred = predictors(model, sigma, loo_planes);
+            let errors = ids
+                .par_chunks(256)
+                .fold(
+                    || (RelightErrors::new(n), vec![0.0; n * c]),
+                    |(mut e, mut x), chunk| {
+                        for &p in chunk {
+                            for (xr, &v) in x.iter_mut().zip(view.pixel_samples(p)) {
+                                *xr = f64::from(v) * gain;
+                            }
+                            add_loo(&pred, c, &x, &mut e);
+                        }
+                        (e, x)
+                    },
+                )
+                .map(|(e, _)| e)
+                .reduce(|| RelightErrors::new(n), RelightErrors::merge);
+            (sigma, errors.mean_rmse_8bit())
+        })
+        .collect();
+    let at_default = candidates[SIGMA_FACTORS.iter().position(|&f| f == 1.0).unwrap_or(0)];
+    let best = candidates
+        .iter()
+        .copied()
+        .fold(at_default, |b, x| if x.1 < b.1 { x } else { b });
+    let choice = KernelChoice {
+        default,
+        candidates,
+        sample_pixels: ids.len(),
+    };
+    Ok((best.0, choice))
+}
+
 /// Fits the RBF basis to every mask pixel of `capture` and measures its leave-one-out error
 /// (module documentation). The result's coefficients are `[pixel][plane]` (one fitted channel).
 pub fn fit(capture: &Capture) -> Result<RtiFit> {
     super::fit(capture, super::Basis::Rbf, None)
 }
 
+/// [`fit`] with the kernel width set by `width` (the coefficients in the result).
+pub fn fit_width(capture: &Capture, width: Width) -> Result<RtiFit> {
+    super::check_distant(capture)?;
+    let mut kept = super::Collect::default();
+    let mut f = fit_into(capture, width, &mut kept)?;
+    f.coefficients = kept.coefficients;
+    Ok(f)
+}
+
 /// [`fit`], the coefficients put into `sink` block by block ([`super::fit_into`]).
-pub(super) fn fit_into(capture: &Capture, sink: &mut dyn CoefficientSink) -> Result<RtiFit> {
+pub(super) fn fit_into(
+    capture: &Capture,
+    width: Width,
+    sink: &mut dyn CoefficientSink,
+) -> Result<RtiFit> {
     let (np, n, c) = (capture.n_pixels(), capture.n_lights(), capture.channels);
     let d = n * c;
     if n < 2 || d - c < PLANES {
@@ -268,23 +389,45 @@ pub(super) fn fit_into(capture: &Capture, sink: &mut dyn CoefficientSink) -> Res
     }
     let gain = display_gain(capture)?;
     let lights = capture.lights.directions.clone();
-    let sigma = kernel_width(&lights);
     let (mean, cov, pca_pixels) = moments(capture, gain)?;
     let (planes, explained_variance) = principal(cov.clone());
-    let model = RbfModel {
+    let mut model = RbfModel {
+        sigma: kernel_width(&lights),
         lights,
-        sigma,
         channels: c,
         mean,
         planes,
         explained_variance,
         pca_pixels,
     };
-    let predictors: Vec<(Vec<f64>, Vec<f64>)> = (0..n)
+    // The PCA without each light does not depend on σ: once for every candidate.
+    let loo_planes: Vec<Vec<f64>> = (0..n)
         .into_par_iter()
-        .map(|k| loo_predictor(&model, &cov, k))
+        .map(|k| principal(without_light(&cov, k, c)).0)
         .collect();
     drop(cov);
+    let kernel = match width {
+        Width::Auto => {
+            let (sigma, choice) = choose_sigma(capture, &model, &loo_planes, gain)?;
+            model.sigma = sigma;
+            choice
+        }
+        Width::Fixed(sigma) if sigma.is_finite() && sigma > 0.0 => {
+            model.sigma = sigma;
+            KernelChoice {
+                default: kernel_width(&model.lights),
+                candidates: Vec::new(),
+                sample_pixels: 0,
+            }
+        }
+        Width::Fixed(sigma) => {
+            return Err(Error::parameter(
+                "rbf_sigma",
+                format!("{sigma}: the kernel width must be a finite number > 0"),
+            ))
+        }
+    };
+    let predictors = predictors(&model, model.sigma, &loo_planes);
     let mut loo = RelightErrors::new(n);
     let mut ranges = vec![(f32::INFINITY, f32::NEG_INFINITY); PLANES];
     let mut coefficients = Vec::new();
@@ -321,6 +464,8 @@ pub(super) fn fit_into(capture: &Capture, sink: &mut dyn CoefficientSink) -> Res
         excluded_readings: 0,
         fell_back_to_all_lights: 0,
         rbf: Some(model),
+        ridge: None,
+        kernel: Some(kernel),
         ranges,
     })
 }
@@ -333,7 +478,7 @@ struct Block<'a> {
     gain: f64,
     model: &'a RbfModel,
     /// Per light, the leave-one-out predictor ([`loo_predictor`]).
-    predictors: &'a [(Vec<f64>, Vec<f64>)],
+    predictors: &'a [Predictor],
 }
 
 impl Block<'_> {
@@ -352,14 +497,7 @@ impl Block<'_> {
                             *xr = f64::from(v) * self.gain;
                         }
                         project(self.model, &x, coef);
-                        for (k, (a, wts)) in self.predictors.iter().enumerate() {
-                            for ch in 0..c {
-                                let row = &wts[ch * d..(ch + 1) * d];
-                                let pred =
-                                    a[ch] + row.iter().zip(&x).map(|(w, v)| w * v).sum::<f64>();
-                                e.add(k, pred, x[k * c + ch]);
-                            }
-                        }
+                        add_loo(self.predictors, c, &x, &mut e);
                     }
                     (e, x)
                 },
