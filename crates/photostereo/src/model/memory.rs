@@ -25,7 +25,7 @@ use crate::model::store::SampleType;
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// Bytes per frame pixel of the full-frame stages when the per-pixel arrays a stage does not
 /// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the
-/// recursion's intermediate integrations (the integrator's arrays, about 52 for `bilateral`,
+/// recursion's intermediate integrations (the integrator's arrays, about 40 for `bilateral`,
 /// beside its inputs: the gradients, the weights, the last surface) and the end of the run (the
 /// exported maps while they are written: normals 12, albedo 12 for RGB, depth, curl, trust and
 /// residual 16, the shadow planes of 24 lights 6, the flag maps and the mask 5, the packed

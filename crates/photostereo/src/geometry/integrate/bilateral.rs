@@ -44,7 +44,7 @@
 //! pixels, which is a height in pixels at the object's distance). `k = 2` is the published
 //! setting; a larger k breaks the surface more readily.
 
-use super::multigrid::{par_zeros, pcg, Hierarchy, Level};
+use super::multigrid::{par_zeros, pcg, Hierarchy, Level, RowOperator, RowParts};
 use super::spectral::dct_solve;
 use super::{
     fill_unreliable, into_depth, Components, Depth, IntegrationProblem, IntegrationStats,
@@ -174,6 +174,7 @@ fn debiased_edge_of(
 }
 
 /// The per-pixel inputs of (B1)–(B3) shared by both versions.
+#[derive(Debug)]
 struct Pixels<'a> {
     w: usize,
     h: usize,
@@ -651,15 +652,8 @@ impl Bilateral {
         progress.advance(1);
         progress.end();
         let (cg_iterations, at_precision) = (state.cg_iterations, state.at_precision);
-        let State {
-            mut x,
-            plus,
-            east,
-            south,
-            r,
-            ..
-        } = state;
-        drop((east, south, r));
+        let State { mut x, plus, r, .. } = state;
+        drop(r);
         if problem.prior.is_none_or(|pr| pr.lambda == 0.0) {
             components.remove_means(&mut x);
         }
@@ -702,17 +696,16 @@ impl Bilateral {
         let lambda = prior.map_or(0.0, |pr| pr.lambda);
         let plus = [&st.plus[0][..], &st.plus[1][..]];
         let debiased = tight && self.debias;
-        self.edges(px, plus, debiased, [&mut st.east, &mut st.south]);
-        let level = Level::from_parts(
-            w,
-            h,
-            std::mem::take(&mut st.east),
-            std::mem::take(&mut st.south),
-            |i| if problem.mask[i] { lambda } else { 0.0 },
-            problem.mask,
-        );
-        // The right-hand side's `W_e d_e` are recomputed row by row rather than stored.
         let floor = self.min_edge_weight;
+        let system = System {
+            px,
+            plus,
+            debiased,
+            floor,
+            lambda,
+        };
+        let level = Level::computed(w, h, &system);
+        // The right-hand side's `W_e d_e` are recomputed row by row rather than stored.
         let b_norm = level
             .residual_from(
                 |row, _, b| rhs_row(px, plus, debiased, floor, prior, row, b),
@@ -743,11 +736,53 @@ impl Bilateral {
         );
         st.cg_iterations += solve.iterations;
         st.at_precision = solve.at_precision;
-        (st.east, st.south) = hier.into_fine().into_edges();
         (
             solve.relative_residual * scale / b_norm.max(f64::MIN_POSITIVE),
             levels,
         )
+    }
+}
+
+/// The normal equations of (B4), or (B5) when `debiased`, plus the prior's `lambda` on the
+/// mask, as the solver's finest level: each row's edge weights `W_e` computed from the forward
+/// weights `plus` when the solver asks for it (the values [`Pixels::row_edges`] gives), so that
+/// no edge weight is stored.
+#[derive(Debug)]
+struct System<'p, 'a> {
+    px: &'p Pixels<'a>,
+    plus: [&'p [f32]; 2],
+    debiased: bool,
+    floor: f32,
+    lambda: f32,
+}
+
+impl RowOperator for System<'_, '_> {
+    fn row(&self, r: usize, out: RowParts<'_>) {
+        let (px, w) = (self.px, self.px.w);
+        let (plus, debiased, floor) = (self.plus, self.debiased, self.floor);
+        out.work.resize(7 * w, 0.0);
+        let mut rows = out.work.chunks_mut(w);
+        let mut row = || rows.next().expect("seven rows");
+        let (om_up, om, om_below) = (row(), row(), row());
+        let (east_pull, south_pull, up_east, up_pull) = (row(), row(), row(), row());
+        px.omega_row(r, om);
+        if r + 1 < px.h {
+            px.omega_row(r + 1, om_below);
+        }
+        let (east, south) = ([out.e, east_pull], [out.s, south_pull]);
+        px.row_edges(plus, debiased, floor, r, om, om_below, east, south);
+        if r > 0 {
+            px.omega_row(r - 1, om_up);
+            let (east, south) = ([up_east, up_pull], [&mut *out.su, &mut *south_pull]);
+            px.row_edges(plus, debiased, floor, r - 1, om_up, om, east, south);
+        } else {
+            out.su.fill(0.0);
+        }
+        let m = &px.mask[r * w..(r + 1) * w];
+        for ((x, a), &mv) in out.ex.iter_mut().zip(out.active.iter_mut()).zip(m) {
+            *x = if mv { self.lambda } else { 0.0 };
+            *a = mv;
+        }
     }
 }
 
@@ -757,9 +792,6 @@ struct State<'c> {
     x: Vec<f32>,
     /// The forward weights (B3) along the columns and the rows; ½ at first (`poisson`'s system).
     plus: [Vec<f32>; 2],
-    /// `W_e` of the east and south edges (lent to the solver's finest level while it solves).
-    east: Vec<f32>,
-    south: Vec<f32>,
     /// The residual.
     r: Vec<f32>,
     /// The constants of each component, when no prior fixes them.
@@ -790,8 +822,6 @@ impl<'c> State<'c> {
         State {
             x,
             plus: [vec![0.5; n], vec![0.5; n]],
-            east: par_zeros(n),
-            south: par_zeros(n),
             r: par_zeros(n),
             null_space: (!has_prior).then_some(components),
             cg_iterations: 0,
@@ -817,31 +847,6 @@ impl Bilateral {
             ));
         }
         Ok(())
-    }
-
-    /// `W_e` of (B4), or of (B5) when `debiased`, for every east (`weight[0]`) and south
-    /// (`weight[1]`) edge; 0 where the edge leaves the mask.
-    fn edges(&self, px: &Pixels, plus: [&[f32]; 2], debiased: bool, weight: [&mut [f32]; 2]) {
-        let (w, h) = (px.w, px.h);
-        let [we, ws] = weight;
-        let floor = self.min_edge_weight;
-        we.par_chunks_mut(w)
-            .zip(ws.par_chunks_mut(w))
-            .enumerate()
-            .for_each_init(
-                || vec![0f32; 4 * w],
-                |scratch, (r, (we, ws))| {
-                    let (om, rest) = scratch.split_at_mut(w);
-                    let (om_below, rest) = rest.split_at_mut(w);
-                    let (east_pull, south_pull) = rest.split_at_mut(w);
-                    px.omega_row(r, om);
-                    if r + 1 < h {
-                        px.omega_row(r + 1, om_below);
-                    }
-                    let (east, south) = ([we, east_pull], [ws, south_pull]);
-                    px.row_edges(plus, debiased, floor, r, om, om_below, east, south);
-                },
-            );
     }
 
     /// Replaces the forward weights by (B3) of the surface `x` and returns the energy (B2) of

@@ -60,13 +60,14 @@ pub const DEFAULT_MIN_EDGE_WEIGHT: f32 = 1e-3;
 /// Peak memory of integrating a normal map with `bilateral` ([`integrate_normal_map`],
 /// orthographic or perspective), in bytes per frame pixel beyond the caller's normal map: the
 /// gradients and mask (9), the surface and the residual (8), the forward weights (B3) of both
-/// axes (8), the finest level's edge weights and inverse diagonal (12), the two CG work vectors
-/// (8) and the coarse multigrid levels with their work vectors (about 7); 8 more when some
-/// pixels' gradients are filled (weights below `fill_below`). Measured at 4000 × 3000: 52 on
-/// the whole frame, 54 on the ellipse inscribed in it (`cargo run --release -p photostereo
-/// --example integrate_memory -- 4000 3000`). A mask whose bounding box is at most 3/4 of the
-/// frame is solved on that box (the same per box pixel, plus copies of the inputs).
-pub const BILATERAL_BYTES_PER_PIXEL: usize = 54;
+/// axes (8), the two CG work vectors (8) and the coarse multigrid levels with their work
+/// vectors (about 7), the finest level's edge weights and inverse diagonal computed row by row;
+/// 8 more when some pixels' gradients are filled (weights below `fill_below`). Measured at
+/// 4000 × 3000: 40 on the whole frame, 41.5 on the ellipse inscribed in it (`cargo run
+/// --release -p photostereo --example integrate_memory -- 4000 3000`). A mask whose bounding
+/// box is at most 3/4 of the frame is solved on that box (the same per box pixel, plus copies
+/// of the inputs).
+pub const BILATERAL_BYTES_PER_PIXEL: usize = 42;
 
 /// Peak memory of integrating a normal map with `poisson`, as [`BILATERAL_BYTES_PER_PIXEL`]:
 /// on a mask, the gradients and mask (9), the surface, the residual and the two CG work vectors

@@ -71,6 +71,30 @@ enum Kind<'a> {
         below: f32,
         pins: Vec<usize>,
     },
+    /// An operator whose owner computes its rows (see [`RowOperator`]); stores nothing.
+    Computed { op: &'a dyn RowOperator },
+}
+
+/// The rows of one computed row of a level, for a [`RowOperator`] to fill: the east edges of
+/// the row (the last one is set to 0 after), its south edges, the south edges of the row above
+/// (zeros on the first row), the extra diagonal, which cells are active, and scratch `work` the
+/// operator may size as it needs (kept between rows of one thread).
+pub(crate) struct RowParts<'s> {
+    pub e: &'s mut [f32],
+    pub s: &'s mut [f32],
+    pub su: &'s mut [f32],
+    pub ex: &'s mut [f32],
+    pub active: &'s mut [bool],
+    pub work: &'s mut Vec<f32>,
+}
+
+/// A finest-level operator computed row by row by the integrator that owns its inputs (the
+/// bilateral systems, whose edge weights come from its reweighting), so that neither its
+/// edge weights nor `1 / d` are stored; `1 / d` is computed from the row as for the other
+/// computed levels ([`inverse_diagonal`]).
+pub(crate) trait RowOperator: Sync + std::fmt::Debug {
+    /// Writes row `r` of the operator into `out`.
+    fn row(&self, r: usize, out: RowParts<'_>);
 }
 
 /// One grid level of the operator.
@@ -100,6 +124,8 @@ pub(crate) struct Scratch {
     inv: Vec<f32>,
     zeros: Vec<f32>,
     active: Vec<bool>,
+    /// Scratch of a [`RowOperator`] (empty until it sizes it).
+    work: Vec<f32>,
     /// The row whose operator the computed rows hold (`usize::MAX`: none), so that a row
     /// computed for one colour of a sweep is reused by the other.
     row: usize,
@@ -115,6 +141,7 @@ impl Scratch {
             inv: vec![0.0; w],
             zeros: vec![0.0; w],
             active: vec![false; w],
+            work: Vec::new(),
             row: usize::MAX,
         }
     }
@@ -367,15 +394,6 @@ impl<'a> Level<'a> {
         self.w * self.h
     }
 
-    /// The east and south edge weights of a stored level, given back for reuse (empty vectors
-    /// for a computed level).
-    pub fn into_edges(self) -> (Vec<f32>, Vec<f32>) {
-        match self.kind {
-            Kind::Stored { east, south, .. } => (east, south),
-            _ => (Vec::new(), Vec::new()),
-        }
-    }
-
     /// The same operator with its rows stored (bit for bit what [`Level::rows`] computes).
     pub fn stored(&self) -> Level<'static> {
         let (w, h) = (self.w, self.h);
@@ -464,7 +482,46 @@ impl<'a> Level<'a> {
                 below,
                 pins,
             } => self.fill_rows(r, mask, weights, *below, pins, sc),
+            Kind::Computed { op } => self.computed_rows(r, *op, sc),
         }
+    }
+
+    /// An operator computed row by row by `op` (see [`Kind::Computed`]).
+    pub fn computed(w: usize, h: usize, op: &'a dyn RowOperator) -> Level<'a> {
+        Level {
+            w,
+            h,
+            kind: Kind::Computed { op },
+        }
+    }
+
+    /// The rows of a [`Kind::Computed`] level at row `r`, computed into `sc` by `op`, and `1 / d`.
+    #[inline]
+    fn computed_rows<'s>(&self, r: usize, op: &dyn RowOperator, sc: &'s mut Scratch) -> Rows<'s> {
+        let w = self.w;
+        let (e, s, su, ex, inv) = (
+            &mut sc.e[..w],
+            &mut sc.s[..w],
+            &mut sc.su[..w],
+            &mut sc.ex[..w],
+            &mut sc.inv[..w],
+        );
+        let active = &mut sc.active[..w];
+        let work = &mut sc.work;
+        op.row(
+            r,
+            RowParts {
+                e: &mut *e,
+                s: &mut *s,
+                su: &mut *su,
+                ex: &mut *ex,
+                active: &mut *active,
+                work,
+            },
+        );
+        e[w - 1] = 0.0;
+        inverse_diagonal(e, s, su, ex, active, inv);
+        Rows { e, s, su, ex, inv }
     }
 
     /// The rows of a [`Kind::Problem`] level at row `r`, computed into `sc`: the edges of row
@@ -1092,11 +1149,6 @@ impl<'a> Hierarchy<'a> {
             sweeps: 1,
             stop_at_precision: false,
         }
-    }
-
-    /// The finest level, the others dropped.
-    pub fn into_fine(mut self) -> Level<'a> {
-        self.levels.swap_remove(0)
     }
 
     /// The finest level.
