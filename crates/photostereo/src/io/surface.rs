@@ -190,9 +190,14 @@ fn start_mesh(
     Ok((mesh, Sink { file, offset: 0 }))
 }
 
-/// Rows per band of the mesh writers: bands are formatted in parallel, a few at a time, and
-/// written in order, so a writer holds a few bands of text, never the whole file.
+/// The most rows per band of the mesh writers: bands are formatted in parallel, a few at a
+/// time, and written in order, so a writer holds a few bands of text, never the whole file.
 const BAND_ROWS: usize = 32;
+
+/// The bytes a mesh writer's bands hold together at most (both groups, formatted and being
+/// written), whatever the thread count: wide frames get fewer rows per band and fewer bands
+/// per group, so the memory plan's writing figure holds on a machine with many cores.
+const BAND_BUFFER_BYTES: usize = 32 << 20;
 
 /// A file written front to back by positioned writes. [`Sink::banded`] formats groups of
 /// bands in parallel while the previous group is being written (buffered writes into one file
@@ -218,10 +223,11 @@ impl Write for Sink {
 
 impl Sink {
     /// Writes the bytes that `band(rows, buffer)` puts at the start of `buffer` for each band
-    /// of `rows` (in bands of [`BAND_ROWS`]), in order; `band` returns how many. Groups of two
-    /// bands per worker thread are formatted in parallel while the previous group is written.
-    /// A buffer keeps its length from band to band (what is beyond the returned count is
-    /// stale), so its bytes are zeroed once, not per band. `bytes_per_row` sizes the buffers.
+    /// of `rows` (bands of at most [`BAND_ROWS`]), in order; `band` returns how many. Groups of
+    /// up to two bands per worker thread are formatted in parallel while the previous group is
+    /// written; band and group sizes keep the buffers within [`BAND_BUFFER_BYTES`] when
+    /// `bytes_per_row` is right. A buffer keeps its length from band to band (what is beyond
+    /// the returned count is stale), so its bytes are zeroed once, not per band.
     fn banded(
         &mut self,
         rows: usize,
@@ -229,8 +235,11 @@ impl Sink {
         band: impl Fn(std::ops::Range<usize>, &mut Vec<u8>) -> usize + Sync,
     ) -> std::io::Result<()> {
         use rayon::prelude::*;
-        let starts: Vec<usize> = (0..rows).step_by(BAND_ROWS).collect();
-        let batch = 2 * rayon::current_num_threads().max(1);
+        let threads = rayon::current_num_threads().max(1);
+        let row_bytes = bytes_per_row.max(1);
+        let band_rows = (BAND_BUFFER_BYTES / (4 * threads * row_bytes)).clamp(1, BAND_ROWS);
+        let batch = (BAND_BUFFER_BYTES / (2 * band_rows * row_bytes)).clamp(1, 2 * threads);
+        let starts: Vec<usize> = (0..rows).step_by(band_rows).collect();
         let mut pending: Vec<(Vec<u8>, usize)> = (0..batch).map(|_| (Vec::new(), 0)).collect();
         let mut spare: Vec<(Vec<u8>, usize)> = (0..batch).map(|_| (Vec::new(), 0)).collect();
         let mut pending_len = 0;
@@ -246,7 +255,7 @@ impl Sink {
                         .par_iter_mut()
                         .zip(group)
                         .for_each(|((buf, n), &r0)| {
-                            let r1 = (r0 + BAND_ROWS).min(rows);
+                            let r1 = (r0 + band_rows).min(rows);
                             buf.reserve(((r1 - r0) * bytes_per_row).saturating_sub(buf.len()));
                             *n = band(r0..r1, buf);
                         })
@@ -750,6 +759,50 @@ mod tests {
             }
         }
         assert_eq!(f, expected_faces(w, h, &depth));
+    }
+
+    /// A frame wide enough that the band buffers' bound cuts the bands below [`BAND_ROWS`]
+    /// rows, and differently for one thread and for eight: the same bytes either way, and the
+    /// faces of the definition.
+    #[test]
+    fn wide_frames_write_the_same_bytes_at_any_thread_count() {
+        let (w, h) = (12_000, 7);
+        let depth: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if i % 13 == 5 {
+                    f32::NAN
+                } else {
+                    i as f32 * 0.5
+                }
+            })
+            .collect();
+        let normals = vec![[0.0f32, 0.0, 1.0]; w * h];
+        let dir = tempfile::tempdir().unwrap();
+        let write = |threads: usize, name: &str| {
+            let path = dir.path().join(name);
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| write_mesh_obj(&path, w, h, &depth, &normals))
+                .unwrap();
+            std::fs::read(&path).unwrap()
+        };
+        let (one, eight) = (write(1, "one.obj"), write(8, "eight.obj"));
+        assert!(one == eight, "the files differ");
+        let faces: Vec<[u64; 3]> = String::from_utf8(one)
+            .unwrap()
+            .lines()
+            .filter_map(|l| l.strip_prefix("f "))
+            .map(|l| {
+                let t: Vec<u64> = l
+                    .split_whitespace()
+                    .map(|x| x.split_once("//").unwrap().0.parse::<u64>().unwrap() - 1)
+                    .collect();
+                [t[0], t[1], t[2]]
+            })
+            .collect();
+        assert_eq!(faces, expected_faces(w, h, &depth));
     }
 
     /// Decimal digits as `itoa` gives them.

@@ -239,16 +239,20 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + (s.pixels as u64 * MASK_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
-        + s.pixels as u64
-            * (MASK_BYTES_PER_PIXEL
-                + if s.ground_truth {
-                    TRUTH_BYTES_PER_MASK_PIXEL
-                } else {
-                    0
-                })
+        + mask_bytes(s, MASK_BYTES_PER_PIXEL)
         + FIXED_BYTES
         + beside
         + writing
+}
+
+/// The bytes held per mask pixel, `per_pixel` plus the ground truth's when the run holds it.
+fn mask_bytes(s: &CaptureSize, per_pixel: u64) -> u64 {
+    let truth = if s.ground_truth {
+        TRUTH_BYTES_PER_MASK_PIXEL
+    } else {
+        0
+    };
+    s.pixels as u64 * (per_pixel + truth)
 }
 
 /// The full-frame stages' bytes with the per-pixel arrays parked ([`MemoryPlan::park`]), with
@@ -260,13 +264,7 @@ pub fn parked_full_frame_bytes(s: &CaptureSize) -> u64 {
     let beside = s.beside.bytes(s.frame(), s.pixels as u64);
     let writing = s.beside.writing_bytes(s.width as u64);
     s.frame() * PARKED_FRAME_BYTES_PER_PIXEL
-        + s.pixels as u64
-            * (PARKED_MASK_BYTES_PER_PIXEL
-                + if s.ground_truth {
-                    TRUTH_BYTES_PER_MASK_PIXEL
-                } else {
-                    0
-                })
+        + mask_bytes(s, PARKED_MASK_BYTES_PER_PIXEL)
         + FIXED_BYTES
         + beside
         + writing

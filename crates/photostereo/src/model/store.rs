@@ -185,22 +185,8 @@ impl SampleStore {
         let backing = match spill_dir {
             None => Backing::Memory(vec![0u8; bytes as usize]),
             Some(dir) => {
-                static NEXT: std::sync::atomic::AtomicUsize =
-                    std::sync::atomic::AtomicUsize::new(0);
-                let path = dir.join(format!(
-                    ".photostereo-samples-{}-{}.spill",
-                    std::process::id(),
-                    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-                ));
-                let file = std::fs::OpenOptions::new()
-                    .read(true)
-                    .write(true)
-                    .create_new(true)
-                    .open(&path)
-                    .map_err(|e| Error::io(&path, e))?;
-                // Unlinked at once: the handle keeps it, the system frees it however we end.
-                std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
-                file.set_len(bytes).map_err(|e| Error::io(&path, e))?;
+                let file = nameless_file(dir, "samples")?;
+                file.set_len(bytes).map_err(|e| Error::io(dir, e))?;
                 Backing::Spill(file)
             }
         };
@@ -464,27 +450,33 @@ pub struct Parking {
     end: u64,
 }
 
+/// A new read-write file in `dir`, unlinked at once (`.photostereo-{what}-{pid}-{n}.spill`
+/// while it has a name): the handle keeps it and the system frees it however the process ends.
+fn nameless_file(dir: &Path, what: &str) -> Result<std::fs::File> {
+    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let path = dir.join(format!(
+        ".photostereo-{what}-{}-{}.spill",
+        std::process::id(),
+        NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+    ));
+    let file = std::fs::OpenOptions::new()
+        .read(true)
+        .write(true)
+        .create_new(true)
+        .open(&path)
+        .map_err(|e| Error::io(&path, e))?;
+    std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
+    Ok(file)
+}
+
 /// Bytes moved per positioned read or write.
 const PARK_CHUNK: usize = 8 << 20;
 
 impl Parking {
     /// A new, empty parking file in `dir`.
     pub fn new(dir: &Path) -> Result<Parking> {
-        static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-        let path = dir.join(format!(
-            ".photostereo-parked-{}-{}.spill",
-            std::process::id(),
-            NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
-        ));
-        let file = std::fs::OpenOptions::new()
-            .read(true)
-            .write(true)
-            .create_new(true)
-            .open(&path)
-            .map_err(|e| Error::io(&path, e))?;
-        std::fs::remove_file(&path).map_err(|e| Error::io(&path, e))?;
         Ok(Parking {
-            file,
+            file: nameless_file(dir, "parked")?,
             dir: dir.to_path_buf(),
             end: 0,
         })
