@@ -383,7 +383,7 @@ pub(crate) fn model_materials(
     m: f64,
 ) -> Result<Materials> {
     let (n, c, np) = (capture.n_lights(), capture.channels, capture.n_pixels());
-    let mut summary = empty_summary();
+    let mut summary = GlossSummary::nothing_fitted(Reflectance::Material);
     let mut maps = GlossMaps {
         strength: vec![f32::NAN; np],
         roughness: vec![f32::NAN; np],
@@ -491,28 +491,6 @@ fn lit(st: &[u8]) -> usize {
     st.iter()
         .filter(|&&s| s == status::USED || s == status::HIGHLIGHT)
         .count()
-}
-
-fn empty_summary() -> GlossSummary {
-    GlossSummary {
-        reflectance: Reflectance::Material,
-        chosen: "lambert",
-        exponent: None,
-        roughness: None,
-        sample_pixels: 0,
-        sample_significant: 0,
-        sample_null_bound: 0,
-        sample_specular: 0,
-        sample_specular_bound: 0,
-        fitted_pixels: 0,
-        lambert_rejected_pixels: 0,
-        significant_pixels: 0,
-        passing_pixels: 0,
-        refined_pixels: 0,
-        refined_share: 0.0,
-        own_exponent_pixels: 0,
-        materials: Vec::new(),
-    }
 }
 
 /// One material's shapes from its sampled pixels `ids` and the evidence for its lobe,

@@ -174,6 +174,31 @@ pub struct GlossSummary {
     pub materials: Vec<crate::solve::gloss::material::MaterialSummary>,
 }
 
+impl GlossSummary {
+    /// The summary of `reflectance` before any pixel is fitted: Lambert chosen, every count 0.
+    pub fn nothing_fitted(reflectance: Reflectance) -> GlossSummary {
+        GlossSummary {
+            reflectance,
+            chosen: "lambert",
+            exponent: None,
+            roughness: None,
+            sample_pixels: 0,
+            sample_significant: 0,
+            sample_null_bound: 0,
+            sample_specular: 0,
+            sample_specular_bound: 0,
+            fitted_pixels: 0,
+            lambert_rejected_pixels: 0,
+            significant_pixels: 0,
+            passing_pixels: 0,
+            refined_pixels: 0,
+            refined_share: 0.0,
+            own_exponent_pixels: 0,
+            materials: Vec::new(),
+        }
+    }
+}
+
 /// Per mask pixel: the fitted lobe's peak s and roughness √(2/m); NaN where not fitted, and
 /// strength 0 (roughness NaN) where fitted without a significant lobe.
 #[derive(Clone, Debug, Default)]
@@ -362,25 +387,7 @@ pub fn model_highlights(
         q: quantiles(confidence, n),
         f: [1, 2].map(|extra| f_quantiles(confidence, extra, n)),
     };
-    let mut summary = GlossSummary {
-        reflectance,
-        chosen: "lambert",
-        exponent: None,
-        roughness: None,
-        sample_pixels: 0,
-        sample_significant: 0,
-        sample_null_bound: 0,
-        sample_specular: 0,
-        sample_specular_bound: 0,
-        fitted_pixels: 0,
-        lambert_rejected_pixels: 0,
-        significant_pixels: 0,
-        passing_pixels: 0,
-        refined_pixels: 0,
-        refined_share: 0.0,
-        own_exponent_pixels: 0,
-        materials: Vec::new(),
-    };
+    let mut summary = GlossSummary::nothing_fitted(reflectance);
     let mut maps = GlossMaps {
         strength: vec![f32::NAN; np],
         roughness: vec![f32::NAN; np],
