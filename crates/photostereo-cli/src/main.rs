@@ -115,6 +115,8 @@ fn negative_values_allowed(command: clap::Command) -> clap::Command {
 }
 
 fn main() -> ExitCode {
+    // Before any thread: the allocator's retained memory must not grow with the thread count.
+    photostereo::base::machine::cap_allocator_arenas();
     let matches = negative_values_allowed(Cli::command()).get_matches();
     let cli = Cli::from_arg_matches(&matches).unwrap_or_else(|e| e.exit());
     remove_output_on_signals();

@@ -60,8 +60,29 @@ pub const TRUTH_BYTES_PER_MASK_PIXEL: u64 = 12;
 /// Bytes per mask pixel, per light and channel, of one tile in use: its `f32` view (4), its
 /// stored bytes while read and while loaded (2 × stored size, at most 8).
 pub const TILE_BYTES_PER_SAMPLE: u64 = 12;
-/// Fixed allowance: code, thread stacks, decoder state, small tables.
+/// Fixed allowance: code, thread stacks, decoder state, small tables (measured with 2 worker
+/// threads; each further one adds [`worker_bytes`]).
 pub const FIXED_BYTES: u64 = 48 << 20;
+/// Bytes of each worker thread beyond the first two, whatever the stage: its stack and the
+/// buffers a parallel loop holds per task (rows of the integrator, a band of a PNG being
+/// encoded), which the one allocator arena the command line keeps
+/// ([`crate::base::machine::cap_allocator_arenas`]) holds once freed. Set on the peaks of a
+/// 2000 × 1500 capture at 2 and 16 threads (about 1.8 MiB a further thread).
+pub const WORKER_BYTES: u64 = 1 << 20;
+/// Bytes per frame column of each worker thread beyond the first two (row buffers; see
+/// [`WORKER_BYTES`]).
+pub const WORKER_BYTES_PER_COLUMN: u64 = 512;
+/// Worker threads [`FIXED_BYTES`] holds.
+pub const FIXED_WORKERS: usize = 2;
+
+/// What the worker threads beyond [`FIXED_WORKERS`] hold: [`WORKER_BYTES`] and
+/// [`WORKER_BYTES_PER_COLUMN`] each. Every stage keeps its per-pixel arrays whatever the thread
+/// count (the shadow maps are made one light at a time, the tiles one at a time, the mesh
+/// writers' bands bounded in bytes), so this is the plan's only term that grows with it.
+pub fn worker_bytes(s: &CaptureSize) -> u64 {
+    s.threads.saturating_sub(FIXED_WORKERS) as u64
+        * (WORKER_BYTES + WORKER_BYTES_PER_COLUMN * s.width as u64)
+}
 /// Where a tile is never made larger (f32 bytes of its view): larger tiles gain nothing.
 pub const MAX_TILE_VIEW_BYTES: u64 = 256 << 20;
 
@@ -160,7 +181,8 @@ pub struct CaptureSize {
     pub channels: usize,
     /// The stored sample type (`U16` for 8/16-bit images).
     pub sample_type: SampleType,
-    /// Decoding threads (each may hold one decoded image in the in-memory layout).
+    /// Worker threads (each may hold one decoded image in the in-memory layout, and
+    /// [`worker_bytes`] in every stage).
     pub threads: usize,
     /// Whether ground-truth normals are held for scoring the run.
     pub ground_truth: bool,
@@ -234,13 +256,14 @@ pub fn full_frame_bytes(s: &CaptureSize) -> u64 {
         let stages = s.frame()
             * (ESTIMATE_BYTES_PER_PIXEL + ESTIMATE_BYTES_PER_CHANNEL * s.channels as u64)
             + s.pixels as u64 * ESTIMATE_BYTES_PER_MASK_PIXEL;
-        return stages.max(writing) + FIXED_BYTES + beside;
+        return stages.max(writing) + FIXED_BYTES + worker_bytes(s) + beside;
     }
     s.frame() * FRAME_BYTES_PER_PIXEL
         + (s.frame() * FRAME_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + (s.pixels as u64 * MASK_BITS_PER_PIXEL_LIGHT * n).div_ceil(8)
         + mask_bytes(s, MASK_BYTES_PER_PIXEL)
         + FIXED_BYTES
+        + worker_bytes(s)
         + beside
         + writing
 }
@@ -266,6 +289,7 @@ pub fn parked_full_frame_bytes(s: &CaptureSize) -> u64 {
     s.frame() * PARKED_FRAME_BYTES_PER_PIXEL
         + mask_bytes(s, PARKED_MASK_BYTES_PER_PIXEL)
         + FIXED_BYTES
+        + worker_bytes(s)
         + beside
         + writing
 }
@@ -287,6 +311,22 @@ fn tile_bytes(s: &CaptureSize, pixels: u64) -> u64 {
 /// The loaders' row buffers: one row per light (streaming decoders) plus their state.
 fn decoder_bytes(s: &CaptureSize) -> u64 {
     s.lights as u64 * (s.width as u64 * s.channels as u64 * 4 + (256 << 10))
+}
+
+/// How many images the tiled loader decodes whole at once (formats it cannot stream by rows):
+/// as many as the budget holds beside the full-frame stages, the samples held in memory and
+/// the tile in use, each image's `f32` samples and its decoder's buffer (6 bytes a sample); at
+/// least one, at most one per worker thread.
+pub fn images_at_once(s: &CaptureSize, plan: &MemoryPlan) -> usize {
+    let held = if plan.spill_bytes == 0 {
+        plan.sample_bytes
+    } else {
+        0
+    };
+    let used = plan.full_frame_bytes + held + tile_bytes(s, plan.tile_pixels as u64);
+    let image = (s.frame() * s.channels as u64 * 6).max(1);
+    let fit = plan.budget.saturating_sub(used) / image;
+    (fit as usize).clamp(1, s.threads.max(1))
 }
 
 /// The smallest budget that works: the full-frame stages (their arrays parked when that needs
@@ -451,6 +491,19 @@ mod tests {
         assert!(p.park && p.full_frame_bytes == parked_full_frame_bytes(&s));
         let (_, p) = plan(&s, minimum_unparked(&s), Force::default()).unwrap();
         assert!(!p.park && p.full_frame_bytes == full_frame_bytes(&s));
+        // Each worker thread beyond the first two adds its stack and row buffers, and nothing
+        // else: the per-pixel stages hold the same arrays at any thread count.
+        let many = CaptureSize { threads: 16, ..s };
+        assert_eq!(
+            minimum_budget(&many) - minimum_budget(&s),
+            14 * (WORKER_BYTES + WORKER_BYTES_PER_COLUMN * 1000)
+        );
+        // Images decoded whole: one at the smallest budget, one per thread when the budget
+        // holds them all.
+        let (_, p) = plan(&many, minimum_budget(&many), Force::default()).unwrap();
+        assert_eq!(images_at_once(&many, &p), 1);
+        let (_, p) = plan(&many, 64 << 30, Force::default()).unwrap();
+        assert_eq!(images_at_once(&many, &p), 16);
         let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
         let m = e.to_string();
         assert!(

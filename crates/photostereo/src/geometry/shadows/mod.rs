@@ -131,9 +131,10 @@ impl ShadowMaps {
         }
     }
 
-    /// Maps made light by light, in parallel: `flags_of_light(k, out)` writes light `k`'s
-    /// flags into `out` (`width * height` bytes, zero on entry). One such byte map per worker
-    /// thread is held at a time; the result keeps the bits.
+    /// Maps made light by light, one light at a time: `flags_of_light(k, out)` writes light
+    /// `k`'s flags into `out` (`width * height` bytes, zero on entry), in parallel within the
+    /// light; the result keeps the bits. One byte map and one light's working arrays are held
+    /// whatever the thread count, so the memory plan's per-pixel bytes hold on any machine.
     pub fn build(
         width: usize,
         height: usize,
@@ -145,25 +146,31 @@ impl ShadowMaps {
         if hw == 0 {
             return maps;
         }
-        maps.attached
-            .par_chunks_mut(words)
-            .zip(maps.cast.par_chunks_mut(words))
+        let mut out = vec![0u8; hw];
+        for (k, (att, cast)) in maps
+            .attached
+            .chunks_mut(words)
+            .zip(maps.cast.chunks_mut(words))
             .enumerate()
-            .with_max_len(1)
-            .for_each_init(Vec::new, |out: &mut Vec<u8>, (k, (att, cast))| {
-                out.clear();
-                out.resize(hw, 0);
-                flags_of_light(k, out);
-                for (w, chunk) in out.chunks(64).enumerate() {
-                    let (mut a, mut c) = (0u64, 0u64);
-                    for (b, &f) in chunk.iter().enumerate() {
-                        a |= ((f & Self::ATTACHED != 0) as u64) << b;
-                        c |= ((f & Self::CAST != 0) as u64) << b;
+        {
+            out.par_chunks_mut(1 << 16).for_each(|c| c.fill(0));
+            flags_of_light(k, &mut out);
+            // 64 flags to a word, 1024 words to a task.
+            const WORDS: usize = 1 << 10;
+            att.par_chunks_mut(WORDS)
+                .zip(cast.par_chunks_mut(WORDS))
+                .zip(out.par_chunks(64 * WORDS))
+                .for_each(|((att, cast), flags)| {
+                    for ((a, c), chunk) in att.iter_mut().zip(cast.iter_mut()).zip(flags.chunks(64))
+                    {
+                        (*a, *c) = (0, 0);
+                        for (b, &f) in chunk.iter().enumerate() {
+                            *a |= ((f & Self::ATTACHED != 0) as u64) << b;
+                            *c |= ((f & Self::CAST != 0) as u64) << b;
+                        }
                     }
-                    att[w] = a;
-                    cast[w] = c;
-                }
-            });
+                });
+        }
         maps
     }
 
@@ -290,6 +297,8 @@ pub fn shadow_maps(
     let Some(window) = window else {
         return Ok(ShadowMaps::empty(width, height, lights.len()));
     };
+    // One light at a time: the sweep's buffers are reused from light to light.
+    let scratch = std::sync::Mutex::new(SweepScratch::default());
     Ok(ShadowMaps::build(width, height, lights.len(), |k, out| {
         let l = units[k];
         let field = Field {
@@ -298,25 +307,31 @@ pub fn shadow_maps(
             height,
             window,
         };
-        let mut scratch = SweepScratch::default();
+        let mut scratch = scratch
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
         sweep(&field, l, params.cast_tolerance_px, &mut scratch, out);
         let tau = params.attached_tolerance;
-        for row in window.row0..window.row1 {
-            let span = row * width + window.col0..row * width + window.col1;
-            for ((o, nrm), &inside) in out[span.clone()]
-                .iter_mut()
-                .zip(&normals[span.clone()])
-                .zip(&mask[span])
-            {
-                // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
-                let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
-                let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
-                if inside && s <= tau {
-                    f |= ShadowMaps::ATTACHED;
+        out[window.row0 * width..window.row1 * width]
+            .par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(r, out_row)| {
+                let row = window.row0 + r;
+                let span = row * width + window.col0..row * width + window.col1;
+                for ((o, nrm), &inside) in out_row[window.col0..window.col1]
+                    .iter_mut()
+                    .zip(&normals[span.clone()])
+                    .zip(&mask[span])
+                {
+                    // `sweep` wrote 0/1; keep CAST in its bit and add ATTACHED.
+                    let mut f = if *o != 0 { ShadowMaps::CAST } else { 0 };
+                    let s = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+                    if inside && s <= tau {
+                        f |= ShadowMaps::ATTACHED;
+                    }
+                    *o = f;
                 }
-                *o = f;
-            }
-        }
+            });
     }))
 }
 
@@ -561,7 +576,7 @@ fn valid_heights(depth: &[f32], mask: &[bool]) -> Vec<f32> {
         .collect()
 }
 
-/// Buffers of one light's sweep, reused across lights on a thread.
+/// Buffers of one light's sweep, reused from light to light.
 #[derive(Default)]
 struct SweepScratch {
     /// Horizon of every sweep line at every step.

@@ -5,6 +5,7 @@
 use super::{ShadowMaps, ShadowParams, Window};
 use crate::base::error::{Error, Result};
 use crate::model::lightmodel::{norm, sub, NearLights};
+use rayon::prelude::*;
 
 /// Shadow maps of near point lights from a depth map Z (mm along the optical axis, full frame,
 /// NaN outside the mask) and shading normals (full frame): attached where n · l_k(p) ≤
@@ -120,57 +121,76 @@ fn near_shadow_maps_in(
             ok(i).then(|| depth[i] as f64)
         }
     };
-    ShadowMaps::build(width, height, n, |k, out| {
+    // Light k's flags at mask pixel i with a depth: attached by its normal, cast by a march
+    // toward the LED.
+    let flags_at = |k: usize, i: usize| -> u8 {
         let s = near.positions[k];
-        let rows = window.row0..window.row1;
-        let pixels = rows.flat_map(|r| (window.col0..window.col1).map(move |c| r * width + c));
-        for i in pixels.filter(|&i| ok(i)) {
-            let z = depth[i] as f64;
-            let x = near.point(i % width, i / width, z);
-            let d = sub(s, x);
-            let dist = norm(d);
-            let l = [d[0] / dist, d[1] / dist, d[2] / dist];
-            let nrm = normals[i];
-            let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
-            if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
-                out[i] |= ShadowMaps::ATTACHED;
-            }
-            // March: one pixel's footprint at this depth per step.
-            let step = z / f;
-            let tol = params.cast_tolerance_px * step;
-            let mut t = 1.5 * step;
-            while t < dist {
-                let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
-                let pz = -p[2];
-                if pz < z_min - tol {
-                    break;
-                }
-                let Some((c, r)) = cam.project(p) else { break };
-                if c < c_lo || c > c_hi || r < r_lo || r > r_hi {
-                    break;
-                }
-                // No depth the look-up can read here is nearer than the ray by the tolerance
-                // (with a margin far above the rounding of its bilinear mean): nothing to read.
-                if cell_skip && c >= 0.0 && r >= 0.0 {
-                    let (cc, cr) = (c as usize / CELL, r as usize / CELL);
-                    if cc < cells_w
-                        && cr < cells_h
-                        && cell_min[cr * cells_w + cc] > pz - tol + 1e-9 * pz
-                    {
-                        t += pz / f;
-                        continue;
-                    }
-                }
-                match surface_at(c, r) {
-                    Some(zs) if zs < pz - tol => {
-                        out[i] |= ShadowMaps::CAST;
-                        break;
-                    }
-                    _ => {}
-                }
-                t += pz / f;
-            }
+        let mut o = 0u8;
+        let z = depth[i] as f64;
+        let x = near.point(i % width, i / width, z);
+        let d = sub(s, x);
+        let dist = norm(d);
+        let l = [d[0] / dist, d[1] / dist, d[2] / dist];
+        let nrm = normals[i];
+        let ndl = l[0] * nrm[0] as f64 + l[1] * nrm[1] as f64 + l[2] * nrm[2] as f64;
+        if nrm != [0.0; 3] && ndl <= params.attached_tolerance {
+            o |= ShadowMaps::ATTACHED;
         }
+        // March: one pixel's footprint at this depth per step.
+        let step = z / f;
+        let tol = params.cast_tolerance_px * step;
+        let mut t = 1.5 * step;
+        while t < dist {
+            let p = [x[0] + t * l[0], x[1] + t * l[1], x[2] + t * l[2]];
+            let pz = -p[2];
+            if pz < z_min - tol {
+                break;
+            }
+            let Some((c, r)) = cam.project(p) else { break };
+            if c < c_lo || c > c_hi || r < r_lo || r > r_hi {
+                break;
+            }
+            // No depth the look-up can read here is nearer than the ray by the tolerance
+            // (with a margin far above the rounding of its bilinear mean): nothing to read.
+            if cell_skip && c >= 0.0 && r >= 0.0 {
+                let (cc, cr) = (c as usize / CELL, r as usize / CELL);
+                if cc < cells_w
+                    && cr < cells_h
+                    && cell_min[cr * cells_w + cc] > pz - tol + 1e-9 * pz
+                {
+                    t += pz / f;
+                    continue;
+                }
+            }
+            match surface_at(c, r) {
+                Some(zs) if zs < pz - tol => {
+                    o |= ShadowMaps::CAST;
+                    break;
+                }
+                _ => {}
+            }
+            t += pz / f;
+        }
+        o
+    };
+    // Light by light, rows in parallel within each light.
+    ShadowMaps::build(width, height, n, |k, out| {
+        out[window.row0 * width..window.row1 * width]
+            .par_chunks_mut(width)
+            .enumerate()
+            .for_each(|(r, out_row)| {
+                let first = (window.row0 + r) * width;
+                for (col, o) in out_row
+                    .iter_mut()
+                    .enumerate()
+                    .take(window.col1)
+                    .skip(window.col0)
+                {
+                    if ok(first + col) {
+                        *o = flags_at(k, first + col);
+                    }
+                }
+            });
     })
 }
 

@@ -118,10 +118,11 @@ impl CaptureFiles {
                 crate::base::machine::return_freed_memory();
             }
             let dir = options.spill_dir.clone().unwrap_or_else(std::env::temp_dir);
+            let at_once = crate::model::memory::images_at_once(&size, &plan);
             self.load_tiled(
                 progress,
                 mask,
-                &plan,
+                (&plan, at_once),
                 (layout == Layout::Spill).then_some(&*dir),
                 lin,
             )?
@@ -226,7 +227,7 @@ impl CaptureFiles {
         &self,
         progress: &dyn Progress,
         mask: Vec<bool>,
-        plan: &MemoryPlan,
+        (plan, images_at_once): (&MemoryPlan, usize),
         spill_dir: Option<&Path>,
         lin: &Linearisation,
     ) -> Result<Capture> {
@@ -281,6 +282,7 @@ impl CaptureFiles {
             tiling: &tiling,
             size: (w, h, c),
             lin,
+            images_at_once,
         };
         progress.begin("loading", (n * h) as u64);
         // Streamed images are integer PNGs, whose readings are always finite.
@@ -468,6 +470,8 @@ struct TileFill<'a> {
     size: (usize, usize, usize),
     /// How each image is made linear (identity when the rows are streamed).
     lin: &'a Linearisation,
+    /// Images decoded whole at once ([`crate::model::memory::images_at_once`]).
+    images_at_once: usize,
 }
 
 impl TileFill<'_> {
@@ -518,8 +522,8 @@ impl TileFill<'_> {
         Ok(())
     }
 
-    /// Other formats, decoded whole, as many at a time as there are threads; each group
-    /// patched into every tile.
+    /// Other formats, decoded whole, as many at a time as the budget holds (at most one per
+    /// thread); each group patched into every tile.
     ///
     /// Non-finite readings at the mask pixels are set to 0 and counted ([`MissingReadings`]).
     fn patch_decoded(
@@ -533,7 +537,7 @@ impl TileFill<'_> {
         let sb = c * self.kind.bytes(); // bytes of one light's sample of one pixel
         let pb = n * sb;
         let mut raw: Vec<u8> = Vec::new();
-        let group = rayon::current_num_threads().max(1);
+        let group = self.images_at_once.max(1);
         let mut missing = MissingReadings::new(n, self.pixels.len() * c);
         for k0 in (0..n).step_by(group) {
             crate::base::progress::check_cancelled(progress)?;
