@@ -346,12 +346,31 @@ fn report(
     let rbf = fitted.rbf.as_ref().map(|m| {
         json!({
             "sigma": m.sigma,
+            "interpolant": m.interpolant.name(),
+            "lambda": m.interpolant.lambda().filter(|l| l.is_finite()),
+            "ridge_per_light": match m.interpolant {
+                crate::solve::rti::rbf::Interpolant::Smooth { ridge, .. } => Some(ridge / capture.n_lights() as f64),
+                crate::solve::rti::rbf::Interpolant::Kernel => None,
+            },
+            "gaussian_width": match m.interpolant {
+                crate::solve::rti::rbf::Interpolant::Smooth { width, .. } => Some(width),
+                crate::solve::rti::rbf::Interpolant::Kernel => None,
+            },
+            "render_positions": m.lights.len(),
             "sigma_default": fitted.kernel.as_ref().map(|k| k.default),
-            "sigma_sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
-            "sigma_candidates": fitted.kernel.as_ref().map(|k| {
-                k.candidates.iter().map(|&(sigma, loo)| json!({
-                    "sigma": sigma,
+            "sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
+            "ridge_candidates": fitted.kernel.as_ref().map(|k| {
+                k.ridge_candidates.iter().map(|&(per_light, loo)| json!({
+                    "ridge_per_light": per_light,
                     "loo_mean_rmse_8bit": loo,
+                })).collect::<Vec<_>>()
+            }),
+            "candidates": fitted.kernel.as_ref().map(|k| {
+                k.candidates.iter().map(|c| json!({
+                    "sigma": c.sigma,
+                    "interpolant": c.interpolant.name(),
+                    "lambda": c.interpolant.lambda().filter(|l| l.is_finite()),
+                    "loo_mean_rmse_8bit": c.loo.is_finite().then_some(c.loo),
                 })).collect::<Vec<_>>()
             }),
             "planes": options.basis.terms(),
