@@ -931,7 +931,7 @@ fn rbf_renders_quadratic_readings_exactly_at_its_positions() {
     assert!(e.contains("principal components"), "{e}");
     let ring: Vec<[f64; 3]> = (0..12)
         .map(|i| {
-            let a = i as f64 * 0.5236;
+            let a = i as f64 * std::f64::consts::FRAC_PI_6;
             [0.6 * a.cos(), 0.6 * a.sin(), 0.8]
         })
         .collect();

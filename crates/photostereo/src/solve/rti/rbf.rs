@@ -892,6 +892,9 @@ fn choose(
     Ok((pick, rows, choice))
 }
 
+/// The render positions, and the mean and the components there ([`render`]).
+type Rendered = (Vec<[f64; 3]>, Vec<f64>, Vec<f64>);
+
 /// The mean and components `(mean, planes)` at the render positions of `interp` under width
 /// `sigma` (module documentation), with the positions.
 fn render(
@@ -901,7 +904,7 @@ fn render(
     c: usize,
     sigma: f64,
     interp: Interpolant,
-) -> Result<(Vec<[f64; 3]>, Vec<f64>, Vec<f64>)> {
+) -> Result<Rendered> {
     let (lambda, smoother) = match interp {
         Interpolant::Kernel => {
             let mean = pca_mean.iter().map(|v| v.clamp(0.0, 1.0)).collect();

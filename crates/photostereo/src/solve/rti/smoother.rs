@@ -229,7 +229,7 @@ pub fn render_positions(lights: &[[f64; 3]]) -> (Vec<[f64; 3]>, f64) {
     let pts: Vec<[f64; 2]> = lights.iter().map(|l| [l[0], l[1]]).collect();
     let h = nearest_distances(&pts).into_iter().fold(0.0, f64::max);
     let hull = convex_hull(&pts);
-    if hull.len() < 3 || !(h > 0.0) {
+    if hull.len() < 3 || h.is_nan() || h <= 0.0 {
         return (lights.to_vec(), 0.0);
     }
     let m = hull.len();
@@ -423,7 +423,7 @@ mod tests {
     fn degenerate_rigs_are_refused() {
         let ring: Vec<[f64; 3]> = (0..12)
             .map(|i| {
-                let a = i as f64 * 0.5236;
+                let a = i as f64 * std::f64::consts::FRAC_PI_6;
                 [0.5 * a.cos(), 0.5 * a.sin(), 0.75f64.sqrt()]
             })
             .collect();
@@ -434,7 +434,7 @@ mod tests {
     }
 
     #[test]
-    fn the_grid_covers_the_lights_and_one_spacing_beyond() {
+    fn the_grid_covers_the_lights_and_reaches_beyond_them() {
         let ls = lights(30);
         let (pos, step) = render_positions(&ls);
         assert!(
@@ -447,8 +447,8 @@ mod tests {
         for p in &pos {
             assert!(((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]) - 1.0).abs() < 1e-12);
             // On the lattice anchored at the view axis.
-            for a in 0..2 {
-                assert!((p[a] / step - (p[a] / step).round()).abs() < 1e-9);
+            for x in &p[..2] {
+                assert!((x / step - (x / step).round()).abs() < 1e-9);
             }
         }
         // Every light has a position within half a diagonal step, and beyond the outermost
