@@ -61,7 +61,8 @@ pub fn image_name(basis: Basis) -> &'static str {
 /// ([`crate::model::memory::Beside`]), for a capture of `lights` images. Beside the stages:
 /// per mask pixel the fit's copy of the mask pixels' frame indices (4 bytes), the fit's blocks
 /// ([`crate::solve::rti::BLOCK_PIXELS`] pixels of at most 27 coefficients and 3 chroma, 8 MiB)
-/// and for RBF the PCA's sample of pixels (12 bytes a reading). While writing: the writers' row
+/// and for RBF the PCA's sample of pixels (12 bytes a reading) or, after it, the choice's
+/// ([`crate::solve::rti::rbf::choice_bytes`]), whichever is more. While writing: the writers' row
 /// band ([`crate::io::rti::BAND_BYTES`]), with `iiif` IIIF's whole small levels
 /// ([`crate::io::rti::tiles::IIIF_FULL_BYTES`] and the levels below), and per column of the
 /// frame the tile pyramids' row strips and the PNG encoder's bands
@@ -70,7 +71,8 @@ pub fn image_name(basis: Basis) -> &'static str {
 /// command's own are set by [`rti`].
 pub fn memory_beside(basis: Basis, lights: usize, channels: usize, iiif: bool) -> Beside {
     let pca = if basis == Basis::Rbf {
-        (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64
+        let sample = (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64;
+        sample.max(crate::solve::rti::rbf::choice_bytes(lights, channels))
     } else {
         0
     };

@@ -947,6 +947,21 @@ fn render(
     Ok((positions, out, planes))
 }
 
+/// Bytes the choice of an RBF fit holds at once for N `lights` and C `channels`: the sample's
+/// readings and per-light projections (`8 · S · N · (C + P)`, S = [`super::RIDGE_SAMPLE`]) and
+/// per light the smoother's matrices and the values at the render positions
+/// (`8 · N · (M · (N + 6 + C · 11) + 3 N²)`, M = [`smoother::MAX_POSITIONS`]).
+pub fn choice_bytes(lights: usize, channels: usize) -> u64 {
+    let (n, c, m) = (
+        lights as u64,
+        channels as u64,
+        smoother::MAX_POSITIONS as u64,
+    );
+    let sample = 8 * super::RIDGE_SAMPLE as u64 * n * (c + PLANES as u64);
+    let folds = 8 * n * (m * (n + 6 + c * (LAMBDA_GRID.len() as u64 + 2)) + 3 * n * n);
+    sample + folds
+}
+
 /// Fits the RBF basis to every mask pixel of `capture` and measures its leave-one-out error
 /// (module documentation). The result's coefficients are `[pixel][plane]` (one fitted channel).
 pub fn fit(capture: &Capture) -> Result<RtiFit> {
