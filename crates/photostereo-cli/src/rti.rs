@@ -17,7 +17,8 @@ pub struct RtiArgs {
     /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
     /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
     /// written as .rti), rbf (relight's radial basis: 9 principal-component coefficients per
-    /// pixel interpolated over the lights; its model in basis.npy).
+    /// pixel, the components resampled by PTM's ridge quadratic plus Gaussians of its residuals
+    /// at a grid of render positions; its model in basis.npy).
     #[arg(long, default_value = "hsh3", value_parser = parse_basis)]
     pub basis: Basis,
     /// Run the recursive method first and leave out of each pixel's fit the readings it found

@@ -9,7 +9,8 @@
 use nalgebra::{DMatrix, DVector};
 use ndarray::Array4;
 use photostereo::model::capture::Stack;
-use photostereo::solve::rti::rbf::{self, Width};
+use photostereo::solve::rti::rbf::{self, Interpolant, Smoothing, Width};
+use photostereo::solve::rti::smoother;
 use photostereo::solve::rti::{fit, fit_penalised, Basis, Penalty, RtiFit, MAX_TERMS};
 use photostereo::{Capture, Lights};
 
@@ -713,18 +714,20 @@ fn rbf_refit_sse(cap: &Capture, gain: f64, dirs: &[[f64; 3]], sigma: f64) -> Vec
 }
 
 #[test]
-fn rbf_leave_one_out_equals_refits_without_each_light() {
-    // The chosen width and a fixed one twice the default: the closed-form leave-one-out error
-    // equals refits without each light under the fit's σ.
+fn rbf_kernel_leave_one_out_equals_refits_without_each_light() {
+    // relight's own interpolant (the readings' values at the lights), the chosen width and a
+    // fixed one twice the default: the closed-form leave-one-out error equals refits without
+    // each light under the fit's σ.
     let dirs = lights(20);
     let default = median_nearest(&dirs);
     for c in [1, 3] {
         let cap = capture(6, 5, c, &dirs, varied);
         for width in [Width::Auto, Width::Fixed(2.0 * default)] {
-            let f = rbf::fit_width(&cap, width).unwrap();
+            let f = rbf::fit_with(&cap, width, Smoothing::Fixed(Interpolant::Kernel)).unwrap();
             let model = f.rbf.as_ref().unwrap();
             let kernel = f.kernel.as_ref().unwrap();
             assert!((kernel.default - default).abs() < 1e-12);
+            assert_eq!(model.lights.len(), dirs.len());
             if width != Width::Auto {
                 assert_eq!(model.sigma, 2.0 * default);
             }
@@ -740,80 +743,183 @@ fn rbf_leave_one_out_equals_refits_without_each_light() {
     }
 }
 
+/// `varied` with pixel 0 white under every light: the 99.5th percentile of the readings, so
+/// the display gain, is 1 with or without any one light.
+fn varied_white(p: usize, k: usize, c: usize, l: [f64; 3]) -> f64 {
+    if p == 0 {
+        1.0
+    } else {
+        0.9 * varied(p, k, c, l)
+    }
+}
+
+/// The smoother with a ridge and a smoothing in the middle of their grids.
+fn smooth(dirs: &[[f64; 3]], lambda: f64) -> Interpolant {
+    Interpolant::Smooth {
+        lambda,
+        ridge: 1e-3 * dirs.len() as f64,
+        width: smoother::spacing(dirs),
+    }
+}
+
 #[test]
-fn rbf_kernel_width_is_the_candidate_of_least_leave_one_out_error() {
-    // 30 pixels: the sample is every pixel, so each candidate's error is the fit's own at that
-    // σ; the chosen one is the least, never worse than the default's.
+fn rbf_leave_one_out_is_the_file_written_without_each_light() {
+    // The closed form against refits: the capture without light k fitted by the library with
+    // the same σ and interpolant (its own PCA, smoother, render positions, deconvolution) and
+    // rendered at l_k.
     let dirs = lights(20);
-    let default = median_nearest(&dirs);
+    let step = smoother::render_positions(&dirs).1;
+    for c in [1, 3] {
+        let cap = capture(6, 5, c, &dirs, varied_white);
+        for interp in [
+            smooth(&dirs, 0.1),
+            smooth(&dirs, 0.0),
+            smooth(&dirs, f64::INFINITY),
+        ] {
+            let (width, smoothing) = (Width::Fixed(0.5 * step), Smoothing::Fixed(interp));
+            let f = rbf::fit_with(&cap, width, smoothing).unwrap();
+            assert_eq!(f.gain, 1.0);
+            assert_eq!(f.rbf.as_ref().unwrap().interpolant, interp);
+            for k in 0..dirs.len() {
+                let rest: Vec<[f64; 3]> = (0..dirs.len())
+                    .filter(|&i| i != k)
+                    .map(|i| dirs[i])
+                    .collect();
+                let without = capture(6, 5, c, &rest, |p, i, ch, l| {
+                    varied_white(p, if i < k { i } else { i + 1 }, ch, l)
+                });
+                let g = rbf::fit_with(&without, width, smoothing).unwrap();
+                assert_eq!(g.gain, 1.0);
+                let mut got = [0.0; 3];
+                let mut sse = 0.0;
+                for p in 0..30 {
+                    g.predict(p, dirs[k], &mut got);
+                    for (ch, &v) in got.iter().enumerate().take(c) {
+                        sse += (v - varied_white(p, k, ch, dirs[k])).powi(2);
+                    }
+                }
+                // The refit predicts from its f32 coefficients: agreement to their precision.
+                let a = f.loo.sse[k];
+                assert!(
+                    (a - sse).abs() <= 1e-4 * sse + 1e-10,
+                    "C={c} {interp:?} light {k}: {a} vs {sse}"
+                );
+            }
+            assert!(f.loo.mean_rmse_8bit() > 0.1);
+        }
+    }
+}
+
+#[test]
+fn rbf_chooses_the_candidate_of_least_error_never_worse_than_the_quadratic_or_the_kernel() {
+    // 30 pixels: the sample is every pixel, so each candidate's error is the fit's own.
+    let dirs = lights(20);
     let cap = capture(6, 5, 3, &dirs, varied);
     let f = rbf::fit_width(&cap, Width::Auto).unwrap();
     let kernel = f.kernel.as_ref().unwrap();
-    assert_eq!(kernel.candidates.len(), rbf::SIGMA_FACTORS.len());
     assert_eq!(kernel.sample_pixels, 30);
-    for (&(sigma, loo), &factor) in kernel.candidates.iter().zip(&rbf::SIGMA_FACTORS) {
-        assert!((sigma - factor * default).abs() < 1e-12);
-        let fixed = rbf::fit_width(&cap, Width::Fixed(sigma)).unwrap();
-        let want = fixed.loo.mean_rmse_8bit();
-        assert!(
-            (loo - want).abs() <= 1e-9 * want,
-            "σ {sigma}: {loo} vs {want}"
-        );
-    }
-    let least = kernel
+    assert_eq!(kernel.ridge_candidates.len(), 18);
+    let finite: Vec<&rbf::Candidate> = kernel
         .candidates
         .iter()
-        .map(|c| c.1)
-        .fold(f64::INFINITY, f64::min);
-    let at_default = kernel.candidates[2];
-    assert_eq!(at_default.0, default);
-    assert_eq!(f.loo.mean_rmse_8bit(), least);
-    assert!(least <= at_default.1);
-    let sigma = f.rbf.as_ref().unwrap().sigma;
-    assert!(kernel.candidates.contains(&(sigma, least)));
-    // The plain fit chooses as fit_width(Auto); a width that is not a positive number is
-    // refused by name.
+        .filter(|c| c.loo.is_finite())
+        .collect();
+    let least = finite.iter().map(|c| c.loo).fold(f64::INFINITY, f64::min);
+    let got = f.loo.mean_rmse_8bit();
+    assert!((got - least).abs() <= 1e-9 * least, "{got} vs {least}");
+    let model = f.rbf.as_ref().unwrap();
+    assert!(kernel
+        .candidates
+        .iter()
+        .any(|c| c.sigma == model.sigma && c.interpolant == model.interpolant));
+    // Among the candidates: the ridge quadratic (PTM's fit, rendered) and relight's kernel
+    // average at each σ, refitted alone with the same error.
+    let quadratic = finite
+        .iter()
+        .find(|c| c.interpolant.name() == "quadratic")
+        .unwrap();
+    let relight = finite
+        .iter()
+        .find(|c| c.interpolant == Interpolant::Kernel)
+        .unwrap();
+    for c in [quadratic, relight] {
+        assert!(got <= c.loo);
+        let alone = rbf::fit_with(&cap, Width::Fixed(c.sigma), Smoothing::Fixed(c.interpolant))
+            .unwrap()
+            .loo
+            .mean_rmse_8bit();
+        assert!((alone - c.loo).abs() <= 1e-9 * alone, "{c:?}: {alone}");
+    }
+    // relight's own fit with its σ chosen as before is never better.
+    let old = rbf::fit_with(&cap, Width::Auto, Smoothing::Fixed(Interpolant::Kernel)).unwrap();
+    assert!(got <= old.loo.mean_rmse_8bit());
+    // The plain fit chooses as fit_width(Auto); values out of range are refused by name.
     assert_eq!(
         fit(&cap, Basis::Rbf, None).unwrap().rbf.unwrap().sigma,
-        sigma
+        model.sigma
     );
     for bad in [0.0, -1.0, f64::NAN] {
         let e = rbf::fit_width(&cap, Width::Fixed(bad))
             .unwrap_err()
             .to_string();
         assert!(e.contains("rbf_sigma"), "{e}");
+        let s = Smoothing::Fixed(Interpolant::Smooth {
+            lambda: bad - 1.0,
+            ridge: 0.0,
+            width: 0.1,
+        });
+        let e = rbf::fit_with(&cap, Width::Auto, s).unwrap_err().to_string();
+        assert!(e.contains("rbf_smoothing"), "{e}");
     }
 }
 
 #[test]
-fn rbf_relights_readings_its_components_hold_by_the_kernel() {
-    // Readings in a 3-dimensional affine space: the components hold them exactly, so the fit
-    // relit under any light is the kernel's average of the readings themselves.
-    let dirs = lights(16);
-    let base = |k: usize, c: usize, j: usize| ((k * 7 + c * 3 + j * 5) % 13) as f64 / 13.0;
-    let weight = |p: usize, j: usize| ((p * 5 + j * 11) % 9) as f64 / 9.0 - 0.4;
-    let value = |p: usize, k: usize, c: usize| {
-        0.4 + (0..3)
-            .map(|j| 0.2 * weight(p, j) * base(k, c, j))
-            .sum::<f64>()
+fn rbf_renders_quadratic_readings_exactly_at_its_positions() {
+    // Readings quadratic in (l_x, l_y): the components hold them, the smoother (ρ = 0)
+    // reproduces them at every λ, and the deconvolution makes the file's kernel average equal
+    // them at every render position, beyond the outermost lights as well.
+    // Lights within 55° of the view axis, so that render positions lie beyond them.
+    let dirs: Vec<[f64; 3]> = lights(16)
+        .iter()
+        .map(|l| {
+            let (u, v) = (0.85 * l[0], 0.85 * l[1]);
+            [u, v, (1.0 - u * u - v * v).sqrt()]
+        })
+        .collect();
+    let q = |p: usize, c: usize, l: [f64; 3]| {
+        let a = |j: usize| ((p * 5 + c * 3 + j * 7) % 11) as f64 / 11.0 - 0.5;
+        let (u, v) = (l[0], l[1]);
+        0.5 + 0.1 * (a(0) * u + a(1) * v + a(2) * u * u + a(3) * v * v + a(4) * u * v)
     };
-    let cap = capture(5, 4, 3, &dirs, |p, k, c, _| value(p, k, c));
-    let f = fit(&cap, Basis::Rbf, None).unwrap();
-    let sigma = f.rbf.as_ref().unwrap().sigma;
-    let mut got = [0.0; 3];
-    for l in [[0.0f64, 0.0, 1.0], [0.3, -0.2, 0.933], [-0.5, 0.4, 0.768]] {
-        let norm: f64 = (l[0] * l[0] + l[1] * l[1] + l[2] * l[2]).sqrt();
-        let l = [l[0] / norm, l[1] / norm, l[2] / norm];
-        let wts = rbf_weights(&dirs, sigma, l, usize::MAX);
-        for p in 0..20 {
-            f.predict(p, l, &mut got);
-            for (c, &g) in got.iter().enumerate() {
-                let want: f64 = (0..16).map(|k| wts[k] * value(p, k, c) * f.gain).sum();
-                assert!((g - want).abs() < 1e-5, "p{p} c{c}: {g} vs {want}");
+    let cap = capture(5, 4, 3, &dirs, |p, _, c, l| q(p, c, l));
+    let step = smoother::render_positions(&dirs).1;
+    for lambda in [0.0, 0.1, f64::INFINITY] {
+        let interp = Interpolant::Smooth {
+            lambda,
+            ridge: 0.0,
+            width: smoother::spacing(&dirs),
+        };
+        let f = rbf::fit_with(&cap, Width::Fixed(0.5 * step), Smoothing::Fixed(interp)).unwrap();
+        let m = f.rbf.as_ref().unwrap();
+        assert!(m.lights.len() > dirs.len());
+        let outer = dirs.iter().map(|l| l[0].hypot(l[1])).fold(0.0, f64::max);
+        assert!(m.lights.iter().any(|l| l[0].hypot(l[1]) > outer));
+        let mut got = [0.0; 3];
+        for &l in &m.lights {
+            for p in 0..20 {
+                f.predict(p, l, &mut got);
+                for (c, &g) in got.iter().enumerate() {
+                    let want = q(p, c, l) * f.gain;
+                    assert!(
+                        (g - want).abs() < 1e-6,
+                        "λ {lambda} p{p} c{c} {l:?}: {g} vs {want}"
+                    );
+                }
             }
         }
     }
-    // A light mask is refused by name, and so is a rig with too few readings.
+    // A light mask is refused by name, and so are a rig with too few readings and one whose
+    // lights do not determine a quadratic (one ring).
     let flags = vec![false; 20 * 16];
     let e = fit(&cap, Basis::Rbf, Some(&flags)).unwrap_err().to_string();
     assert!(
@@ -823,6 +929,17 @@ fn rbf_relights_readings_its_components_hold_by_the_kernel() {
     let few = capture(3, 3, 1, &dirs[..8], |_, k, _, _| 0.5 + 0.01 * k as f64);
     let e = fit(&few, Basis::Rbf, None).unwrap_err().to_string();
     assert!(e.contains("principal components"), "{e}");
+    let ring: Vec<[f64; 3]> = (0..12)
+        .map(|i| {
+            let a = i as f64 * std::f64::consts::FRAC_PI_6;
+            [0.6 * a.cos(), 0.6 * a.sin(), 0.8]
+        })
+        .collect();
+    let one_ring = capture(3, 3, 3, &ring, |p, k, c, _| {
+        0.3 + 0.01 * ((p + k * c) % 7) as f64
+    });
+    let e = fit(&one_ring, Basis::Rbf, None).unwrap_err().to_string();
+    assert!(e.contains("conic"), "{e}");
 }
 
 /// relight's light functions as the format's readers define them (OpenLIME's `ShaderRTI`):
@@ -938,7 +1055,6 @@ fn relight_web_folders_relight_as_the_fit_within_their_quantisation() {
                                     .chunks(3)
                                     .map(|x| [0, 1, 2].map(|a| x[a].as_f64().unwrap()))
                                     .collect();
-                                assert_eq!(ls.len(), dirs.len());
                                 let wts = rbf_weights(&ls, sigma, l, usize::MAX);
                                 let basis = info["basis"].as_array().unwrap();
                                 let range = &m["range"];

@@ -61,7 +61,8 @@ pub fn image_name(basis: Basis) -> &'static str {
 /// ([`crate::model::memory::Beside`]), for a capture of `lights` images. Beside the stages:
 /// per mask pixel the fit's copy of the mask pixels' frame indices (4 bytes), the fit's blocks
 /// ([`crate::solve::rti::BLOCK_PIXELS`] pixels of at most 27 coefficients and 3 chroma, 8 MiB)
-/// and for RBF the PCA's sample of pixels (12 bytes a reading). While writing: the writers' row
+/// and for RBF the PCA's sample of pixels (12 bytes a reading) or, after it, the choice's
+/// ([`crate::solve::rti::rbf::choice_bytes`]), whichever is more. While writing: the writers' row
 /// band ([`crate::io::rti::BAND_BYTES`]), with `iiif` IIIF's whole small levels
 /// ([`crate::io::rti::tiles::IIIF_FULL_BYTES`] and the levels below), and per column of the
 /// frame the tile pyramids' row strips and the PNG encoder's bands
@@ -70,7 +71,8 @@ pub fn image_name(basis: Basis) -> &'static str {
 /// command's own are set by [`rti`].
 pub fn memory_beside(basis: Basis, lights: usize, channels: usize, iiif: bool) -> Beside {
     let pca = if basis == Basis::Rbf {
-        (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64
+        let sample = (crate::solve::rti::rbf::PCA_PIXELS * lights * channels * 12) as u64;
+        sample.max(crate::solve::rti::rbf::choice_bytes(lights, channels))
     } else {
         0
     };
@@ -346,12 +348,31 @@ fn report(
     let rbf = fitted.rbf.as_ref().map(|m| {
         json!({
             "sigma": m.sigma,
+            "interpolant": m.interpolant.name(),
+            "lambda": m.interpolant.lambda().filter(|l| l.is_finite()),
+            "ridge_per_light": match m.interpolant {
+                crate::solve::rti::rbf::Interpolant::Smooth { ridge, .. } => Some(ridge / capture.n_lights() as f64),
+                crate::solve::rti::rbf::Interpolant::Kernel => None,
+            },
+            "gaussian_width": match m.interpolant {
+                crate::solve::rti::rbf::Interpolant::Smooth { width, .. } => Some(width),
+                crate::solve::rti::rbf::Interpolant::Kernel => None,
+            },
+            "render_positions": m.lights.len(),
             "sigma_default": fitted.kernel.as_ref().map(|k| k.default),
-            "sigma_sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
-            "sigma_candidates": fitted.kernel.as_ref().map(|k| {
-                k.candidates.iter().map(|&(sigma, loo)| json!({
-                    "sigma": sigma,
+            "sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
+            "ridge_candidates": fitted.kernel.as_ref().map(|k| {
+                k.ridge_candidates.iter().map(|&(per_light, loo)| json!({
+                    "ridge_per_light": per_light,
                     "loo_mean_rmse_8bit": loo,
+                })).collect::<Vec<_>>()
+            }),
+            "candidates": fitted.kernel.as_ref().map(|k| {
+                k.candidates.iter().map(|c| json!({
+                    "sigma": c.sigma,
+                    "interpolant": c.interpolant.name(),
+                    "lambda": c.interpolant.lambda().filter(|l| l.is_finite()),
+                    "loo_mean_rmse_8bit": c.loo.is_finite().then_some(c.loo),
                 })).collect::<Vec<_>>()
             }),
             "planes": options.basis.terms(),

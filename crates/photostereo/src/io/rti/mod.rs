@@ -75,9 +75,9 @@ pub fn write_float_coefficients(dir: &Path, fit: &RtiFit) -> Result<()> {
     Ok(())
 }
 
-/// Writes an RBF fit's model as `.npy` (1 + P, N, C): the mean reading per light and channel,
-/// then the P principal components (display units); returns the file's description. Fails
-/// for a fit of another basis.
+/// Writes an RBF fit's model as `.npy` (1 + P, M, C): the mean at each of the M render
+/// positions and channel, then the P principal components there (display units); returns the
+/// file's description. Fails for a fit of another basis.
 pub fn write_rbf_basis(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
     let model = fit.rbf.as_ref().ok_or_else(|| {
         crate::base::error::Error::invalid(format!(
@@ -101,8 +101,8 @@ pub use crate::io::viewer::rti::MODEL_JSON;
 
 /// Writes `rti.json`: what the viewer needs besides the coefficients (`coefficients.npy`,
 /// `chroma.npy`, `basis.npy`) to relight the fit under any light: the basis, the frame, the
-/// channels, the display gain, and for RBF the kernel width σ and the light directions (unit,
-/// camera frame: x right, y up, z toward the camera) its model interpolates over.
+/// channels, the display gain, and for RBF the kernel width σ and the render positions (unit,
+/// camera frame: x right, y up, z toward the camera) its model's kernel average runs over.
 pub fn write_model_json(path: &Path, fit: &RtiFit) -> Result<serde_json::Value> {
     let mut v = serde_json::json!({
         "format": "photostereo-rti 1",

@@ -4,8 +4,10 @@
 //!
 //! `info.json` (the fields relight writes and OpenLIME's `ShaderRTI` reads): `width`, `height`,
 //! `format` (the planes' file suffix; here `png`, lossless), `type` (`ptm`, `hsh`, `rbf`),
-//! `colorspace` (`lrgb`, `rgb`, `mrgb`), `nplanes`, `lights` (x, y, z per light, flat; the
-//! camera frame: x right, y up, z toward the camera), for `rbf` `sigma` and `basis`, and
+//! `colorspace` (`lrgb`, `rgb`, `mrgb`), `nplanes`, for `rbf` `lights` (x, y, z per render
+//! position, flat; the camera frame: x right, y up, z toward the camera; any number of them:
+//! OpenLIME's `ShaderRTI` takes their count as `ndimensions` = `lights.length / 3`), `sigma` and
+//! `basis`, and
 //! `materials`: one object with per-plane `scale` and `bias` (and `range` for `mrgb`).
 //!
 //! A byte b of plane q stands for the value (b / 255 − bias_q) · scale_q, in the viewer's units
@@ -15,7 +17,7 @@
 //! - `lrgb` (PTM): planes 0–2 a base colour (scale 1, bias 0), planes 3… the luminance
 //!   polynomial's six coefficients in the same order; colour = Σ_j w_j(l) value(3 + j) · base.
 //! - `mrgb` (RBF): base_0(l) + Σ_j value(j) · base_{j+1}(l), with base_p(l) = Σ_i w_i(l) B_{p,i}
-//!   the kernel interpolation of `basis` (`[plane 0…P][light][channel]` bytes: plane 0 the mean
+//!   the kernel interpolation of `basis` (`[plane 0…P][position][channel]` bytes: plane 0 the mean
 //!   × 255, plane p ≥ 1 the component e as 127 + range_p · e, range_p = 127 / max |e|).
 //!
 //! Each plane image is also written as a Deep Zoom pyramid, `plane_G.dzi` and
@@ -244,10 +246,7 @@ impl Planes {
     fn outside(&self, fit: &RtiFit) -> Vec<f64> {
         let mut outside = vec![0.0; self.count];
         if let Some(m) = &fit.rbf {
-            let d = m.mean.len();
-            for (j, o) in outside.iter_mut().enumerate() {
-                *o = -(0..d).map(|r| m.planes[j * d + r] * m.mean[r]).sum::<f64>();
-            }
+            outside[..m.black().len()].copy_from_slice(&m.black());
         }
         outside
     }
@@ -289,7 +288,7 @@ impl Planes {
     }
 }
 
-/// An RBF model's `basis` bytes (`[plane 0…P][light][channel of 3]`) and the per-component
+/// An RBF model's `basis` bytes (`[plane 0…P][position][channel of 3]`) and the per-component
 /// `range` (module documentation); a grey capture's channel is repeated.
 fn rbf_basis(m: &rbf::RbfModel) -> (Vec<u8>, Vec<f64>) {
     let (n, c) = (m.lights.len(), m.channels);

@@ -221,6 +221,10 @@ fn read_rbf(dir: &Path, mp: &Path, model: &serde_json::Value) -> Result<RbfModel
         planes: v[d..].to_vec(),
         explained_variance: f64::NAN,
         pca_pixels: 0,
+        interpolant: crate::solve::rti::rbf::Interpolant::Kernel,
+        capture_lights: Vec::new(),
+        pca_mean: Vec::new(),
+        pca_planes: Vec::new(),
     })
 }
 

@@ -30,9 +30,10 @@
 //!   - H8 = √(30/π) sin 2φ (cos² θ − cos θ)
 //!
 //!   Order 2 is H0…H3 (4 terms), order 3 H0…H8 (9 terms), per channel.
-//! - RBF: relight's radial-basis model, the readings' principal components interpolated over
-//!   the lights by normalised Gaussian weights, P = 9 coefficients a pixel ([`rbf`]). It is not
-//!   a fixed basis of l: its fit and leave-one-out error are [`rbf::fit`]'s.
+//! - RBF: relight's radial-basis model, the readings' principal components rendered by
+//!   normalised Gaussian weights over render positions, where they are resampled by PTM's ridge
+//!   quadratic plus Gaussians of its residuals ([`smoother`]), P = 9 coefficients a pixel
+//!   ([`rbf`]). It is not a fixed basis of l: its fit and leave-one-out error are [`rbf::fit`]'s.
 //!
 //! Leave-one-out (LOO) error: for a linear least-squares fit with hat matrix H = A G⁻¹ Aᵀ, the
 //! residual of reading k when the fit leaves k out is e_k / (1 − h_kk), e_k the residual of the
@@ -57,6 +58,7 @@
 //! the capture's samples `4 · N · C` bytes per mask pixel (or its tiles).
 
 pub mod rbf;
+pub mod smoother;
 
 use crate::base::cholesky::{self, SmallPivot};
 use crate::base::error::{Error, Result};
@@ -657,7 +659,7 @@ pub fn fit_penalised_into(
             ));
         }
         check_distant(capture)?;
-        return rbf::fit_into(capture, rbf::Width::Auto, sink);
+        return rbf::fit_into(capture, rbf::Width::Auto, rbf::Smoothing::Auto, sink);
     }
     let (np, n, c, t) = (
         capture.n_pixels(),
