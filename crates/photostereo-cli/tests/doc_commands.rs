@@ -19,6 +19,8 @@
 //!   what the commands print.
 //! - An untagged fenced block that starts a line with `photostereo ` is an error: tag it `sh` to
 //!   run it, or `text` for a synopsis that cannot run.
+//! - Blocks run with `RAYON_NUM_THREADS=2` ([`DOC_THREADS`]): the documented outputs are a 2-core
+//!   machine's, and the memory plan's named budget grows with the worker threads.
 //!
 //! Python blocks (```python) are run by the Python suite, `python/tests/test_docs.py`.
 
@@ -28,6 +30,10 @@ use std::time::{Duration, Instant};
 
 /// The binary under test.
 const BIN: &str = env!("CARGO_BIN_EXE_photostereo");
+
+/// Worker threads the blocks run with: the documentation's figures (a refusal's named budget,
+/// which counts each worker thread) are those of a 2-core machine, and read the same on any.
+const DOC_THREADS: &str = "2";
 
 /// Longest time one block may take before it counts as hung.
 const BLOCK_TIMEOUT: Duration = Duration::from_secs(600);
@@ -371,6 +377,7 @@ impl Sandbox {
             .arg(&file)
             .current_dir(self.work())
             .env("PATH", path)
+            .env("RAYON_NUM_THREADS", DOC_THREADS)
             .stdin(Stdio::null())
             .stdout(std::fs::File::create(&out_file).unwrap())
             .stderr(std::fs::File::create(&err_file).unwrap())

@@ -583,6 +583,7 @@ impl Capture {
             },
             threads: 0,
             ground_truth: false,
+            decoded_whole: false,
             beside: Default::default(),
         };
         if size.pixels == 0 {

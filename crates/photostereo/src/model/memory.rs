@@ -186,6 +186,9 @@ pub struct CaptureSize {
     pub threads: usize,
     /// Whether ground-truth normals are held for scoring the run.
     pub ground_truth: bool,
+    /// Whether the tiled loader decodes the images whole (formats it cannot stream by rows, or
+    /// images made linear by a camera response): then at least one decoded image is held.
+    pub decoded_whole: bool,
     /// What is held beside the run's stages.
     pub beside: Beside,
 }
@@ -313,6 +316,21 @@ fn decoder_bytes(s: &CaptureSize) -> u64 {
     s.lights as u64 * (s.width as u64 * s.channels as u64 * 4 + (256 << 10))
 }
 
+/// What the loader holds at least: the streaming decoders' row buffers, or one image decoded
+/// whole ([`image_bytes`]).
+fn loader_bytes(s: &CaptureSize) -> u64 {
+    if s.decoded_whole {
+        decoder_bytes(s).max(image_bytes(s))
+    } else {
+        decoder_bytes(s)
+    }
+}
+
+/// One image decoded whole: its `f32` samples and its decoder's buffer (6 bytes a sample).
+fn image_bytes(s: &CaptureSize) -> u64 {
+    (s.frame() * s.channels as u64 * 6).max(1)
+}
+
 /// How many images the tiled loader decodes whole at once (formats it cannot stream by rows):
 /// as many as the budget holds beside the full-frame stages, the samples held in memory and
 /// the tile in use, each image's `f32` samples and its decoder's buffer (6 bytes a sample); at
@@ -324,20 +342,19 @@ pub fn images_at_once(s: &CaptureSize, plan: &MemoryPlan) -> usize {
         0
     };
     let used = plan.full_frame_bytes + held + tile_bytes(s, plan.tile_pixels as u64);
-    let image = (s.frame() * s.channels as u64 * 6).max(1);
-    let fit = plan.budget.saturating_sub(used) / image;
+    let fit = plan.budget.saturating_sub(used) / image_bytes(s);
     (fit as usize).clamp(1, s.threads.max(1))
 }
 
 /// The smallest budget that works: the full-frame stages (their arrays parked when that needs
 /// less) and a tile of the widest row.
 pub fn minimum_budget(s: &CaptureSize) -> u64 {
-    stage_bytes(s, true) + tile_bytes(s, s.width as u64) + decoder_bytes(s)
+    stage_bytes(s, true) + tile_bytes(s, s.width as u64) + loader_bytes(s)
 }
 
 /// The smallest budget that holds every per-pixel array in memory (no parking).
 fn minimum_unparked(s: &CaptureSize) -> u64 {
-    full_frame_bytes(s) + tile_bytes(s, s.width as u64) + decoder_bytes(s)
+    full_frame_bytes(s) + tile_bytes(s, s.width as u64) + loader_bytes(s)
 }
 
 /// Options of a plan beyond the budget, for tests and experiments: a forced layout and tile
@@ -395,7 +412,7 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         + decoder_bytes(s);
     let layout = force.layout.unwrap_or(if in_memory_need <= budget {
         Layout::InMemory
-    } else if full + stored + tile_bytes(s, s.pixels.div_ceil(8) as u64) + decoder_bytes(s)
+    } else if full + stored + tile_bytes(s, s.pixels.div_ceil(8) as u64) + loader_bytes(s)
         <= budget
     {
         Layout::Tiles
@@ -407,7 +424,7 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         Layout::InMemory => (s.pixels, 1),
         _ => {
             let held = if layout == Layout::Tiles { stored } else { 0 };
-            let left = budget.saturating_sub(full + held + decoder_bytes(s));
+            let left = budget.saturating_sub(full + held + loader_bytes(s));
             let by_budget = left / per_pixel;
             let by_cap = MAX_TILE_VIEW_BYTES / (4 * (s.lights * s.channels) as u64).max(1);
             let tp = force
@@ -457,6 +474,7 @@ mod tests {
             sample_type: SampleType::U16,
             threads: 2,
             ground_truth: false,
+            decoded_whole: false,
             beside: Beside::default(),
         }
     }
@@ -504,6 +522,20 @@ mod tests {
         assert_eq!(images_at_once(&many, &p), 1);
         let (_, p) = plan(&many, 64 << 30, Force::default()).unwrap();
         assert_eq!(images_at_once(&many, &p), 16);
+        // A capture decoded whole holds one whole image at its smallest budget (6 bytes a
+        // sample of the frame, 18 MB here) instead of the streaming decoders' row buffers.
+        let whole = CaptureSize {
+            decoded_whole: true,
+            ..s
+        };
+        assert_eq!(
+            minimum_budget(&whole) - minimum_budget(&s),
+            1000 * 1000 * 3 * 6 - decoder_bytes(&s)
+        );
+        let (_, p) = plan(&whole, minimum_budget(&whole), Force::default()).unwrap();
+        assert_eq!(images_at_once(&whole, &p), 1);
+        let left = p.budget - p.full_frame_bytes - tile_bytes(&whole, p.tile_pixels as u64);
+        assert!(left >= image_bytes(&whole), "{left}");
         let e = plan(&s, minimum_budget(&s) - 1, Force::default()).unwrap_err();
         let m = e.to_string();
         assert!(

@@ -64,6 +64,7 @@ impl CaptureFiles {
             },
             threads: rayon::current_num_threads(),
             ground_truth: options.ground_truth,
+            decoded_whole: !info.streamable,
             beside: options.beside,
         };
         // Without `memory_limit` the budget is the machine's: a refusal names the images and
@@ -108,6 +109,7 @@ impl CaptureFiles {
         let lin = &photometric.linearisation;
         if !lin.is_identity() {
             size.sample_type = SampleType::F32;
+            size.decoded_whole = true;
         }
         let (layout, plan) =
             crate::model::memory::plan(&size, budget, options.force).map_err(refusal)?;
