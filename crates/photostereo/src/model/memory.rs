@@ -412,8 +412,7 @@ pub fn plan(s: &CaptureSize, budget: u64, force: Force) -> Result<(Layout, Memor
         + decoder_bytes(s);
     let layout = force.layout.unwrap_or(if in_memory_need <= budget {
         Layout::InMemory
-    } else if full + stored + tile_bytes(s, s.pixels.div_ceil(8) as u64) + loader_bytes(s)
-        <= budget
+    } else if full + stored + tile_bytes(s, s.pixels.div_ceil(8) as u64) + loader_bytes(s) <= budget
     {
         Layout::Tiles
     } else {
