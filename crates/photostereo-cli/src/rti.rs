@@ -16,8 +16,8 @@ pub struct RtiArgs {
     pub photometry: crate::photometry::PhotometryArgs,
     /// The basis: ptm (PTM_FORMAT_LRGB: luminance polynomial and RGB chroma), ptm-rgb
     /// (PTM_FORMAT_RGB), hsh2 or hsh3 (hemispherical harmonics, 4 or 9 terms per channel,
-    /// written as .rti), rbf (relight's radial basis: 9 principal-component coefficients per
-    /// pixel, the components resampled by PTM's ridge quadratic plus Gaussians of its residuals
+    /// written as .rti), rbf (relight's radial basis: 18 principal-component coefficients per
+    /// pixel, as many numbers as ptm-rgb, the components resampled by PTM's ridge quadratic plus Gaussians of its residuals
     /// at a grid of render positions; its model in basis.npy).
     #[arg(long, default_value = "hsh3", value_parser = parse_basis)]
     pub basis: Basis,

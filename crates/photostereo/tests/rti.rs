@@ -670,8 +670,8 @@ fn median_nearest(lights: &[[f64; 3]]) -> f64 {
 /// nalgebra's SVD of the centred readings without each light (not the library's covariance
 /// eigenvectors), projection, kernel interpolation.
 fn rbf_refit_sse(cap: &Capture, gain: f64, dirs: &[[f64; 3]], sigma: f64) -> Vec<f64> {
-    let planes = 9;
     let (n, c, m) = (dirs.len(), cap.channels, cap.n_pixels());
+    let planes = rbf::components(n, c);
     let x = |p: usize, r: usize| f64::from(cap.pixel_samples(p)[r]) * gain;
     let mut sse = vec![0.0; n];
     for k in 0..n {
@@ -918,17 +918,32 @@ fn rbf_renders_quadratic_readings_exactly_at_its_positions() {
             }
         }
     }
-    // A light mask is refused by name, and so are a rig with too few readings and one whose
-    // lights do not determine a quadratic (one ring).
+    // A light mask is refused by name, and so is a rig whose lights do not determine a
+    // quadratic (one ring).
     let flags = vec![false; 20 * 16];
     let e = fit(&cap, Basis::Rbf, Some(&flags)).unwrap_err().to_string();
     assert!(
         e.contains("exclude_unreliable") || e.contains("light mask"),
         "{e}"
     );
-    let few = capture(3, 3, 1, &dirs[..8], |_, k, _, _| 0.5 + 0.01 * k as f64);
-    let e = fit(&few, Basis::Rbf, None).unwrap_err().to_string();
-    assert!(e.contains("principal components"), "{e}");
+    // 8 grey lights leave 7 dimensions without a light: 7 unit components, the rest zero,
+    // and every pixel's coefficients on those zero.
+    let few = capture(3, 3, 1, &dirs[..8], |p, k, _, _| {
+        0.5 + 0.01 * ((p * 3 + k * 5) % 7) as f64
+    });
+    let kernel = Smoothing::Fixed(Interpolant::Kernel);
+    let f = rbf::fit_with(&few, Width::Fixed(0.5 * step), kernel).unwrap();
+    let m = f.rbf.as_ref().unwrap();
+    assert_eq!(rbf::components(8, 1), 7);
+    for j in 0..rbf::PLANES {
+        let norm: f64 = m.pca_planes[j * 8..(j + 1) * 8].iter().map(|v| v * v).sum();
+        let want = if j < 7 { 1.0 } else { 0.0 };
+        assert!((norm - want).abs() < 1e-9, "plane {j}: |e|² {norm}");
+    }
+    assert!(f
+        .coefficients
+        .chunks(rbf::PLANES)
+        .all(|c| c[7..].iter().all(|&v| v == 0.0)));
     let ring: Vec<[f64; 3]> = (0..12)
         .map(|i| {
             let a = i as f64 * std::f64::consts::FRAC_PI_6;

@@ -359,6 +359,7 @@ fn report(
                 crate::solve::rti::rbf::Interpolant::Kernel => None,
             },
             "render_positions": m.lights.len(),
+            "components": crate::solve::rti::rbf::components(capture.n_lights(), capture.channels),
             "sigma_default": fitted.kernel.as_ref().map(|k| k.default),
             "sample_pixels": fitted.kernel.as_ref().map(|k| k.sample_pixels),
             "ridge_candidates": fitted.kernel.as_ref().map(|k| {

@@ -66,7 +66,7 @@ use crate::model::capture::Capture;
 use rayon::prelude::*;
 use std::str::FromStr;
 
-/// The most terms a basis has (HSH order 3).
+/// The most terms a linear basis has (HSH order 3); rbf's planes are [`rbf::PLANES`].
 pub const MAX_TERMS: usize = 9;
 
 /// A reflectance basis of the RTI fits.
@@ -157,7 +157,7 @@ impl Basis {
                     out[8] = k * (2.0 * phi).sin() * (ct * ct - ct);
                 }
             }
-            Basis::Rbf => out[..rbf::PLANES].fill(0.0),
+            Basis::Rbf => out.iter_mut().take(rbf::PLANES).for_each(|o| *o = 0.0),
         }
     }
 
@@ -184,7 +184,7 @@ impl Basis {
                     *o = l * (l + 1.0);
                 }
             }
-            Basis::Rbf => out[..rbf::PLANES].fill(0.0),
+            Basis::Rbf => out.iter_mut().take(rbf::PLANES).for_each(|o| *o = 0.0),
         }
     }
 }

@@ -54,14 +54,20 @@
 //! pixels); the covariance is D × D in f64, `8 · D²` bytes.
 
 use super::smoother::{self, Smoother};
-use super::{display_gain, CoefficientSink, RelightErrors, RtiFit, BLOCK_PIXELS, MAX_TERMS};
+use super::{display_gain, CoefficientSink, RelightErrors, RtiFit, BLOCK_PIXELS};
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
 use nalgebra::{DMatrix, DVector, SymmetricEigen};
 use rayon::prelude::*;
 
-/// Principal components kept: the coefficient planes of each pixel (three RGB images).
-pub const PLANES: usize = MAX_TERMS;
+/// Principal components kept: the coefficient planes of each pixel (six RGB images). 18 is
+/// what PTM RGB stores per pixel (6 terms × 3 channels), so the two bases are compared at the
+/// same storage; the components are shared by all pixels, so fewer of them hold less of the
+/// readings' variance than a per-pixel fit with as many numbers. relight's `mrgb` format
+/// allows any multiple of 3 (`nplanes`; relight's own default is 9). A rig whose readings under the other lights span
+/// fewer dimensions (D − C < 18: a grey capture of fewer than 19 lights) has only D − C
+/// components; the rest are stored as zeros ([`components`]).
+pub const PLANES: usize = 18;
 /// Normalised kernel weights below this are dropped (relight's and OpenLIME's rule).
 pub const MIN_WEIGHT: f64 = 0.001;
 /// Mask pixels the PCA samples at most.
@@ -271,9 +277,16 @@ fn moments(capture: &Capture, gain: f64) -> Result<(Vec<f64>, DMatrix<f64>, usiz
     Ok((mean, cov, m))
 }
 
-/// The `PLANES` leading unit eigenvectors of the symmetric `cov` (`[plane][dim]`) and the share
-/// of its trace they hold.
-fn principal(cov: DMatrix<f64>) -> (Vec<f64>, f64) {
+/// The number of nonzero components of a capture of `lights` × `channels`: [`PLANES`], or
+/// fewer when the readings under all lights but one span fewer dimensions (D − C), which the
+/// leave-one-out PCA must match.
+pub fn components(lights: usize, channels: usize) -> usize {
+    (lights.saturating_sub(1) * channels).min(PLANES)
+}
+
+/// The `keep` leading unit eigenvectors of the symmetric `cov` as [`PLANES`] planes, the rest
+/// zero (`[plane][dim]`), and the share of its trace they hold.
+fn principal(cov: DMatrix<f64>, keep: usize) -> (Vec<f64>, f64) {
     let d = cov.nrows();
     let trace = cov.trace();
     let eig = SymmetricEigen::new(cov);
@@ -281,7 +294,7 @@ fn principal(cov: DMatrix<f64>) -> (Vec<f64>, f64) {
     order.sort_by(|&a, &b| eig.eigenvalues[b].total_cmp(&eig.eigenvalues[a]));
     let mut planes = vec![0.0; PLANES * d];
     let mut held = 0.0;
-    for (j, &o) in order.iter().take(PLANES).enumerate() {
+    for (j, &o) in order.iter().take(keep.min(PLANES)).enumerate() {
         held += eig.eigenvalues[o].max(0.0);
         for r in 0..d {
             planes[j * d + r] = eig.eigenvectors[(r, o)];
@@ -1021,14 +1034,10 @@ pub(super) fn fit_into(
     sink: &mut dyn CoefficientSink,
 ) -> Result<RtiFit> {
     let (np, n, c) = (capture.n_pixels(), capture.n_lights(), capture.channels);
-    let d = n * c;
-    if n < 2 || d - c < PLANES {
+    if n < 2 {
         return Err(Error::invalid(format!(
-            "rbf keeps {PLANES} principal components of each pixel's readings under the other \
-             lights; {n} lights × {c} channels leave {} (needs {} lights with colour, {} grey)",
-            d.saturating_sub(c),
-            PLANES.div_ceil(3) + 1,
-            PLANES + 1
+            "rbf models each light from the pixels' readings under the other lights; the \
+             capture has {n} light(s) (needs 2)"
         )));
     }
     check_options(width, smoothing)?;
@@ -1039,11 +1048,11 @@ pub(super) fn fit_into(
         Smoother::new(&lights, 1.0, smoother::spacing(&lights).max(1e-3))?;
     }
     let (mean, cov, pca_pixels) = moments(capture, gain)?;
-    let (planes, explained_variance) = principal(cov.clone());
+    let (planes, explained_variance) = principal(cov.clone(), components(n, c));
     // The PCA without each light does not depend on the candidates: once for all of them.
     let loo_planes: Vec<Vec<f64>> = (0..n)
         .into_par_iter()
-        .map(|k| principal(without_light(&cov, k, c)).0)
+        .map(|k| principal(without_light(&cov, k, c), components(n, c)).0)
         .collect();
     drop(cov);
     let pca = Pca {
