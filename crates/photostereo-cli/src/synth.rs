@@ -51,7 +51,8 @@ pub struct SynthArgs {
     #[arg(long, default_value = "uniform")]
     pub intensities: String,
     /// Write the images as a camera would, through this response: linear, srgb or gamma:G
-    /// (encoded = linear^(1/G)); the default writes linear 16-bit PNGs.
+    /// (encoded = linear^(1/G)); the default writes linear 16-bit PNGs, and sRGB JPEGs with
+    /// --format jpeg (a JPEG declares sRGB, or Adobe RGB's gamma:2.19921875, and is read so).
     #[arg(long, value_parser = parse_camera_response)]
     pub response: Option<photostereo::io::photometry::Response>,
     /// Ambient light added to every image, its brightest reading as a share of full scale
@@ -239,7 +240,14 @@ fn parse_camera_response(s: &str) -> Result<photostereo::io::photometry::Respons
 fn camera_spec(a: &SynthArgs) -> Result<Option<photostereo::io::camera::CameraSpec>> {
     use photostereo::io::camera::{CameraFormat, CameraSpec};
     use photostereo::io::photometry::Response;
-    let response = a.response.unwrap_or(Response::Linear);
+    // A JPEG is read as the colour space it declares, sRGB without a declaration: its
+    // default response is sRGB, as a camera's.
+    let jpeg = matches!(a.format.as_str(), "jpeg" | "jpg");
+    let response = a.response.unwrap_or(if jpeg {
+        Response::Srgb
+    } else {
+        Response::Linear
+    });
     let format = match a.format.as_str() {
         "png" if response == Response::Linear => CameraFormat::Png16,
         "png" | "png8" => CameraFormat::Png8,

@@ -105,6 +105,49 @@ fn a_cameras_jpegs_reconstruct_like_the_linear_capture() {
     );
 }
 
+/// `--format jpeg` alone writes what a camera writes, sRGB declared in EXIF, which `run` reads
+/// back to the linear readings; a response a JPEG cannot declare is refused, naming the flags.
+#[test]
+fn a_plain_jpeg_capture_is_srgb_and_says_so() {
+    let d = tempfile::tempdir().unwrap();
+    let dir = d.path();
+    synth(dir, "linear", &[]);
+    synth(dir, "jpeg", &["--format", "jpeg"]);
+    assert!(run(dir, "linear", "r-linear", &[]).status.success());
+    let o = run(dir, "jpeg", "r-jpeg", &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (base, jpeg) = (
+        mean_error(&dir.join("r-linear")),
+        mean_error(&dir.join("r-jpeg")),
+    );
+    assert!(jpeg < base + 0.8, "jpeg {jpeg:.2}° vs linear {base:.2}°");
+    let r = report(&dir.join("r-jpeg"));
+    for i in r["photometry"]["images"].as_array().unwrap() {
+        assert_eq!(i["response"], "srgb");
+        assert_eq!(i["response_source"], "EXIF colour space sRGB");
+    }
+    for response in ["linear", "gamma:2.2"] {
+        let args = [
+            "synth",
+            "sphere",
+            "--format",
+            "jpeg",
+            "--response",
+            response,
+            "-o",
+            "bad",
+        ];
+        let o = photostereo(&args, dir);
+        assert!(!o.status.success());
+        assert!(
+            stderr(&o).contains("JPEG") && stderr(&o).contains(response),
+            "{}",
+            stderr(&o)
+        );
+        assert!(!dir.join("bad").exists());
+    }
+}
+
 #[test]
 fn an_untagged_gamma_capture_is_flagged_and_auto_recovers_it() {
     let d = tempfile::tempdir().unwrap();

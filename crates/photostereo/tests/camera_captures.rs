@@ -189,6 +189,45 @@ fn camera(files: &CaptureFiles, dir: &Path, spec: CameraSpec) -> CaptureFiles {
     CaptureFiles::diligent(dir).unwrap()
 }
 
+/// A JPEG says what its values mean (EXIF colour space 1: sRGB; 0xFFFF, uncalibrated: Adobe
+/// RGB's 563/256 power) and is decoded through it, reconstructing within 0.8° of the linear
+/// original as the camera captures below do. A response a JPEG cannot declare (linear, another
+/// power) is refused: under the sRGB a reader assumes, such values would be raised to about
+/// 2.2 and lose the Lambertian model.
+#[test]
+fn a_jpeg_declares_its_response_or_is_refused() {
+    let root = tempfile::tempdir().unwrap();
+    let (linear, truth) = synth_linear(SceneKind::Sphere, &root.path().join("lin"));
+    let (base, _) = l2_error(&linear, &truth);
+    let spec = |response| CameraSpec {
+        response,
+        ambient: 0.0,
+        exposure_jitter: 1.0,
+        format: CameraFormat::Jpeg(90),
+        seed: 5,
+    };
+    for (name, response) in [
+        ("srgb", Response::Srgb),
+        ("adobe", Response::Gamma(563.0 / 256.0)),
+    ] {
+        let jpeg = camera(&linear, &root.path().join(name), spec(response));
+        let bytes = std::fs::read(&jpeg.images[0]).unwrap();
+        let meta = photostereo::io::photometry::meta::read_meta(&bytes).unwrap();
+        assert_eq!(meta.declared.unwrap().0, response, "{name}");
+        let (e, _) = l2_error(&jpeg, &truth);
+        assert!(e < base + 0.8, "{name}: {e:.2}° vs linear {base:.2}°");
+    }
+    for response in [Response::Linear, Response::Gamma(2.2)] {
+        let dir = root.path().join("refused");
+        std::fs::create_dir_all(&dir).unwrap();
+        let e = reencode_capture(&linear, &dir, &spec(response))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("JPEG") && e.contains(&response.name()), "{e}");
+        assert_eq!(std::fs::read_dir(&dir).unwrap().count(), 0);
+    }
+}
+
 /// On three rendered scenes: an sRGB JPEG with EXIF exposures over ×0.5–×2 of the nominal one
 /// (the pixel data scaled likewise, from half the linear original) and ambient light with
 /// its frame reconstructs within 0.8° of the linear original with no option; a bare 2.2 power

@@ -17,7 +17,8 @@ use std::path::{Path, PathBuf};
 pub enum CameraFormat {
     Png8,
     Png16,
-    /// Baseline JPEG at this quality (1 to 100), with EXIF.
+    /// Baseline JPEG at this quality (1 to 100), with EXIF declaring the response (sRGB, or
+    /// Adobe RGB's power law; [`jpeg_colour_space`]).
     Jpeg(u8),
 }
 
@@ -128,8 +129,31 @@ fn check_spec(spec: &CameraSpec) -> Result<()> {
                 "JPEG quality {q}: expected 1 to 100"
             )));
         }
+        if jpeg_colour_space(spec.response).is_none() {
+            return Err(Error::invalid(format!(
+                "response {} in a JPEG: a JPEG declares sRGB or Adobe RGB (gamma:{ADOBE_RGB_GAMMA}) \
+                 and is read so; write {} images as PNG",
+                spec.response.name(),
+                spec.response.name()
+            )));
+        }
     }
     Ok(())
+}
+
+/// Adobe RGB (1998)'s transfer exponent, 563/256: what a reader takes an uncalibrated EXIF
+/// colour space to mean.
+const ADOBE_RGB_GAMMA: f64 = 563.0 / 256.0;
+
+/// The EXIF colour space (tag 0xA001) that declares `response` in a JPEG: 1 (sRGB) for sRGB,
+/// 0xFFFF (uncalibrated, read as Adobe RGB) for Adobe RGB's power law; None for a response a
+/// JPEG cannot declare (linear, other powers), since readers take an undeclared JPEG as sRGB.
+pub fn jpeg_colour_space(response: Response) -> Option<u16> {
+    match response {
+        Response::Srgb => Some(1),
+        Response::Gamma(g) if (g - ADOBE_RGB_GAMMA).abs() < 1e-9 => Some(0xFFFF),
+        _ => None,
+    }
 }
 
 /// The ambient light: the mean of the images, scaled so that its 99th percentile over the
@@ -183,11 +207,14 @@ fn write_camera_image(
         }
         CameraFormat::Png8 => write_png8(out, w, h, c, &to_u8(&encoded)),
         CameraFormat::Jpeg(q) => {
-            let exif = exif_block(&Exposure {
+            let exposure = Exposure {
                 time_s: Some(BASE_TIME_S * exposure),
                 iso: Some(100.0),
                 f_number: Some(8.0),
-            });
+            };
+            // check_spec refused the responses a JPEG cannot declare.
+            let colour_space = jpeg_colour_space(spec.response).unwrap_or(1);
+            let exif = exif_block_declaring(&exposure, 1, colour_space);
             write_jpeg(out, w, h, c, &to_u8(&encoded), q, exif)
         }
     }
@@ -237,6 +264,12 @@ pub fn exif_block(e: &Exposure) -> Vec<u8> {
 
 /// [`exif_block`] with an orientation tag (1 to 8).
 pub fn exif_block_oriented(e: &Exposure, orientation: u16) -> Vec<u8> {
+    exif_block_declaring(e, orientation, 1)
+}
+
+/// [`exif_block_oriented`] declaring the EXIF colour space `colour_space` (1 sRGB, 0xFFFF
+/// uncalibrated: [`jpeg_colour_space`]).
+pub fn exif_block_declaring(e: &Exposure, orientation: u16, colour_space: u16) -> Vec<u8> {
     // Layout: header (8), IFD0 at 8 with 2 entries (2 + 24 + 4 = 30 bytes, to 38), the Exif
     // IFD at 38 with 4 entries (2 + 48 + 4 = 54 bytes, to 92), then two rationals.
     let rational = |v: f64| -> (u32, u32) {
@@ -272,7 +305,7 @@ pub fn exif_block_oriented(e: &Exposure, orientation: u16) -> Vec<u8> {
         1,
         e.iso.unwrap_or(100.0).round() as u32,
     );
-    entry(&mut b, 0xA001, SHORT, 1, 1);
+    entry(&mut b, 0xA001, SHORT, 1, colour_space as u32);
     b.extend_from_slice(&0u32.to_le_bytes());
     for (num, den) in [t, f] {
         b.extend_from_slice(&num.to_le_bytes());
