@@ -96,14 +96,13 @@ pub fn main(a: SynthArgs) -> Result<()> {
     };
     let (width, height) = a.size;
     let camera = camera_spec(&a)?;
-    let camera_refused = |what: &str| {
-        anyhow::anyhow!(
-            "--response, --ambient, --exposure-jitter and --format apply to distant rigs              rendered whole; {what}"
-        )
-    };
     if let Some(rig) = photostereo::scene::near::NearRig::parse(&a.rig) {
         if camera.is_some() {
-            return Err(camera_refused("this is a near-light rig"));
+            bail!(
+                "--response, --ambient, --exposure-jitter and --format apply to distant rigs; \
+                 {} is a near-light rig",
+                a.rig
+            );
         }
         if width != height {
             bail!("--size {width}x{height}: near-light rigs take square images (--size N)");
@@ -141,11 +140,6 @@ pub fn main(a: SynthArgs) -> Result<()> {
     if photostereo::scene::render::in_memory_bytes(width, height, n_lights) > budget
         || width != height
     {
-        if camera.is_some() {
-            return Err(camera_refused(
-                "this capture is rendered one light at a time (non-square, or beyond the memory budget)",
-            ));
-        }
         let need = photostereo::scene::render::streamed_bytes(width, height);
         if need > budget {
             bail!(
@@ -157,8 +151,13 @@ pub fn main(a: SynthArgs) -> Result<()> {
             );
         }
         let bar = a.out.progress();
-        let (s, lights, target) =
-            photostereo::io::synth::synth_streamed(&spec, &output, a.out.force, &bar)?;
+        let (s, lights, target) = photostereo::io::synth::synth_streamed(
+            &spec,
+            camera.as_ref(),
+            &output,
+            a.out.force,
+            &bar,
+        )?;
         if a.out.json {
             print_json(&serde_json::json!({
                 "output": target.display().to_string(),
@@ -168,6 +167,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
                 "width": width,
                 "height": height,
                 "streamed": true,
+                "camera": camera_json(camera.as_ref(), &a.format),
                 "stats": s,
             }));
         } else if a.out.text() {
@@ -203,12 +203,7 @@ pub fn main(a: SynthArgs) -> Result<()> {
             "noise_sigma": spec.render.noise_sigma,
             "shot_full_well": spec.render.shot_full_well,
             "seed": spec.render.seed,
-            "camera": camera.map(|c| serde_json::json!({
-                "response": c.response.name(),
-                "ambient": c.ambient,
-                "exposure_jitter": c.exposure_jitter,
-                "format": a.format,
-            })),
+            "camera": camera_json(camera.as_ref(), &a.format),
             "stats": s,
         }));
     } else if a.out.text() {
@@ -226,6 +221,21 @@ pub fn main(a: SynthArgs) -> Result<()> {
         print_stats(s, &target);
     }
     Ok(())
+}
+
+/// The camera's settings as `synth --json` reports them (null without one).
+fn camera_json(
+    camera: Option<&photostereo::io::camera::CameraSpec>,
+    format: &str,
+) -> serde_json::Value {
+    camera.map_or(serde_json::Value::Null, |c| {
+        serde_json::json!({
+            "response": c.response.name(),
+            "ambient": c.ambient,
+            "exposure_jitter": c.exposure_jitter,
+            "format": format,
+        })
+    })
 }
 
 fn parse_camera_response(s: &str) -> Result<photostereo::io::photometry::Response, String> {

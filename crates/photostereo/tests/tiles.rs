@@ -262,13 +262,51 @@ fn a_budget_below_the_full_frame_stages_is_refused_with_the_minimum() {
 }
 
 #[test]
+fn synth_one_light_at_a_time_writes_a_cameras_files_as_synth_whole() {
+    use photostereo::io::camera::{CameraFormat, CameraSpec};
+    use photostereo::io::photometry::Response;
+    let out = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::new(SceneKind::Cavities, Rig::parse("ring8").unwrap());
+    spec.size = 40;
+    let camera = CameraSpec {
+        response: Response::Srgb,
+        ambient: 0.05,
+        exposure_jitter: 2.0,
+        format: CameraFormat::Jpeg(90),
+        seed: 3,
+    };
+    let (_, whole) = photostereo::io::synth::synth_camera_to_folder(
+        &spec,
+        &camera,
+        &out.path().join("whole"),
+        false,
+    )
+    .unwrap();
+    let (_, _, streamed) = photostereo::io::synth::synth_streamed(
+        &spec,
+        Some(&camera),
+        &out.path().join("s"),
+        false,
+        &Silent,
+    )
+    .unwrap();
+    for name in ["001.jpg", "008.jpg", "ambient.jpg", "filenames.txt"] {
+        assert!(
+            std::fs::read(whole.join(name)).unwrap() == std::fs::read(streamed.join(name)).unwrap(),
+            "{name} differs"
+        );
+    }
+    assert!(!streamed.join("001.png").exists());
+}
+
+#[test]
 fn synth_one_light_at_a_time_writes_the_images_of_synth_whole() {
     let out = tempfile::tempdir().unwrap();
     let mut spec = SynthSpec::new(SceneKind::Cavities, Rig::parse("ring8").unwrap());
     spec.size = 40;
     let (_, whole) = synth_to_folder(&spec, &out.path().join("whole"), false).unwrap();
     let (_, _, streamed) =
-        photostereo::io::synth::synth_streamed(&spec, &out.path().join("s"), false, &Silent)
+        photostereo::io::synth::synth_streamed(&spec, None, &out.path().join("s"), false, &Silent)
             .unwrap();
     for name in [
         "001.png",

@@ -168,9 +168,10 @@ fn ambient_light(src: &CaptureFiles, level: f64) -> Result<Image> {
         }
     }
     let mut a = sum.ok_or_else(|| Error::invalid("no images to re-encode"))?;
-    let mut sorted = a.data.clone();
-    sorted.sort_by(f32::total_cmp);
-    let p99 = sorted[(sorted.len() - 1) * 99 / 100].max(1e-12);
+    let mut values = a.data.clone();
+    let (_, p99, _) = values.select_nth_unstable_by((a.data.len() - 1) * 99 / 100, f32::total_cmp);
+    let p99 = p99.max(1e-12);
+    drop(values);
     let s = (level / p99 as f64) as f32;
     a.data.iter_mut().for_each(|v| *v *= s);
     Ok(a)
@@ -186,26 +187,26 @@ fn write_camera_image(
     exposure: f64,
     spec: &CameraSpec,
 ) -> Result<()> {
-    let encoded: Vec<f64> = linear
-        .data
-        .iter()
-        .enumerate()
-        .map(|(i, &x)| {
-            let a = ambient.map_or(0.0, |a| a.data[i] as f64);
-            let y = ((x as f64 + a) * exposure / spec.exposure_jitter).clamp(0.0, 1.0);
-            spec.response.encode(y)
-        })
-        .collect();
+    // The encoded value of sample i in [0, 1], quantised straight into the format's type.
+    let encoded = |i: usize| -> f64 {
+        let a = ambient.map_or(0.0, |a| a.data[i] as f64);
+        let y = ((linear.data[i] as f64 + a) * exposure / spec.exposure_jitter).clamp(0.0, 1.0);
+        spec.response.encode(y)
+    };
+    let to_u8 = || -> Vec<u8> {
+        (0..linear.data.len())
+            .map(|i| (encoded(i) * 255.0).round() as u8)
+            .collect()
+    };
     let (w, h, c) = (linear.width, linear.height, linear.channels);
     match spec.format {
         CameraFormat::Png16 => {
-            let v: Vec<u16> = encoded
-                .iter()
-                .map(|e| (e * 65535.0).round() as u16)
+            let v: Vec<u16> = (0..linear.data.len())
+                .map(|i| (encoded(i) * 65535.0).round() as u16)
                 .collect();
             write_png16(out, w, h, c, &v)
         }
-        CameraFormat::Png8 => write_png8(out, w, h, c, &to_u8(&encoded)),
+        CameraFormat::Png8 => write_png8(out, w, h, c, &to_u8()),
         CameraFormat::Jpeg(q) => {
             let exposure = Exposure {
                 time_s: Some(BASE_TIME_S * exposure),
@@ -215,13 +216,9 @@ fn write_camera_image(
             // check_spec refused the responses a JPEG cannot declare.
             let colour_space = jpeg_colour_space(spec.response).unwrap_or(1);
             let exif = exif_block_declaring(&exposure, 1, colour_space);
-            write_jpeg(out, w, h, c, &to_u8(&encoded), q, exif)
+            write_jpeg(out, w, h, c, &to_u8(), q, exif)
         }
     }
-}
-
-fn to_u8(encoded: &[f64]) -> Vec<u8> {
-    encoded.iter().map(|e| (e * 255.0).round() as u8).collect()
 }
 
 /// Writes a baseline JPEG (grey or RGB) with an EXIF block.

@@ -140,9 +140,12 @@ fn npy_bool_header(file: &mut impl std::io::Write, shape: &[usize]) -> std::io::
 /// light is rendered and written at once (its image, and its rows of `gt/shadow.npy` and
 /// `gt/highlight.npy`, which are streamed), so memory holds the scene and one light
 /// ([`streamed_bytes`](crate::scene::render::streamed_bytes)) whatever the light count. The files are those of [`synth_to_folder`],
-/// pixel for pixel (the same renderer per light). `progress` sees one unit per light.
+/// pixel for pixel (the same renderer per light). With a `camera`, the images are then
+/// re-encoded as [`synth_camera_to_folder`] writes them, one image at a time once the scene is
+/// released. `progress` sees one unit per light.
 pub fn synth_streamed(
     spec: &SynthSpec,
+    camera: Option<&crate::io::camera::CameraSpec>,
     output: &Path,
     force: bool,
     progress: &dyn crate::base::progress::Progress,
@@ -246,8 +249,14 @@ pub fn synth_streamed(
         stats: &stats,
     };
     write_json(&dir.join("synth.json"), &record)?;
+    let lights = renderer.lights.clone();
+    drop(renderer);
+    if let Some(camera) = camera {
+        let files = crate::io::layouts::CaptureFiles::diligent(dir)?;
+        crate::io::camera::reencode_capture(&files, dir, camera)?;
+    }
     let target = folder.commit()?;
-    Ok((stats, renderer.lights, target))
+    Ok((stats, lights, target))
 }
 
 /// Writes a near-light scene in the near-light layout: everything [`write_capture`]

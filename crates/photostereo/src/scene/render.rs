@@ -462,9 +462,13 @@ pub fn in_memory_bytes(width: usize, height: usize, lights: usize) -> u64 {
 }
 
 /// Bytes [`synth_streamed`](crate::io::synth::synth_streamed) holds at most: the scene (29 bytes per pixel), its ground truth
-/// written from it, and one light's image and maps at a time (about 30 bytes per pixel).
+/// written from it, and one light's image and maps at a time (about 30 bytes per pixel). A
+/// camera's re-encoding comes after the scene is released and holds less: the ambient frame,
+/// one image and its decoder's buffer, and the encoded bytes (about 42 bytes per RGB pixel).
+/// Beside them the program's fixed allowance ([`FIXED_BYTES`](crate::model::memory::FIXED_BYTES):
+/// code, thread stacks, small tables).
 pub fn streamed_bytes(width: usize, height: usize) -> u64 {
-    (width * height) as u64 * 64
+    (width * height) as u64 * 64 + crate::model::memory::FIXED_BYTES
 }
 
 /// A scene rendered one light at a time, for captures too large to render whole: the scene and
