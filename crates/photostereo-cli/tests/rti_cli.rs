@@ -196,6 +196,32 @@ fn refusals_name_their_cause_and_leave_nothing() {
         stderr(&o)
     );
     assert!(!dir.join("v").exists());
+    // The options are refused before any image is read: a damaged image is not what is named.
+    std::fs::create_dir(dir.join("damaged")).unwrap();
+    for entry in std::fs::read_dir(dir.join("four")).unwrap() {
+        let p = entry.unwrap().path();
+        if p.is_file() {
+            std::fs::copy(&p, dir.join("damaged").join(p.file_name().unwrap())).unwrap();
+        }
+    }
+    std::fs::write(dir.join("damaged/001.png"), b"not a png").unwrap();
+    let args = [
+        "rti",
+        "damaged",
+        "--basis",
+        "rbf",
+        "--exclude-unreliable",
+        "-o",
+        "w",
+    ];
+    let o = photostereo(&args, dir);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("--exclude-unreliable") && !stderr(&o).contains("001.png"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(!dir.join("w").exists());
     // RBF has no ridge weight, and a weight is a number ≥ 0.
     for (basis, weight) in [("rbf", "0.1"), ("hsh3", "-1"), ("hsh3", "some")] {
         let o = photostereo(

@@ -100,6 +100,7 @@ pub fn rti(
     progress: &dyn Progress,
 ) -> Result<Value> {
     let start = Instant::now();
+    check_options(&files.lights, options)?;
     let iiif = options.iiif.as_deref().map(iiif_base).transpose()?;
     let folder = OutputFolder::create(output, force, OutputKind::Rti)?;
     let channels = crate::io::imageio::probe(&files.images[0])?.channels;
@@ -124,7 +125,6 @@ pub fn rti(
         ..Default::default()
     };
     let capture = files.load_with(progress, &load)?;
-    check_capture(&capture, options)?;
     let t = Instant::now();
     let rec = reference(&capture, options, progress)?;
     let exclude = options
@@ -232,7 +232,7 @@ pub fn fit_beside_run(
         memory_limit: None,
         iiif: None,
     };
-    check_capture(capture, &options)?;
+    check_options(&capture.lights, &options)?;
     let t = Instant::now();
     let size = (capture.width, capture.height, capture.channels);
     let mut store = CoefficientFiles::create(dir, basis, size, &capture.pixels)?;
@@ -252,9 +252,9 @@ fn penalty(options: &RtiOptions, lights: usize) -> Penalty {
     })
 }
 
-/// Refuses what the fit cannot serve: near lights, rbf with a per-pixel light mask or a ridge
-/// weight, a ridge weight that is not a finite number ≥ 0.
-fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
+/// Refuses what the fit cannot serve, before any image is read: near lights, rbf with a
+/// per-pixel light mask or a ridge weight, a ridge weight that is not a finite number ≥ 0.
+fn check_options(lights: &crate::model::lights::Lights, options: &RtiOptions) -> Result<()> {
     if let Some(r) = options.ridge {
         if options.basis == Basis::Rbf {
             return Err(Error::parameter(
@@ -278,7 +278,7 @@ fn check_capture(capture: &Capture, options: &RtiOptions) -> Result<()> {
              or fit ptm or hsh",
         ));
     }
-    if capture.lights.near.is_some() {
+    if lights.near.is_some() {
         return Err(Error::invalid(
             "rti: this capture has near lights (light_positions.txt); RTI bases (PTM, HSH) \
              model the reflectance under distant lights, whose direction is the same at every \
