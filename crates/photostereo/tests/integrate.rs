@@ -1036,6 +1036,61 @@ fn bilateral_fills_a_zero_weight_hole_and_follows_a_prior() {
     assert!((mean_offset - 10.0).abs() < 0.5, "offset {mean_offset}");
 }
 
+#[test]
+fn bilateral_in_the_arrays_given_equals_the_solve_from_an_initial_surface() {
+    // The recursive method's intermediate surfaces: gradients with a zero-weight hole (filled
+    // in place) and the last surface as the start (solved in its buffer), on the full grid and
+    // on an irregular mask (solved on cut copies). The depth is the borrowing solve's, bit for
+    // bit, and the start's buffer becomes the depth on the full grid.
+    let (p, q, z) = piecewise(with_cylinder(sphere_cap, 0.5));
+    let start: Vec<f32> = z.iter().map(|&v| (v + 0.25) as f32).collect();
+    let mut weights = vec![1f32; W * H];
+    for (i, w) in weights.iter_mut().enumerate() {
+        let (r, c) = (i / W, i % W);
+        if (40..56).contains(&r) && (30..46).contains(&c) {
+            *w = 0.0;
+        } else if (r * 7 + c * 3) % 11 == 0 {
+            *w = 0.1;
+        }
+    }
+    let integrator = Bilateral::intermediate();
+    for mask in [full_mask(), irregular_mask()] {
+        let problem = IntegrationProblem {
+            weights: Some(&weights),
+            initial: Some(&start),
+            ..IntegrationProblem::new(W, H, &p, &q, &mask)
+        };
+        let borrowed = integrator.integrate(&problem, &Silent).unwrap();
+        let buffer = start.clone();
+        let address = buffer.as_ptr();
+        let owned = integrator
+            .integrate_owned(
+                W,
+                H,
+                p.clone(),
+                q.clone(),
+                &mask,
+                Some(&weights),
+                buffer,
+                &Silent,
+            )
+            .unwrap();
+        let same = |a: &[f32], b: &[f32]| a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits());
+        assert!(same(&owned.values, &borrowed.values));
+        assert_eq!(owned.stats.iterations, borrowed.stats.iterations);
+        assert_eq!(owned.stats.filled_pixels, borrowed.stats.filled_pixels);
+        if mask.iter().all(|&m| m) {
+            assert_eq!(owned.values.as_ptr(), address);
+            assert!(owned.stats.filled_pixels >= 16 * 16);
+        }
+    }
+    let err = integrator
+        .integrate_owned(W, H, p, q, &full_mask(), None, vec![0.0; 5], &Silent)
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("starting depth has 5 values"), "{err}");
+}
+
 /// DiLiGenT's true depth (`../shared/data/diligent-depth`): depth from the true normals through
 /// the camera, against the literature's measure — s = median(Z_gt / Z) over the object, then
 /// mean |s·Z − Z_gt| in mm — and no NaN inside the mask. Returns `(error, NaN count)`.

@@ -114,7 +114,6 @@ pub const DEFAULT_ERROR_MAP_MAX_DEG: f32 = 45.0;
 
 /// Writes a reconstruction's files into a (staging) folder.
 pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptions) -> Result<()> {
-    let (w, h) = (rec.width, rec.height);
     write_normals(dir, rec.width, rec.height, &rec.normals)?;
     write_albedo(
         dir,
@@ -124,14 +123,79 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
         &rec.albedo,
         &rec.mask,
     )?;
-    if rec.statuses_decided {
-        // Light by light: one frame of bytes at a time, not the (N, H, W) array.
-        crate::io::export::write_npy_u8_planes(
-            &dir.join("light_status.npy"),
-            &[rec.n_lights, h, w],
-            |k, plane| rec.light_status.write_plane(k, plane),
-        )?;
+    write_statuses(rec, dir)?;
+    write_detection(rec, dir)?;
+    write_recursive(rec, dir)?;
+    write_surface(rec, dir, options)?;
+    write_error_figure(rec, dir, options)
+}
+
+/// [`write_reconstruction`], each map released once its files are written: the statuses, the
+/// detector's and the recursion's maps and the albedo first, the surface and its meshes
+/// (which read the normals) last, so that the writers' buffers are never held beside every
+/// map. The reconstruction keeps its report and figures; its maps are empty afterwards.
+pub fn write_releasing(rec: &mut Reconstruction, dir: &Path, options: &RunOptions) -> Result<()> {
+    write_statuses(rec, dir)?;
+    rec.light_status = crate::method::statusmap::StatusMap::packed(
+        rec.width,
+        rec.height,
+        rec.n_lights,
+        Vec::new(),
+        None,
+    );
+    write_detection(rec, dir)?;
+    rec.residual = None;
+    rec.unreliable = None;
+    write_recursive(rec, dir)?;
+    if let Some(r) = rec.recursive.as_mut() {
+        r.shadows = crate::geometry::shadows::ShadowMaps::empty(0, 0, 0);
+        for map in [&mut r.highlight, &mut r.fewer_than_three, &mut r.reliable] {
+            drop(std::mem::take(map));
+        }
+        r.gloss = None;
     }
+    drop(std::mem::take(&mut rec.trust));
+    write_albedo(
+        dir,
+        rec.width,
+        rec.height,
+        rec.channels,
+        &rec.albedo,
+        &rec.mask,
+    )?;
+    drop(std::mem::take(&mut rec.albedo));
+    write_error_figure(rec, dir, options)?;
+    rec.error_map = None;
+    write_normals(dir, rec.width, rec.height, &rec.normals)?;
+    write_surface(rec, dir, options)?;
+    drop(std::mem::take(&mut rec.normals));
+    drop(std::mem::take(&mut rec.mask));
+    if let Some(s) = rec.surface.as_mut() {
+        drop(std::mem::take(&mut s.depth.values));
+        s.depth.discontinuities = None;
+        drop(std::mem::take(&mut s.curl));
+    }
+    Ok(())
+}
+
+/// `light_status.npy` and `unusable_lights.png`, when the statuses were decided.
+fn write_statuses(rec: &Reconstruction, dir: &Path) -> Result<()> {
+    if !rec.statuses_decided {
+        return Ok(());
+    }
+    let (w, h) = (rec.width, rec.height);
+    // Light by light: one frame of bytes at a time, not the (N, H, W) array.
+    crate::io::export::write_npy_u8_planes(
+        &dir.join("light_status.npy"),
+        &[rec.n_lights, h, w],
+        |k, plane| rec.light_status.write_plane(k, plane),
+    )?;
+    crate::io::maps::write_unusable_lights(dir, rec)
+}
+
+/// The detector's maps: `residual.npy`, `unreliable.png` and `unreliable_mask.png`.
+fn write_detection(rec: &Reconstruction, dir: &Path) -> Result<()> {
+    let (w, h) = (rec.width, rec.height);
     if let (Some(residual), Some(unreliable)) = (&rec.residual, &rec.unreliable) {
         write_npy_f32(&dir.join("residual.npy"), &[h, w], residual)?;
         // Fig. 6a: the statistic as grey with its scale and the test's threshold; Fig. 6b: binary.
@@ -142,9 +206,13 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             .collect();
         write_png8(&dir.join("unreliable_mask.png"), w, h, 1, &binary)?;
     }
-    if rec.statuses_decided {
-        crate::io::maps::write_unusable_lights(dir, rec)?;
-    }
+    Ok(())
+}
+
+/// The recursive method's maps: shadows, highlights, pixels with fewer than three lights, and
+/// the lobes' maps when modelled.
+fn write_recursive(rec: &Reconstruction, dir: &Path) -> Result<()> {
+    let (w, h) = (rec.width, rec.height);
     if let Some(r) = &rec.recursive {
         crate::io::shadow_figure::shadow_maps_montage(&r.shadows, Some(&rec.mask))
             .save(&dir.join("shadows.png"))?;
@@ -166,6 +234,11 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             write_npy_f32(&dir.join("roughness.npy"), &[h, w], &g.roughness)?;
         }
     }
+    Ok(())
+}
+
+/// The depth, curl and discontinuity maps and the meshes, when integrated.
+fn write_surface(rec: &Reconstruction, dir: &Path, options: &RunOptions) -> Result<()> {
     if let Some(surface) = &rec.surface {
         let d = &surface.depth;
         let vertices = d.values.iter().filter(|v| v.is_finite()).count();
@@ -184,6 +257,11 @@ pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptio
             crate::io::surface::write_surface_camera(dir, surface, &rec.normals, true, camera)?;
         }
     }
+    Ok(())
+}
+
+/// `error_map.png`, when asked for and made.
+fn write_error_figure(rec: &Reconstruction, dir: &Path, options: &RunOptions) -> Result<()> {
     if options.error_map {
         if let Some(map) = &rec.error_map {
             write_error_map(
@@ -216,6 +294,8 @@ fn rti_beside(files: &CaptureFiles, options: &RunOptions) -> Result<crate::model
 }
 
 /// The whole `run`: load, reconstruct, evaluate, report, and write `output` atomically.
+/// Returns the reconstruction with its report and figures; its maps are released as they are
+/// written ([`write_releasing`]).
 pub fn run(
     files: &CaptureFiles,
     options: &RunOptions,
@@ -326,7 +406,7 @@ pub fn run(
         }
     }
     progress.begin("writing", 1);
-    write_reconstruction(&rec, folder.path(), options)?;
+    write_releasing(&mut rec, folder.path(), options)?;
     if let Some((fitted, mut entry)) = rti {
         let (file, web) = crate::app::rti::write_fit(folder.path(), &fitted, None)?;
         entry["file"] = file;

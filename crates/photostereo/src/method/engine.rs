@@ -354,17 +354,14 @@ pub fn reconstruct_with_truth(
     // During the final integration the trust and the recursion's flag maps are held per mask
     // pixel (7 bytes a frame pixel fewer at the run's largest stage) and scattered again
     // after it.
-    let trust = {
-        let full = trust;
-        capture.gather(&full)
-    };
+    let trust = capture.gather_owned(trust);
     let mut flags_at_mask = diagnostics.as_mut().map(|d| {
         [&mut d.highlight, &mut d.fewer_than_three, &mut d.reliable]
-            .map(|map| capture.gather(&std::mem::take(map)))
+            .map(|map| capture.gather_owned(std::mem::take(map)))
     });
     let t = Instant::now();
-    let inputs = final_inputs(capture, params, &estimate, &trust)?;
-    // A tight budget: what the integration does not read waits in a file while it runs.
+    // A tight budget: what the integration does not read waits in a file while it runs (the
+    // inputs are made from the normals once the rest is parked).
     let mut parking = capture.parking()?;
     let mut detection = detection;
     let mut arrays = RunArrays {
@@ -374,26 +371,29 @@ pub fn reconstruct_with_truth(
         flags: &mut flags_at_mask,
         diagnostics: &mut diagnostics,
     };
-    let parked = match parking.as_mut() {
-        Some(parking) => Some(arrays.park(parking)?),
-        None => None,
+    let make_inputs = |normals: &[[f32; 3]]| final_inputs(capture, params, normals, &trust);
+    let (inputs, parked) = match parking.as_mut() {
+        Some(parking) => {
+            let (parked, inputs) = arrays.park(parking, make_inputs)?;
+            (inputs?, Some(parked))
+        }
+        None => (make_inputs(&arrays.estimate.normals)?, None),
     };
     let surface = final_surface(capture, params, inputs, t, progress, &mut report)?;
     if let (Some(parking), Some(parked)) = (parking.as_ref(), parked) {
         arrays.unpark(parking, parked)?;
     }
     drop(parking);
-    let trust = capture.scatter(&trust, 1, 0.0);
+    // Each full-frame map replaces its per-mask-pixel values (is them, on a mask that is the
+    // whole frame): freed once scattered, never held twice.
+    let trust = capture.scatter_owned(trust, 1, 0.0);
     if let (Some(d), Some([highlight, few, reliable])) = (diagnostics.as_mut(), flags_at_mask) {
-        d.highlight = capture.scatter(&highlight, 1, false);
-        d.fewer_than_three = capture.scatter(&few, 1, false);
-        d.reliable = capture.scatter(&reliable, 1, false);
+        d.highlight = capture.scatter_owned(highlight, 1, false);
+        d.fewer_than_three = capture.scatter_owned(few, 1, false);
+        d.reliable = capture.scatter_owned(reliable, 1, false);
     }
-    // The full-frame maps replace the per-mask-pixel estimate: each freed once scattered.
-    let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
-    drop(std::mem::take(&mut estimate.normals));
-    let albedo = capture.scatter(&estimate.albedo, capture.channels, 0.0);
-    drop(std::mem::take(&mut estimate.albedo));
+    let normals = capture.scatter_owned(std::mem::take(&mut estimate.normals), 1, [0.0; 3]);
+    let albedo = capture.scatter_owned(std::mem::take(&mut estimate.albedo), capture.channels, 0.0);
     let light_status = crate::method::statusmap::StatusMap::packed(
         capture.width,
         capture.height,
@@ -403,6 +403,13 @@ pub fn reconstruct_with_truth(
     );
     crate::method::indicators::record(capture, &light_status, statuses_decided, &mut report);
     let recursive = diagnostics.map(|d| recursive_maps(d, &mut report));
+    let (residual, unreliable) = match detection {
+        Some(d) => (
+            Some(capture.scatter_owned(d.residual, 1, 0.0)),
+            Some(capture.scatter_owned(d.unreliable, 1, false)),
+        ),
+        None => (None, None),
+    };
     Ok(Reconstruction {
         width: capture.width,
         height: capture.height,
@@ -413,12 +420,8 @@ pub fn reconstruct_with_truth(
         mask: capture.mask.clone(),
         light_status,
         statuses_decided,
-        residual: detection
-            .as_ref()
-            .map(|d| capture.scatter(&d.residual, 1, 0.0)),
-        unreliable: detection
-            .as_ref()
-            .map(|d| capture.scatter(&d.unreliable, 1, false)),
+        residual,
+        unreliable,
         trust,
         surface,
         recursive,
@@ -493,7 +496,7 @@ enum FinalInputs {
 fn final_inputs(
     capture: &Capture,
     params: &Params,
-    estimate: &Estimate,
+    normals: &[[f32; 3]],
     trust: &[f32],
 ) -> Result<Option<FinalInputs>> {
     if !params.integrate {
@@ -501,7 +504,7 @@ fn final_inputs(
     }
     let (w, h) = (capture.width, capture.height);
     if capture.lights.perspective().is_some() {
-        let normals = capture.scatter(&estimate.normals, 1, [0.0; 3]);
+        let normals = capture.scatter(normals, 1, [0.0; 3]);
         let trust = capture.scatter(trust, 1, 0.0);
         return Ok(Some(FinalInputs::Perspective(normals, trust)));
     }
@@ -510,7 +513,7 @@ fn final_inputs(
     let (weighted, weights) = crate::geometry::integrate::weighted_normals_at(
         w * h,
         &capture.pixels,
-        &estimate.normals,
+        normals,
         &|p, _| trust[p],
     );
     // The weighted copy of the normal map is dropped once its gradients are taken.
@@ -575,8 +578,14 @@ struct ParkedRun {
 impl RunArrays<'_> {
     /// Moves the arrays into `parking` (the run's results are unchanged: they are read back
     /// bit for bit by [`RunArrays::unpark`]).
-    fn park(&mut self, parking: &mut Parking) -> Result<ParkedRun> {
-        let normals = parking.shelve(&mut self.estimate.normals)?;
+    ///
+    /// The normals go last: `made` is given them once the rest is parked (the final
+    /// integration's inputs are not made beside the other arrays) and its result is returned.
+    fn park<T>(
+        &mut self,
+        parking: &mut Parking,
+        made: impl FnOnce(&[[f32; 3]]) -> T,
+    ) -> Result<(ParkedRun, T)> {
         let albedo = parking.shelve(&mut self.estimate.albedo)?;
         let status = match self.status.take() {
             Some(c) => Some((c.width(), parking.park(c.into_bytes())?)),
@@ -605,7 +614,9 @@ impl RunArrays<'_> {
             }
             None => None,
         };
-        Ok(ParkedRun {
+        let result = made(&self.estimate.normals);
+        let normals = parking.shelve(&mut self.estimate.normals)?;
+        let parked = ParkedRun {
             normals,
             albedo,
             status,
@@ -613,7 +624,8 @@ impl RunArrays<'_> {
             verdicts,
             flags,
             shadows,
-        })
+        };
+        Ok((parked, result))
     }
 
     /// Reads back what [`RunArrays::park`] parked.

@@ -31,7 +31,7 @@ use crate::base::codes2::{get_in, pack_into, unpack_into, Codes2};
 use crate::base::error::{Error, Result};
 use crate::base::progress::{Progress, Silent};
 use crate::geometry::integrate::{
-    gradients_from_normals, normal_from_depth_at, normals_from_depth, IntegrationParams,
+    gradients_from_normals, normal_from_depth_at, normals_from_depth, Bilateral, IntegrationParams,
     IntegrationProblem, IntegratorKind, Poisson,
 };
 use crate::geometry::shadows::{shadow_maps, ShadowMaps, ShadowParams};
@@ -672,7 +672,7 @@ impl Recursion {
         let mut parking = setting.capture.parking()?;
         // 2. The surface, and 3. its shadows.
         setting.step(iteration, "surface", 1);
-        let (surface, shading, parked) = self.integrate_surface(setting, parking.as_mut())?;
+        let (mut surface, shading, parked) = self.integrate_surface(setting, parking.as_mut())?;
         setting.step(iteration, "shadows", 1);
         let maps = shadows_of(setting, &surface, &shading)?;
         drop(shading);
@@ -694,17 +694,37 @@ impl Recursion {
             .map(|p| usable_differs(&new.status, &self.light_status, p, n))
             .collect();
         let changed_pixels = changed.iter().filter(|&&x| x).count();
-        if let (Some(parking), Some((normals, albedo))) = (parking.as_ref(), parked_estimate) {
-            parking.unshelve(&mut self.est.normals, normals)?;
-            parking.unshelve(&mut self.est.albedo, albedo)?;
+        let shadowed_share =
+            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
+        // A tight budget: the shadow maps and the surface wait in the file while the estimate
+        // is read back and solved again (the shadow maps until the iteration's end, the
+        // surface until the fill of the pixels with fewer than three lights).
+        let (maps, parked_depth) = match parking.as_mut() {
+            Some(parking) => {
+                let (w, h, lights) = (maps.width, maps.height, maps.lights);
+                let [a, c] = maps.into_planes();
+                let planes = [parking.park(a)?, parking.park(c)?];
+                let depth = parking.shelve(&mut surface.depth.values)?;
+                (Held::Parked(w, h, lights, planes), Some(depth))
+            }
+            None => (Held::Here(maps), None),
+        };
+        let estimate = parking.as_ref().zip(parked_estimate);
+        self.re_estimate(setting, new, own_status, changed, estimate)?;
+        if let (Some(parking), Some(depth)) = (parking.as_ref(), parked_depth) {
+            parking.unshelve(&mut surface.depth.values, depth)?;
         }
-        drop(parking);
-        self.re_estimate(setting, new, own_status, changed)?;
         if setting.params.fallback == Fallback::Neighbours {
             self.fill_few(setting, &surface)?;
         }
-        let shadowed_share =
-            maps.count(ShadowMaps::ATTACHED | ShadowMaps::CAST) as f64 / (n * np).max(1) as f64;
+        let maps = match maps {
+            Held::Here(maps) => maps,
+            Held::Parked(w, h, lights, [a, c]) => {
+                let parking = parking.as_ref().expect("parked in this iteration's file");
+                ShadowMaps::from_planes(w, h, lights, [parking.take(a)?, parking.take(c)?])
+            }
+        };
+        drop(parking);
         let count = |v: &[bool]| v.iter().filter(|&&x| x).count();
         let record = IterationRecord {
             iteration,
@@ -755,17 +775,22 @@ impl Recursion {
         let (w, h) = (capture.width, capture.height);
         let masked_trust = self.trust(setting);
         // Made from the mask pixels' estimate and trust: no full-frame copy of either.
-        let (normals_full, weights) = crate::geometry::integrate::weighted_normals_at(
-            w * h,
-            &capture.pixels,
-            &self.est.normals,
-            &|p, _| masked_trust[p],
-        );
-        drop(masked_trust);
-        let parked = match parking.as_deref_mut() {
-            Some(parking) => Some(self.park(parking)?),
-            None => None,
+        let weighted = |normals: &[[f32; 3]]| {
+            crate::geometry::integrate::weighted_normals_at(
+                w * h,
+                &capture.pixels,
+                normals,
+                &|p, _| masked_trust[p],
+            )
         };
+        let ((normals_full, weights), parked) = match parking.as_deref_mut() {
+            Some(parking) => {
+                let (parked, inputs) = self.park(parking, weighted)?;
+                (inputs, Some(parked))
+            }
+            None => (weighted(&self.est.normals), None),
+        };
+        drop(masked_trust);
         let (surface, shading) = match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few
@@ -828,31 +853,44 @@ impl Recursion {
 
     /// Parks the recursion's per-pixel arrays in `parking` (the estimate, the statuses, the
     /// own decisions, the flags and fingerprints), leaving them empty.
-    fn park(&mut self, parking: &mut Parking) -> Result<ParkedState> {
+    ///
+    /// The normals go last: `made` is given them once the rest is parked (what is made from
+    /// them is not held beside the other arrays) and its result is returned.
+    fn park<T>(
+        &mut self,
+        parking: &mut Parking,
+        made: impl FnOnce(&[[f32; 3]]) -> T,
+    ) -> Result<(ParkedState, T)> {
         let status = std::mem::take(&mut self.light_status);
         let width = status.width();
-        Ok(ParkedState {
-            estimate: (
-                parking.shelve(&mut self.est.normals)?,
-                parking.shelve(&mut self.est.albedo)?,
-            ),
-            status: (width, parking.park(status.into_bytes())?),
-            own_status: (
-                parking.shelve(&mut self.own.status.ids)?,
-                parking.shelve(&mut self.own.status.codes)?,
-            ),
-            key: parking.shelve(&mut self.own.key)?,
-            earlier_print: parking.shelve(&mut self.earlier_print)?,
-            flags: [
-                parking.shelve(&mut self.consistent)?,
-                parking.shelve(&mut self.few)?,
-                parking.shelve(&mut self.solved_two)?,
-                parking.shelve(&mut self.highlight)?,
-                parking.shelve(&mut self.oscillating)?,
-                parking.shelve(&mut self.own.consistent)?,
-                parking.shelve(&mut self.own.few)?,
-            ],
-        })
+        let albedo = parking.shelve(&mut self.est.albedo)?;
+        let status = (width, parking.park(status.into_bytes())?);
+        let own_status = (
+            parking.shelve(&mut self.own.status.ids)?,
+            parking.shelve(&mut self.own.status.codes)?,
+        );
+        let key = parking.shelve(&mut self.own.key)?;
+        let earlier_print = parking.shelve(&mut self.earlier_print)?;
+        let flags = [
+            parking.shelve(&mut self.consistent)?,
+            parking.shelve(&mut self.few)?,
+            parking.shelve(&mut self.solved_two)?,
+            parking.shelve(&mut self.highlight)?,
+            parking.shelve(&mut self.oscillating)?,
+            parking.shelve(&mut self.own.consistent)?,
+            parking.shelve(&mut self.own.few)?,
+        ];
+        let result = made(&self.est.normals);
+        let normals = parking.shelve(&mut self.est.normals)?;
+        let parked = ParkedState {
+            estimate: (normals, albedo),
+            status,
+            own_status,
+            key,
+            earlier_print,
+            flags,
+        };
+        Ok((parked, result))
     }
 
     /// Reads back what [`Recursion::park`] parked, except the estimate (returned, still
@@ -1065,6 +1103,13 @@ impl Recursion {
 /// The estimate's normals and albedo, parked.
 type ParkedEstimate = (Parked<[f32; 3]>, Parked<f32>);
 
+/// An iteration's shadow maps during its re-estimate: held, or parked as their bit planes
+/// (width, height, lights, the attached and cast planes).
+enum Held {
+    Here(ShadowMaps),
+    Parked(usize, usize, usize, [Parked<u64>; 2]),
+}
+
 /// Where [`Recursion::park`] put the recursion's per-pixel arrays.
 struct ParkedState {
     estimate: ParkedEstimate,
@@ -1243,6 +1288,7 @@ impl Recursion {
         new: Decisions,
         own_status: Codes2,
         changed: Vec<bool>,
+        parked_estimate: Option<(&Parking, ParkedEstimate)>,
     ) -> Result<()> {
         let capture = setting.capture;
         let np = setting.n_pixels();
@@ -1250,6 +1296,12 @@ impl Recursion {
         self.light_status = new.status;
         self.own.status = OwnStatuses::of(&own_status, &self.light_status);
         drop(own_status);
+        // A parked estimate comes back once the pixels' own statuses are reduced to their
+        // difference: not beside three status arrays.
+        if let Some((parking, (normals, albedo))) = parked_estimate {
+            parking.unshelve(&mut self.est.normals, normals)?;
+            parking.unshelve(&mut self.est.albedo, albedo)?;
+        }
         if setting.near_lights() {
             self.est = crate::solve::tiled::solve_statuses(capture, &self.light_status)?;
         } else {
@@ -1296,6 +1348,11 @@ impl Recursion {
     ) -> Result<(Estimate, RecursiveDiagnostics)> {
         let (capture, params) = (setting.capture, setting.params);
         let noise = &setting.detection.noise;
+        // The iterations' bookkeeping has served: freed before the final estimate and the
+        // full-frame maps are made.
+        drop(std::mem::take(&mut self.own));
+        drop(std::mem::take(&mut self.earlier_print));
+        drop(std::mem::take(&mut self.oscillating));
         let surface_prior = if params.surface_prior_deg > 0.0
             && !setting.near_lights()
             && !self.last_depth.is_empty()
@@ -1862,11 +1919,33 @@ fn integrate(
 ) -> Result<crate::geometry::integrate::Depth> {
     let g = gradients_from_normals(w, h, &normals, Some(mask), integration.max_slope)?;
     drop(normals);
+    if integration.method == IntegratorKind::Bilateral {
+        // `bilateral` fills the gradients and solves in the arrays given: no second copy of
+        // the gradients or of the last surface is held. The first surface starts from 0, as
+        // without a start.
+        let initial = if initial.is_empty() {
+            vec![0.0; w * h]
+        } else {
+            initial
+        };
+        let mut depth = Bilateral::intermediate().integrate_owned(
+            w,
+            h,
+            g.p,
+            g.q,
+            &g.mask,
+            Some(weights),
+            initial,
+            &Silent,
+        )?;
+        depth.discontinuities = None;
+        return Ok(depth);
+    }
     let problem = IntegrationProblem {
         weights: Some(weights),
         ..IntegrationProblem::new(w, h, &g.p, &g.q, &g.mask)
     };
-    match integration.method {
+    let mut depth = match integration.method {
         // `poisson` solves in the last surface's buffer: one depth map held, not two.
         IntegratorKind::Poisson if !initial.is_empty() => {
             Poisson::default().integrate_in_place(&problem, initial, &Silent)
@@ -1881,7 +1960,10 @@ fn integrate(
                 .intermediate_integrator()
                 .integrate(&problem, &Silent)
         }
-    }
+    }?;
+    // The recursion reads the heights only: `bilateral`'s discontinuity map is not kept.
+    depth.discontinuities = None;
+    Ok(depth)
 }
 
 /// A near-light iteration's surface: the weighted normals integrated through the camera into

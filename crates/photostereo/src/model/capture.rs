@@ -982,6 +982,37 @@ impl Capture {
         }
         out
     }
+
+    /// Whether the mask is the whole frame: the mask pixels are then the frame pixels in
+    /// order, and a per-mask-pixel array is its full-frame map.
+    pub fn mask_is_frame(&self) -> bool {
+        self.pixels.len() == self.width * self.height
+    }
+
+    /// [`Capture::scatter`] of values given up: on a mask that is the whole frame they are the
+    /// full-frame map already and are returned as they are (no second copy is made).
+    pub fn scatter_owned<T: Copy + Send + Sync>(
+        &self,
+        values: Vec<T>,
+        per_pixel: usize,
+        fill: T,
+    ) -> Vec<T> {
+        if self.mask_is_frame() {
+            values
+        } else {
+            self.scatter(&values, per_pixel, fill)
+        }
+    }
+
+    /// [`Capture::gather`] of a map given up: on a mask that is the whole frame it is returned
+    /// as it is.
+    pub fn gather_owned<T: Copy>(&self, frame: Vec<T>) -> Vec<T> {
+        if self.mask_is_frame() {
+            frame
+        } else {
+            self.gather(&frame)
+        }
+    }
 }
 
 /// An (N, H, W, C) image stack in memory: N images of H rows, W columns and C channels, of

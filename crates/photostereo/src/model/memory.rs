@@ -24,15 +24,16 @@ use crate::model::store::SampleType;
 /// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// Bytes per frame pixel of the full-frame stages when the per-pixel arrays a stage does not
-/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the
-/// recursion's intermediate integrations (the integrator's arrays, about 40 for `bilateral`,
-/// beside its inputs: the gradients, the weights, the last surface) and the end of the run (the
-/// exported maps while they are written: normals 12, albedo 12 for RGB, depth, curl, trust and
-/// residual 16, the shadow planes of 24 lights 6, the flag maps and the mask 5, the packed
-/// statuses 6); the recursion's decisions (the estimate parked) stay below them. Set on the
-/// measured peak of a full-frame 24-light RGB capture with a margin of about 6%
+/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the end of the
+/// reconstruction, when its maps are whole (normals 12, albedo 12 for RGB, depth, curl,
+/// discontinuities, trust and residual 20, the shadow planes of 24 lights 6, the flag maps and
+/// the masks 5, the packed statuses 6; the mask pixels' indices are counted per mask pixel), and
+/// the recursion's re-estimate (the estimate read back beside the statuses, the surface and
+/// the shadow maps parked); the intermediate integrations (the gradients filled and the surface
+/// solved in their own buffers) and the writing (each map released once written) stay below
+/// them. Set on the measured peak of a full-frame 24-light RGB capture with a margin of about 7%
 /// (`docs/performance.md`, Memory).
-pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 76;
+pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 59;
 /// Bytes per mask pixel held beside every stage when the other arrays are parked: the mask
 /// pixels' frame indices (the capture's and the status map's, 8), the detector's residual and
 /// verdicts (6).

@@ -47,12 +47,13 @@
 use super::multigrid::{par_zeros, pcg, Hierarchy, Level, RowOperator, RowParts};
 use super::spectral::dct_solve;
 use super::{
-    fill_unreliable, into_depth, Components, Depth, IntegrationProblem, IntegrationStats,
-    Integrator, DEFAULT_FILL_BELOW, DEFAULT_TOLERANCE,
+    fill_unreliable, fill_unreliable_in_place, into_depth, Components, Depth, IntegrationProblem,
+    IntegrationStats, Integrator, DEFAULT_FILL_BELOW, DEFAULT_TOLERANCE,
 };
 use crate::base::error::Result;
 use crate::base::progress::Progress;
 use rayon::prelude::*;
+use std::borrow::Cow;
 
 /// Default sharpness `k` of the sigmoid (B3): the setting published with the method (Cao et al.,
 /// ECCV 2022), whose argument is in the same units here (squared height differences in pixels
@@ -469,12 +470,86 @@ impl Integrator for Bilateral {
             |_| match Crop::of(problem.width, problem.height, problem.mask) {
                 Some(crop) => {
                     let cut = crop.cut(problem);
-                    let depth = self.solve(&cut.problem(), progress)?;
+                    let depth = self.solve(&cut.problem(), Given::default(), progress)?;
                     Ok(crop.embed(depth))
                 }
-                None => self.solve(problem, progress),
+                None => self.solve(problem, Given::default(), progress),
             },
         )
+    }
+}
+
+/// What a solve is given beyond its problem, to work in: the starting surface (in place of the
+/// problem's `initial`, which is then not read) and the number of pixels already filled in the
+/// problem's gradients (they are then not filled again).
+#[derive(Default)]
+struct Given {
+    start: Option<Vec<f32>>,
+    filled: Option<usize>,
+}
+
+impl Bilateral {
+    /// The intermediate surfaces' integrator of the recursive method: the reweighting from ½
+    /// weights, without the debiased last solve.
+    pub fn intermediate() -> Self {
+        Bilateral {
+            debias: false,
+            poisson_start: false,
+            ..Bilateral::default()
+        }
+    }
+
+    /// [`Integrator::integrate`] of the gradients `p`, `q` (`height * width`) over `mask` with
+    /// `weights`, from the surface `start` (as the problem's `initial`), in the arrays given: the
+    /// unreliable pixels' gradients are filled in `p` and `q` and the surface is solved in
+    /// `start`'s buffer, so that no second copy of either is held (on a mask whose bounding box
+    /// is clearly smaller than the frame the solve works on cut copies, as `integrate` does).
+    /// The depth is the same as `integrate`'s with `initial: Some(&start)`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn integrate_owned(
+        &self,
+        width: usize,
+        height: usize,
+        mut p: Vec<f32>,
+        mut q: Vec<f32>,
+        mask: &[bool],
+        weights: Option<&[f32]>,
+        start: Vec<f32>,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
+        if start.len() != width * height {
+            return Err(crate::base::error::Error::invalid(format!(
+                "integration: the starting depth has {} values, expected {width}×{height} = {}",
+                start.len(),
+                width * height
+            )));
+        }
+        let problem = IntegrationProblem {
+            weights,
+            initial: Some(&start),
+            ..IntegrationProblem::new(width, height, &p, &q, mask)
+        };
+        problem.validate()?;
+        self.check()?;
+        if let Some(crop) = Crop::of(width, height, mask) {
+            return rayon::scope(|_| {
+                let cut = crop.cut(&problem);
+                let depth = self.solve(&cut.problem(), Given::default(), progress)?;
+                Ok(crop.embed(depth))
+            });
+        }
+        let filled = weights.map_or(0, |ws| {
+            fill_unreliable_in_place(width, height, mask, ws, self.fill_below, &mut p, &mut q)
+        });
+        let problem = IntegrationProblem {
+            weights,
+            ..IntegrationProblem::new(width, height, &p, &q, mask)
+        };
+        let given = Given {
+            start: Some(start),
+            filled: Some(filled),
+        };
+        rayon::scope(|_| self.solve(&problem, given, progress))
     }
 }
 
@@ -601,9 +676,17 @@ impl Bilateral {
     /// and the energy (B2) of that surface under them against under ½ weights is the first
     /// change. On a smooth surface the two barely differ (both sides' residuals are about
     /// `±f″/2`, so the weights hardly matter), and the last system follows at once.
-    fn solve(&self, problem: &IntegrationProblem, progress: &dyn Progress) -> Result<Depth> {
+    fn solve(
+        &self,
+        problem: &IntegrationProblem,
+        given: Given,
+        progress: &dyn Progress,
+    ) -> Result<Depth> {
         let (w, h) = (problem.width, problem.height);
-        let (p, q, filled) = fill_unreliable(problem, self.fill_below);
+        let (p, q, filled) = match given.filled {
+            Some(filled) => (Cow::Borrowed(problem.p), Cow::Borrowed(problem.q), filled),
+            None => fill_unreliable(problem, self.fill_below),
+        };
         let px = Pixels {
             w,
             h,
@@ -616,6 +699,7 @@ impl Bilateral {
         let components = Components::of(w, h, problem.mask);
         let from_dct = self.poisson_start
             && problem.initial.is_none()
+            && given.start.is_none()
             && components.is_whole_grid()
             && self.max_iterations > 0;
         let start = from_dct.then(|| {
@@ -623,6 +707,17 @@ impl Bilateral {
             let (f, _) = dct_solve(w, h, g, problem.mask, problem.prior, false);
             f.par_iter().map(|&v| v as f32).collect::<Vec<f32>>()
         });
+        // A given start is read as `initial` is: 0 outside the mask and where not finite.
+        let start = start.or(given.start.map(|mut x| {
+            x.par_iter_mut()
+                .zip(problem.mask.par_iter())
+                .for_each(|(v, &m)| {
+                    if !(m && v.is_finite()) {
+                        *v = 0.0;
+                    }
+                });
+            x
+        }));
         let mut state = State::new(problem, &components, start);
         let mut energy = f64::INFINITY;
         let mut reweightings = 0;

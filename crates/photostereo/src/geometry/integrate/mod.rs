@@ -591,11 +591,7 @@ impl IntegratorKind {
     /// optimum the reweighting finds, and with it the shadows).
     pub fn intermediate_integrator(self) -> Box<dyn Integrator> {
         match self {
-            IntegratorKind::Bilateral => Box::new(Bilateral {
-                debias: false,
-                poisson_start: false,
-                ..Bilateral::default()
-            }),
+            IntegratorKind::Bilateral => Box::new(Bilateral::intermediate()),
             other => other.integrator(),
         }
     }
@@ -1253,26 +1249,54 @@ pub(crate) fn edge_targets(
 /// of the others (Laplace's equation on the mask graph, Dirichlet data from reliable neighbours;
 /// a component without reliable pixels gets zero gradients). Returns `(p, q, filled_count)`.
 ///
-/// Memory: the two copies of the gradients (f32), plus, while each is solved in place, the
-/// multigrid CG's work (three f32 vectors and the coarse levels); the holes' operator is computed
-/// from the mask and weights, not stored.
+/// Memory: the two copies of the gradients (f32), plus [`fill_unreliable_in_place`]'s.
 pub(crate) fn fill_unreliable<'a>(
     problem: &IntegrationProblem<'a>,
     fill_below: f32,
 ) -> (Cow<'a, [f32]>, Cow<'a, [f32]>, usize) {
-    let (w, h) = (problem.width, problem.height);
     let unchanged = (Cow::Borrowed(problem.p), Cow::Borrowed(problem.q), 0);
     let Some(weights) = problem.weights else {
         return unchanged;
     };
-    let mask = problem.mask;
-    let is_hole = |i: usize| mask[i] && weights[i] < fill_below;
-    let filled = (0..h)
-        .into_par_iter()
-        .map(|r| (r * w..(r + 1) * w).filter(|&i| is_hole(i)).count())
-        .sum::<usize>();
-    if filled == 0 {
+    let (w, h, mask) = (problem.width, problem.height, problem.mask);
+    if count_holes(w, h, mask, weights, fill_below) == 0 {
         return unchanged;
+    }
+    let (mut p, mut q) = (problem.p.to_vec(), problem.q.to_vec());
+    let filled = fill_unreliable_in_place(w, h, mask, weights, fill_below, &mut p, &mut q);
+    (Cow::Owned(p), Cow::Owned(q), filled)
+}
+
+/// The mask pixels of weight below `fill_below`.
+fn count_holes(w: usize, h: usize, mask: &[bool], weights: &[f32], fill_below: f32) -> usize {
+    (0..h)
+        .into_par_iter()
+        .map(|r| {
+            (r * w..(r + 1) * w)
+                .filter(|&i| mask[i] && weights[i] < fill_below)
+                .count()
+        })
+        .sum::<usize>()
+}
+
+/// [`fill_unreliable`] in the gradients' own buffers `p` and `q` (`h * w`): the same values,
+/// without the copies. Returns the number of pixels filled.
+///
+/// Memory: while each gradient is solved, the multigrid CG's work (three f32 vectors and the
+/// coarse levels); the holes' operator is computed from the mask and weights, not stored.
+pub(crate) fn fill_unreliable_in_place(
+    w: usize,
+    h: usize,
+    mask: &[bool],
+    weights: &[f32],
+    fill_below: f32,
+    p: &mut [f32],
+    q: &mut [f32],
+) -> usize {
+    let is_hole = |i: usize| mask[i] && weights[i] < fill_below;
+    let filled = count_holes(w, h, mask, weights, fill_below);
+    if filled == 0 {
+        return 0;
     }
     let n = w * h;
     // Components of the holes without any reliable neighbour get one pinned cell (zero gradient).
@@ -1301,14 +1325,15 @@ pub(crate) fn fill_unreliable<'a>(
             .collect::<Vec<usize>>()
     };
     let mut hier = Hierarchy::new(Level::fill(w, h, mask, weights, fill_below, pins));
-    // Each gradient is solved in place in its copy: the holes start at 0, the other cells are
-    // inactive (never read through a non-zero weight, never written).
-    let mut solve_in_place = |g: &[f32]| -> Vec<f32> {
-        let mut x: Vec<f32> = g
-            .par_iter()
-            .enumerate()
-            .map(|(i, &v)| if is_hole(i) { 0.0 } else { v })
-            .collect();
+    // Each gradient is solved in place: the holes start at 0, the other cells are inactive
+    // (never read through a non-zero weight, never written).
+    let mut solve_in_place = |x: &mut [f32]| {
+        x.par_iter_mut().enumerate().for_each(|(i, v)| {
+            if is_hole(i) {
+                *v = 0.0;
+            }
+        });
+        let g = &*x;
         let mut r: Vec<f32> = multigrid::par_zeros(n);
         // b_i: the sum of the gradient over the hole's reliable neighbours.
         let b_norm2 = hier.fine().residual_from(
@@ -1339,17 +1364,16 @@ pub(crate) fn fill_unreliable<'a>(
             &mut hier,
             &mut r,
             b_norm2.sqrt(),
-            &mut x,
+            x,
             None,
             1e-6,
             200,
             &Silent,
         );
-        x
     };
-    let p = solve_in_place(problem.p);
-    let q = solve_in_place(problem.q);
-    (Cow::Owned(p), Cow::Owned(q), filled)
+    solve_in_place(p);
+    solve_in_place(q);
+    filled
 }
 
 /// Converts a solution to a depth map (NaN outside the mask).
