@@ -49,6 +49,20 @@ fn run(dir: &Path, capture: &str, out: &str, extra: &[&str]) -> std::process::Ou
     photostereo(&args, dir)
 }
 
+/// Runs `linear` and `capture` (into `r-linear`, `r-CAPTURE`); returns the capture's run and
+/// the two mean errors (linear, capture).
+fn against_linear(dir: &Path, capture: &str) -> (std::process::Output, f64, f64) {
+    assert!(run(dir, "linear", "r-linear", &[]).status.success());
+    let out = format!("r-{capture}");
+    let o = run(dir, capture, &out, &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (base, own) = (
+        mean_error(&dir.join("r-linear")),
+        mean_error(&dir.join(&out)),
+    );
+    (o, base, own)
+}
+
 #[test]
 fn a_cameras_jpegs_reconstruct_like_the_linear_capture() {
     let d = tempfile::tempdir().unwrap();
@@ -70,14 +84,8 @@ fn a_cameras_jpegs_reconstruct_like_the_linear_capture() {
     );
     assert!(dir.join("camera/ambient.jpg").is_file());
     assert!(dir.join("camera/001.jpg").is_file() && !dir.join("camera/001.png").exists());
-    assert!(run(dir, "linear", "r-linear", &[]).status.success());
-    let o = run(dir, "camera", "r-camera", &[]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let (o, base, cam) = against_linear(dir, "camera");
     assert!(stderr(&o).contains("exposures differ"), "{}", stderr(&o));
-    let (base, cam) = (
-        mean_error(&dir.join("r-linear")),
-        mean_error(&dir.join("r-camera")),
-    );
     assert!(cam < base + 0.8, "camera {cam:.2}° vs linear {base:.2}°");
     let r = report(&dir.join("r-camera"));
     let images = r["photometry"]["images"].as_array().unwrap();
@@ -116,13 +124,7 @@ fn a_plain_jpeg_capture_is_srgb_and_says_so() {
     let dir = d.path();
     synth(dir, "linear", &[]);
     synth(dir, "jpeg", &["--format", "jpeg"]);
-    assert!(run(dir, "linear", "r-linear", &[]).status.success());
-    let o = run(dir, "jpeg", "r-jpeg", &[]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let (base, jpeg) = (
-        mean_error(&dir.join("r-linear")),
-        mean_error(&dir.join("r-jpeg")),
-    );
+    let (_, base, jpeg) = against_linear(dir, "jpeg");
     assert!(jpeg < base + 0.8, "jpeg {jpeg:.2}° vs linear {base:.2}°");
     let r = report(&dir.join("r-jpeg"));
     for i in r["photometry"]["images"].as_array().unwrap() {
@@ -169,13 +171,7 @@ fn a_non_square_cameras_jpegs_reconstruct_like_the_linear_capture() {
     ];
     synth(dir, "camera", &[&size[..], &camera[..]].concat());
     assert!(dir.join("camera/ambient.jpg").is_file() && !dir.join("camera/001.png").exists());
-    assert!(run(dir, "linear", "r-linear", &[]).status.success());
-    let o = run(dir, "camera", "r-camera", &[]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let (base, cam) = (
-        mean_error(&dir.join("r-linear")),
-        mean_error(&dir.join("r-camera")),
-    );
+    let (_, base, cam) = against_linear(dir, "camera");
     assert!(cam < base + 0.8, "camera {cam:.2}° vs linear {base:.2}°");
     let r = report(&dir.join("r-camera"));
     assert_eq!(r["input"]["width"], 72, "{}", r["input"]);

@@ -115,14 +115,7 @@ pub const DEFAULT_ERROR_MAP_MAX_DEG: f32 = 45.0;
 /// Writes a reconstruction's files into a (staging) folder.
 pub fn write_reconstruction(rec: &Reconstruction, dir: &Path, options: &RunOptions) -> Result<()> {
     write_normals(dir, rec.width, rec.height, &rec.normals)?;
-    write_albedo(
-        dir,
-        rec.width,
-        rec.height,
-        rec.channels,
-        &rec.albedo,
-        &rec.mask,
-    )?;
+    write_albedo_of(rec, dir)?;
     write_statuses(rec, dir)?;
     write_detection(rec, dir)?;
     write_recursive(rec, dir)?;
@@ -155,14 +148,7 @@ pub fn write_releasing(rec: &mut Reconstruction, dir: &Path, options: &RunOption
         r.gloss = None;
     }
     drop(std::mem::take(&mut rec.trust));
-    write_albedo(
-        dir,
-        rec.width,
-        rec.height,
-        rec.channels,
-        &rec.albedo,
-        &rec.mask,
-    )?;
+    write_albedo_of(rec, dir)?;
     drop(std::mem::take(&mut rec.albedo));
     write_error_figure(rec, dir, options)?;
     rec.error_map = None;
@@ -176,6 +162,18 @@ pub fn write_releasing(rec: &mut Reconstruction, dir: &Path, options: &RunOption
         drop(std::mem::take(&mut s.curl));
     }
     Ok(())
+}
+
+/// The albedo's files ([`write_albedo`]) of `rec`.
+fn write_albedo_of(rec: &Reconstruction, dir: &Path) -> Result<()> {
+    write_albedo(
+        dir,
+        rec.width,
+        rec.height,
+        rec.channels,
+        &rec.albedo,
+        &rec.mask,
+    )
 }
 
 /// `light_status.npy` and `unusable_lights.png`, when the statuses were decided.
