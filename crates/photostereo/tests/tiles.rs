@@ -186,6 +186,30 @@ fn a_synthetic_capture_in_tiles_gives_the_results_held_whole() {
     assert_eq!(open_spill_files(out.path()), 0);
 }
 
+#[test]
+fn a_tiled_detection_leaves_the_kappa_of_its_report_with_the_capture() {
+    use photostereo::solve::detect::{estimate_kappa_weighted, remembered_kappa, DetectionParams};
+    use photostereo::solve::tiled::{detect_tiles, measured_kappa, statistics_view};
+    let out = tempfile::tempdir().unwrap();
+    let mut spec = SynthSpec::new(SceneKind::Blocks, Rig::parse("ring8").unwrap());
+    spec.size = 64;
+    let (_, folder) = synth_to_folder(&spec, &out.path().join("blocks"), false).unwrap();
+    let files = CaptureFiles::diligent(&folder).unwrap();
+    let tiled = files
+        .load_with(&Silent, &tiled(Layout::Tiles, 300, out.path()))
+        .unwrap();
+    let params = DetectionParams::default();
+    let d = detect_tiles(&tiled, &params, &Silent).unwrap();
+    let n = &d.noise;
+    // Measured afresh on a new statistics view: the value the capture remembered.
+    let view = statistics_view(&tiled).unwrap();
+    let fresh = estimate_kappa_weighted(&view, n.sigma0, n.floor, &params, &n.light_factor);
+    assert!(fresh.is_some(), "eight lights measure κ");
+    let kept = remembered_kappa(&tiled, n.sigma0, n.floor, &params, &n.light_factor);
+    assert_eq!(kept, Some(fresh));
+    assert_eq!(measured_kappa(&tiled, n, &params).unwrap(), fresh);
+}
+
 /// Cancels once `after` units of progress were reported.
 struct CancelAfter {
     after: u64,

@@ -314,7 +314,7 @@ fn reference(
 /// place.
 impl ReadingMask for crate::method::statusmap::StatusMap {
     fn readings(&self) -> usize {
-        self.pixels().len() * self.lights
+        self.n_pixels() * self.lights
     }
     fn excluded(&self, p: usize, k: usize, _n: usize) -> bool {
         self.code(p, k) != status::USED

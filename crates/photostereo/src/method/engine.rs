@@ -394,11 +394,13 @@ pub fn reconstruct_with_truth(
     }
     let normals = capture.scatter_owned(std::mem::take(&mut estimate.normals), 1, [0.0; 3]);
     let albedo = capture.scatter_owned(std::mem::take(&mut estimate.albedo), capture.channels, 0.0);
-    let light_status = crate::method::statusmap::StatusMap::packed(
+    // The statuses copy the capture's mask pixel list only where the mask is not the whole
+    // frame: a whole frame's list (4 bytes a pixel) is not held twice.
+    let light_status = crate::method::statusmap::StatusMap::packed_at(
         capture.width,
         capture.height,
         capture.n_lights(),
-        capture.pixels.clone(),
+        &capture.pixels,
         packed_status,
     );
     crate::method::indicators::record(capture, &light_status, statuses_decided, &mut report);
@@ -471,10 +473,7 @@ fn record_detection(
             "threshold_chi2": d.threshold,
             "confidence": d.params.confidence,
             "unreliable_share": d.unreliable_share(),
-            "kappa_measured": crate::solve::detect::estimate_kappa_weighted(
-                &*crate::solve::tiled::statistics_view(capture)?, d.noise.sigma0, d.noise.floor, &d.params,
-                &d.noise.light_factor,
-            ),
+            "kappa_measured": crate::solve::tiled::measured_kappa(capture, &d.noise, &d.params)?,
             "shadow_labels": match status {
                 Some(s) => Some(tiled_shadow_labels(capture, estimate, s)?),
                 None => None,

@@ -15,11 +15,44 @@ pub struct StatusMap {
     pub width: usize,
     pub height: usize,
     pub lights: usize,
-    /// Flat row-major frame index of each mask pixel, ascending.
-    pixels: Vec<u32>,
+    /// The frame pixels with statuses (the mask pixels), in mask order.
+    pixels: MaskPixels,
     /// Row `p`, code `k`: light `k` at mask pixel `p`; `None`: every light used at every mask
     /// pixel (`l2`).
     codes: Option<Codes2>,
+}
+
+/// Which frame pixels a [`StatusMap`] holds statuses for.
+#[derive(Clone, Debug, PartialEq)]
+enum MaskPixels {
+    /// Every frame pixel, row-major: a mask that is the whole frame, whose list of flat indices
+    /// would be 0, 1, 2, … (4 bytes a frame pixel not held).
+    Frame,
+    /// Flat row-major frame index of each mask pixel, ascending; never every frame pixel.
+    Listed(Vec<u32>),
+}
+
+impl MaskPixels {
+    /// The ascending mask pixel list `pixels` of a frame of `frame` pixels: [`MaskPixels::Frame`]
+    /// when it names every one of them (ascending, distinct and in the frame, so it is
+    /// 0, 1, 2, …).
+    fn of(frame: usize, pixels: &[u32]) -> MaskPixels {
+        if pixels.len() == frame {
+            debug_assert!(pixels.iter().enumerate().all(|(p, &i)| p == i as usize));
+            MaskPixels::Frame
+        } else {
+            MaskPixels::Listed(pixels.to_vec())
+        }
+    }
+
+    /// [`MaskPixels::of`] that keeps `pixels` (no copy) when it is not the whole frame.
+    fn owned(frame: usize, pixels: Vec<u32>) -> MaskPixels {
+        if pixels.len() == frame {
+            MaskPixels::of(frame, &pixels)
+        } else {
+            MaskPixels::Listed(pixels)
+        }
+    }
 }
 
 impl StatusMap {
@@ -50,10 +83,37 @@ impl StatusMap {
         pixels: Vec<u32>,
         codes: Option<Codes2>,
     ) -> StatusMap {
+        let n = pixels.len();
+        let pixels = MaskPixels::owned(width * height, pixels);
+        StatusMap::checked(width, height, lights, n, pixels, codes)
+    }
+
+    /// [`StatusMap::packed`] for the mask pixels `pixels` of a capture that keeps its own list:
+    /// copied only when the mask is not the whole frame (a whole frame's list is not held).
+    pub fn packed_at(
+        width: usize,
+        height: usize,
+        lights: usize,
+        pixels: &[u32],
+        codes: Option<Codes2>,
+    ) -> StatusMap {
+        let mask = MaskPixels::of(width * height, pixels);
+        StatusMap::checked(width, height, lights, pixels.len(), mask, codes)
+    }
+
+    /// The map of `n` mask pixels, after checking that `codes` has a row of `lights` for each.
+    fn checked(
+        width: usize,
+        height: usize,
+        lights: usize,
+        n: usize,
+        pixels: MaskPixels,
+        codes: Option<Codes2>,
+    ) -> StatusMap {
         if let Some(c) = &codes {
             assert_eq!(
                 (c.rows(), c.width()),
-                (pixels.len(), lights),
+                (n, lights),
                 "statuses per mask pixel"
             );
         }
@@ -83,12 +143,28 @@ impl StatusMap {
         StatusMap::new(width, height, lights, pixels, Some(codes))
     }
 
-    /// The mask pixels' flat frame indices.
-    pub fn pixels(&self) -> &[u32] {
-        &self.pixels
+    /// How many mask pixels the map holds statuses for.
+    pub fn n_pixels(&self) -> usize {
+        match &self.pixels {
+            MaskPixels::Frame => self.width * self.height,
+            MaskPixels::Listed(v) => v.len(),
+        }
     }
 
-    /// Light `k`'s status at mask pixel `p` (index into [`StatusMap::pixels`]).
+    /// Calls `f(p, i)` for each mask pixel `p` (index into the mask pixels, ascending) and its
+    /// flat frame index `i`.
+    fn for_each_pixel(&self, mut f: impl FnMut(usize, usize)) {
+        match &self.pixels {
+            MaskPixels::Frame => (0..self.width * self.height).for_each(|i| f(i, i)),
+            MaskPixels::Listed(v) => {
+                for (p, &i) in v.iter().enumerate() {
+                    f(p, i as usize);
+                }
+            }
+        }
+    }
+
+    /// Light `k`'s status at mask pixel `p` (index into the ascending mask pixels).
     #[inline]
     pub fn code(&self, p: usize, k: usize) -> u8 {
         self.codes.as_ref().map_or(status::USED, |c| c.get(p, k))
@@ -97,19 +173,18 @@ impl StatusMap {
     /// Light `k`'s status at frame pixel `i` (flat row-major index): [`status::OUTSIDE`]
     /// outside the mask. A binary search: for occasional look-ups, not for sweeps.
     pub fn get(&self, k: usize, i: usize) -> u8 {
-        match self.pixels.binary_search(&(i as u32)) {
-            Ok(p) => self.code(p, k),
-            Err(_) => status::OUTSIDE,
-        }
+        let p = match &self.pixels {
+            MaskPixels::Frame => (i < self.width * self.height).then_some(i),
+            MaskPixels::Listed(v) => v.binary_search(&(i as u32)).ok(),
+        };
+        p.map_or(status::OUTSIDE, |p| self.code(p, k))
     }
 
     /// Light `k`'s statuses over the frame (`height * width`, row-major) into `out`.
     pub fn write_plane(&self, k: usize, out: &mut Vec<u8>) {
         out.clear();
         out.resize(self.width * self.height, status::OUTSIDE);
-        for (p, &i) in self.pixels.iter().enumerate() {
-            out[i as usize] = self.code(p, k);
-        }
+        self.for_each_pixel(|p, i| out[i] = self.code(p, k));
     }
 
     /// Light `k`'s statuses over the frame.
@@ -148,9 +223,7 @@ impl StatusMap {
     /// `None`); NaN outside the mask.
     pub fn counts(&self, which: Option<u8>) -> Vec<f32> {
         let mut counts = vec![f32::NAN; self.width * self.height];
-        for (p, &i) in self.pixels.iter().enumerate() {
-            counts[i as usize] = self.count_at(p, which) as f32;
-        }
+        self.for_each_pixel(|p, i| counts[i] = self.count_at(p, which) as f32);
         counts
     }
 
@@ -158,9 +231,9 @@ impl StatusMap {
     /// outside the mask, counts above `u16::MAX − 1` clipped there.
     pub fn count_map(&self, which: Option<u8>) -> Vec<u16> {
         let mut counts = vec![COUNT_OUTSIDE; self.width * self.height];
-        for (p, &i) in self.pixels.iter().enumerate() {
-            counts[i as usize] = self.count_at(p, which).min(COUNT_OUTSIDE as usize - 1) as u16;
-        }
+        self.for_each_pixel(|p, i| {
+            counts[i] = self.count_at(p, which).min(COUNT_OUTSIDE as usize - 1) as u16;
+        });
         counts
     }
 }
@@ -232,5 +305,42 @@ mod tests {
         assert_eq!(all.counts(None)[2], 0.0);
         assert_eq!(all.plane(1)[5], status::USED);
         assert_eq!(all.plane(1)[4], status::OUTSIDE);
+    }
+
+    #[test]
+    fn a_whole_frame_mask_reads_as_its_dense_reference_without_a_pixel_list() {
+        // 2×2 frame, every pixel in the mask; two lights.
+        let (w, h, n) = (2, 2, 2);
+        let codes = vec![
+            status::USED,
+            status::SHADOW, // pixel 0
+            status::HIGHLIGHT,
+            status::USED, // pixel 1
+            status::SHADOW,
+            status::SHADOW, // pixel 2
+            status::USED,
+            status::REJECTED, // pixel 3
+        ];
+        let pixels: Vec<u32> = (0..4).collect();
+        let packed = Codes2::from_codes(&codes, n);
+        let map = StatusMap::packed_at(w, h, n, &pixels, Some(packed.clone()));
+        assert_eq!(map.pixels, MaskPixels::Frame);
+        assert_eq!(map, StatusMap::new(w, h, n, pixels, Some(codes.clone())));
+        assert_eq!(map.n_pixels(), 4);
+        for k in 0..n {
+            let plane: Vec<u8> = (0..4).map(|p| codes[p * n + k]).collect();
+            assert_eq!(map.plane(k), plane);
+            for (i, &s) in plane.iter().enumerate() {
+                assert_eq!(map.get(k, i), s);
+            }
+            assert_eq!(map.get(k, 4), status::OUTSIDE);
+        }
+        assert_eq!(map.counts(None), vec![1.0, 1.0, 2.0, 1.0]);
+        assert_eq!(map.count_map(Some(status::SHADOW)), vec![1, 0, 2, 0]);
+        // A mask short of the whole frame keeps its list.
+        let part = StatusMap::packed_at(w, h, n, &[0, 3], None);
+        assert_eq!(part.pixels, MaskPixels::Listed(vec![0, 3]));
+        assert_eq!(part.get(0, 1), status::OUTSIDE);
+        assert_eq!(part.get(0, 3), status::USED);
     }
 }

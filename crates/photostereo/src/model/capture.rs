@@ -115,6 +115,35 @@ impl Statistics {
         }
         values
     }
+
+    /// The values remembered under `key`, if any (nothing is measured).
+    pub fn recall(&self, key: &[u64]) -> Option<Vec<f64>> {
+        let m = self.keyed.lock().ok()?;
+        m.iter().find(|(k, _)| k == key).map(|(_, v)| v.clone())
+    }
+
+    /// Remembers what `other` has measured and this memo has not: for a capture held in tiles,
+    /// whose statistics are those of its statistics view
+    /// ([`crate::solve::tiled::statistics_view`]), once that view is dropped.
+    pub fn adopt(&self, other: &Statistics) {
+        if let Some(&v) = other.image_noise.get() {
+            let _ = self.image_noise.set(v);
+        }
+        if let Some(&v) = other.dark_floor.get() {
+            let _ = self.dark_floor.set(v);
+        }
+        let theirs = match other.keyed.lock() {
+            Ok(m) => m.clone(),
+            Err(_) => return,
+        };
+        for (key, values) in theirs {
+            if self.recall(&key).is_none() {
+                if let Ok(mut m) = self.keyed.lock() {
+                    m.push((key, values));
+                }
+            }
+        }
+    }
 }
 
 impl Clone for Statistics {

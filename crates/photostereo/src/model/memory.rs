@@ -34,10 +34,13 @@ pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// them. Set on the measured peak of a full-frame 24-light RGB capture with a margin of about 7%
 /// (`docs/performance.md`, Memory).
 pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 59;
-/// Bytes per mask pixel held beside every stage when the other arrays are parked: the mask
-/// pixels' frame indices (the capture's and the status map's, 8), the detector's residual and
-/// verdicts (6).
-pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 14;
+/// Bytes per mask pixel held beside every stage when the other arrays are parked: the
+/// capture's mask pixel frame indices (4), the detector's residual and verdicts (6).
+pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 10;
+/// Bytes per mask pixel of the status map's own list of the mask pixels' frame indices, held
+/// at the end of the reconstruction when the mask is not the whole frame (a whole frame's
+/// statuses keep no list: `method::statusmap`).
+pub const STATUS_INDEX_BYTES_PER_MASK_PIXEL: u64 = 4;
 /// Bits per frame pixel and light: the shadow maps of one surface (attached and cast, as bit
 /// planes).
 pub const FRAME_BITS_PER_PIXEL_LIGHT: u64 = 2;
@@ -290,8 +293,14 @@ pub fn parked_full_frame_bytes(s: &CaptureSize) -> u64 {
     }
     let beside = s.beside.bytes(s.frame(), s.pixels as u64);
     let writing = s.beside.writing_bytes(s.width as u64);
+    let status_index = if (s.pixels as u64) < s.frame() {
+        s.pixels as u64 * STATUS_INDEX_BYTES_PER_MASK_PIXEL
+    } else {
+        0
+    };
     s.frame() * PARKED_FRAME_BYTES_PER_PIXEL
         + mask_bytes(s, PARKED_MASK_BYTES_PER_PIXEL)
+        + status_index
         + FIXED_BYTES
         + worker_bytes(s)
         + beside
@@ -477,6 +486,22 @@ mod tests {
             decoded_whole: false,
             beside: Beside::default(),
         }
+    }
+
+    #[test]
+    fn the_status_maps_index_list_is_planned_only_for_a_mask_short_of_the_frame() {
+        let whole = size(1000, 1000, 24);
+        // The same frame with one pixel fewer in the mask: one pixel's parked bytes fewer,
+        // and the status map's list of every mask pixel's index more.
+        let short = CaptureSize {
+            pixels: whole.pixels - 1,
+            ..whole
+        };
+        assert_eq!(
+            parked_full_frame_bytes(&short) + PARKED_MASK_BYTES_PER_PIXEL,
+            parked_full_frame_bytes(&whole)
+                + short.pixels as u64 * STATUS_INDEX_BYTES_PER_MASK_PIXEL
+        );
     }
 
     #[test]

@@ -11,7 +11,8 @@ use crate::base::error::{Error, Result};
 use crate::base::progress::{Progress, Silent};
 use crate::model::capture::Capture;
 use crate::solve::detect::{
-    detect_with_noise, noise_model, Detection, DetectionParams, NoiseEstimate,
+    detect_with_noise, estimate_kappa_weighted, noise_model, remembered_kappa, Detection,
+    DetectionParams, NoiseEstimate, NoiseModel,
 };
 use crate::solve::lambert::{solve_subsets, Estimate};
 use std::borrow::Cow;
@@ -60,6 +61,22 @@ pub fn statistics_view(capture: &Capture) -> Result<Cow<'_, Capture>> {
     }
 }
 
+/// κ measured under the noise model `noise` ([`estimate_kappa_weighted`] with its σ₀, floor
+/// and light factors): from the capture's memo when [`detect_tiles`] left it there, else on the
+/// statistics view.
+pub fn measured_kappa(
+    capture: &Capture,
+    noise: &NoiseModel,
+    params: &DetectionParams,
+) -> Result<Option<f64>> {
+    let (s0, floor, factors) = (noise.sigma0, noise.floor, &noise.light_factor[..]);
+    if let Some(k) = remembered_kappa(capture, s0, floor, params, factors) {
+        return Ok(k);
+    }
+    let view = statistics_view(capture)?;
+    Ok(estimate_kappa_weighted(&view, s0, floor, params, factors))
+}
+
 /// [`crate::solve::detect::detect`] tile by tile: the noise model from the statistics view, then the
 /// test and attribution of every tile.
 pub fn detect_tiles(
@@ -79,6 +96,14 @@ pub fn detect_tiles(
     }
     let stats = statistics_view(capture)?;
     let noise = noise_model(&stats, params, progress)?;
+    if let Cow::Owned(view) = &stats {
+        // The κ a report of this detection reads ([`measured_kappa`]), measured while the view
+        // is held and remembered by the capture with the rest of its statistics: none of the
+        // capture is copied again for it when the run's maps are whole.
+        let _ =
+            estimate_kappa_weighted(view, noise.sigma0, noise.floor, params, &noise.light_factor);
+        capture.statistics().adopt(view.statistics());
+    }
     drop(stats);
     if !capture.is_tiled() {
         return detect_with_noise(capture, params, noise, progress);

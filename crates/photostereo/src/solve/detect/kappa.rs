@@ -51,13 +51,7 @@ pub fn estimate_kappa_weighted(
     params: &DetectionParams,
     factors: &[f64],
 ) -> Option<f64> {
-    let mut key = vec![
-        KAPPA_KEY,
-        sigma0.to_bits(),
-        floor.to_bits(),
-        params.shadow_sigmas.to_bits(),
-    ];
-    key.extend(factors.iter().map(|f| f.to_bits()));
+    let key = kappa_key(sigma0, floor, params, factors);
     capture
         .statistics()
         .remember(key, || {
@@ -67,6 +61,32 @@ pub fn estimate_kappa_weighted(
         })
         .first()
         .copied()
+}
+
+/// [`estimate_kappa_weighted`] when the capture's memo already holds it (`Some` of the
+/// estimate), else `None`: nothing is measured, so it also answers for a capture held in tiles.
+pub fn remembered_kappa(
+    capture: &Capture,
+    sigma0: f64,
+    floor: f64,
+    params: &DetectionParams,
+    factors: &[f64],
+) -> Option<Option<f64>> {
+    let key = kappa_key(sigma0, floor, params, factors);
+    let values = capture.statistics().recall(&key)?;
+    Some(values.first().copied())
+}
+
+/// The memo key of κ for these arguments.
+fn kappa_key(sigma0: f64, floor: f64, params: &DetectionParams, factors: &[f64]) -> Vec<u64> {
+    let mut key = vec![
+        KAPPA_KEY,
+        sigma0.to_bits(),
+        floor.to_bits(),
+        params.shadow_sigmas.to_bits(),
+    ];
+    key.extend(factors.iter().map(|f| f.to_bits()));
+    key
 }
 
 /// The first word of the memo keys of κ and of the light factors.

@@ -39,7 +39,10 @@ mod regression;
 
 pub use attribution::{AttributionScratch, Attributor};
 pub use chi2::null_space;
-pub use kappa::{estimate_kappa, estimate_kappa_weighted, light_noise_factors, MIN_KAPPA_LIGHTS};
+pub use kappa::{
+    estimate_kappa, estimate_kappa_weighted, light_noise_factors, remembered_kappa,
+    MIN_KAPPA_LIGHTS,
+};
 pub(crate) use noise::interior_neighbourhoods;
 pub use noise::{dark_floor, image_noise, noise_model, NoiseModel, DEFAULT_RELATIVE_NOISE};
 pub use params::{DetectionParams, NoiseEstimate, MAX_NOISE_REFINEMENTS};
