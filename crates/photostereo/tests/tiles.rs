@@ -1,21 +1,25 @@
 //! Captures in tiles (ALGORITHMS.md §10): a capture loaded in tiles at the input's precision,
 //! in memory or in a spill file, gives the same samples (bit for bit) and the same results as
-//! the capture held whole, for every method, on DiLiGenT cat and on a synthetic capture; the
-//! spill file never outlives the load (success, error, cancellation); a budget too small is
-//! refused with the smallest that works.
+//! the capture held whole, for every method, on DiLiGenT cat and bear and on a synthetic
+//! capture; the spill file never outlives the load (success, error, cancellation); a budget
+//! too small is refused with the smallest that works.
 
 use photostereo::base::progress::{Progress, Silent};
 use photostereo::io::layouts::{CaptureFiles, LoadOptions};
 use photostereo::io::synth::synth_to_folder;
-use photostereo::method::engine::{reconstruct, Method, Params, Reconstruction};
+use photostereo::method::engine::{
+    reconstruct, reconstruct_to_write, Method, Params, Reconstruction,
+};
 use photostereo::model::capture::Capture;
 use photostereo::model::memory::{Force, Layout};
 use photostereo::scene::{Rig, SceneKind, SynthSpec};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicU64, Ordering};
 
-fn cat() -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/diligent/catPNG");
+fn diligent(object: &str) -> Option<PathBuf> {
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/data/diligent")
+        .join(format!("{object}PNG"));
     p.is_dir().then_some(p)
 }
 
@@ -93,6 +97,32 @@ fn max_normal_difference(a: &Reconstruction, b: &Reconstruction) -> f32 {
         .fold(0.0, f32::max)
 }
 
+/// A reconstruction made to be written ([`reconstruct_to_write`]) of a capture that parks (`tiled`) keeps
+/// its surface's maps in the parking file (empty in memory) and reads them back bit for bit:
+/// they equal those of `reference` (the capture held whole).
+fn assert_surface_waits_and_returns(reference: &Reconstruction, tiled: &Capture, params: &Params) {
+    let name = params.method.name();
+    let mut rec = reconstruct_to_write(tiled, params, None, &Silent).unwrap();
+    let held = |r: &Reconstruction| r.surface.as_ref().map(|s| !s.depth.values.is_empty());
+    assert_eq!(held(&rec), Some(false), "{name}: the surface waits parked");
+    rec.unpark_surface().unwrap();
+    let maps = |r: &Reconstruction| {
+        r.surface.as_ref().map(|s| {
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let jumps = s.depth.discontinuities.as_deref().map(bits);
+            (bits(&s.depth.values), bits(&s.curl), jumps)
+        })
+    };
+    assert!(
+        maps(&rec) == maps(reference),
+        "{name}: surface after unparking"
+    );
+    assert!(
+        !maps(reference).is_some_and(|(d, _, _)| d.is_empty()),
+        "{name}: no depth"
+    );
+}
+
 fn assert_same_results(whole: &Capture, tiled: &Capture, methods: &[Method]) {
     for &method in methods {
         let params = Params {
@@ -116,6 +146,9 @@ fn assert_same_results(whole: &Capture, tiled: &Capture, methods: &[Method]) {
                 .map(|d| d.iter().map(|v| v.to_bits()).collect::<Vec<_>>())
         };
         assert!(bits(&a) == bits(&b), "{}: depth", method.name());
+        if tiled.memory.as_ref().is_some_and(|m| m.park) {
+            assert_surface_waits_and_returns(&a, tiled, &params);
+        }
         for key in [
             "detection",
             "highlights",
@@ -142,7 +175,7 @@ fn assert_same_results(whole: &Capture, tiled: &Capture, methods: &[Method]) {
 
 #[test]
 fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
-    let Some(dir) = cat() else {
+    let Some(dir) = diligent("cat") else {
         eprintln!("SKIPPED: no DiLiGenT cat in ../shared/data");
         return;
     };
@@ -165,6 +198,22 @@ fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
     assert_same_results(&whole, &tiled, Method::ALL);
     drop(tiled);
     assert_eq!(open_spill_files(spill.path()), 0);
+}
+
+#[test]
+fn bear_in_a_spill_file_gives_the_results_of_bear_in_memory() {
+    let Some(dir) = diligent("bear") else {
+        eprintln!("SKIPPED: no DiLiGenT bear in ../shared/data");
+        return;
+    };
+    let files = CaptureFiles::diligent(&dir).unwrap();
+    let whole = files.load(&Silent).unwrap();
+    let spill = tempfile::tempdir().unwrap();
+    let tiled = files
+        .load_with(&Silent, &tiled(Layout::Spill, 5000, spill.path()))
+        .unwrap();
+    assert!(tiled.memory.as_ref().is_some_and(|m| m.park && m.tiles > 3));
+    assert_same_results(&whole, &tiled, Method::ALL);
 }
 
 #[test]

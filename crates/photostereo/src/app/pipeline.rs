@@ -11,7 +11,7 @@ use crate::io::figure::write_error_map;
 use crate::io::groundtruth::read_normal_map;
 use crate::io::imageio::write_png8;
 use crate::io::layouts::CaptureFiles;
-use crate::method::engine::{reconstruct_with_truth, Params, Reconstruction};
+use crate::method::engine::{reconstruct_to_write, Params, Reconstruction};
 use std::path::{Path, PathBuf};
 use std::str::FromStr;
 use std::time::Instant;
@@ -153,6 +153,10 @@ pub fn write_releasing(rec: &mut Reconstruction, dir: &Path, options: &RunOption
     write_error_figure(rec, dir, options)?;
     rec.error_map = None;
     write_normals(dir, rec.width, rec.height, &rec.normals)?;
+    // The surface's maps, parked under a tight budget ([`reconstruct_to_write`]), come back
+    // once every other map but the normals is written and released.
+    rec.unpark_surface()?;
+    note_skipped_obj(rec, options);
     write_surface(rec, dir, options)?;
     drop(std::mem::take(&mut rec.normals));
     drop(std::mem::take(&mut rec.mask));
@@ -162,6 +166,19 @@ pub fn write_releasing(rec: &mut Reconstruction, dir: &Path, options: &RunOption
         drop(std::mem::take(&mut s.curl));
     }
     Ok(())
+}
+
+/// The report's note that `mesh.obj` is not written, when the surface has more vertices than
+/// [`OBJ_MAX_VERTICES`] and the options do not ask for it at any size.
+fn note_skipped_obj(rec: &mut Reconstruction, options: &RunOptions) {
+    if let Some(s) = &rec.surface {
+        let vertices = s.depth.values.iter().filter(|v| v.is_finite()).count();
+        if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
+            rec.report.notes.push(format!(
+                "mesh.obj skipped: {vertices} vertices, more than {OBJ_MAX_VERTICES} (mesh.ply holds the mesh)"
+            ));
+        }
+    }
 }
 
 /// The albedo's files ([`write_albedo`]) of `rec`.
@@ -356,7 +373,7 @@ pub fn run(
                 .map(|c| c.into_owned())
         })
         .transpose()?;
-    let mut rec = reconstruct_with_truth(&capture, &options.params, truth.as_deref(), progress)?;
+    let mut rec = reconstruct_to_write(&capture, &options.params, truth.as_deref(), progress)?;
     // `rti`: the relightable image from the same readings, while they are loaded.
     let rti = options
         .rti
@@ -395,14 +412,6 @@ pub fn run(
     // The error figures and map are made: the truth (12 bytes a pixel) is not held while writing.
     drop(truth);
     let t = Instant::now();
-    if let Some(s) = &rec.surface {
-        let vertices = s.depth.values.iter().filter(|v| v.is_finite()).count();
-        if vertices > OBJ_MAX_VERTICES && !options.obj_any_size {
-            rec.report.notes.push(format!(
-                "mesh.obj skipped: {vertices} vertices, more than {OBJ_MAX_VERTICES} (mesh.ply holds the mesh)"
-            ));
-        }
-    }
     progress.begin("writing", 1);
     write_releasing(&mut rec, folder.path(), options)?;
     if let Some((fitted, mut entry)) = rti {

@@ -111,7 +111,7 @@ pub fn from_bytes(bytes: &[u8]) -> Result<Capture> {
         .split_at_checked(frame)
         .ok_or_else(|| bad("truncated"))?;
     let mask: Vec<bool> = mask.iter().map(|&m| m != 0).collect();
-    let pixels: Vec<u32> = (0..frame).filter(|&i| mask[i]).map(|i| i as u32).collect();
+    let pixels = crate::model::capture::mask_pixel_indices(&mask);
     if rest.len() != 4 * pixels.len() * h.directions.len() * h.channels {
         return Err(bad("the samples do not match the sizes"));
     }

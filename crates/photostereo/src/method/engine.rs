@@ -247,9 +247,61 @@ pub struct Reconstruction {
     pub error_map: Option<Vec<f32>>,
     /// What `report.json` holds.
     pub report: Report,
+    /// The surface's maps while they wait in a parking file ([`reconstruct_to_write`]).
+    waiting_surface: Option<std::sync::Arc<WaitingSurface>>,
+}
+
+/// The depth, curl and discontinuity maps of a [`Reconstruction`]'s surface, parked until
+/// [`Reconstruction::unpark_surface`] reads them back bit for bit.
+struct WaitingSurface {
+    parking: Parking,
+    depth: Parked<f32>,
+    curl: Parked<f32>,
+    discontinuities: Option<Parked<f32>>,
+}
+
+impl std::fmt::Debug for WaitingSurface {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "WaitingSurface({} bytes parked)", self.parking.bytes())
+    }
+}
+
+impl WaitingSurface {
+    /// Parks the maps of `surface` in `parking`, leaving them empty.
+    fn park(mut parking: Parking, surface: &mut Surface) -> Result<WaitingSurface> {
+        let depth = parking.shelve(&mut surface.depth.values)?;
+        let curl = parking.shelve(&mut surface.curl)?;
+        let discontinuities = match surface.depth.discontinuities.take() {
+            Some(d) => Some(parking.park(d)?),
+            None => None,
+        };
+        Ok(WaitingSurface {
+            parking,
+            depth,
+            curl,
+            discontinuities,
+        })
+    }
 }
 
 impl Reconstruction {
+    /// Reads back the surface's maps that [`reconstruct_to_write`] left parked (nothing to do
+    /// when none wait): after it, `surface` holds them as [`reconstruct`] gives them.
+    pub fn unpark_surface(&mut self) -> Result<()> {
+        let (Some(waiting), Some(surface)) = (self.waiting_surface.take(), self.surface.as_mut())
+        else {
+            return Ok(());
+        };
+        let w = &*waiting;
+        surface.depth.values = w.parking.read(&w.depth)?;
+        surface.curl = w.parking.read(&w.curl)?;
+        surface.depth.discontinuities = match &w.discontinuities {
+            Some(d) => Some(w.parking.read(d)?),
+            None => None,
+        };
+        Ok(())
+    }
+
     /// (H, W) depth in pixel units toward the camera, NaN outside the mask, when integrated.
     pub fn depth(&self) -> Option<&[f32]> {
         self.surface.as_ref().map(|s| s.depth.values.as_slice())
@@ -302,6 +354,32 @@ pub fn reconstruct_with_truth(
     params: &Params,
     truth: Option<&[[f32; 3]]>,
     progress: &dyn Progress,
+) -> Result<Reconstruction> {
+    reconstruct_surface_waiting(capture, params, truth, progress, false)
+}
+
+/// [`reconstruct_with_truth`] for a caller that writes the maps and releases each once
+/// written, the surface last: under a plan that parks ([`crate::model::memory::MemoryPlan`]),
+/// the surface's depth, curl and discontinuities stay in the parking file (its `surface` holds
+/// its figures and empty maps) until [`Reconstruction::unpark_surface`], so that the run's
+/// largest stage never holds them beside every other map.
+pub fn reconstruct_to_write(
+    capture: &Capture,
+    params: &Params,
+    truth: Option<&[[f32; 3]]>,
+    progress: &dyn Progress,
+) -> Result<Reconstruction> {
+    reconstruct_surface_waiting(capture, params, truth, progress, true)
+}
+
+/// [`reconstruct_with_truth`], the surface's maps left parked when `surface_waits` and the
+/// plan parks ([`reconstruct_to_write`]).
+fn reconstruct_surface_waiting(
+    capture: &Capture,
+    params: &Params,
+    truth: Option<&[[f32; 3]]>,
+    progress: &dyn Progress,
+    surface_waits: bool,
 ) -> Result<Reconstruction> {
     params.validate()?;
     let mut report = start_report(capture, params);
@@ -379,11 +457,22 @@ pub fn reconstruct_with_truth(
         }
         None => (make_inputs(&arrays.estimate.normals)?, None),
     };
-    let surface = final_surface(capture, params, inputs, t, progress, &mut report)?;
-    if let (Some(parking), Some(parked)) = (parking.as_ref(), parked) {
-        arrays.unpark(parking, parked)?;
-    }
-    drop(parking);
+    let mut surface = final_surface(capture, params, inputs, t, progress, &mut report)?;
+    // The surface waits in the file (when asked) before the other arrays come back.
+    let waiting_surface = match (parking, parked) {
+        (Some(parking), Some(parked)) => match surface.as_mut().filter(|_| surface_waits) {
+            Some(s) => {
+                let waiting = WaitingSurface::park(parking, s)?;
+                arrays.unpark(&waiting.parking, parked)?;
+                Some(std::sync::Arc::new(waiting))
+            }
+            None => {
+                arrays.unpark(&parking, parked)?;
+                None
+            }
+        },
+        _ => None,
+    };
     // Each full-frame map replaces its per-mask-pixel values (is them, on a mask that is the
     // whole frame): freed once scattered, never held twice.
     let trust = capture.scatter_owned(trust, 1, 0.0);
@@ -430,6 +519,7 @@ pub fn reconstruct_with_truth(
         camera: capture.lights.perspective().map(|(c, _)| c),
         error_map: None,
         report,
+        waiting_surface,
     })
 }
 

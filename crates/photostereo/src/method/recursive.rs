@@ -474,8 +474,9 @@ struct Recursion {
     earlier_print: Vec<u32>,
     /// Pixels held at their set since they went back to an earlier one.
     oscillating: Vec<bool>,
-    /// The last iteration's shadow maps.
-    last_maps: Option<ShadowMaps>,
+    /// The last iteration's shadow maps: held, or (under a tight budget) parked in their own
+    /// file until [`Recursion::finish`] hands them over, every other array of it released.
+    last_maps: Option<Held>,
     /// The last intermediate surface, full frame, pixel units.
     last_depth: Vec<f32>,
 }
@@ -643,8 +644,13 @@ impl Recursion {
         if !noise.light_factor.is_empty() && !setting.near_lights() {
             // Lights with their own noise factors: the estimate is the weighted fit the test
             // made.
-            let ids: Vec<usize> = (0..np).collect();
-            resolve_at(capture, &light_status, &ids, &mut est, &noise.light_factor)?;
+            resolve_where(
+                capture,
+                &light_status,
+                |_| true,
+                &mut est,
+                &noise.light_factor,
+            )?;
         }
         Ok(Recursion {
             light_status,
@@ -699,15 +705,15 @@ impl Recursion {
         // A tight budget: the shadow maps and the surface wait in the file while the estimate
         // is read back and solved again (the shadow maps until the iteration's end, the
         // surface until the fill of the pixels with fewer than three lights).
-        let (maps, parked_depth) = match parking.as_mut() {
-            Some(parking) => {
+        let (maps, parked_depth) = match (parking.as_mut(), setting.capture.parking()?) {
+            (Some(parking), Some(mut own)) => {
                 let (w, h, lights) = (maps.width, maps.height, maps.lights);
                 let [a, c] = maps.into_planes();
-                let planes = [parking.park(a)?, parking.park(c)?];
+                let planes = [own.park(a)?, own.park(c)?];
                 let depth = parking.shelve(&mut surface.depth.values)?;
-                (Held::Parked(w, h, lights, planes), Some(depth))
+                (Held::Parked(own, w, h, lights, planes), Some(depth))
             }
-            None => (Held::Here(maps), None),
+            _ => (Held::Here(maps), None),
         };
         let estimate = parking.as_ref().zip(parked_estimate);
         self.re_estimate(setting, new, own_status, changed, estimate)?;
@@ -717,13 +723,6 @@ impl Recursion {
         if setting.params.fallback == Fallback::Neighbours {
             self.fill_few(setting, &surface)?;
         }
-        let maps = match maps {
-            Held::Here(maps) => maps,
-            Held::Parked(w, h, lights, [a, c]) => {
-                let parking = parking.as_ref().expect("parked in this iteration's file");
-                ShadowMaps::from_planes(w, h, lights, [parking.take(a)?, parking.take(c)?])
-            }
-        };
         drop(parking);
         let count = |v: &[bool]| v.iter().filter(|&&x| x).count();
         let record = IterationRecord {
@@ -773,24 +772,22 @@ impl Recursion {
     ) -> Result<(Surface, Vec<[f32; 3]>, Option<ParkedState>)> {
         let capture = setting.capture;
         let (w, h) = (capture.width, capture.height);
-        let masked_trust = self.trust(setting);
         // Made from the mask pixels' estimate and trust: no full-frame copy of either.
-        let weighted = |normals: &[[f32; 3]]| {
+        let weighted = |normals: &[[f32; 3]], trust: &[f32]| {
             crate::geometry::integrate::weighted_normals_at(
                 w * h,
                 &capture.pixels,
                 normals,
-                &|p, _| masked_trust[p],
+                &|p, _| trust[p],
             )
         };
         let ((normals_full, weights), parked) = match parking.as_deref_mut() {
             Some(parking) => {
-                let (parked, inputs) = self.park(parking, weighted)?;
+                let (parked, inputs) = self.park(parking, setting, weighted)?;
                 (inputs, Some(parked))
             }
-            None => (weighted(&self.est.normals), None),
+            None => (weighted(&self.est.normals, &self.trust(setting)), None),
         };
-        drop(masked_trust);
         let (surface, shading) = match capture.lights.near.as_deref() {
             None => {
                 // The last iteration's surface starts the solve: the normals changed at few
@@ -854,33 +851,44 @@ impl Recursion {
     /// Parks the recursion's per-pixel arrays in `parking` (the estimate, the statuses, the
     /// own decisions, the flags and fingerprints), leaving them empty.
     ///
-    /// The normals go last: `made` is given them once the rest is parked (what is made from
+    /// The normals go last: `made` is given them and the integration trust ([`Recursion::trust`],
+    /// made once what it does not read is parked) once the rest is parked (what is made from
     /// them is not held beside the other arrays) and its result is returned.
     fn park<T>(
         &mut self,
         parking: &mut Parking,
-        made: impl FnOnce(&[[f32; 3]]) -> T,
+        setting: &Setting,
+        made: impl FnOnce(&[[f32; 3]], &[f32]) -> T,
     ) -> Result<(ParkedState, T)> {
-        let status = std::mem::take(&mut self.light_status);
-        let width = status.width();
         let albedo = parking.shelve(&mut self.est.albedo)?;
-        let status = (width, parking.park(status.into_bytes())?);
         let own_status = (
             parking.shelve(&mut self.own.status.ids)?,
             parking.shelve(&mut self.own.status.codes)?,
         );
         let key = parking.shelve(&mut self.own.key)?;
         let earlier_print = parking.shelve(&mut self.earlier_print)?;
-        let flags = [
-            parking.shelve(&mut self.consistent)?,
-            parking.shelve(&mut self.few)?,
-            parking.shelve(&mut self.solved_two)?,
+        let [highlight, oscillating, own_consistent, own_few] = [
             parking.shelve(&mut self.highlight)?,
             parking.shelve(&mut self.oscillating)?,
             parking.shelve(&mut self.own.consistent)?,
             parking.shelve(&mut self.own.few)?,
         ];
-        let result = made(&self.est.normals);
+        // The trust reads the statuses (near lights) and the flags parked next: made once the
+        // rest is parked, and given to `made` with the normals.
+        let trust = self.trust(setting);
+        let status = std::mem::take(&mut self.light_status);
+        let status = (status.width(), parking.park(status.into_bytes())?);
+        let flags = [
+            parking.shelve(&mut self.consistent)?,
+            parking.shelve(&mut self.few)?,
+            parking.shelve(&mut self.solved_two)?,
+            highlight,
+            oscillating,
+            own_consistent,
+            own_few,
+        ];
+        let result = made(&self.est.normals, &trust);
+        drop(trust);
         let normals = parking.shelve(&mut self.est.normals)?;
         let parked = ParkedState {
             estimate: (normals, albedo),
@@ -1103,11 +1111,26 @@ impl Recursion {
 /// The estimate's normals and albedo, parked.
 type ParkedEstimate = (Parked<[f32; 3]>, Parked<f32>);
 
-/// An iteration's shadow maps during its re-estimate: held, or parked as their bit planes
-/// (width, height, lights, the attached and cast planes).
+/// An iteration's shadow maps from its re-estimate on: held, or parked as their bit planes in
+/// a file of their own (width, height, lights, the attached and cast planes).
 enum Held {
     Here(ShadowMaps),
-    Parked(usize, usize, usize, [Parked<u64>; 2]),
+    Parked(Parking, usize, usize, usize, [Parked<u64>; 2]),
+}
+
+impl Held {
+    /// The maps, read back when parked (their file is then freed).
+    fn into_maps(self) -> Result<ShadowMaps> {
+        match self {
+            Held::Here(maps) => Ok(maps),
+            Held::Parked(parking, w, h, lights, [a, c]) => Ok(ShadowMaps::from_planes(
+                w,
+                h,
+                lights,
+                [parking.take(a)?, parking.take(c)?],
+            )),
+        }
+    }
 }
 
 /// Where [`Recursion::park`] put the recursion's per-pixel arrays.
@@ -1291,13 +1314,21 @@ impl Recursion {
         parked_estimate: Option<(&Parking, ParkedEstimate)>,
     ) -> Result<()> {
         let capture = setting.capture;
-        let np = setting.n_pixels();
         // The last statuses have served: replaced before the re-estimate, not kept beside it.
         self.light_status = new.status;
         self.own.status = OwnStatuses::of(&own_status, &self.light_status);
         drop(own_status);
+        // The pixels solved again, marked in `changed`; the last flags are then replaced.
+        let mut again = changed;
+        again
+            .par_iter_mut()
+            .zip(self.few.par_iter().zip(&new.few))
+            .for_each(|(a, (&was, &is))| *a |= was || is);
+        self.consistent = new.consistent;
+        self.few = new.few;
+        self.highlight = new.highlight;
         // A parked estimate comes back once the pixels' own statuses are reduced to their
-        // difference: not beside three status arrays.
+        // difference and the last flags released: not beside three status arrays.
         if let Some((parking, (normals, albedo))) = parked_estimate {
             parking.unshelve(&mut self.est.normals, normals)?;
             parking.unshelve(&mut self.est.albedo, albedo)?;
@@ -1305,16 +1336,10 @@ impl Recursion {
         if setting.near_lights() {
             self.est = crate::solve::tiled::solve_statuses(capture, &self.light_status)?;
         } else {
-            let ids: Vec<usize> = (0..np)
-                .filter(|&p| changed[p] || self.few[p] || new.few[p])
-                .collect();
-            drop(changed);
             let factors = &setting.detection.noise.light_factor;
-            resolve_at(capture, &self.light_status, &ids, &mut self.est, factors)?;
+            let statuses = &self.light_status;
+            resolve_where(capture, statuses, |p| again[p], &mut self.est, factors)?;
         }
-        self.consistent = new.consistent;
-        self.few = new.few;
-        self.highlight = new.highlight;
         Ok(())
     }
 
@@ -1388,14 +1413,24 @@ impl Recursion {
         } else {
             None
         };
-        let final_trust = self.trust(setting);
+        // The full-frame maps replace their per-mask-pixel values (are them, on a mask that is
+        // the whole frame); the shadow maps come back from their file last, once the trust is
+        // made and its inputs released.
+        let trust = capture.scatter_owned(self.trust(setting), 1, 0.0);
+        let highlight = capture.scatter_owned(std::mem::take(&mut self.highlight), 1, false);
+        let fewer_than_three = capture.scatter_owned(std::mem::take(&mut self.few), 1, false);
+        let reliable = capture.scatter_owned(std::mem::take(&mut self.consistent), 1, false);
+        drop(std::mem::take(&mut self.solved_two));
         let diagnostics = RecursiveDiagnostics {
-            trust: capture.scatter(&final_trust, 1, 0.0),
-            shadows: self.last_maps.expect("at least one iteration"),
-            highlight: capture.scatter(&self.highlight, 1, false),
-            fewer_than_three: capture.scatter(&self.few, 1, false),
+            trust,
+            shadows: self
+                .last_maps
+                .expect("at least one iteration")
+                .into_maps()?,
+            highlight,
+            fewer_than_three,
             depth: self.last_depth,
-            reliable: capture.scatter(&self.consistent, 1, false),
+            reliable,
             final_change: records.last().map_or(0.0, |r| r.changed_share),
             iterations: records,
             fallback: params.fallback,
@@ -1750,6 +1785,37 @@ fn resolve_at(
         crate::solve::lambert::resolve_subsets_at(view, statuses, sub, est, factors);
         Ok(())
     })
+}
+
+/// Mask pixels listed at once by [`resolve_where`] on a capture held whole.
+const RESOLVE_BLOCK: usize = 1 << 16;
+
+/// [`resolve_at`] the mask pixels `again` selects, a block of pixels at a time (a tile of a
+/// tiled capture): no list of every selected pixel (8 bytes each) is held beside the estimate.
+fn resolve_where(
+    capture: &Capture,
+    statuses: &Codes2,
+    again: impl Fn(usize) -> bool,
+    est: &mut Estimate,
+    factors: &[f64],
+) -> Result<()> {
+    let np = capture.n_pixels();
+    let blocks: Vec<std::ops::Range<usize>> = match &capture.store {
+        Some(store) => (0..store.tiling().len())
+            .map(|t| store.tiling().pixels(t))
+            .collect(),
+        None => (0..np)
+            .step_by(RESOLVE_BLOCK)
+            .map(|s| s..(s + RESOLVE_BLOCK).min(np))
+            .collect(),
+    };
+    for block in blocks {
+        let ids: Vec<usize> = block.filter(|&p| again(p)).collect();
+        if !ids.is_empty() {
+            resolve_at(capture, statuses, &ids, est, factors)?;
+        }
+    }
+    Ok(())
 }
 
 /// Whether mask pixel `p`'s usable-light set differs between two status arrays of `n` lights

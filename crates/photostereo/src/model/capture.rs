@@ -152,6 +152,19 @@ impl Clone for Statistics {
     }
 }
 
+/// The frame indices of the mask's pixels, row-major, in a list of exactly their number (a
+/// list grown by pushes would hold up to twice the 4 bytes a pixel through every stage).
+pub fn mask_pixel_indices(mask: &[bool]) -> Vec<u32> {
+    let mut pixels = Vec::with_capacity(mask.iter().filter(|&&m| m).count());
+    pixels.extend(
+        mask.iter()
+            .enumerate()
+            .filter(|(_, &m)| m)
+            .map(|(i, _)| i as u32),
+    );
+    pixels
+}
+
 /// Readings that are not finite (NaN, ±∞) in one image's samples at the mask pixels: set to
 /// 0 and counted. A 0 reads as a shadow, which the robust methods (recursive, the χ² test of
 /// the others) leave out of the pixel's fit, so the pixel keeps its normal from its other
@@ -456,7 +469,7 @@ impl Capture {
                 w * h
             )));
         }
-        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        let pixels = mask_pixel_indices(&mask);
         if pixels.is_empty() {
             return Err(Error::invalid("the mask is empty"));
         }
@@ -641,7 +654,7 @@ impl Capture {
             Some(m) => m.iter().copied().collect(),
             None => vec![true; w * h],
         };
-        let pixels: Vec<u32> = (0..w * h).filter(|&i| mask[i]).map(|i| i as u32).collect();
+        let pixels = mask_pixel_indices(&mask);
         let scales: Vec<[f32; 3]> = lights
             .intensities
             .iter()

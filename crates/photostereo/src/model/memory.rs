@@ -24,16 +24,17 @@ use crate::model::store::SampleType;
 /// 24-light captures measured 24 bytes per frame pixel beside the shadow planes.
 pub const FRAME_BYTES_PER_PIXEL: u64 = 27;
 /// Bytes per frame pixel of the full-frame stages when the per-pixel arrays a stage does not
-/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the end of the
-/// reconstruction, when its maps are whole (normals 12, albedo 12 for RGB, depth, curl,
-/// discontinuities, trust and residual 20, the shadow planes of 24 lights 6, the flag maps and
-/// the masks 5, the packed statuses 6; the mask pixels' indices are counted per mask pixel), and
-/// the recursion's re-estimate (the estimate read back beside the statuses, the surface and
-/// the shadow maps parked); the intermediate integrations (the gradients filled and the surface
-/// solved in their own buffers) and the writing (each map released once written) stay below
-/// them. Set on the measured peak of a full-frame 24-light RGB capture with a margin of about 7%
+/// read are parked in a file ([`MemoryPlan::park`]). The largest stages are then the
+/// recursion's re-estimate and the fill that follows it (the estimate read back, normals 12 and
+/// albedo 12 for RGB, beside the current statuses of 24 lights 6, the pixels' flags and
+/// fingerprints about 10 and the last surface 4; the shadow maps wait in a file of their own
+/// until the recursion ends) and the intermediate integrations (the normal map, gradients,
+/// weights and the integrator's work arrays, the surface solved in its own buffer). The end of
+/// the reconstruction stays below them: its maps are whole there but for the surface's, which
+/// wait parked until they are written ([`crate::method::engine::reconstruct_to_write`]). Set on
+/// the measured peak of a full-frame 24-light RGB capture with a margin of about 8%
 /// (`docs/performance.md`, Memory).
-pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 59;
+pub const PARKED_FRAME_BYTES_PER_PIXEL: u64 = 52;
 /// Bytes per mask pixel held beside every stage when the other arrays are parked: the
 /// capture's mask pixel frame indices (4), the detector's residual and verdicts (6).
 pub const PARKED_MASK_BYTES_PER_PIXEL: u64 = 10;

@@ -267,12 +267,7 @@ impl CaptureFiles {
             .iter()
             .map(|i| light_scale(i, c))
             .collect();
-        let pixels: Vec<u32> = mask
-            .iter()
-            .enumerate()
-            .filter(|(_, &m)| m)
-            .map(|(i, _)| i as u32)
-            .collect();
+        let pixels = crate::model::capture::mask_pixel_indices(&mask);
         let tiling = Tiling::new(&mask, w, h, plan.tile_pixels);
         let mut store =
             SampleStore::new(kind, c, tiling.clone(), decode.clone(), scale, spill_dir)?;
@@ -330,12 +325,7 @@ impl CaptureFiles {
                 "the image's size changed while the capture was read",
             ));
         }
-        let pixels: Vec<u32> = mask
-            .iter()
-            .enumerate()
-            .filter(|(_, &m)| m)
-            .map(|(i, _)| i as u32)
-            .collect();
+        let pixels = crate::model::capture::mask_pixel_indices(&mask);
         let (w, h, c) = (first.width, first.height, first.channels);
         // The samples of the mask pixels, plus their transient second copy while loading.
         let needed = (pixels.len() as u64)
