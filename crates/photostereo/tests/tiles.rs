@@ -173,11 +173,12 @@ fn assert_same_results(whole: &Capture, tiled: &Capture, methods: &[Method]) {
     }
 }
 
-#[test]
-fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
-    let Some(dir) = diligent("cat") else {
-        eprintln!("SKIPPED: no DiLiGenT cat in ../shared/data");
-        return;
+/// A DiLiGenT object held whole and in a spill file of 5000-pixel tiles (the spill file's
+/// folder kept with them), or `None` (and a note) when ../shared/data does not have it.
+fn whole_and_spilled(object: &str) -> Option<(Capture, Capture, tempfile::TempDir)> {
+    let Some(dir) = diligent(object) else {
+        eprintln!("SKIPPED: no DiLiGenT {object} in ../shared/data");
+        return None;
     };
     let files = CaptureFiles::diligent(&dir).unwrap();
     let whole = files.load(&Silent).unwrap();
@@ -185,6 +186,14 @@ fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
     let tiled = files
         .load_with(&Silent, &tiled(Layout::Spill, 5000, spill.path()))
         .unwrap();
+    Some((whole, tiled, spill))
+}
+
+#[test]
+fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
+    let Some((whole, tiled, spill)) = whole_and_spilled("cat") else {
+        return;
+    };
     let plan = tiled.memory.clone().unwrap();
     assert_eq!(
         (plan.layout, plan.sample_type),
@@ -202,16 +211,9 @@ fn cat_in_a_spill_file_gives_the_results_of_cat_in_memory() {
 
 #[test]
 fn bear_in_a_spill_file_gives_the_results_of_bear_in_memory() {
-    let Some(dir) = diligent("bear") else {
-        eprintln!("SKIPPED: no DiLiGenT bear in ../shared/data");
+    let Some((whole, tiled, _spill)) = whole_and_spilled("bear") else {
         return;
     };
-    let files = CaptureFiles::diligent(&dir).unwrap();
-    let whole = files.load(&Silent).unwrap();
-    let spill = tempfile::tempdir().unwrap();
-    let tiled = files
-        .load_with(&Silent, &tiled(Layout::Spill, 5000, spill.path()))
-        .unwrap();
     assert!(tiled.memory.as_ref().is_some_and(|m| m.park && m.tiles > 3));
     assert_same_results(&whole, &tiled, Method::ALL);
 }
