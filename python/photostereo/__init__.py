@@ -586,9 +586,10 @@ def rti(
         tiles, ``relight/plane_G/``, served at this ``http://`` or ``https://`` base URI (the
         command line's ``rti --iiif BASE_URI``).
     ridge : float, optional
-        The ridge weight per light, λ / N, of the ptm and hsh fits (0: plain least squares);
-        default: chosen from the data by leave-one-out error (the command line's
-        ``rti --ridge auto``). Not with ``"rbf"``.
+        The ridge weight per light, λ / N, of the ptm and hsh fits, toward zero (0: plain
+        least squares); default: chosen from the data by leave-one-out error, for hsh also
+        among weights toward PTM's fit (the command line's ``rti --ridge auto``). Not with
+        ``"rbf"``.
 
     Returns
     -------

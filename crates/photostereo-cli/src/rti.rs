@@ -27,8 +27,9 @@ pub struct RtiArgs {
     pub exclude_unreliable: bool,
     /// The ridge weight per light, λ / N, of the ptm and hsh fits, (AᵀA + λ D) c = Aᵀ y with D
     /// the basis's roughness over the light hemisphere: auto (the weight with the least
-    /// leave-one-out error on a sample of pixels, 0 included) or a number ≥ 0 (0: plain least
-    /// squares). Not with rbf.
+    /// leave-one-out error on a sample of pixels, 0 included; for hsh also weights toward PTM's
+    /// fit of the same readings instead of toward zero) or a number ≥ 0 toward zero (0: plain
+    /// least squares). Not with rbf.
     #[arg(long, default_value = "auto", value_parser = parse_ridge)]
     pub ridge: RidgeArg,
     /// Also write relight's plane images as IIIF Image API 3.0 level-0 static tiles

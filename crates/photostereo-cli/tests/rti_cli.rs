@@ -78,6 +78,16 @@ fn fits_every_basis_and_writes_its_file_and_report() {
             let ridge = &r["ridge"];
             assert!(ridge["lambda"].as_f64().unwrap() >= 0.0, "{basis}");
             assert_eq!(ridge["candidates"][0]["lambda"].as_f64(), Some(0.0));
+            // HSH also tries the grid's λ > 0 toward PTM's fit; PTM has only toward zero.
+            let toward_ptm = ridge["candidates_toward_ptm"].as_array().unwrap();
+            let hsh = basis.starts_with("hsh");
+            assert_eq!(toward_ptm.len(), if hsh { 17 } else { 0 }, "{basis}");
+            let toward = ridge["toward"].as_str().unwrap();
+            assert!(
+                toward == "zero" || (hsh && toward == "ptm"),
+                "{basis}: {toward}"
+            );
+            assert_eq!(ridge["ptm_lambda"].is_null(), toward == "zero");
         }
         loo.push(m);
     }

@@ -11,7 +11,7 @@ use ndarray::Array4;
 use photostereo::model::capture::Stack;
 use photostereo::solve::rti::rbf::{self, Interpolant, Smoothing, Width};
 use photostereo::solve::rti::smoother;
-use photostereo::solve::rti::{fit, fit_penalised, Basis, Penalty, RtiFit, MAX_TERMS};
+use photostereo::solve::rti::{fit, fit_penalised, Basis, Penalty, Prior, RtiFit, MAX_TERMS};
 use photostereo::{Capture, Lights};
 
 /// `n` lights on a spiral over the upper hemisphere: elevations from 15° to 80°.
@@ -126,36 +126,88 @@ fn roughness(basis: Basis) -> Vec<f64> {
     }
 }
 
-/// The leave-one-out sums by refitting without each light, over the lights `kept(p, k)`
-/// admits: the ridge fit min ‖A c − y‖² + λ Σ_j D_j c_j² (λ the fit's) as the least-squares
-/// solution of A stacked on diag(√(λ D_j)) against y stacked on zeros (nalgebra's SVD).
-fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> bool) -> Vec<f64> {
-    let (n, c, t, basis) = (cap.n_lights(), cap.channels, f.basis.terms(), f.basis);
-    let lambda = f.ridge.as_ref().unwrap().lambda;
-    let d = roughness(basis);
-    let mut sse = vec![0.0; n];
-    let row = |k: usize| {
-        let mut b = [0.0; MAX_TERMS];
-        basis.eval(cap.lights.directions[k], &mut b);
-        b
+/// Q of the ridge toward PTM, written out from its definition: the points i + ½ of a
+/// 4000-point Fibonacci spiral over the hemisphere (l_z = 1 − (i + ½) / 4000, azimuth
+/// (i + ½) · π (3 − √5)) at least as high as the lowest light.
+fn cap(dirs: &[[f64; 3]]) -> Vec<[f64; 3]> {
+    let lowest = dirs.iter().map(|l| l[2]).fold(f64::INFINITY, f64::min);
+    (0..4000)
+        .map(|i| {
+            let (z, phi) = (
+                1.0 - (i as f64 + 0.5) / 4000.0,
+                (i as f64 + 0.5) * std::f64::consts::PI * (3.0 - 5f64.sqrt()),
+            );
+            let r = (1.0 - z * z).sqrt();
+            [r * phi.cos(), r * phi.sin(), z]
+        })
+        .filter(|q| q[2] >= lowest)
+        .collect()
+}
+
+/// The ridge fit of `basis` to the readings `y(k)` of the lights `lights`, as the
+/// least-squares solution (nalgebra's SVD) of the basis rows against y stacked on the
+/// penalty's rows: toward zero diag(√(λ D_j)) against zeros; toward PTM, for each q of
+/// [`cap`], √(λ / |Q|) h(q) against √(λ / |Q|) p(q)ᵀ c_p, c_p PTM's ridge fit (λ_p) of the
+/// same readings made the same way.
+fn refit(
+    dirs: &[[f64; 3]],
+    basis: Basis,
+    lambda: f64,
+    prior: Prior,
+    lights: &[usize],
+    y: &dyn Fn(usize) -> f64,
+) -> Vec<f64> {
+    let t = basis.terms();
+    let at = |l: [f64; 3], b: Basis| {
+        let mut v = [0.0; MAX_TERMS];
+        b.eval(l, &mut v);
+        v
     };
+    let mut rows: Vec<([f64; MAX_TERMS], f64)> =
+        lights.iter().map(|&k| (at(dirs[k], basis), y(k))).collect();
+    match prior {
+        Prior::Zero => {
+            for (j, dj) in roughness(basis).into_iter().enumerate() {
+                let mut r = [0.0; MAX_TERMS];
+                r[j] = (lambda * dj).sqrt();
+                rows.push((r, 0.0));
+            }
+        }
+        Prior::Ptm { ptm_lambda } => {
+            let cp = refit(dirs, Basis::PtmRgb, ptm_lambda, Prior::Zero, lights, y);
+            let q = cap(dirs);
+            let w = (lambda / q.len() as f64).sqrt();
+            for l in q {
+                let p = at(l, Basis::PtmRgb);
+                let target: f64 = (0..6).map(|i| p[i] * cp[i]).sum();
+                rows.push((at(l, basis).map(|h| w * h), w * target));
+            }
+        }
+    }
+    let a = DMatrix::from_fn(rows.len(), t, |r, j| rows[r].0[j]);
+    let b = DVector::from_fn(rows.len(), |r, _| rows[r].1);
+    let x = a.svd(true, true).solve(&b, 1e-12).unwrap();
+    (0..t).map(|j| x[j]).collect()
+}
+
+/// The leave-one-out sums by refitting without each light ([`refit`], the fit's ridge),
+/// over the lights `kept(p, k)` admits.
+fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> bool) -> Vec<f64> {
+    let (n, c, basis) = (cap.n_lights(), cap.channels, f.basis);
+    let ridge = f.ridge.as_ref().unwrap();
+    let dirs = &cap.lights.directions;
+    let mut sse = vec![0.0; n];
+    let mut row = [0.0; MAX_TERMS];
     for p in 0..cap.n_pixels() {
         let s = cap.pixel_samples(p);
         let y = |k: usize, ch: usize| f64::from(s[k * c + ch]) * f.gain;
         let lum = |k: usize| (0..c).map(|ch| y(k, ch)).sum::<f64>() / c as f64;
         for k in (0..n).filter(|&k| kept(p, k)) {
             let others: Vec<usize> = (0..n).filter(|&i| i != k && kept(p, i)).collect();
-            let m = others.len();
-            let a = DMatrix::from_fn(m + t, t, |r, j| match r {
-                r if r < m => row(others[r])[j],
-                r if r - m == j => (lambda * d[j]).sqrt(),
-                _ => 0.0,
-            });
-            let svd = a.svd(true, true);
+            basis.eval(dirs[k], &mut row);
             let solve = |v: &dyn Fn(usize) -> f64| {
-                let b = DVector::from_fn(m + t, |r, _| if r < m { v(others[r]) } else { 0.0 });
-                let x = svd.solve(&b, 1e-12).unwrap();
-                (0..t).map(|j| x[j] * row(k)[j]).sum::<f64>()
+                let x = refit(dirs, basis, ridge.lambda, ridge.prior, &others, v);
+                x.iter().zip(row).map(|(x, r)| x * r).sum::<f64>()
             };
             if basis.luminance() {
                 let l_pred = solve(&lum);
@@ -176,15 +228,60 @@ fn brute_force_loo(cap: &Capture, f: &RtiFit, kept: &dyn Fn(usize, usize) -> boo
     sse
 }
 
+/// The fit's coefficients (per channel) against [`refit`] over every light.
+fn assert_coefficients_are_refits(cap: &Capture, f: &RtiFit) {
+    let (n, c, t) = (cap.n_lights(), cap.channels, f.basis.terms());
+    let ridge = f.ridge.as_ref().unwrap();
+    let all: Vec<usize> = (0..n).collect();
+    for p in 0..cap.n_pixels() {
+        let s = cap.pixel_samples(p);
+        for ch in 0..c {
+            let y = |k: usize| f64::from(s[k * c + ch]) * f.gain;
+            let want = refit(
+                &cap.lights.directions,
+                f.basis,
+                ridge.lambda,
+                ridge.prior,
+                &all,
+                &y,
+            );
+            for (j, w) in want.iter().enumerate() {
+                let got = f64::from(f.coefficients[(p * c + ch) * t + j]);
+                assert!(
+                    (got - w).abs() < 1e-5 * (1.0 + w.abs()),
+                    "{} {:?} p{p} c{ch} term {j}: {got} vs {w}",
+                    f.basis.name(),
+                    ridge.prior
+                );
+            }
+        }
+    }
+}
+
 #[test]
 fn closed_form_leave_one_out_equals_refits_without_each_light() {
     let dirs = lights(24);
     for c in [1, 3] {
         let cap = capture(4, 3, c, &dirs, glossy);
         for basis in Basis::LINEAR {
-            // Unregularised, a strong ridge, and the ridge chosen from the data.
-            for penalty in [Penalty::Fixed(0.0), Penalty::Fixed(2.4), Penalty::Auto] {
+            // Unregularised, a strong ridge, the ridge chosen from the data and, for HSH, a
+            // mild and a strong ridge toward PTM.
+            let mut penalties = vec![Penalty::Fixed(0.0), Penalty::Fixed(2.4), Penalty::Auto];
+            if matches!(basis, Basis::Hsh2 | Basis::Hsh3) {
+                penalties.push(Penalty::TowardPtm {
+                    lambda: 2.4,
+                    ptm_lambda: 0.5,
+                });
+                penalties.push(Penalty::TowardPtm {
+                    lambda: 240.0,
+                    ptm_lambda: 0.0,
+                });
+            }
+            for penalty in penalties {
                 let f = fit_penalised(&cap, basis, None, penalty).unwrap();
+                if !basis.luminance() {
+                    assert_coefficients_are_refits(&cap, &f);
+                }
                 let brute = brute_force_loo(&cap, &f, &|_, _| true);
                 for (k, (&a, &b)) in f.loo.sse.iter().zip(&brute).enumerate() {
                     assert!(
@@ -223,8 +320,21 @@ fn the_chosen_ridge_predicts_left_out_lights_at_least_as_well_as_none() {
         let least = ridge
             .candidates
             .iter()
+            .chain(&ridge.toward_ptm)
             .map(|c| c.1)
             .fold(f64::INFINITY, f64::min);
+        // HSH also tries every λ > 0 of the grid toward PTM; PTM has no such prior.
+        let hsh = matches!(basis, Basis::Hsh2 | Basis::Hsh3);
+        assert_eq!(ridge.toward_ptm.len(), if hsh { 17 } else { 0 });
+        assert_eq!(
+            matches!(ridge.prior, Prior::Ptm { .. }),
+            least
+                < ridge
+                    .candidates
+                    .iter()
+                    .map(|c| c.1)
+                    .fold(f64::INFINITY, f64::min)
+        );
         assert_eq!(auto.loo.mean_rmse_8bit(), least, "{}", basis.name());
         assert!(least <= plain_loo, "{}", basis.name());
         if basis == Basis::Hsh3 {
@@ -387,6 +497,13 @@ fn excluded_readings_leave_the_fit_and_its_error() {
         (Basis::Hsh3, Penalty::Auto),
         (Basis::PtmLrgb, Penalty::Fixed(1.0)),
         (Basis::Hsh3, Penalty::Fixed(1.0)),
+        (
+            Basis::Hsh3,
+            Penalty::TowardPtm {
+                lambda: 2.4,
+                ptm_lambda: 0.5,
+            },
+        ),
     ] {
         let f = fit_penalised(&cap, basis, Some(&flags), penalty).unwrap();
         let brute = brute_force_loo(&cap, &f, &kept);

@@ -19,7 +19,7 @@ use crate::model::capture::Capture;
 use crate::model::memory::{Beside, Stages};
 use crate::solve::lambert::status;
 use crate::solve::rti::{
-    fit_penalised_into, lambert_errors, Basis, Penalty, ReadingMask, RelightErrors, RtiFit,
+    fit_penalised_into, lambert_errors, Basis, Penalty, Prior, ReadingMask, RelightErrors, RtiFit,
 };
 use serde_json::{json, Value};
 use std::path::Path;
@@ -381,17 +381,30 @@ fn report(
             "pca_pixels": m.pca_pixels,
         })
     });
+    let per_light = |lambda: f64| lambda / capture.n_lights().max(1) as f64;
+    let listed = |candidates: &[(f64, f64)]| {
+        candidates
+            .iter()
+            .map(|&(lambda, loo)| json!({ "lambda": lambda, "loo_mean_rmse_8bit": loo }))
+            .collect::<Vec<_>>()
+    };
     let ridge = fitted.ridge.as_ref().map(|r| {
+        let ptm_lambda = match r.prior {
+            Prior::Zero => None,
+            Prior::Ptm { ptm_lambda } => Some(ptm_lambda),
+        };
         json!({
             "lambda": r.lambda,
-            "lambda_per_light": r.lambda / capture.n_lights().max(1) as f64,
-            "penalty": "(AᵀA + λ D) c = Aᵀ y, D the Dirichlet energy of the basis over the \
-                        light hemisphere (HSH l(l+1), PTM over the unit disk; constant free)",
+            "lambda_per_light": per_light(r.lambda),
+            "toward": if ptm_lambda.is_some() { "ptm" } else { "zero" },
+            "ptm_lambda": ptm_lambda,
+            "penalty": "toward zero: (AᵀA + λ D) c = Aᵀ y, D the Dirichlet energy of the basis \
+                        over the light hemisphere (HSH l(l+1), PTM over the unit disk; constant \
+                        free); toward ptm (HSH): λ · mean over the directions at least as high \
+                        as the lowest light of (HSH(c) − PTM's ridge fit)²",
             "sample_pixels": r.sample_pixels,
-            "candidates": r.candidates.iter().map(|&(lambda, loo)| json!({
-                "lambda": lambda,
-                "loo_mean_rmse_8bit": loo,
-            })).collect::<Vec<_>>(),
+            "candidates": listed(&r.candidates),
+            "candidates_toward_ptm": listed(&r.toward_ptm),
         })
     });
     json!({

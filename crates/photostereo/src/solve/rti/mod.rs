@@ -50,6 +50,9 @@
 //! of a log grid, λ = 0 included, whose exact leave-one-out error over a regular sample of
 //! mask pixels is least (cross-validation, e.g. Hastie, Tibshirani & Friedman §7.10). λ = 0 is
 //! the unregularised least-squares fit; the coefficients are those of the same basis whatever λ.
+//! HSH may instead be pulled toward PTM's ridge fit of the same readings over the rig's cap of
+//! the hemisphere ([`Prior::Ptm`], [`design`]); its candidates join those toward zero, and its
+//! leave-one-out error is exact as well.
 //!
 //! Units: readings are the capture's intensity-normalised samples times a display gain
 //! ([`display_gain`]), so that 1.0 is the top of the 8-bit range of the files (RTIViewer shows
@@ -57,12 +60,14 @@
 //! Memory: the coefficients, f32, `4 · (C·T + 3)` bytes per mask pixel (C channels fitted), and
 //! the capture's samples `4 · N · C` bytes per mask pixel (or its tiles).
 
+pub mod design;
 pub mod rbf;
 pub mod smoother;
 
-use crate::base::cholesky::{self, SmallPivot};
 use crate::base::error::{Error, Result};
 use crate::model::capture::Capture;
+pub use design::Prior;
+use design::{Design, Operators, PTM_TERMS};
 use rayon::prelude::*;
 use std::str::FromStr;
 
@@ -196,8 +201,15 @@ pub enum Penalty {
     /// included) with the least leave-one-out error over a regular sample of up to
     /// [`RIDGE_SAMPLE`] mask pixels ([`choose_ridge`]).
     Auto,
-    /// This λ (0: unregularised least squares).
+    /// This λ toward zero (0: unregularised least squares).
     Fixed(f64),
+    /// HSH only: this λ toward PTM's ridge fit with weight `ptm_lambda` ([`Prior::Ptm`]).
+    TowardPtm {
+        /// λ of eq. (1) of [`design`].
+        lambda: f64,
+        /// PTM's ridge weight λ_p.
+        ptm_lambda: f64,
+    },
 }
 
 /// The candidate ridge weights per light, λ / N: 0 and half decades from 10⁻⁶ to 10². AᵀA
@@ -214,11 +226,17 @@ pub const RIDGE_SAMPLE: usize = 4096;
 /// The ridge weight of a fit and how it was chosen.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Ridge {
-    /// λ of (AᵀA + λ D) c = Aᵀ y (0: unregularised).
+    /// λ of (AᵀA + λ D) c = Aᵀ y toward zero, or of eq. (1) of [`design`] toward PTM (0:
+    /// unregularised).
     pub lambda: f64,
-    /// Each candidate λ and the mean over the lights of its leave-one-out RMSE (8-bit units)
-    /// over the sample; empty when λ was given ([`Penalty::Fixed`]).
+    /// What the ridge pulls toward.
+    pub prior: Prior,
+    /// Each candidate λ toward zero and the mean over the lights of its leave-one-out RMSE
+    /// (8-bit units) over the sample; empty when λ was given.
     pub candidates: Vec<(f64, f64)>,
+    /// HSH: each candidate λ > 0 toward PTM (its λ_p PTM's own choice on the sample) and its
+    /// error likewise; empty for PTM and when λ was given.
+    pub toward_ptm: Vec<(f64, f64)>,
     /// Mask pixels of the sample (0 when λ was given).
     pub sample_pixels: usize,
 }
@@ -446,107 +464,15 @@ pub(crate) fn sample_view<'a>(
     })
 }
 
-/// The design of a capture's lights: `A` (N × T, row-major), the ridge λ D, the projector
-/// P = (G + λ D)⁻¹Aᵀ (T × N, row-major) with G = AᵀA, and the leverages h_kk = (A P)_kk.
-struct Design {
-    t: usize,
-    a: Vec<f64>,
-    /// λ D_j per term.
-    penalty: [f64; MAX_TERMS],
-    projector: Vec<f64>,
-    leverage: Vec<f64>,
-}
-
-impl Design {
-    /// The design of `basis` under the capture's lights with ridge weight `lambda`; refused
-    /// when the lights do not determine the coefficients without the ridge (a penalty would
-    /// hide a rig that cannot tell the terms apart).
-    fn new(capture: &Capture, basis: Basis, lambda: f64) -> Result<Design> {
-        let (n, t) = (capture.n_lights(), basis.terms());
-        let mut a = vec![0.0; n * t];
-        for (k, l) in capture.lights.directions.iter().enumerate() {
-            basis.eval(*l, &mut a[k * t..(k + 1) * t]);
-        }
-        let mut penalty = [0.0; MAX_TERMS];
-        basis.roughness(&mut penalty);
-        penalty.iter_mut().for_each(|d| *d *= lambda);
-        let mut g = [0.0; MAX_TERMS * MAX_TERMS];
-        normal_matrix(&a, t, |_| true, &mut g);
-        let mut plain = g;
-        add_diagonal(&mut g, t, &penalty);
-        if n < t + 1
-            || !cholesky::factor(&mut plain[..t * t], t, SmallPivot::Refuse)
-            || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse)
-        {
-            return Err(Error::invalid(format!(
-                "the {n} light directions do not determine the {t} coefficients of {} (the \
-                 basis needs at least {} lights spread in azimuth and elevation; lights all at \
-                 one elevation leave PTM's l_u² + l_v² and its constant term apart only by the \
-                 readings' noise)",
-                basis.name(),
-                t + 1
-            )));
-        }
-        let mut projector = vec![0.0; t * n];
-        let mut leverage = vec![0.0; n];
-        let mut x = [0.0; MAX_TERMS];
-        for k in 0..n {
-            x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
-            cholesky::solve(&g[..t * t], t, &mut x[..t]);
-            for (j, &xj) in x.iter().enumerate().take(t) {
-                projector[j * n + k] = xj;
-            }
-            leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
-        }
-        Ok(Design {
-            t,
-            a,
-            penalty,
-            projector,
-            leverage,
-        })
-    }
-}
-
-/// Adds `d` (per term) to the diagonal of the T × T matrix `g`.
-fn add_diagonal(g: &mut [f64; MAX_TERMS * MAX_TERMS], t: usize, d: &[f64; MAX_TERMS]) {
-    for (j, dj) in d.iter().enumerate().take(t) {
-        g[j * t + j] += dj;
-    }
-}
-
-/// G = Σ_k a_k a_kᵀ over the lights `keep` admits.
-fn normal_matrix(
-    a: &[f64],
-    t: usize,
-    keep: impl Fn(usize) -> bool,
-    g: &mut [f64; MAX_TERMS * MAX_TERMS],
-) {
-    g.fill(0.0);
-    for (k, row) in a.chunks_exact(t).enumerate() {
-        if keep(k) {
-            for i in 0..t {
-                for j in 0..=i {
-                    g[i * t + j] += row[i] * row[j];
-                }
-            }
-        }
-    }
-    for i in 0..t {
-        for j in i + 1..t {
-            g[i * t + j] = g[j * t + i];
-        }
-    }
-}
-
-/// Scratch of one worker: the readings of one pixel per fitted channel, the kept lights'
-/// leverages, and a pixel's own projector when it excludes lights.
+/// Scratch of one worker: the readings of one pixel per fitted channel, the pixel's excluded
+/// lights, its own operators when it excludes lights, and PTM's coefficients per fitted
+/// channel when the fit pulls toward PTM.
 struct Scratch {
     y: Vec<f64>,
     /// The pixel's excluded lights.
     flags: Vec<bool>,
-    leverage: Vec<f64>,
-    projector: Vec<f64>,
+    own: Operators,
+    ptm: Vec<f64>,
     errors: RelightErrors,
 }
 
@@ -679,19 +605,13 @@ pub fn fit_penalised_into(
     let gain = display_gain(capture)?;
     let ridge = match penalty {
         Penalty::Auto => choose_ridge(capture, basis, exclude, gain)?,
-        Penalty::Fixed(lambda) if lambda.is_finite() && lambda >= 0.0 => Ridge {
-            lambda,
-            candidates: Vec::new(),
-            sample_pixels: 0,
-        },
-        Penalty::Fixed(lambda) => {
-            return Err(Error::parameter(
-                "ridge",
-                format!("{lambda}: expected a finite weight ≥ 0"),
-            ))
+        Penalty::Fixed(lambda) => given_ridge(lambda, Prior::Zero)?,
+        Penalty::TowardPtm { lambda, ptm_lambda } => {
+            given_ridge(ptm_lambda, Prior::Zero)?;
+            given_ridge(lambda, Prior::Ptm { ptm_lambda })?
         }
     };
-    let design = Design::new(capture, basis, ridge.lambda)?;
+    let design = Design::new(capture, basis, ridge.lambda, ridge.prior)?;
     let fc = if basis.luminance() { 1 } else { c };
     let per_pixel = fc * t;
     let mut loo = RelightErrors::new(n);
@@ -745,54 +665,117 @@ pub fn fit_penalised_into(
     })
 }
 
-/// λ of [`Penalty::Auto`] for `basis` on `capture` (readings × `gain`, `exclude` as
-/// [`fit_into`] takes it): of the candidates [`RIDGE_GRID`] × N, the one whose exact
+/// A ridge given by the caller: `lambda` toward `prior`, refused unless a finite weight ≥ 0.
+fn given_ridge(lambda: f64, prior: Prior) -> Result<Ridge> {
+    if !(lambda.is_finite() && lambda >= 0.0) {
+        return Err(Error::parameter(
+            "ridge",
+            format!("{lambda}: expected a finite weight ≥ 0"),
+        ));
+    }
+    Ok(Ridge {
+        lambda,
+        prior,
+        candidates: Vec::new(),
+        toward_ptm: Vec::new(),
+        sample_pixels: 0,
+    })
+}
+
+/// The ridge of [`Penalty::Auto`] for `basis` on `capture` (readings × `gain`, `exclude` as
+/// [`fit_into`] takes it): of the candidates [`RIDGE_GRID`] × N toward zero and, for HSH,
+/// those > 0 toward PTM (PTM's λ_p chosen first the same way), the one whose exact
 /// leave-one-out error (the mean over the lights of the RMSE, as [`RtiFit::loo`] reports it)
-/// over up to [`RIDGE_SAMPLE`] evenly spaced mask pixels is least; the smaller λ on a tie, so
-/// λ = 0 unless a ridge predicts the left-out readings better. By construction the sample's
-/// error at the chosen λ is at most its error unregularised.
+/// over up to [`RIDGE_SAMPLE`] evenly spaced mask pixels is least; on a tie the first, so
+/// toward zero before toward PTM and λ = 0 unless a ridge predicts the left-out readings
+/// better. By construction the sample's error at the choice is at most its error
+/// unregularised.
 pub fn choose_ridge(
     capture: &Capture,
     basis: Basis,
     exclude: Option<&dyn ReadingMask>,
     gain: f64,
 ) -> Result<Ridge> {
-    let (n, t) = (capture.n_lights(), basis.terms());
     let ids = sample_ids(capture.n_pixels(), RIDGE_SAMPLE);
     let view = sample_view(capture, &ids)?;
-    let fc = if basis.luminance() {
-        1
-    } else {
-        capture.channels
+    let sample = Sample {
+        capture,
+        view: &view,
+        ids: &ids,
+        exclude,
+        gain,
     };
-    let mut coefficients = vec![0f32; ids.len() * fc * t];
-    let mut chroma = vec![1f32; if basis.luminance() { ids.len() * 3 } else { 0 }];
-    let mut candidates = Vec::with_capacity(RIDGE_GRID.len());
-    for per_light in RIDGE_GRID {
-        let lambda = per_light * n as f64;
-        let design = Design::new(capture, basis, lambda)?;
-        let job = TileJob {
-            view: &view,
-            start: 0,
-            first: 0,
-            ids: Some(&ids),
-            basis,
-            design: &design,
-            gain,
-            exclude,
-        };
-        let (errors, _, _) = job.run(&mut coefficients, &mut chroma);
-        candidates.push((lambda, errors.mean_rmse_8bit()));
+    let candidates = sample.errors(basis, &RIDGE_GRID, Prior::Zero)?;
+    let mut ridge = Ridge {
+        lambda: 0.0,
+        prior: Prior::Zero,
+        candidates,
+        toward_ptm: Vec::new(),
+        sample_pixels: ids.len(),
+    };
+    if matches!(basis, Basis::Hsh2 | Basis::Hsh3) {
+        let ptm = sample.errors(Basis::PtmRgb, &RIDGE_GRID, Prior::Zero)?;
+        let ptm_lambda = least(&ptm).0;
+        ridge.toward_ptm = sample.errors(basis, &RIDGE_GRID[1..], Prior::Ptm { ptm_lambda })?;
+        let (best, toward) = (least(&ridge.candidates), least(&ridge.toward_ptm));
+        if toward.1 < best.1 {
+            ridge.lambda = toward.0;
+            ridge.prior = Prior::Ptm { ptm_lambda };
+            return Ok(ridge);
+        }
     }
-    let best = candidates
+    ridge.lambda = least(&ridge.candidates).0;
+    Ok(ridge)
+}
+
+/// The (λ, error) with the least error, the first on a tie.
+fn least(candidates: &[(f64, f64)]) -> (f64, f64) {
+    candidates
         .iter()
         .copied()
-        .fold(candidates[0], |b, c| if c.1 < b.1 { c } else { b });
-    Ok(Ridge {
-        lambda: best.0,
-        candidates,
-        sample_pixels: ids.len(),
-    })
+        .fold(candidates[0], |b, c| if c.1 < b.1 { c } else { b })
+}
+
+/// The sample of mask pixels [`choose_ridge`] scores candidates on.
+struct Sample<'a> {
+    capture: &'a Capture,
+    view: &'a Capture,
+    ids: &'a [usize],
+    exclude: Option<&'a dyn ReadingMask>,
+    gain: f64,
+}
+
+impl Sample<'_> {
+    /// Each λ / N of `per_light` (× N) toward `prior` and the sample's leave-one-out error.
+    fn errors(&self, basis: Basis, per_light: &[f64], prior: Prior) -> Result<Vec<(f64, f64)>> {
+        let (n, t) = (self.capture.n_lights(), basis.terms());
+        let fc = if basis.luminance() {
+            1
+        } else {
+            self.capture.channels
+        };
+        let len = self.ids.len();
+        let mut coefficients = vec![0f32; len * fc * t];
+        let mut chroma = vec![1f32; if basis.luminance() { len * 3 } else { 0 }];
+        let mut out = Vec::with_capacity(per_light.len());
+        for &w in per_light {
+            let lambda = w * n as f64;
+            let design = Design::new(self.capture, basis, lambda, prior)?;
+            let job = TileJob {
+                view: self.view,
+                start: 0,
+                first: 0,
+                ids: Some(self.ids),
+                basis,
+                design: &design,
+                gain: self.gain,
+                exclude: self.exclude,
+            };
+            let (errors, _, _) = job.run(&mut coefficients, &mut chroma);
+            out.push((lambda, errors.mean_rmse_8bit()));
+        }
+        Ok(out)
+    }
 }
 
 /// Refuses a capture with near lights.
@@ -806,11 +789,14 @@ fn check_distant(capture: &Capture) -> Result<()> {
     Ok(())
 }
 
-/// One pixel's readings, fitted coefficients, leverages and kept lights.
+/// One pixel's readings, fitted coefficients, operators and kept lights.
 struct PixelData<'a> {
     samples: &'a [f32],
     coeffs: &'a [f32],
-    leverage: &'a [f64],
+    /// The operators of the fit (the design's, or the pixel's own over its kept lights).
+    ops: &'a Operators,
+    /// Toward PTM: PTM's coefficients per fitted channel (`[channel][term]`).
+    ptm: &'a [f64],
     /// Readings per fitted channel, display units (`[channel][light]`).
     y: &'a [f64],
     kept: &'a dyn Fn(usize) -> bool,
@@ -858,11 +844,12 @@ impl TileJob<'_> {
             .enumerate()
             .fold(
                 || {
+                    let toward_ptm = self.design.all.ptm.is_some();
                     let s = Scratch {
                         y: vec![0.0; n * fc],
                         flags: vec![false; n],
-                        leverage: vec![0.0; n],
-                        projector: vec![0.0; t * n],
+                        own: Operators::new(t, n, toward_ptm),
+                        ptm: vec![0.0; if toward_ptm { fc * PTM_TERMS } else { 0 }],
                         errors: RelightErrors::new(n),
                     };
                     (s, 0u64, 0u64)
@@ -923,34 +910,46 @@ impl TileJob<'_> {
         let excluded = flags.map_or(0, |f| f.iter().filter(|&&x| x).count());
         let mut fell_back = false;
         let own = excluded > 0 && {
-            if n - excluded < t + 2 || !self.own_projector(flags.unwrap_or(&[]), s) {
+            let keep = |k: usize| !held[k];
+            if n - excluded < t + 2 || !self.design.operators_into(keep, &mut s.own) {
                 fell_back = true;
                 false
             } else {
                 true
             }
         };
-        let (projector, leverage): (&[f64], &[f64]) = if own {
-            (&s.projector, &s.leverage)
-        } else {
-            (&self.design.projector, &self.design.leverage)
-        };
+        let ops = if own { &s.own } else { &self.design.all };
         let kept = |k: usize| !own || !flags.is_some_and(|f| f[k]);
-        // Coefficients c = P y per fitted channel, over the kept lights.
+        // Coefficients c = P y (+ V c_p toward PTM, c_p = P_p y; eq. 2 of [`design`]) per
+        // fitted channel, over the kept lights.
+        let apply = |p: &[f64], y: &[f64], j: usize| -> f64 {
+            (0..n)
+                .filter(|&k| kept(k))
+                .map(|k| p[j * n + k] * y[k])
+                .sum()
+        };
         for ch in 0..fc {
             let y = &s.y[ch * n..(ch + 1) * n];
+            let cp = &mut s.ptm[..];
+            if let Some(po) = &ops.ptm {
+                for i in 0..PTM_TERMS {
+                    cp[ch * PTM_TERMS + i] = apply(&po.projector, y, i);
+                }
+            }
             for j in 0..t {
-                let pj = &projector[j * n..(j + 1) * n];
-                coeffs[ch * t + j] = (0..n)
-                    .filter(|&k| kept(k))
-                    .map(|k| pj[k] * y[k])
-                    .sum::<f64>() as f32;
+                let pulled = ops.ptm.as_ref().map_or(0.0, |po| {
+                    (0..PTM_TERMS)
+                        .map(|i| po.pull[j * PTM_TERMS + i] * cp[ch * PTM_TERMS + i])
+                        .sum()
+                });
+                coeffs[ch * t + j] = (apply(&ops.projector, y, j) + pulled) as f32;
             }
         }
         let data = PixelData {
             samples,
             coeffs,
-            leverage,
+            ops,
+            ptm: &s.ptm,
             y: &s.y,
             kept: &kept,
         };
@@ -959,38 +958,12 @@ impl TileJob<'_> {
         (excluded as u64 * u64::from(own), fell_back)
     }
 
-    /// The projector and leverages of a pixel over the lights `flags` does not exclude; false
-    /// when those lights do not determine the coefficients.
-    fn own_projector(&self, flags: &[bool], s: &mut Scratch) -> bool {
-        let (n, t, a) = (self.view.n_lights(), self.design.t, &self.design.a);
-        let mut g = [0.0; MAX_TERMS * MAX_TERMS];
-        normal_matrix(a, t, |k| !flags[k], &mut g);
-        // Determined by the kept lights alone (as the design is by all of them), then ridged
-        // with the capture's λ D.
-        let mut plain = g;
-        add_diagonal(&mut g, t, &self.design.penalty);
-        if !cholesky::factor(&mut plain[..t * t], t, SmallPivot::Refuse)
-            || !cholesky::factor(&mut g[..t * t], t, SmallPivot::Refuse)
-        {
-            return false;
-        }
-        let mut x = [0.0; MAX_TERMS];
-        for k in 0..n {
-            x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
-            cholesky::solve(&g[..t * t], t, &mut x[..t]);
-            for (j, &xj) in x.iter().enumerate().take(t) {
-                s.projector[j * n + k] = xj;
-            }
-            s.leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
-        }
-        true
-    }
-
     /// Adds the pixel's leave-one-out errors (closed form e_k / (1 − h_kk)) over its kept
     /// lights to `errors`, and for LRGB writes the chroma.
     fn loo_errors(&self, d: &PixelData, chroma: Option<&mut [f32]>, errors: &mut RelightErrors) {
         let (n, t, c) = (self.view.n_lights(), self.design.t, self.view.channels);
-        let (samples, coeffs, leverage, kept) = (d.samples, d.coeffs, d.leverage, d.kept);
+        let (samples, coeffs, kept) = (d.samples, d.coeffs, d.kept);
+        let leverage = &d.ops.leverage;
         let a = &self.design.a;
         let fitted = |ch: usize, k: usize| -> f64 {
             (0..t)
@@ -1020,10 +993,20 @@ impl TileJob<'_> {
                 }
             }
         } else {
+            // Toward PTM, the shift of PTM's fit without light k (eq. 3 of [`design`]).
+            let ptm = d.ops.ptm.as_ref().zip(self.design.ptm_at_lights());
+            let shift = |ch: usize, k: usize, y: f64| -> f64 {
+                ptm.map_or(0.0, |(po, ap)| {
+                    let cp = &d.ptm[ch * PTM_TERMS..(ch + 1) * PTM_TERMS];
+                    let row = &ap[k * PTM_TERMS..(k + 1) * PTM_TERMS];
+                    let ep = y - (0..PTM_TERMS).map(|i| cp[i] * row[i]).sum::<f64>();
+                    po.carry[k] * ep / (1.0 - po.leverage[k])
+                })
+            };
             for ch in 0..c {
                 for k in (0..n).filter(|&k| kept(k)) {
                     let y = d.y[ch * n + k];
-                    let e = y - fitted(ch, k);
+                    let e = y - fitted(ch, k) + shift(ch, k, y);
                     errors.add(k, y - e / (1.0 - leverage[k]), y);
                 }
             }
