@@ -769,6 +769,26 @@ impl Capture {
         Ok(out)
     }
 
+    /// Per light and channel, the intensity-normalised reading at and above which the camera
+    /// may have clipped it: full scale less half a code step of the source's bit depth,
+    /// divided by the light's intensity as the samples are ([`light_scale`]). Every response
+    /// the loaders linearise maps full scale to 1 and the code below it to at most 1 − 1 / L
+    /// (L = 2^bits − 1), so only readings at full scale reach it. Float sources (32 bits) do
+    /// not clip: `f32::INFINITY`. A reading from which an ambient frame was subtracted lies
+    /// below its level and is not caught.
+    pub fn clip_levels(&self) -> Vec<[f32; 3]> {
+        let top = match self.bit_depth {
+            8 | 16 => 1.0 - 0.5 / ((1u32 << self.bit_depth) - 1) as f64,
+            _ => return vec![[f32::INFINITY; 3]; self.n_lights()],
+        };
+        (0..self.n_lights())
+            .map(|k| {
+                let i = self.lights.intensities.get(k).copied().unwrap_or([1.0; 3]);
+                light_scale(&i, self.channels).map(|s| (top * f64::from(s)) as f32)
+            })
+            .collect()
+    }
+
     /// Number of lights (= images).
     pub fn n_lights(&self) -> usize {
         self.lights.len()

@@ -14,8 +14,9 @@
 //! monotone diffuse falloff (f(0) = 0, f(1) = 1; Lambert is f(c) = c; piecewise linear with
 //! [`DIFFUSE_KNOTS`] knots). Monotone shapes with non-negative ramp weights cover the isotropic
 //! lobes of common BRDFs (Blinn–Phong, Torrance–Sparrow, Ward) without naming one. The readings
-//! are weighted by their noise as in the per-pixel fit; shadows stay excluded (the recursion's
-//! USED and HIGHLIGHT lights are fitted).
+//! are weighted by their noise as in the per-pixel fit; shadows and clipped readings stay
+//! excluded (the recursion's USED and HIGHLIGHT lights that the camera did not clip are
+//! fitted).
 //!
 //! Steps:
 //! 1. *Materials*: k-means of the Lambertian albedo's rg chromaticity (ln ρ for grey captures),

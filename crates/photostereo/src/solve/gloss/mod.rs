@@ -11,8 +11,9 @@
 //!
 //! I_k = ρ max(n · l_k, 0) + s · exp(−m (1 − n · h_k)),   ρ ≥ 0, s ≥ 0,
 //!
-//! over every light the recursion did not put in shadow (shadows stay excluded; the
-//! recursion's statuses are not changed). The readings are weighted by their noise, σ_k² =
+//! over every light the recursion did not put in shadow and the camera did not clip (shadows
+//! and clipped readings stay excluded, [`Capture::clip_levels`]; the recursion's statuses are
+//! not changed). The readings are weighted by their noise, σ_k² =
 //! c_k² (σ₀² + κ² I_k²) ([`NoiseModel`]), so that squared residuals are χ² values. The lobe
 //! sharpness m is a property of the material: the capture's m is chosen among
 //! [`LOBE_EXPONENTS`] by the least total χ² over a sample of pixels; a pixel takes its own m
@@ -169,6 +170,10 @@ pub struct GlossSummary {
     pub refined_share: f64,
     /// Refined pixels with a sharpness of their own.
     pub own_exponent_pixels: usize,
+    /// Readings of the mask the camera clipped at full scale ([`Capture::clip_levels`]), left
+    /// out of the fits like shadows (a clipped reading only bounds its light's value from
+    /// below; fitted as a value it pulls the normal off the highlight).
+    pub clipped_readings: u64,
     /// With [`Reflectance::Material`]: the materials found and what each chose.
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub materials: Vec<crate::solve::gloss::material::MaterialSummary>,
@@ -194,6 +199,7 @@ impl GlossSummary {
             refined_pixels: 0,
             refined_share: 0.0,
             own_exponent_pixels: 0,
+            clipped_readings: 0,
             materials: Vec::new(),
         }
     }
@@ -221,6 +227,10 @@ pub(crate) struct Scratch {
 pub(crate) struct Lights<'a> {
     pub(crate) dirs: &'a [[f64; 3]],
     pub(crate) half: Vec<[f64; 3]>,
+    /// Per light and channel, the reading at and above which the camera clipped it
+    /// ([`Capture::clip_levels`]): a clipped reading only bounds the light's true value from
+    /// below, and the fits leave it out like a shadow.
+    pub(crate) clip: Vec<[f32; 3]>,
     noise: &'a NoiseModel,
     /// χ² quantiles at the detector's confidence, by degrees of freedom.
     q: Vec<f64>,
@@ -260,8 +270,9 @@ impl Scratch {
         }
     }
 
-    /// Loads a pixel's noise-weighted readings and the lights out of shadow; returns their
-    /// count, or 0 when the pixel has no highlight attributed (not fitted) unless `any`.
+    /// Loads a pixel's noise-weighted readings and the lights out of shadow and not clipped;
+    /// returns their count, or 0 when the pixel has no highlight attributed (not fitted)
+    /// unless `any`.
     pub(crate) fn load(
         &mut self,
         lights: &Lights,
@@ -276,8 +287,12 @@ impl Scratch {
         channel_mean(samples, channels, &mut self.g);
         let mut count = 0;
         for (k, &code) in st.iter().enumerate() {
-            self.used[k] = code == status::USED || code == status::HIGHLIGHT;
-            self.diffuse[k] = code == status::USED;
+            let clipped = samples[k * channels..(k + 1) * channels]
+                .iter()
+                .zip(&lights.clip[k])
+                .any(|(x, top)| x >= top);
+            self.used[k] = (code == status::USED || code == status::HIGHLIGHT) && !clipped;
+            self.diffuse[k] = code == status::USED && !clipped;
             count += self.used[k] as usize;
             let f = lights.noise.light_factor.get(k).copied().unwrap_or(1.0);
             let w = 1.0 / (f * lights.noise.variance(self.g[k].max(0.0)).sqrt());
@@ -383,6 +398,7 @@ pub fn model_highlights(
     let lights = Lights {
         dirs,
         half,
+        clip: capture.clip_levels(),
         noise,
         q: quantiles(confidence, n),
         f: [1, 2].map(|extra| f_quantiles(confidence, extra, n)),
@@ -395,6 +411,8 @@ pub fn model_highlights(
     if reflectance == Reflectance::Lambert || n < MIN_LIGHTS {
         return Ok((summary, maps));
     }
+    let clipped = clipped_readings(capture, &lights.clip)?;
+    summary.clipped_readings = clipped;
     let Some(evidence) = capture_sharpness(capture, light_status, est, &lights)? else {
         return Ok((summary, maps));
     };
@@ -403,6 +421,7 @@ pub fn model_highlights(
         let mut material =
             crate::solve::gloss::material::model_materials(capture, light_status, est, &lights, m)?;
         material.summary.reflectance = reflectance;
+        material.summary.clipped_readings = clipped;
         return Ok((material.summary, material.maps));
     }
     summary.exponent = Some(m);
@@ -463,6 +482,31 @@ pub fn model_highlights(
         summary.chosen = "lobe";
     }
     Ok((summary, maps))
+}
+
+/// The mask's readings with a channel at or above its light's clip level `clip`.
+fn clipped_readings(capture: &Capture, clip: &[[f32; 3]]) -> Result<u64> {
+    let (n, c) = (capture.n_lights(), capture.channels);
+    let mut total = 0u64;
+    let np = capture.n_pixels();
+    capture.for_each_tile(|start, view| {
+        total += (0..view.n_pixels().min(np - start))
+            .into_par_iter()
+            .map(|p| {
+                let s = view.pixel_samples(p);
+                (0..n)
+                    .filter(|&k| {
+                        s[k * c..(k + 1) * c]
+                            .iter()
+                            .zip(&clip[k])
+                            .any(|(x, t)| x >= t)
+                    })
+                    .count() as u64
+            })
+            .sum::<u64>();
+        Ok(())
+    })?;
+    Ok(total)
 }
 
 /// A refitted pixel's result that replaces the recursion's estimate.
