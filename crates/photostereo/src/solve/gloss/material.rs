@@ -35,8 +35,9 @@
 //!    pooled over thousands of pixels — a camera response, interreflection — does not pass
 //!    for a lobe, while a lobe that explains a large share of the residual does.
 //! 4. Every pixel of a material with a lobe (and [`crate::solve::gloss::MIN_LIGHTS`] lights
-//!    out of shadow) takes the fitted normal where it faces the camera and its lit lights;
-//!    the other materials keep the recursion's estimate unchanged.
+//!    out of shadow) takes the fitted normal where it faces the camera and its lit lights,
+//!    whether its own strength is positive or zero (its roughness map then NaN); the other
+//!    materials keep the recursion's estimate unchanged.
 //!
 //! The strength map gives s, the roughness map the material's lobe as the roughness √(2x₁/ₑ)
 //! of the exponential lobe exp(−m x) falling to 1/e at the same x = 1 − n · h (m = 1/x₁/ₑ).
@@ -460,7 +461,11 @@ pub(crate) fn model_materials(
             let (_, fit) = descend_with(&d, start, shape);
             let (_, rho, s) = fit_with(&d, fit, shape);
             let physical = fit[2] > 0.0 && (0..n).all(|k| !d.used[k] || dot(d.v[k], fit) > 0.0);
-            if !(physical && s > 0.0) {
+            // The material's model holds at each of its pixels, with or without a lobe of its
+            // own there (s = 0 is the strength's bound, not a different model): the fit over
+            // the unclipped lit lights, with the material's diffuse falloff, replaces the
+            // recursion's Lambertian estimate over the lights it kept.
+            if !physical {
                 return Some(None);
             }
             counts[1] += 1;
@@ -468,7 +473,11 @@ pub(crate) fn model_materials(
                 normal: fit,
                 rho,
                 strength: s,
-                roughness: shape.lobe.roughness(),
+                roughness: if s > 0.0 {
+                    shape.lobe.roughness()
+                } else {
+                    f64::NAN
+                },
             }))
         },
     )?;
