@@ -573,8 +573,9 @@ def rti(
     basis : str
         ``"ptm"``, ``"ptm-rgb"``, ``"hsh2"``, ``"hsh3"`` or ``"rbf"``.
     exclude_unreliable : bool
-        Run the recursive method first and leave its shadows and highlights out of each
-        pixel's fit (not with ``"rbf"``).
+        Run the recursive method first and leave its shadows and highlights, and the
+        readings the camera clipped at full scale, out of each pixel's fit (not with
+        ``"rbf"``).
     memory_limit : int, optional
         Memory budget in bytes (default: half the memory available), as ``run``'s.
     force : bool

@@ -22,7 +22,7 @@ pub struct RtiArgs {
     #[arg(long, default_value = "hsh3", value_parser = parse_basis)]
     pub basis: Basis,
     /// Run the recursive method first and leave out of each pixel's fit the readings it found
-    /// to be shadows or highlights.
+    /// to be shadows or highlights, and those the camera clipped at full scale.
     #[arg(long)]
     pub exclude_unreliable: bool,
     /// The ridge weight per light, λ / N, of the ptm and hsh fits, (AᵀA + λ D) c = Aᵀ y with D

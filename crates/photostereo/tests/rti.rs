@@ -483,6 +483,40 @@ fn the_roughness_is_the_dirichlet_energy_of_each_term() {
 }
 
 #[test]
+fn clipped_readings_leave_a_fit_that_excludes_readings() {
+    // A 16-bit capture whose glossy readings pass full scale at some pixels: those readings
+    // sit at 65535, bound their light's value from below only, and a fit that leaves
+    // readings out (`exclude`, here flagging none) leaves them out too; a fit without `exclude`
+    // keeps every reading.
+    let dirs = lights(24);
+    let (w, h, n) = (4, 3, dirs.len());
+    let value = |p: usize, k: usize, c: usize| 0.8 * glossy(p, k, c, dirs[k]);
+    let a = Array4::from_shape_fn((n, h, w, 3), |(k, y, x, c)| {
+        (value(y * w + x, k, c).clamp(0.0, 1.0) * 65535.0).round() as u16
+    });
+    let cap = Capture::from_stack(Stack::U16(a.view()), Lights::new(&dirs).unwrap(), None).unwrap();
+    let full = |p: usize, k: usize| (0..3).any(|c| a[[k, p / w, p % w, c]] == 65535);
+    let clipped = (0..w * h).flat_map(|p| (0..n).map(move |k| (p, k)));
+    let count = clipped.filter(|&(p, k)| full(p, k)).count();
+    assert!(count > 10 && count < w * h * n / 2, "{count}");
+    let none = vec![false; w * h * n];
+    for basis in [Basis::PtmRgb, Basis::Hsh3] {
+        let f = fit_penalised(&cap, basis, Some(&none), Penalty::Fixed(0.5)).unwrap();
+        assert_eq!(f.excluded_readings, count as u64, "{}", basis.name());
+        let brute = brute_force_loo(&cap, &f, &|p, k| !full(p, k));
+        for (k, (&x, &y)) in f.loo.sse.iter().zip(&brute).enumerate() {
+            assert!(
+                (x - y).abs() <= 1e-4 * y.max(1e-6),
+                "{} light {k}: {x} vs {y}",
+                basis.name()
+            );
+        }
+        let all = fit_penalised(&cap, basis, None, Penalty::Fixed(0.5)).unwrap();
+        assert_eq!(all.excluded_readings, 0);
+    }
+}
+
+#[test]
 fn excluded_readings_leave_the_fit_and_its_error() {
     let dirs = lights(24);
     let cap = capture(4, 3, 3, &dirs, glossy);

@@ -31,7 +31,7 @@ pub struct RtiOptions {
     /// The basis fitted.
     pub basis: Basis,
     /// Run the recursive method first and leave out of each pixel's fit the readings it did
-    /// not use (shadows and highlights).
+    /// not use (shadows and highlights) and those the camera clipped at full scale.
     pub exclude_unreliable: bool,
     /// The ridge weight per light, λ / N, of the linear bases' fits (0: unregularised least
     /// squares); `None`: chosen from the data by leave-one-out ([`Penalty::Auto`]). Not

@@ -557,7 +557,8 @@ pub fn fit_penalised(
 /// Fits `basis` to every mask pixel of `capture`, block by block ([`BLOCK_PIXELS`]) into
 /// `sink`, and measures its leave-one-out error; the result holds no coefficients (its
 /// `coefficients` and `chroma` are empty, its `ranges` measured). `exclude`, when given, flags
-/// per mask pixel and light the readings to leave out of the pixel's fit and error. The ridge
+/// per mask pixel and light the readings to leave out of the pixel's fit and error; the
+/// readings the camera clipped ([`Capture::clip_levels`]) are then left out as well. The ridge
 /// weight is chosen from the data ([`Penalty::Auto`]).
 pub fn fit_into(
     capture: &Capture,
@@ -612,6 +613,7 @@ pub fn fit_penalised_into(
         }
     };
     let design = Design::new(capture, basis, ridge.lambda, ridge.prior)?;
+    let clip = capture.clip_levels();
     let fc = if basis.luminance() { 1 } else { c };
     let per_pixel = fc * t;
     let mut loo = RelightErrors::new(n);
@@ -635,6 +637,7 @@ pub fn fit_penalised_into(
                 design: &design,
                 gain,
                 exclude,
+                clip: &clip,
             };
             let (errors, ex, fb) = job.run(&mut coefficients, &mut chroma);
             loo = std::mem::take(&mut loo).merge(errors);
@@ -703,6 +706,7 @@ pub fn choose_ridge(
         view: &view,
         ids: &ids,
         exclude,
+        clip: capture.clip_levels(),
         gain,
     };
     let candidates = sample.errors(basis, &RIDGE_GRID, Prior::Zero)?;
@@ -742,6 +746,7 @@ struct Sample<'a> {
     view: &'a Capture,
     ids: &'a [usize],
     exclude: Option<&'a dyn ReadingMask>,
+    clip: Vec<[f32; 3]>,
     gain: f64,
 }
 
@@ -770,6 +775,7 @@ impl Sample<'_> {
                 design: &design,
                 gain: self.gain,
                 exclude: self.exclude,
+                clip: &self.clip,
             };
             let (errors, _, _) = job.run(&mut coefficients, &mut chroma);
             out.push((lambda, errors.mean_rmse_8bit()));
@@ -816,6 +822,9 @@ struct TileJob<'a> {
     design: &'a Design,
     gain: f64,
     exclude: Option<&'a dyn ReadingMask>,
+    /// With `exclude`: per light and channel the clip level ([`Capture::clip_levels`]); a
+    /// reading at or above it is left out as well.
+    clip: &'a [[f32; 3]],
 }
 
 /// Pixels per rayon task (the scratch is allocated per task, not per pixel).
@@ -903,7 +912,7 @@ impl TileJob<'_> {
         let mut held = std::mem::take(&mut s.flags);
         if let Some(e) = self.exclude {
             for (k, f) in held.iter_mut().enumerate() {
-                *f = e.excluded(global, k, n);
+                *f = e.excluded(global, k, n) || clipped(samples, c, k, self.clip);
             }
         }
         let flags = self.exclude.map(|_| held.as_slice());
@@ -1014,6 +1023,15 @@ impl TileJob<'_> {
     }
 }
 
+/// Whether a channel of light `k`'s reading in `samples` (`[light][channel]`, `c` channels)
+/// is at or above its clip level ([`Capture::clip_levels`]).
+fn clipped(samples: &[f32], c: usize, k: usize, clip: &[[f32; 3]]) -> bool {
+    samples[k * c..(k + 1) * c]
+        .iter()
+        .zip(&clip[k])
+        .any(|(x, top)| x >= top)
+}
+
 /// The relighting error of a Lambertian model, I_kc = ρ_c · max(0, n · l_k), with full-frame
 /// normals (H·W) and albedo (H·W·C, the capture's intensity-normalised units) against the
 /// capture's readings, in display units (`gain` as [`RtiFit::gain`]), over the readings
@@ -1028,6 +1046,7 @@ pub fn lambert_errors(
 ) -> Result<RelightErrors> {
     let (n, c) = (capture.n_lights(), capture.channels);
     let dirs = &capture.lights.directions;
+    let clip = capture.clip_levels();
     let mut total = RelightErrors::new(n);
     capture.for_each_tile(|start, view| {
         let e = (0..view.n_pixels())
@@ -1039,7 +1058,9 @@ pub fn lambert_errors(
                     let nn = normals[i];
                     let s = view.pixel_samples(p);
                     for (k, l) in dirs.iter().enumerate() {
-                        if exclude.is_some_and(|e| e.excluded(start + p, k, n)) {
+                        if exclude.is_some_and(|e| e.excluded(start + p, k, n))
+                            || (exclude.is_some() && clipped(s, c, k, &clip))
+                        {
                             continue;
                         }
                         let shade = (f64::from(nn[0]) * l[0]
