@@ -183,21 +183,24 @@ impl Design {
     pub fn operators_into(&self, keep: impl Fn(usize) -> bool + Copy, out: &mut Operators) -> bool {
         let (n, t) = (self.n, self.t);
         let mut g = [0.0; MAX_TERMS * MAX_TERMS];
-        if !solve_into(&self.a, t, keep, &self.penalty, out, &mut g) {
+        let (projector, leverage) = (&mut out.projector, &mut out.leverage);
+        if !solve_into(&self.a, t, keep, &self.penalty, projector, leverage, &mut g) {
             return false;
         }
-        let (Some(pd), Some(mut po)) = (&self.ptm, out.ptm.take()) else {
+        let (Some(pd), Some(po)) = (&self.ptm, out.ptm.as_mut()) else {
             return true;
         };
         let mut gp = [0.0; MAX_TERMS * MAX_TERMS];
-        let mut ptm = Operators {
-            projector: std::mem::take(&mut po.projector),
-            leverage: std::mem::take(&mut po.leverage),
-            ptm: None,
-        };
-        let solved = solve_into(&pd.a, PTM_TERMS, keep, &pd.penalty, &mut ptm, &mut gp);
-        po.projector = ptm.projector;
-        po.leverage = ptm.leverage;
+        let (projector, leverage) = (&mut po.projector, &mut po.leverage);
+        let solved = solve_into(
+            &pd.a,
+            PTM_TERMS,
+            keep,
+            &pd.penalty,
+            projector,
+            leverage,
+            &mut gp,
+        );
         if solved {
             // V = (AᵀA + λ M)⁻¹ λ X, column by column (eq. 2).
             let mut x = [0.0; MAX_TERMS];
@@ -217,7 +220,6 @@ impl Design {
                     .sum();
             }
         }
-        out.ptm = Some(po);
         solved
     }
 }
@@ -233,15 +235,16 @@ fn at_lights(basis: Basis, dirs: &[[f64; 3]]) -> Vec<f64> {
 }
 
 /// Solves (G + R) X = Aᵀ over the lights `keep` admits, G = Σ_kept a_k a_kᵀ, R = `penalty`
-/// (T × T): the projector and the leverages into `out` (every light's column, the kept
-/// lights' used), the factor of G + R into `factor`. False when G alone or G + R is not
-/// positive definite.
+/// (T × T): the projector (T × N) and the leverages (every light's column, the kept lights'
+/// used), the factor of G + R into `factor`. False when G alone or G + R is not positive
+/// definite.
 fn solve_into(
     a: &[f64],
     t: usize,
     keep: impl Fn(usize) -> bool,
     penalty: &[f64; MAX_TERMS * MAX_TERMS],
-    out: &mut Operators,
+    projector: &mut [f64],
+    leverage: &mut [f64],
     factor: &mut [f64; MAX_TERMS * MAX_TERMS],
 ) -> bool {
     let n = a.len() / t;
@@ -261,9 +264,9 @@ fn solve_into(
         x[..t].copy_from_slice(&a[k * t..(k + 1) * t]);
         cholesky::solve(&factor[..t * t], t, &mut x[..t]);
         for (j, &xj) in x.iter().enumerate().take(t) {
-            out.projector[j * n + k] = xj;
+            projector[j * n + k] = xj;
         }
-        out.leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
+        leverage[k] = (0..t).map(|j| a[k * t + j] * x[j]).sum();
     }
     true
 }
