@@ -344,6 +344,19 @@ fn the_chosen_ridge_predicts_left_out_lights_at_least_as_well_as_none() {
 }
 
 #[test]
+fn hsh2_under_five_lights_keeps_its_ridge_toward_zero() {
+    // Five lights determine HSH2's four terms but not PTM's six: no PTM to pull toward.
+    let dirs = lights(5);
+    let cap = capture(3, 2, 3, &dirs, glossy);
+    let f = fit(&cap, Basis::Hsh2, None).unwrap();
+    let ridge = f.ridge.as_ref().unwrap();
+    assert_eq!(ridge.prior, Prior::Zero);
+    assert!(ridge.toward_ptm.is_empty());
+    assert_eq!(ridge.candidates.len(), 18);
+    assert!(fit(&cap, Basis::PtmRgb, None).is_err());
+}
+
+#[test]
 fn the_ridge_leaves_what_the_constant_term_holds() {
     // The constant term is not penalised: readings that do not depend on the light are fitted
     // exactly whatever λ, every other coefficient zero, nothing to predict when left out.

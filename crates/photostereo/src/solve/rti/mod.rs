@@ -687,7 +687,8 @@ fn given_ridge(lambda: f64, prior: Prior) -> Result<Ridge> {
 
 /// The ridge of [`Penalty::Auto`] for `basis` on `capture` (readings × `gain`, `exclude` as
 /// [`fit_into`] takes it): of the candidates [`RIDGE_GRID`] × N toward zero and, for HSH,
-/// those > 0 toward PTM (PTM's λ_p chosen first the same way), the one whose exact
+/// those > 0 toward PTM (PTM's λ_p chosen first the same way, where the lights determine
+/// PTM), the one whose exact
 /// leave-one-out error (the mean over the lights of the RMSE, as [`RtiFit::loo`] reports it)
 /// over up to [`RIDGE_SAMPLE`] evenly spaced mask pixels is least; on a tie the first, so
 /// toward zero before toward PTM and λ = 0 unless a ridge predicts the left-out readings
@@ -717,8 +718,12 @@ pub fn choose_ridge(
         toward_ptm: Vec::new(),
         sample_pixels: ids.len(),
     };
-    if matches!(basis, Basis::Hsh2 | Basis::Hsh3) {
-        let ptm = sample.errors(Basis::PtmRgb, &RIDGE_GRID, Prior::Zero)?;
+    // A rig whose lights determine HSH but not PTM (HSH2 under five lights) has no PTM to pull
+    // toward: the ridge stays toward zero.
+    let ptm = matches!(basis, Basis::Hsh2 | Basis::Hsh3)
+        .then(|| sample.errors(Basis::PtmRgb, &RIDGE_GRID, Prior::Zero).ok())
+        .flatten();
+    if let Some(ptm) = ptm {
         let ptm_lambda = least(&ptm).0;
         ridge.toward_ptm = sample.errors(basis, &RIDGE_GRID[1..], Prior::Ptm { ptm_lambda })?;
         let (best, toward) = (least(&ridge.candidates), least(&ridge.toward_ptm));
