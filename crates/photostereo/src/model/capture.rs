@@ -253,6 +253,15 @@ impl MissingReadings {
     }
 }
 
+/// Whether a channel of light `k`'s reading in a pixel's `samples` (`[light][channel]`, `c`
+/// channels) is at or above its clip level `clip[k]` ([`Capture::clip_levels`]).
+pub fn clipped(samples: &[f32], c: usize, k: usize, clip: &[[f32; 3]]) -> bool {
+    samples[k * c..(k + 1) * c]
+        .iter()
+        .zip(&clip[k])
+        .any(|(x, top)| x >= top)
+}
+
 /// Per-channel factors 1 / intensity (grey images use the mean of the RGB intensities): what
 /// a sample is multiplied by to divide it by its light's intensity.
 pub fn light_scale(intensity: &[f64; 3], channels: usize) -> [f32; 3] {

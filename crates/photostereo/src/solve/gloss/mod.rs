@@ -59,7 +59,7 @@
 pub mod material;
 
 use crate::base::error::Result;
-use crate::model::capture::Capture;
+use crate::model::capture::{clipped, Capture};
 use crate::solve::detect::NoiseModel;
 use crate::solve::lambert::{
     channel_mean, status, write_normal_albedo_with, Estimate, Statuses, CHUNK,
@@ -287,12 +287,9 @@ impl Scratch {
         channel_mean(samples, channels, &mut self.g);
         let mut count = 0;
         for (k, &code) in st.iter().enumerate() {
-            let clipped = samples[k * channels..(k + 1) * channels]
-                .iter()
-                .zip(&lights.clip[k])
-                .any(|(x, top)| x >= top);
-            self.used[k] = (code == status::USED || code == status::HIGHLIGHT) && !clipped;
-            self.diffuse[k] = code == status::USED && !clipped;
+            let kept = !clipped(samples, channels, k, &lights.clip);
+            self.used[k] = (code == status::USED || code == status::HIGHLIGHT) && kept;
+            self.diffuse[k] = code == status::USED && kept;
             count += self.used[k] as usize;
             let f = lights.noise.light_factor.get(k).copied().unwrap_or(1.0);
             let w = 1.0 / (f * lights.noise.variance(self.g[k].max(0.0)).sqrt());
@@ -494,14 +491,7 @@ fn clipped_readings(capture: &Capture, clip: &[[f32; 3]]) -> Result<u64> {
             .into_par_iter()
             .map(|p| {
                 let s = view.pixel_samples(p);
-                (0..n)
-                    .filter(|&k| {
-                        s[k * c..(k + 1) * c]
-                            .iter()
-                            .zip(&clip[k])
-                            .any(|(x, t)| x >= t)
-                    })
-                    .count() as u64
+                (0..n).filter(|&k| clipped(s, c, k, clip)).count() as u64
             })
             .sum::<u64>();
         Ok(())

@@ -65,7 +65,7 @@ pub mod rbf;
 pub mod smoother;
 
 use crate::base::error::{Error, Result};
-use crate::model::capture::Capture;
+use crate::model::capture::{clipped, Capture};
 pub use design::Prior;
 use design::{Design, Operators, PTM_TERMS};
 use rayon::prelude::*;
@@ -1026,15 +1026,6 @@ impl TileJob<'_> {
             }
         }
     }
-}
-
-/// Whether a channel of light `k`'s reading in `samples` (`[light][channel]`, `c` channels)
-/// is at or above its clip level ([`Capture::clip_levels`]).
-fn clipped(samples: &[f32], c: usize, k: usize, clip: &[[f32; 3]]) -> bool {
-    samples[k * c..(k + 1) * c]
-        .iter()
-        .zip(&clip[k])
-        .any(|(x, top)| x >= top)
 }
 
 /// The relighting error of a Lambertian model, I_kc = ρ_c · max(0, n · l_k), with full-frame
