@@ -25,6 +25,7 @@ class ParamValues(TypedDict, total=False):
     integrate: bool  # default True
     memory_limit: Union[int, str, None]  # default None
     refine_lights: bool  # default False
+    occluding_contour: bool  # default True
     sigma: Optional[float]  # default None
     relative_noise: Optional[float]  # default None
     confidence: float  # default 0.95

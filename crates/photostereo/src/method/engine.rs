@@ -113,6 +113,10 @@ pub struct Params {
     /// supplied. It recovers lights given a few degrees off on Lambertian renders; on the real
     /// captures measured its effect is mixed (README, "Light refinement").
     pub refine_lights: bool,
+    /// Give the mask's edge pixels the occluding contour's normal where the pixels inside
+    /// them say the edge is a blurred silhouette ([`crate::geometry::contour`]; orthographic
+    /// cameras). Default true.
+    pub occluding_contour: bool,
 }
 
 impl Default for Params {
@@ -126,6 +130,7 @@ impl Default for Params {
             integrate: true,
             memory_limit: None,
             refine_lights: false,
+            occluding_contour: true,
         }
     }
 }
@@ -182,6 +187,7 @@ impl Params {
             "detect": self.detect,
             "integrate": self.integrate,
             "refine_lights": self.refine_lights,
+            "occluding_contour": self.occluding_contour,
             "detection": self.detection,
             "recursive": self.recursive,
             "integration": self.integration,
@@ -402,6 +408,9 @@ fn reconstruct_surface_waiting(
         )?,
     };
     check_cancelled(progress)?;
+    if params.occluding_contour && capture.lights.perspective().is_none() {
+        occluding_contour(capture, &mut estimate, &mut report);
+    }
     // The statuses packed (2 bits a light; the recursive method's come packed) before the
     // final integration: no byte-per-light array is held beside the integrator's work arrays.
     let recursive_status = diagnostics
@@ -521,6 +530,33 @@ fn reconstruct_surface_waiting(
         report,
         waiting_surface,
     })
+}
+
+/// The occluding contour's normals at the mask's edge pixels (before the final integration,
+/// which they feed), and what it did in `report.json`.
+fn occluding_contour(
+    capture: &Capture,
+    estimate: &mut crate::solve::lambert::Estimate,
+    report: &mut Report,
+) {
+    let frame = crate::geometry::contour::MaskFrame {
+        width: capture.width,
+        height: capture.height,
+        mask: &capture.mask,
+        pixels: &capture.pixels,
+    };
+    let summary = crate::geometry::contour::apply(
+        &frame,
+        crate::geometry::contour::Estimates {
+            normals: &mut estimate.normals,
+            albedo: &estimate.albedo,
+            channels: capture.channels,
+        },
+    );
+    report.extra.insert(
+        "occluding_contour".into(),
+        serde_json::json!({"edge_pixels": summary.edge_pixels, "replaced": summary.replaced}),
+    );
 }
 
 /// The report of a reconstruction before it runs: the method, the input, the capture's notes,

@@ -559,6 +559,22 @@ pub const PARAMETERS: &[Parameter] = &[
         methods: ALL,
         report_key: "refine_lights",
     },
+    Parameter {
+        name: "occluding_contour",
+        stage: Stage::Run,
+        kind: Kind::Switch {
+            get: |p| p.occluding_contour,
+            set: |p, v| p.occluding_contour = v,
+        },
+        unit: "",
+        doc: "Give the mask's edge pixels the silhouette's normal (n_z from the square-root law \
+              of a smooth surface at its occluding contour, fitted to the pixels inside) where \
+              those pixels say the edge is a silhouette the lens blurred: their n_z rises \
+              inward, they lean outward, and the edge pixels' albedo is a mixture. \
+              Orthographic cameras.",
+        methods: ALL,
+        report_key: "occluding_contour",
+    },
     // --- detection -----------------------------------------------------------------------
     Parameter {
         name: "sigma",
