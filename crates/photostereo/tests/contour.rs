@@ -176,33 +176,34 @@ fn replaced(rec: &Reconstruction) -> u64 {
         .unwrap()
 }
 
-#[test]
-fn a_blurred_sphere_edge_takes_the_contour_normal() {
-    let (stack, mask, truth) = image(sphere, 6, 0.7);
+/// A sphere's edge pixels without and with the stage: their mean errors (°), the pixels
+/// replaced and the edge's size; only edge pixels may move.
+fn sphere_edge(sub: usize, blur: f64) -> (f64, f64, u64, usize) {
+    let (stack, mask, truth) = image(sphere, sub, blur);
     let edge = edge_pixels(&mask);
     let (off, on) = (run(&stack, &mask, false), run(&stack, &mask, true));
+    let inner: Vec<usize> = (0..SIDE * SIDE)
+        .filter(|&i| mask[[i / SIDE, i % SIDE]] && !edge.contains(&i))
+        .collect();
+    assert!(inner.iter().all(|&i| on.normals[i] == off.normals[i]));
     let (before, after) = (
         mean_error(&off, &truth, &edge),
         mean_error(&on, &truth, &edge),
     );
     eprintln!(
-        "sphere edge: {} pixels, {before:.2}° -> {after:.2}°, replaced {}",
+        "sphere ({sub}² samples a pixel, blur {blur}): {} edge pixels, {before:.2}° -> {after:.2}°, replaced {}",
         edge.len(),
         replaced(&on)
     );
+    (before, after, replaced(&on), edge.len())
+}
+
+#[test]
+fn a_blurred_sphere_edge_takes_the_contour_normal() {
+    let (before, after, replaced, edge) = sphere_edge(6, 0.7);
     assert!(before > 5.0, "the blur biases the edge: {before:.2}°");
     assert!(after < 0.5 * before, "{before:.2}° -> {after:.2}°");
-    assert!(
-        replaced(&on) as f64 > 0.8 * edge.len() as f64,
-        "{} of {}",
-        replaced(&on),
-        edge.len()
-    );
-    // Only edge pixels move.
-    let inner: Vec<usize> = (0..SIDE * SIDE)
-        .filter(|&i| mask[[i / SIDE, i % SIDE]] && !edge.contains(&i))
-        .collect();
-    assert!(inner.iter().all(|&i| on.normals[i] == off.normals[i]));
+    assert!(replaced as f64 > 0.8 * edge as f64, "{replaced} of {edge}");
 }
 
 #[test]
@@ -222,16 +223,6 @@ fn edges_that_are_not_contours_keep_their_estimates() {
 fn a_sphere_sampled_at_pixel_centres_gains_too() {
     // No mixing here: l2's edge estimates are off because its attached shadows read as dark
     // readings, which also darkens their albedo; the contour's normal is the better one.
-    let (stack, mask, truth) = image(sphere, 1, 0.0);
-    let edge = edge_pixels(&mask);
-    let (off, on) = (run(&stack, &mask, false), run(&stack, &mask, true));
-    let (before, after) = (
-        mean_error(&off, &truth, &edge),
-        mean_error(&on, &truth, &edge),
-    );
-    eprintln!(
-        "sphere sampled at centres: {before:.2}° -> {after:.2}°, replaced {}",
-        replaced(&on)
-    );
+    let (before, after, _, _) = sphere_edge(1, 0.0);
     assert!(after < 0.5 * before, "{before:.2}° -> {after:.2}°");
 }
