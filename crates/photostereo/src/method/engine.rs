@@ -409,7 +409,9 @@ fn reconstruct_surface_waiting(
     };
     check_cancelled(progress)?;
     if params.occluding_contour && capture.lights.perspective().is_none() {
+        let t = Instant::now();
         occluding_contour(capture, &mut estimate, &mut report);
+        report.time("occluding_contour", t);
     }
     // The statuses packed (2 bits a light; the recursive method's come packed) before the
     // final integration: no byte-per-light array is held beside the integrator's work arrays.

@@ -39,6 +39,17 @@
 //!    whether its own strength is positive or zero (its roughness map then NaN); the other
 //!    materials keep the recursion's estimate unchanged.
 //!
+//! *Fewer than [`MIN_LIGHTS`] lights* (the paper's four): a pixel's own s would take the one
+//! reading beyond its normal and ρ that tests the model, and no pixel could measure the
+//! capture's sharpness. There the strength is the material's (the lobe's amplitude, fitted with
+//! its shape), the diffuse falloff stays Lambert's, the shapes start from an exponential lobe
+//! of roughness 0.2, the pixels with [`MIN_SHARED_LIGHTS`] lights out of shadow are sampled,
+//! and the alternation goes on until the pooled χ² settles ([`MAX_SHARED_ROUNDS`],
+//! [`SHARED_TOLERANCE`]): the normals and one lobe pull on each other slowly. The evidence
+//! counts the lobe's weights alone; a pixel takes the fit only where the lobe reaches one of
+//! its readings beyond noise (the χ² quantile of one degree of freedom), the others keep the
+//! recursion's estimate.
+//!
 //! The strength map gives s, the roughness map the material's lobe as the roughness √(2x₁/ₑ)
 //! of the exponential lobe exp(−m x) falling to 1/e at the same x = 1 − n · h (m = 1/x₁/ₑ).
 //! Cost: a few descents per fitted pixel and, per round, normal equations of
@@ -65,6 +76,13 @@ pub const LOBE_KNOTS: usize = 30;
 pub const DIFFUSE_KNOTS: usize = 20;
 /// Alternations of per-pixel fits and shape fits.
 pub const ROUNDS: usize = 3;
+/// Alternations at most with the material's one strength (fewer than six lights).
+pub const MAX_SHARED_ROUNDS: usize = 100;
+/// With the material's one strength, a round's pooled χ² is a new least only where it is lower
+/// by this share of it.
+pub const SHARED_TOLERANCE: f64 = 1e-4;
+/// Rounds in a row without a new least χ² that end the alternation.
+const PATIENCE: usize = 3;
 /// Pixels sampled per material for its shapes and evidence.
 pub const SAMPLE_PIXELS: usize = 3000;
 /// Materials at most.
@@ -252,10 +270,16 @@ impl Shape {
 pub(crate) struct Shapes {
     diffuse: Shape,
     lobe: Shape,
+    /// The material's one strength, where the rig has too few lights for a strength per pixel
+    /// (fewer than [`MIN_LIGHTS`]): every pixel's s, fitted with the shapes.
+    shared: Option<f64>,
 }
 
 /// The fit at normal `n` with the shapes: (χ², ρ, s), ρ and s non-negative least squares.
 fn fit_with(d: &PixelData, n: [f64; 3], shapes: &Shapes) -> (f64, f64, f64) {
+    if let Some(strength) = shapes.shared {
+        return fit_shared(d, n, shapes, strength);
+    }
     let mut sums = PairSums::default();
     for k in (0..d.v.len()).filter(|&k| d.used[k]) {
         let a = d.b[k] * shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]).0;
@@ -263,6 +287,32 @@ fn fit_with(d: &PixelData, n: [f64; 3], shapes: &Shapes) -> (f64, f64, f64) {
         sums.add(a, b, d.g[k]);
     }
     sums.solve()
+}
+
+/// [`fit_with`] with the material's one strength: ρ alone by non-negative least squares.
+fn fit_shared(d: &PixelData, n: [f64; 3], shapes: &Shapes, strength: f64) -> (f64, f64, f64) {
+    let (mut aa, mut ar) = (0.0, 0.0);
+    let terms = |k: usize| {
+        let a = d.b[k] * shapes.diffuse.eval(dot(d.v[k], n) / d.b[k]).0;
+        (
+            a,
+            d.g[k] - strength * d.b[k] * shapes.lobe.eval(dot(d.h[k], n)).0,
+        )
+    };
+    for k in (0..d.v.len()).filter(|&k| d.used[k]) {
+        let (a, r) = terms(k);
+        aa += a * a;
+        ar += a * r;
+    }
+    let rho = if aa > 0.0 { (ar / aa).max(0.0) } else { 0.0 };
+    let chi2 = (0..d.v.len())
+        .filter(|&k| d.used[k])
+        .map(|k| {
+            let (a, r) = terms(k);
+            (r - rho * a).powi(2)
+        })
+        .sum();
+    (chi2, rho, strength)
 }
 
 /// The least χ² normal near `from` with the shapes (returns (χ², normal)): the per-pixel fit's
@@ -287,6 +337,13 @@ fn descend_with(d: &PixelData, from: [f64; 3], shapes: &Shapes) -> (f64, [f64; 3
                 );
                 jtj += j * j.transpose();
                 jtr += j * r;
+            }
+            if shapes.shared.is_some() {
+                // The strength is the material's: no step in it.
+                for i in 0..4 {
+                    (jtj[(3, i)], jtj[(i, 3)]) = (0.0, 0.0);
+                }
+                (jtj[(3, 3)], jtr[3]) = (1.0, 0.0);
             }
             (jtj, jtr)
         },
@@ -322,7 +379,14 @@ impl Sampled {
 /// projected Gauss–Seidel on the normal equations. `None` where the lobe's weights all vanish.
 fn fit_shapes(pixels: &[Sampled], half: &[[f64; 3]], shapes: &Shapes) -> Option<Shapes> {
     use nalgebra::{DMatrix, DVector};
-    let (jg, jf) = (shapes.lobe.knots(), shapes.diffuse.knots());
+    // With the material's one strength the diffuse falloff stays Lambert's: a pixel's one
+    // reading beyond its normal and ρ cannot also shape f.
+    let jg = shapes.lobe.knots();
+    let jf = if shapes.shared.is_some() {
+        0
+    } else {
+        shapes.diffuse.knots()
+    };
     let dim = jg + jf;
     let zero = || (DMatrix::<f64>::zeros(dim, dim), DVector::<f64>::zeros(dim));
     let (h, q) = pixels
@@ -332,13 +396,20 @@ fn fit_shapes(pixels: &[Sampled], half: &[[f64; 3]], shapes: &Shapes) -> Option<
             |((mut h, mut q), mut row), p| {
                 for k in (0..p.v.len()).filter(|&k| p.used[k]) {
                     shapes.lobe.ramps(dot(half[k], p.normal), &mut row[..jg]);
-                    shapes
-                        .diffuse
-                        .ramps(dot(p.v[k], p.normal) / p.b[k], &mut row[jg..]);
+                    let c = dot(p.v[k], p.normal) / p.b[k];
+                    if jf > 0 {
+                        shapes.diffuse.ramps(c, &mut row[jg..]);
+                    }
                     let scale = |j: usize| if j < jg { p.s * p.b[k] } else { p.rho * p.b[k] };
                     let r = DVector::from_fn(dim, |j, _| row[j] * scale(j));
+                    // A fixed falloff's part of the reading is taken off the target.
+                    let fixed = if jf == 0 {
+                        p.rho * p.b[k] * shapes.diffuse.eval(c).0
+                    } else {
+                        0.0
+                    };
                     h.syger(1.0, &r, &r, 1.0);
-                    q.axpy(p.g[k], &r, 1.0);
+                    q.axpy(p.g[k] - fixed, &r, 1.0);
                 }
                 ((h, q), row)
             },
@@ -367,6 +438,9 @@ fn fit_shapes(pixels: &[Sampled], half: &[[f64; 3]], shapes: &Shapes) -> Option<
     if !out.lobe.set(&weights[..jg]) {
         return None;
     }
+    // The lobe's ramps were scaled by the pixels' (shared) strength: its amplitude moves into
+    // the new strength, the shape is kept with its extreme at 1.
+    out.shared = shapes.shared.map(|s| s * weights[..jg].iter().sum::<f64>());
     out.diffuse.set(&weights[jg..]);
     Some(out)
 }
@@ -391,10 +465,18 @@ pub(crate) fn model_materials(
         roughness: vec![f32::NAN; np],
     };
     let mut st = vec![0u8; n];
+    // Under fewer than MIN_LIGHTS lights a pixel's own strength would take the one reading
+    // that tests its model: the material's one strength instead.
+    let shared = n < MIN_LIGHTS;
+    let min_lit = if shared {
+        MIN_SHARED_LIGHTS
+    } else {
+        MIN_LIGHTS
+    };
     let candidates: Vec<usize> = (0..np)
         .filter(|&p| {
             light_status.row_into(p, &mut st);
-            lit(&st) >= MIN_LIGHTS && start_of(est.normals[p]).is_some()
+            lit(&st) >= min_lit && start_of(est.normals[p]).is_some()
         })
         .collect();
     let features: Vec<Option<[f64; 2]>> = (0..np)
@@ -423,7 +505,8 @@ pub(crate) fn model_materials(
             .filter(|&p| labels[p] as usize == k)
             .collect();
         let ids = spaced(&own, SAMPLE_PIXELS);
-        let (fitted, evidence) = material_shapes(capture, light_status, est, lights, m, &ids)?;
+        let (fitted, evidence) =
+            material_shapes(capture, light_status, est, lights, (m, shared), &ids)?;
         let lobe = evidence.is_some_and(|e| e > 0.0);
         summary.materials.push(MaterialSummary {
             center,
@@ -453,7 +536,7 @@ pub(crate) fn model_materials(
         &mut maps,
         |scratch, samples, st, p, start, counts: &mut [usize; 2]| {
             let shape = shapes[labels[p] as usize].as_ref()?;
-            if scratch.load(lights, samples, c, st, true) < MIN_LIGHTS {
+            if scratch.load(lights, samples, c, st, true) < min_lit {
                 return None;
             }
             counts[0] += 1;
@@ -461,6 +544,18 @@ pub(crate) fn model_materials(
             let (_, fit) = descend_with(&d, start, shape);
             let (_, rho, s) = fit_with(&d, fit, shape);
             let physical = fit[2] > 0.0 && (0..n).all(|k| !d.used[k] || dot(d.v[k], fit) > 0.0);
+            // With the material's one strength a pixel takes the fit only where the lobe
+            // reaches a reading beyond noise (its χ² quantile of one degree of freedom): the
+            // others have no reading the lobe explains and keep the recursion's estimate.
+            if shared {
+                let seen = (0..n).any(|k| {
+                    d.used[k]
+                        && (s * d.b[k] * shape.lobe.eval(dot(d.h[k], fit)).0).powi(2) > lights.q[1]
+                });
+                if !seen {
+                    return Some(None);
+                }
+            }
             // The material's model holds at each of its pixels, with or without a lobe of its
             // own there (s = 0 is the strength's bound, not a different model): the fit over
             // the unclipped lit lights, with the material's diffuse falloff, replaces the
@@ -496,6 +591,26 @@ pub(crate) fn model_materials(
     Ok(Materials { summary, maps })
 }
 
+/// Lights out of shadow a pixel needs for the material's fit with its one strength: the normal
+/// and ρ, and one reading beyond them.
+pub const MIN_SHARED_LIGHTS: usize = 4;
+
+/// The least-squares albedo at normal `n` from the pixel's diffuse readings (the recursion's
+/// USED lights), the shared fit's start.
+fn diffuse_albedo(scratch: &Scratch, n: [f64; 3]) -> f64 {
+    let (mut aa, mut ag) = (0.0, 0.0);
+    for k in (0..scratch.v.len()).filter(|&k| scratch.diffuse[k]) {
+        let a = dot(scratch.v[k], n).max(0.0);
+        aa += a * a;
+        ag += a * scratch.g[k];
+    }
+    if aa > 0.0 {
+        (ag / aa).max(0.0)
+    } else {
+        0.0
+    }
+}
+
 /// The lights out of shadow in a pixel's statuses.
 fn lit(st: &[u8]) -> usize {
     st.iter()
@@ -511,7 +626,7 @@ fn material_shapes(
     light_status: &(impl Statuses + ?Sized),
     est: &Estimate,
     lights: &Lights,
-    m: f64,
+    (m, shared): (f64, bool),
     ids: &[usize],
 ) -> Result<(Option<Shapes>, Option<f64>)> {
     let n = capture.n_lights();
@@ -524,8 +639,13 @@ fn material_shapes(
             scratch.load(lights, view.pixel_samples(p), capture.channels, &st, true);
             let start = start_of(est.normals[p]).expect("a candidate has a normal");
             let d = scratch.data(lights);
-            let (_, normal) = descend(&d, start, m);
-            let (_, rho, s) = fit_at(&d, normal, m);
+            let (normal, rho, s) = if shared {
+                (start, diffuse_albedo(&scratch, start), 1.0)
+            } else {
+                let (_, normal) = descend(&d, start, m);
+                let (_, rho, s) = fit_at(&d, normal, m);
+                (normal, rho, s)
+            };
             pixels.push(Sampled {
                 v: scratch.v.clone(),
                 b: scratch.b.clone(),
@@ -546,18 +666,43 @@ fn material_shapes(
     let mut shapes = Shapes {
         diffuse: Shape::lambert(),
         lobe: Shape::lobe(m),
+        shared: shared.then_some(1.0),
     };
-    for _ in 0..ROUNDS {
+    // Alternation: a fixed number of rounds with a strength per pixel; with the material's one
+    // strength (few lights) the normals and the lobe pull on each other slowly, and the
+    // rounds go on until the pooled χ² settles.
+    let (rounds, tolerance) = if shared {
+        (MAX_SHARED_ROUNDS, SHARED_TOLERANCE)
+    } else {
+        (ROUNDS, 0.0)
+    };
+    // The pooled χ² may rise by a little in a round (the shapes' sweeps stop short of the
+    // exact minimum): the rounds stop once PATIENCE of them in a row bring no new least χ²
+    // lower by `tolerance` of it.
+    let (mut best, mut stalled) = (f64::INFINITY, 0);
+    for _ in 0..rounds {
         let Some(next) = fit_shapes(&pixels, half, &shapes) else {
             return Ok((None, Some(f64::NEG_INFINITY)));
         };
         shapes = next;
-        pixels.par_iter_mut().for_each(|p| {
-            let d = p.data(half);
-            let (_, normal) = descend_with(&d, p.start, &shapes);
-            let (_, rho, s) = fit_with(&d, normal, &shapes);
-            (p.normal, p.rho, p.s) = (normal, rho, s);
-        });
+        let chi2: f64 = pixels
+            .par_iter_mut()
+            .map(|p| {
+                let d = p.data(half);
+                let (_, normal) = descend_with(&d, p.start, &shapes);
+                let (chi2, rho, s) = fit_with(&d, normal, &shapes);
+                (p.normal, p.rho, p.s) = (normal, rho, s);
+                chi2
+            })
+            .sum();
+        if chi2 < best * (1.0 - tolerance) {
+            (best, stalled) = (chi2, 0);
+        } else {
+            stalled += 1;
+            if stalled >= PATIENCE {
+                break;
+            }
+        }
     }
     // The same falloff without the lobe: g = 0.
     let mut flat = shapes.clone();
@@ -573,7 +718,8 @@ fn material_shapes(
         })
         .reduce(|| (0.0, 0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1, a.2 + b.2));
     let big_n = readings as f64;
-    let extra = (pixels.len() + shapes.lobe.knots()) as f64;
+    let per_pixel = if shared { 0 } else { pixels.len() };
+    let extra = (per_pixel + shapes.lobe.knots()) as f64;
     let evidence = big_n * (without / with.max(1e-300)).ln() - extra * big_n.ln();
     Ok((Some(shapes), Some(evidence)))
 }

@@ -52,8 +52,9 @@
 //! lobe, like the Lambertian model over the lights the recursion keeps, rarely explains the
 //! readings to the noise level, while its normal is the better one.
 //!
-//! Light ring and four-light rigs leave fewer than [`MIN_LIGHTS`] lights: nothing is fitted
-//! there. Cost: a few Gauss–Newton passes over the pixel's lights per fitted pixel; memory two
+//! Light ring and four-light rigs leave fewer than [`MIN_LIGHTS`] lights: the per-pixel fits
+//! (`lobe`, `auto`) have nothing to fit there; `material` fits them with one strength per
+//! material ([`material`]), from four lights up. Cost: a few Gauss–Newton passes over the pixel's lights per fitted pixel; memory two
 //! f32 maps per mask pixel.
 
 pub mod material;
@@ -73,6 +74,11 @@ use std::str::FromStr;
 /// Lights out of shadow a pixel needs for its lobe fit: the four unknowns (n, ρ, s) and two
 /// degrees of freedom for the residual to be compared with the Lambertian fit's.
 pub const MIN_LIGHTS: usize = crate::solve::near_lobe::MIN_LIGHTS;
+
+/// The exponential lobe the materials' shapes start from under fewer than [`MIN_LIGHTS`]
+/// lights, where no pixel can measure the capture's sharpness (roughness √(2/50) = 0.2, a
+/// broad start the non-negative shape fit narrows).
+pub const SHARED_START_EXPONENT: f64 = 50.0;
 /// The lobe sharpnesses m tried: the near-light fit's ([`crate::solve::near_lobe::LOBE_EXPONENTS`],
 /// half height 13.3° to 3.4° from the peak), two broader ones (half height 19.6° and 16.1°,
 /// roughness 0.41 and 0.33) and two sharper ones (2.9° and 2.4°, roughness 0.06 and 0.05):
@@ -233,7 +239,7 @@ pub(crate) struct Lights<'a> {
     pub(crate) clip: Vec<[f32; 3]>,
     noise: &'a NoiseModel,
     /// χ² quantiles at the detector's confidence, by degrees of freedom.
-    q: Vec<f64>,
+    pub(crate) q: Vec<f64>,
     /// F quantiles at the detector's confidence: `f[j][d]` for j + 1 extra parameters and d
     /// degrees of freedom of the lobe fit's residual.
     f: [Vec<f64>; 2],
@@ -405,11 +411,23 @@ pub fn model_highlights(
         strength: vec![f32::NAN; np],
         roughness: vec![f32::NAN; np],
     };
-    if reflectance == Reflectance::Lambert || n < MIN_LIGHTS {
+    let few = n < MIN_LIGHTS;
+    let material = reflectance == Reflectance::Material;
+    if reflectance == Reflectance::Lambert || (few && !material) || n < material::MIN_SHARED_LIGHTS
+    {
         return Ok((summary, maps));
     }
     let clipped = clipped_readings(capture, &lights.clip)?;
     summary.clipped_readings = clipped;
+    if few {
+        // No pixel has the lights for its own lobe, nor the capture for its sharpness: the
+        // materials' shapes and strengths from the start lobe.
+        let mut material =
+            material::model_materials(capture, light_status, est, &lights, SHARED_START_EXPONENT)?;
+        material.summary.reflectance = reflectance;
+        material.summary.clipped_readings = clipped;
+        return Ok((material.summary, material.maps));
+    }
     let Some(evidence) = capture_sharpness(capture, light_status, est, &lights)? else {
         return Ok((summary, maps));
     };
