@@ -408,11 +408,7 @@ fn reconstruct_surface_waiting(
         )?,
     };
     check_cancelled(progress)?;
-    if params.occluding_contour && capture.lights.perspective().is_none() {
-        let t = Instant::now();
-        occluding_contour(capture, &mut estimate, &mut report);
-        report.time("occluding_contour", t);
-    }
+    occluding_contour(capture, params, &mut estimate, &mut report);
     // The statuses packed (2 bits a light; the recursive method's come packed) before the
     // final integration: no byte-per-light array is held beside the integrator's work arrays.
     let recursive_status = diagnostics
@@ -534,13 +530,19 @@ fn reconstruct_surface_waiting(
     })
 }
 
-/// The occluding contour's normals at the mask's edge pixels (before the final integration,
-/// which they feed), and what it did in `report.json`.
+/// The occluding contour's normals at the mask's edge pixels, where `params` asks for them and
+/// the camera is orthographic (before the final integration, which they feed), and what it
+/// did in `report.json`.
 fn occluding_contour(
     capture: &Capture,
+    params: &Params,
     estimate: &mut crate::solve::lambert::Estimate,
     report: &mut Report,
 ) {
+    if !params.occluding_contour || capture.lights.perspective().is_some() {
+        return;
+    }
+    let t = Instant::now();
     let frame = crate::geometry::contour::MaskFrame {
         width: capture.width,
         height: capture.height,
@@ -559,6 +561,7 @@ fn occluding_contour(
         "occluding_contour".into(),
         serde_json::json!({"edge_pixels": summary.edge_pixels, "replaced": summary.replaced}),
     );
+    report.time("occluding_contour", t);
 }
 
 /// The report of a reconstruction before it runs: the method, the input, the capture's notes,
